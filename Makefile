@@ -1,0 +1,30 @@
+# Set-up is part of every target: a fresh clone needs only `make demo` or `make test`.
+VENV    := .venv
+PY      := $(VENV)/bin/python
+STAMP   := $(VENV)/.installed-stamp
+DEMO    := demo
+
+.PHONY: install test lint demo clean
+
+$(STAMP): pyproject.toml
+	python3 -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e ".[dev]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+
+test: $(STAMP) lint
+	$(PY) -m pytest -q -n 2
+
+demo: $(STAMP)
+	@mkdir -p $(DEMO)
+	@session=$$($(VENV)/bin/recorder capture --pose B --action adjust --seed 7 --out $(DEMO) --overwrite) \
+	  && echo "recorded $$session" \
+	  && $(VENV)/bin/recorder info $$session
+
+clean:
+	rm -rf $(DEMO) .pytest_cache .ruff_cache

@@ -1,0 +1,1 @@
+"""Physics feature chain: Panda dynamics, momentum observer, timeseries and scalar features."""

@@ -1,0 +1,1 @@
+"""Recording: sources (simulated Panda, CAN), capture protocol, crash-safe writer, datasets."""

@@ -1,0 +1,135 @@
+"""Capturing one session: a source's stream, the operator cue, the crash-safe writer."""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.metadata
+import json
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+
+from features.dynamics import urdf_sha256
+from recorder.journal import SessionWriter
+from recorder.sim import SessionSpec, SimConfig
+from recorder.sources.base import Source
+from schemas import SessionMeta
+
+ChunkCallback = Callable[[dict[str, np.ndarray]], None]
+
+
+def tool_version() -> str:
+    """Return the installed contactkit version."""
+    try:
+        return importlib.metadata.version("contactkit")
+    except importlib.metadata.PackageNotFoundError:
+        return "0+unknown"
+
+
+def utc_now() -> str:
+    """Return the current UTC time in ISO 8601 with a Z suffix."""
+    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+def sim_session_id(spec: SessionSpec, config: SimConfig) -> str:
+    """Return a session id determined by the spec and configuration (same seed, same id)."""
+    doc = json.dumps({"spec": spec.as_dict(), "config": config.to_dict()}, sort_keys=True)
+    return hashlib.sha256(doc.encode()).hexdigest()[:16]
+
+
+def sim_session_meta(spec: SessionSpec, config: SimConfig, source_fields: dict) -> SessionMeta:
+    """Return the metadata of a simulated session."""
+    return SessionMeta(
+        session_id=sim_session_id(spec, config),
+        action=spec.action,
+        condition=spec.condition,
+        pose=spec.pose,
+        pose_q=list(spec.q_start),
+        target_pose=spec.target_pose,
+        target_q=None if spec.q_target is None else list(spec.q_target),
+        speed_rad_s=spec.speed_rad_s,
+        link=spec.link,
+        planned_at_s=spec.planned_at_s,
+        nominal_rate_hz=config.rate_hz,
+        operator=spec.operator,
+        created_utc=utc_now(),
+        with_hand=config.with_hand,
+        urdf_sha256=urdf_sha256(config.with_hand),
+        tool_version=tool_version(),
+        **source_fields,
+    )
+
+
+def session_filename(meta: SessionMeta) -> str:
+    """Return the file name of a session: condition, pose(s), action and short id."""
+    poses = meta.pose or "x"
+    if meta.target_pose:
+        poses += "to" + meta.target_pose
+    return f"{meta.condition}_{poses}_{meta.action}_{meta.session_id[:12]}.parquet"
+
+
+class OperatorCue:
+    """Counts down to the planned interaction time on the terminal, then rings the bell."""
+
+    def __init__(self, planned_at_s: float, action: str, link: int | None,
+                 stream=sys.stderr, countdown_s: int = 3) -> None:
+        self.planned_at_s = planned_at_s
+        self.what = action + (f" link {link}" if link else "")
+        self.stream = stream
+        self.marks = [planned_at_s - k for k in range(countdown_s, 0, -1)]
+        self.started = False
+        self.done = False
+
+    def update(self, t: float) -> None:
+        """Print the countdown marks and the cue that session time ``t`` [s] has passed."""
+        if not self.started:
+            self.started = True
+            print("  recording started", file=self.stream, flush=True)
+        while self.marks and t >= self.marks[0]:
+            left = round(self.planned_at_s - self.marks.pop(0))
+            print(f"  {self.what} in {left} ...", file=self.stream, flush=True)
+        if not self.done and t >= self.planned_at_s:
+            self.done = True
+            print(f"\a  NOW: {self.what.upper()}", file=self.stream, flush=True)
+
+
+@dataclass
+class CaptureResult:
+    """The written session path and how many samples it holds."""
+
+    path: Path
+    samples: int
+
+
+def capture(source: Source, meta: SessionMeta, out_path: Path, *, realtime: bool = False,
+            cue: OperatorCue | None = None, on_chunk: list[ChunkCallback] | None = None,
+            flush_interval_s: float = 0.1) -> CaptureResult:
+    """Record ``source`` into ``out_path`` through the journal; return the result.
+
+    With ``realtime`` (or a live source) each chunk is handed on when the wall clock
+    reaches its last time stamp, as with a live robot; otherwise as fast as possible.
+    ``on_chunk`` callbacks (for example a Rerun logger) see every chunk. If the
+    capture is interrupted, the journal stays for ``recorder recover``.
+    """
+    pace = realtime and not source.live
+    with SessionWriter(out_path, meta, source.columns, flush_interval_s) as writer:
+        start = time.monotonic()
+        for chunk in source.stream():
+            if pace:
+                delay = start + float(chunk["t"][-1]) - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+            writer.append(chunk)
+            for callback in on_chunk or ():
+                callback(chunk)
+            if cue is not None:
+                cue.update(float(chunk["t"][-1]))
+        for key, value in source.metadata().items():
+            setattr(writer.meta, key, value)
+        path = writer.close()
+    return CaptureResult(path=path, samples=writer.samples_written)

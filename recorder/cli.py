@@ -1,0 +1,221 @@
+"""The ``recorder`` command: capture sessions, build datasets, recover, inspect."""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
+
+from recorder.capture import OperatorCue, capture, session_filename, sim_session_meta
+from recorder.dataset import PRESETS, simulate_dataset
+from recorder.info import session_info
+from recorder.journal import recover_directory
+from recorder.noise import SensorNoise, default_noise
+from recorder.sim import SimConfig, plan_session
+from recorder.sources import SOURCES, source_class
+from schemas import ACTIONS, InputError
+from schemas.cli import run_app
+from schemas.dataset import rebuild_index
+
+app = typer.Typer(
+    name="recorder",
+    help="Record Panda joint streams while a person touches the arm on cue, and manage the "
+         "resulting sessions. Without a robot, sessions come from a physics simulation.",
+    no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False)
+err_console = Console(stderr=True)
+
+
+def _out_dir(path: Path) -> Path:
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"cannot create output directory ({err.strerror})", path) from err
+    if not os.access(path, os.W_OK):
+        raise InputError("cannot write here (permission denied)", path)
+    return path
+
+
+def _sim_config(rate: float, with_hand: bool, robot_seed: int, noise_file: Path | None,
+                noise_scale: float, jitter_ms: float, drop_prob: float) -> SimConfig:
+    noise = default_noise() if noise_file is None else SensorNoise.from_file(noise_file)
+    if noise_scale < 0:
+        raise InputError(f"--noise-scale must be >= 0, got {noise_scale}")
+    return SimConfig(rate_hz=rate, with_hand=with_hand, robot_seed=robot_seed, noise=noise,
+                     noise_scale=noise_scale, jitter_s=jitter_ms / 1000.0, drop_prob=drop_prob)
+
+
+@app.command("capture")
+def capture_command(
+    pose: Annotated[str, typer.Option(help="Start pose, A-H (thesis Table 3.1).")],
+    action: Annotated[str, typer.Option(help=f"What the person does: {', '.join(ACTIONS)}.")],
+    condition: Annotated[str, typer.Option(
+        help="static: hold the pose; dynamic: move to --target-pose.")] = "static",
+    target_pose: Annotated[str | None, typer.Option(
+        help="Dynamic condition: pose to move to (default D).")] = None,
+    speed: Annotated[float | None, typer.Option(
+        help="Dynamic condition: average speed of the furthest-moving joint [rad/s] "
+             "(default 0.2).")] = None,
+    link: Annotated[int | None, typer.Option(
+        help="Link 1-7 to touch (default: random for a contact).")] = None,
+    planned_at: Annotated[float | None, typer.Option(
+        help="Planned interaction time [s from start] (default: thesis timing, 5 s "
+             "static, mid-motion dynamic).")] = None,
+    duration: Annotated[float | None, typer.Option(
+        help="Session length [s] (default: 3 s hold + 4 s or the motion + 5 s hold).")] = None,
+    rate: Annotated[float, typer.Option(help="Sample rate [Hz] (thesis: ~600).")] = 1000.0,
+    operator: Annotated[str, typer.Option(
+        help="Who touches the robot; in simulation, names a person with their own "
+             "strength and tempo.")] = "sim",
+    seed: Annotated[int | None, typer.Option(
+        help="Random seed; the same seed gives the same data (default: random, stored in "
+             "the metadata).")] = None,
+    out: Annotated[Path, typer.Option(help="Output directory (created if needed).")] = Path(
+        "sessions"),
+    source: Annotated[str, typer.Option(help=f"Data source: {', '.join(SOURCES)}.")] = "sim",
+    realtime: Annotated[bool, typer.Option(
+        help="Pace the capture at wall-clock speed and show the operator cue "
+             "(countdown, then a bell at the planned time).")] = False,
+    hand: Annotated[bool, typer.Option(help="Simulate the Panda with its hand mounted.")] = True,
+    robot_seed: Annotated[int, typer.Option(
+        help="Simulated robot instance (its true inertia and friction).")] = 0,
+    noise_file: Annotated[Path | None, typer.Option(
+        help="Sensor-noise JSON (from `recorder stats --deep`); default: measured on the "
+             "real Panda reference recording.")] = None,
+    noise_scale: Annotated[float, typer.Option(help="Multiply the sensor noise.")] = 1.0,
+    jitter_ms: Annotated[float, typer.Option(help="Time-stamp jitter, uniform +- [ms].")] = 0.0,
+    drop_prob: Annotated[float, typer.Option(help="Probability of losing a sample.")] = 0.0,
+    notes: Annotated[str, typer.Option(help="Free text stored in the metadata.")] = "",
+    overwrite: Annotated[bool, typer.Option(
+        help="Replace an existing session file with the same name.")] = False,
+) -> None:
+    """Record one session and print the written file's path.
+
+    Example: recorder capture --pose B --action adjust
+    """
+    source_class(source)
+    seed = secrets.randbits(63) if seed is None else seed
+    config = _sim_config(rate, hand, robot_seed, noise_file, noise_scale, jitter_ms, drop_prob)
+    spec = plan_session(seed=seed, condition=condition, action=action, pose=pose,
+                        target_pose=target_pose, speed_rad_s=speed, link=link,
+                        planned_at_s=planned_at, duration_s=duration, operator=operator,
+                        with_hand=hand)
+    sim_source = source_class(source)(spec, config)
+    meta = sim_session_meta(spec, config, sim_source.metadata())
+    meta.notes = notes
+    out_path = _out_dir(out) / session_filename(meta)
+    if out_path.exists() and overwrite:
+        out_path.unlink()
+    cue = None
+    if realtime:
+        err_console.print(f"[bold]Recording[/] {spec.condition} pose {spec.pose}, "
+                          f"{spec.action} at {spec.planned_at_s:.2f} s of {spec.duration_s:.1f} s")
+        cue = OperatorCue(spec.planned_at_s, spec.action, spec.link)
+    result = capture(sim_source, meta, out_path, realtime=realtime, cue=cue)
+    print(result.path)
+
+
+@app.command("simulate")
+def simulate_command(
+    out_dir: Annotated[Path, typer.Argument(help="Dataset directory (created if needed).")],
+    preset: Annotated[str, typer.Option(help=f"One of {', '.join(PRESETS)}.")] = "smoke",
+    sessions: Annotated[int | None, typer.Option(
+        help="How many sessions (default: the preset's size).")] = None,
+    seed: Annotated[int, typer.Option(help="Dataset seed.")] = 0,
+    workers: Annotated[int, typer.Option(help="Parallel processes.")] = max(os.cpu_count() or 1,
+                                                                             1),
+    rate: Annotated[float | None, typer.Option(
+        help="Sample rate [Hz] (default: the preset's, 600 for the thesis presets).")] = None,
+    robot_seed: Annotated[int, typer.Option(help="Simulated robot instance.")] = 0,
+    noise_scale: Annotated[float, typer.Option(help="Multiply the sensor noise.")] = 1.0,
+    variability: Annotated[float, typer.Option(
+        help="Spread of strength and tempo between simulated people (1 = default).")] = 1.0,
+) -> None:
+    """Write many simulated sessions in parallel (existing ones are skipped) and index them."""
+    if preset not in PRESETS:
+        raise InputError(f"unknown preset {preset!r} (available: {', '.join(PRESETS)})")
+    config = _sim_config(rate or PRESETS[preset].rate_hz, True, robot_seed, None, noise_scale,
+                         0.0, 0.0)
+    with Progress(TextColumn("[bold]simulating[/]"), BarColumn(), MofNCompleteColumn(),
+                  TimeRemainingColumn(), console=err_console) as bar:
+        task = bar.add_task("sessions", total=None)
+        result = simulate_dataset(_out_dir(out_dir), preset, sessions, seed, workers, config,
+                                  lambda done, total: bar.update(task, completed=done,
+                                                                 total=total),
+                                  variability)
+    err_console.print(f"{result.written} written, {result.skipped} already there; index has "
+                      f"{result.index.table.num_rows} sessions")
+    _print_problems(result.index.problems)
+    print(out_dir / "index.parquet")
+
+
+@app.command("index")
+def index_command(
+    directory: Annotated[Path, typer.Argument(help="Dataset directory.")],
+) -> None:
+    """Rebuild DIR/index.parquet (one metadata row per session) from the session files."""
+    result = rebuild_index(directory)
+    err_console.print(f"{result.table.num_rows} sessions indexed")
+    _print_problems(result.problems)
+    print(directory / "index.parquet")
+
+
+@app.command("recover")
+def recover_command(
+    directory: Annotated[Path, typer.Argument(help="Directory with leftover journals.")],
+) -> None:
+    """Turn every leftover capture journal in DIR into a valid session marked as recovered."""
+    recoveries = recover_directory(directory)
+    if not recoveries:
+        err_console.print("no journals to recover")
+    for rec in recoveries:
+        print(f"{rec.session or rec.journal}: {rec.note}")
+
+
+@app.command("info")
+def info_command(
+    session: Annotated[Path, typer.Argument(help="Session file (.parquet).")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead.")] = False,
+) -> None:
+    """Show a session's metadata, duration, measured rate, gaps and ground truth."""
+    info = session_info(session)
+    if as_json:
+        print(json.dumps(info, indent=2, default=str))
+        return
+    console = Console()
+    meta, s = info["metadata"], info["sampling"]
+    table = Table(title=str(session), show_header=False, title_justify="left")
+    for key in ("session_id", "source", "condition", "pose", "target_pose", "speed_rad_s",
+                "action", "link", "planned_at_s", "operator", "with_hand", "recovered",
+                "recovered_samples", "created_utc", "notes"):
+        if meta.get(key) not in (None, ""):
+            table.add_row(key, str(meta[key]))
+    table.add_row("samples", str(s["samples"]))
+    table.add_row("duration", f"{s['duration_s']:.3f} s")
+    table.add_row("rate", f"{s['rate_hz']:.1f} Hz (median step {s['median_step_s'] * 1e3:.3f} "
+                          f"ms, min {s['min_step_s'] * 1e3:.3f}, max {s['max_step_s'] * 1e3:.3f})")
+    table.add_row("gaps", f"{s['gaps']} longer than 3x median (~{s['dropped_estimate']} "
+                          "samples missing)")
+    if info["contact_interval_s"]:
+        lo, hi = info["contact_interval_s"]
+        table.add_row("contact", f"{lo:.3f} s to {hi:.3f} s, peak {info['peak_force_n']:.1f} N")
+    elif info["peak_force_n"] is not None:
+        table.add_row("contact", "none")
+    console.print(table)
+
+
+def _print_problems(problems: list[tuple[str, str]]) -> None:
+    for name, problem in problems:
+        err_console.print(f"[yellow]skipped[/] {name}: {problem}")
+
+
+def main() -> None:
+    """Entry point of the ``recorder`` console script."""
+    sys.exit(run_app(app, "recorder"))

@@ -1,0 +1,161 @@
+"""Simulated datasets: presets in the thesis's proportions, generated in parallel.
+
+Presets (thesis Table 5.3, the simulated datasets, with the thesis's sampling
+choices of section 5.3.3 and what it listed as future work):
+
+* ``thesis-static``: 1233 sessions, poses A-H in turn, the four actions balanced,
+  pose joints jittered by N(0, 0.1 rad), contact on a random link 1-7.
+* ``thesis-dynamic``: 1380 sessions, from pose A to B-H in turn, average joint
+  speed U(0.1, 0.5) rad/s (the thesis simulated 0.01-0.5; below 0.1 rad/s a
+  session lasts minutes), the four actions balanced, random link.
+* ``smoke``: 8 static sessions (poses A and B x four actions) for tests and demos.
+
+Every session's choices come from ``(seed, session number)``, so re-running a
+preset produces the same files, and sessions already on disk are skipped. Five
+simulated operators (``sim-op-1`` .. ``sim-op-5``) take turns, each with their own
+strength and tempo, so evaluations can group by operator.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from recorder.capture import session_filename, sim_session_meta
+from recorder.protocol import POSES, START_POSE
+from recorder.sim import PandaSimulator, SessionSpec, SimConfig, plan_session
+from recorder.sources.sim import SIM_COLUMNS, SimSource
+from schemas import ACTIONS, InputError, write_session
+from schemas.dataset import IndexResult, rebuild_index
+
+OPERATORS = tuple(f"sim-op-{i}" for i in range(1, 6))
+MAX_BATCH = 32
+
+
+@dataclass(frozen=True)
+class Preset:
+    """How a preset draws its sessions. Speeds in rad/s, jitter in rad, rate in Hz."""
+
+    name: str
+    sessions: int
+    condition: str
+    poses: tuple[str, ...]
+    pose_jitter_rad: float
+    speed_range: tuple[float, float] | None = None
+    rate_hz: float = 600.0
+    duration_s: float | None = None
+
+
+PRESETS: dict[str, Preset] = {
+    "thesis-static": Preset("thesis-static", 1233, "static", tuple(POSES), 0.1),
+    "thesis-dynamic": Preset("thesis-dynamic", 1380, "dynamic",
+                             tuple(p for p in POSES if p != START_POSE), 0.1, (0.1, 0.5)),
+    "smoke": Preset("smoke", 8, "static", ("A", "B"), 0.0, rate_hz=500.0),
+}
+
+
+def preset_specs(preset: Preset, n: int, seed: int, with_hand: bool = True,
+                 variability: float = 1.0) -> list[SessionSpec]:
+    """Return the first ``n`` session specs of a preset for ``seed`` (deterministic)."""
+    specs = []
+    for k in range(n):
+        rng = np.random.default_rng([seed, k])
+        pose = preset.poses[k % len(preset.poses)]
+        action = ACTIONS[(k // len(preset.poses)) % len(ACTIONS)]
+        session_seed = int(rng.integers(2**63))
+        common = dict(seed=session_seed, action=action, operator=OPERATORS[k % len(OPERATORS)],
+                      pose_jitter_rad=preset.pose_jitter_rad, with_hand=with_hand,
+                      duration_s=preset.duration_s, operator_variability=variability)
+        if preset.condition == "dynamic":
+            speed = float(rng.uniform(*preset.speed_range))
+            specs.append(plan_session(condition="dynamic", pose=START_POSE, target_pose=pose,
+                                      speed_rad_s=round(speed, 4), **common))
+        else:
+            specs.append(plan_session(condition="static", pose=pose, **common))
+    return specs
+
+
+def _simulate_batch(specs: list[SessionSpec], config: SimConfig, out_dir: str
+                    ) -> list[str]:
+    """Worker: simulate ``specs`` together and write each session; return the paths."""
+    parts: dict[int, list[dict[str, np.ndarray]]] = {}
+    written = []
+    for index, columns, finished in PandaSimulator(config).run(specs):
+        parts.setdefault(index, []).append(columns)
+        if finished:
+            chunks = parts.pop(index)
+            data = {name: np.concatenate([c[name] for c in chunks]) for name in SIM_COLUMNS}
+            source = SimSource(specs[index], config)
+            meta = sim_session_meta(specs[index], config, source.metadata())
+            path = Path(out_dir) / session_filename(meta)
+            if not path.exists():
+                write_session(path, data, meta)
+            written.append(str(path))
+    return written
+
+
+@dataclass
+class SimulateResult:
+    """What ``simulate`` did: sessions written and skipped, and the rebuilt index."""
+
+    written: int
+    skipped: int
+    index: IndexResult
+
+
+def simulate_dataset(out_dir: str | Path, preset_name: str, sessions: int | None, seed: int,
+                     workers: int, config: SimConfig | None = None,
+                     progress: Callable[[int, int], None] | None = None,
+                     variability: float = 1.0) -> SimulateResult:
+    """Write a preset's sessions into ``out_dir`` with ``workers`` processes.
+
+    Sessions whose file exists are skipped. ``progress(done, total)`` is called as
+    sessions finish. The index is rebuilt at the end. ``config`` defaults to the
+    preset's rate with default physics.
+    """
+    if preset_name not in PRESETS:
+        raise InputError(f"unknown preset {preset_name!r} (available: {', '.join(PRESETS)})")
+    preset = PRESETS[preset_name]
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if not os.access(out_dir, os.W_OK):
+        raise InputError("cannot write here (permission denied)", out_dir)
+    config = config or SimConfig(rate_hz=preset.rate_hz)
+    count = preset.sessions if sessions is None else sessions
+    if count < 1:
+        raise InputError(f"--sessions must be at least 1, got {count}")
+    specs = preset_specs(preset, count, seed, config.with_hand, variability)
+    todo = []
+    for spec in specs:
+        meta = sim_session_meta(spec, config, SimSource(spec, config).metadata())
+        if not (out_dir / session_filename(meta)).exists():
+            todo.append(spec)
+    done = len(specs) - len(todo)
+    if progress:
+        progress(done, len(specs))
+    for paths in _run_batches(todo, config, out_dir, workers):
+        done += len(paths)
+        if progress:
+            progress(done, len(specs))
+    return SimulateResult(written=len(todo), skipped=len(specs) - len(todo),
+                          index=rebuild_index(out_dir))
+
+
+def _run_batches(todo: list[SessionSpec], config: SimConfig, out_dir: Path,
+                 workers: int) -> Iterator[list[str]]:
+    size = max(1, min(MAX_BATCH, -(-len(todo) // max(workers, 1))))
+    batches = [todo[i:i + size] for i in range(0, len(todo), size)]
+    if workers <= 1:
+        for batch in batches:
+            yield _simulate_batch(batch, config, str(out_dir))
+        return
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futures = [pool.submit(_simulate_batch, batch, config, str(out_dir)) for batch in batches]
+        for future in as_completed(futures):
+            yield future.result()
+

@@ -1,0 +1,190 @@
+"""External force profiles of a human hand, one per action, and where they act.
+
+A contact is a force of fixed direction (world frame) applied at a point on one
+link, whose magnitude follows the action's profile from the onset time. Shapes and
+parameter ranges (before a person's strength and tempo multipliers, see
+:class:`Persona`):
+
+=======  ==============================  ===========  =============  ================
+action   shape                           peak [N]     rise [s]       total [s]
+=======  ==============================  ===========  =============  ================
+none     no force                        0            -              -
+bump     half-sine pulse                 8 - 30       0.025 - 0.075  0.05 - 0.15
+adjust   raised-cosine rise, hold, fall  8 - 30       0.3 - 0.6      0.9 - 2.4
+shove    fast raised-cosine rise, short  40 - 110     0.04 - 0.10    0.19 - 0.60
+         hold, slower fall
+=======  ==============================  ===========  =============  ================
+
+Why these are plausible for a hand: a bump is an accidental brush or knock that
+ends as soon as the hand notices it, so it is short (tens of ms, the duration of
+a transient impact) and light. An adjust is a deliberate, gentle guide: people
+ramp a guiding force over a few hundred ms and hold it for about a second at the
+level of a comfortable push (10-30 N, what pressing a door handle takes). A shove
+is a vigorous arm push meant to stop the robot: voluntary push forces of standing
+adults reach 100-200 N, and the rise of a ballistic push is under 100 ms; we stay
+below the 140 N quasi-static limit ISO/TS 15066 gives for the hand. The thesis
+tuned its profiles by eye against observer estimates (its Figure 5.3); these
+ranges cover the same magnitudes and shapes.
+
+Beyond the thesis (which only pushed the end link horizontally), the force acts on
+any link 1-7, at a point on the link's surface (its collision mesh from the URDF),
+in any 3-D direction that pushes into that surface, and each simulated person has
+their own strength and tempo.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import asdict, dataclass
+from functools import cache
+
+import numpy as np
+
+from features.dynamics import PandaModel, urdf_path
+from recorder.protocol import MAX_ONSET_DELAY_S
+
+STL_TRIANGLE = np.dtype([("normal", "<f4", 3), ("vertices", "<f4", (3, 3)), ("attr", "<u2")])
+PROFILE_RANGES: dict[str, dict[str, tuple[float, float]]] = {
+    "bump": {"peak_n": (8.0, 30.0), "rise_s": (0.025, 0.075)},
+    "adjust": {"peak_n": (8.0, 30.0), "rise_s": (0.3, 0.6), "hold_s": (0.3, 1.2),
+               "fall_s": (0.3, 0.6)},
+    "shove": {"peak_n": (40.0, 110.0), "rise_s": (0.04, 0.10), "hold_s": (0.05, 0.2),
+              "fall_s": (0.1, 0.3)},
+}
+
+
+@dataclass(frozen=True)
+class Persona:
+    """A simulated person: multipliers on peak force (strength) and on durations (tempo)."""
+
+    name: str
+    strength: float
+    tempo: float
+
+    @classmethod
+    def from_name(cls, name: str, variability: float = 1.0) -> Persona:
+        """Return the persona of an operator name (deterministic: the same name always
+        gives the same person). ``variability`` scales the spread between people."""
+        seed = int.from_bytes(hashlib.sha256(name.encode()).digest()[:8], "little")
+        rng = np.random.default_rng(seed)
+        return cls(name=name,
+                   strength=float(np.exp(rng.normal(0.0, 0.25 * variability))),
+                   tempo=float(np.exp(rng.normal(0.0, 0.2 * variability))))
+
+
+@dataclass(frozen=True)
+class Contact:
+    """One applied force: profile parameters, onset [s], link, point and direction.
+
+    ``point_local`` is in the link frame [m]; ``direction`` is a unit vector in the
+    world frame. ``peak_n`` [N]; ``rise_s``, ``hold_s``, ``fall_s`` [s].
+    """
+
+    action: str
+    onset_s: float
+    link: int
+    point_local: tuple[float, float, float]
+    direction: tuple[float, float, float]
+    peak_n: float
+    rise_s: float
+    hold_s: float = 0.0
+    fall_s: float = 0.0
+
+    @property
+    def duration_s(self) -> float:
+        """Time [s] from onset until the force is back to zero."""
+        if self.action == "bump":
+            return 2.0 * self.rise_s
+        return self.rise_s + self.hold_s + self.fall_s
+
+    def magnitude(self, t: np.ndarray | float) -> np.ndarray:
+        """Return the force magnitude [N] at times ``t`` [s] (session time)."""
+        tau = np.asarray(t, dtype=float) - self.onset_s
+        out = np.zeros_like(tau)
+        if self.action == "bump":
+            inside = (tau >= 0) & (tau <= 2 * self.rise_s)
+            out[inside] = self.peak_n * np.sin(np.pi * tau[inside] / (2 * self.rise_s))
+            return out
+        up = (tau >= 0) & (tau < self.rise_s)
+        out[up] = self.peak_n * 0.5 * (1 - np.cos(np.pi * tau[up] / self.rise_s))
+        hold = (tau >= self.rise_s) & (tau < self.rise_s + self.hold_s)
+        out[hold] = self.peak_n
+        t_fall = tau - self.rise_s - self.hold_s
+        down = (t_fall >= 0) & (t_fall < self.fall_s)
+        out[down] = self.peak_n * 0.5 * (1 + np.cos(np.pi * t_fall[down] / self.fall_s))
+        return out
+
+    def as_dict(self) -> dict:
+        """Return the contact as plain JSON-ready values (for session metadata)."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class LinkSurface:
+    """Triangles of a link's collision mesh in the link frame: centroids [m], unit
+    outward normals and areas [m^2], each with one row per triangle."""
+
+    vertices: np.ndarray
+    normals: np.ndarray
+    areas: np.ndarray
+
+
+def _read_stl(path) -> np.ndarray:
+    raw = path.read_bytes()
+    count = int(np.frombuffer(raw, "<u4", 1, 80)[0])
+    return np.frombuffer(raw, STL_TRIANGLE, count, 84)["vertices"].astype(float)
+
+
+@cache
+def link_surface(link: int, with_hand: bool) -> LinkSurface:
+    """Return the collision surface of link 1..7 (link 7 includes the hand when mounted)."""
+    meshes = urdf_path().parent.parent / "meshes" / "collision"
+    triangles = [_read_stl(meshes / f"link{link}.stl")]
+    if link == 7 and with_hand:
+        model = PandaModel(with_hand=True)
+        hand = model.model.frames[model.frame_id("panda_hand")].placement
+        local = _read_stl(meshes / "hand.stl")
+        triangles.append(local @ hand.rotation.T + hand.translation)
+    tri = np.concatenate(triangles)
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    areas = 0.5 * np.linalg.norm(cross, axis=1)
+    keep = areas > 1e-10
+    return LinkSurface(vertices=tri[keep], normals=cross[keep] / (2 * areas[keep, None]),
+                       areas=areas[keep])
+
+
+def sample_contact(rng: np.random.Generator, action: str, planned_at_s: float, link: int,
+                   surface: LinkSurface, link_rotation: np.ndarray,
+                   persona: Persona) -> Contact | None:
+    """Draw one contact for ``action`` (None for ``none``).
+
+    The onset is the planned time plus U(0, 0.25) s. The direction is uniform on
+    the sphere (world frame); the point is drawn, area-weighted, on the faces of the
+    link's collision mesh that the force pushes into (outward normal at least 45
+    degrees against the force). ``link_rotation`` is the link's world orientation at
+    the start of the session.
+    """
+    if action == "none":
+        return None
+    ranges = PROFILE_RANGES[action]
+    draw = {k: float(rng.uniform(*v)) for k, v in ranges.items()}
+    direction = rng.normal(size=3)
+    direction /= np.linalg.norm(direction)
+    facing = surface.normals @ (link_rotation.T @ direction) < -np.sqrt(0.5)
+    weights = surface.areas * facing
+    tri = surface.vertices[rng.choice(len(weights), p=weights / weights.sum())]
+    a, b = rng.random(2)
+    if a + b > 1.0:
+        a, b = 1.0 - a, 1.0 - b
+    point = tri[0] + a * (tri[1] - tri[0]) + b * (tri[2] - tri[0])
+    return Contact(
+        action=action,
+        onset_s=planned_at_s + float(rng.uniform(0.0, MAX_ONSET_DELAY_S)),
+        link=link,
+        point_local=tuple(float(x) for x in point),
+        direction=tuple(float(x) for x in direction),
+        peak_n=draw["peak_n"] * persona.strength,
+        rise_s=draw["rise_s"] * persona.tempo,
+        hold_s=draw.get("hold_s", 0.0) * persona.tempo,
+        fall_s=draw.get("fall_s", 0.0) * persona.tempo,
+    )

@@ -1,0 +1,197 @@
+"""Crash-safe session writing: an append-only journal, then an atomic Parquet file.
+
+While a capture runs, samples go to ``<session>.parquet.journal`` beside the
+output: an Arrow IPC stream whose schema carries the session metadata. Pending
+rows are written as a record batch, flushed and fsync'ed whenever they cover half
+the flush interval (default interval 0.1 s of data), so a capture killed at any
+moment loses at most the last 0.1 s. On a clean finish the Parquet file is written
+through a temporary file and a link, and only then is the journal removed.
+
+``recover`` turns every leftover journal in a directory into a valid session whose
+metadata says it was recovered and how many samples it holds. A torn final record
+batch (the process died mid-write) is dropped; every complete batch is kept.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from schemas import InputError, SessionMeta, write_session
+from schemas.session import METADATA_KEY, session_schema
+
+JOURNAL_SUFFIX = ".journal"
+
+
+def journal_path(out_path: Path) -> Path:
+    """Return the journal path of a session output path."""
+    return out_path.with_name(out_path.name + JOURNAL_SUFFIX)
+
+
+class SessionWriter:
+    """Append samples to a journal while capturing; write the session on :meth:`close`.
+
+    ``columns`` names the session columns that will be appended (a subset of the
+    schema). Use as a context manager: leaving the block by an exception keeps the
+    journal for ``recorder recover``.
+    """
+
+    def __init__(self, out_path: str | Path, meta: SessionMeta, columns: list[str],
+                 flush_interval_s: float = 0.1) -> None:
+        self.out_path = Path(out_path)
+        self.meta = meta
+        self.flush_interval_s = flush_interval_s
+        self.journal = journal_path(self.out_path)
+        if self.out_path.exists():
+            raise InputError("output file already exists (nothing was written)", self.out_path)
+        if self.journal.exists():
+            raise InputError("an unrecovered journal of this session exists; run "
+                             "`recorder recover` first", self.journal)
+        self.schema = session_schema(columns, meta)
+        try:
+            self._file = open(self.journal, "xb")  # noqa: SIM115 (closed in close/abort)
+        except FileNotFoundError as err:
+            raise InputError("output directory does not exist", self.out_path.parent) from err
+        except PermissionError as err:
+            raise InputError("cannot write here (permission denied)",
+                             self.out_path.parent) from err
+        self._stream = pa.ipc.new_stream(self._file, self.schema)
+        self._pending: list[dict[str, np.ndarray]] = []
+        self._pending_t0: float | None = None
+        self.samples_written = 0
+        self._sync()
+
+    def append(self, columns: dict[str, np.ndarray]) -> None:
+        """Add rows (arrays of equal length, ``t`` in s); flush when enough are pending."""
+        if len(columns["t"]) == 0:
+            return
+        self._pending.append(columns)
+        if self._pending_t0 is None:
+            self._pending_t0 = float(columns["t"][0])
+        if float(columns["t"][-1]) - self._pending_t0 >= self.flush_interval_s / 2:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write pending rows as one record batch and force them to disk."""
+        if not self._pending:
+            return
+        arrays = [pa.array(np.concatenate([c[f.name] for c in self._pending]), type=f.type)
+                  for f in self.schema]
+        batch = pa.RecordBatch.from_arrays(arrays, schema=self.schema)
+        self._stream.write_batch(batch)
+        self.samples_written += batch.num_rows
+        self._pending.clear()
+        self._pending_t0 = None
+        self._sync()
+
+    def _sync(self) -> None:
+        self._file.flush()
+        os.fsync(self._file.fileno())
+
+    def close(self) -> Path:
+        """Flush, write the Parquet session atomically, remove the journal; return the path."""
+        self.flush()
+        self._stream.close()
+        self._file.close()
+        table = read_journal(self.journal).table
+        path = write_session(self.out_path, table, self.meta)
+        self.journal.unlink()
+        return path
+
+    def abort(self) -> None:
+        """Flush what is pending and close the journal, keeping it for recovery."""
+        self.flush()
+        self._stream.close()
+        self._file.close()
+
+    def __enter__(self) -> SessionWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None and not self._file.closed:
+            self.abort()
+
+
+@dataclass
+class JournalContents:
+    """What a journal holds: metadata, the complete batches as a table, and whether a
+    torn batch was dropped at its end."""
+
+    meta: SessionMeta
+    table: pa.Table
+    torn: bool
+
+
+def read_journal(path: str | Path) -> JournalContents:
+    """Read every complete record batch of a journal (a torn last batch is dropped)."""
+    path = Path(path)
+    try:
+        reader = pa.ipc.open_stream(pa.OSFile(str(path)))
+    except (pa.ArrowInvalid, OSError) as err:
+        raise InputError(f"not a readable journal ({err})", path) from err
+    schema = reader.schema
+    try:
+        meta = SessionMeta.from_dict(json.loads(schema.metadata[METADATA_KEY]), path)
+    except (KeyError, TypeError, json.JSONDecodeError) as err:
+        raise InputError("journal has no session metadata", path) from err
+    batches, torn = [], False
+    while True:
+        try:
+            batches.append(reader.read_next_batch())
+        except StopIteration:
+            break
+        except (pa.ArrowInvalid, OSError):
+            torn = True
+            break
+    table = pa.Table.from_batches(batches, schema=schema)
+    return JournalContents(meta=meta, table=table, torn=torn)
+
+
+@dataclass
+class Recovery:
+    """Outcome of recovering one journal: the session written (or None) and a note."""
+
+    journal: Path
+    session: Path | None
+    samples: int
+    note: str
+
+
+def recover_journal(journal: Path) -> Recovery:
+    """Turn one journal into a session marked as recovered; remove the journal after.
+
+    If the session file already exists (the capture died after writing it but before
+    removing its journal), the journal is removed and the file left as it is.
+    """
+    out_path = journal.with_name(journal.name[: -len(JOURNAL_SUFFIX)])
+    if out_path.exists():
+        journal.unlink()
+        return Recovery(journal, out_path, 0, "session already complete; stale journal removed")
+    try:
+        contents = read_journal(journal)
+    except InputError as err:
+        return Recovery(journal, None, 0, f"left in place: {err.problem}")
+    n = contents.table.num_rows
+    if n == 0:
+        return Recovery(journal, None, 0, "journal holds no complete sample; left in place")
+    meta = contents.meta
+    meta.recovered = True
+    meta.recovered_samples = n
+    note = f"recovered {n} samples" + (" (torn last batch dropped)" if contents.torn else "")
+    meta.notes = (meta.notes + "; " if meta.notes else "") + note
+    path = write_session(out_path, contents.table, meta)
+    journal.unlink()
+    return Recovery(journal, path, n, note)
+
+
+def recover_directory(directory: str | Path) -> list[Recovery]:
+    """Recover every journal in ``directory``; return one :class:`Recovery` per journal."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise InputError("not a directory", directory)
+    return [recover_journal(p) for p in sorted(directory.glob("*" + JOURNAL_SUFFIX))]

@@ -1,0 +1,357 @@
+"""Simulated Panda: the default source when no robot is attached.
+
+Physics (thesis section 5.3.1, extended):
+
+* Forward dynamics with pinocchio's articulated-body algorithm, integrated with
+  semi-implicit Euler. The controller runs at the output rate times
+  m = ceil(1000 Hz / rate), so at 1 kHz or faster as on the real robot (600 Hz
+  output gives 1.2 kHz control, as in the thesis), and every m-th control tick is
+  recorded. Its torque is held over ``substeps`` integration steps per tick
+  (default 5: 5 kHz at 1 kHz output; the thesis used 1.2 kHz x 10).
+* Control: gravity compensation with the *nominal* model plus joint PID, torque
+  and torque-rate limits of the Franka datasheet enforced.
+* The plant differs from the nominal model the observer uses, as a real robot's
+  does: link masses, inertias and centres of mass are perturbed (a fixed "robot
+  instance" chosen by ``robot_seed``, the same for every session of a dataset, as
+  a lab records a dataset on one robot), and joint friction follows the identified
+  model of Gaz et al. with amplitudes scaled per joint.
+* Sensors: white noise on q, dq and tau at the levels measured on the real Panda
+  recording (:mod:`recorder.noise`), a per-session torque bias, optional time-stamp
+  jitter and dropped samples.
+* Contacts: :mod:`recorder.forces` (any link, any direction, person-dependent).
+
+Sessions are stepped in lockstep in batches, with ``pin.abaInParallel`` over the
+batch, which amortises Python overhead (see ``benchmarks/bench_simulator.py``).
+Each session draws its noise from its own random streams, so its data depend only
+on its seed and the configuration, not on the batch it ran in.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from features.dynamics import GAZ_FRICTION, N_JOINTS, PandaModel
+from recorder.forces import Contact, Persona, link_surface, sample_contact
+from recorder.noise import SensorNoise, default_noise
+from recorder.protocol import (
+    check_action,
+    check_condition,
+    default_timing,
+    motion_duration_s,
+    pose_q,
+)
+from schemas import InputError, joint_columns
+
+KP = (600.0, 600.0, 600.0, 600.0, 250.0, 150.0, 50.0)  # Nm/rad
+KD = (50.0, 50.0, 50.0, 40.0, 7.0, 6.0, 1.5)  # Nm s/rad, about critical damping
+KI = (300.0, 300.0, 300.0, 300.0, 125.0, 75.0, 25.0)  # Nm/(rad s)
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Simulator settings shared by every session of a run.
+
+    ``rate_hz`` output and control rate [Hz]; ``substeps`` integration steps per
+    output sample; ``robot_seed`` selects the simulated robot instance (plant
+    parameters); ``mass_perturbation`` relative spread of link masses/inertias;
+    ``com_perturbation_m`` spread of centres of mass [m]; ``friction_spread``
+    relative spread of friction amplitudes; ``noise_scale`` multiplies the sensor
+    noise; ``jitter_s`` uniform time-stamp jitter [s]; ``drop_prob`` probability of
+    losing a sample.
+    """
+
+    rate_hz: float = 1000.0
+    substeps: int = 5
+    with_hand: bool = True
+    robot_seed: int = 0
+    mass_perturbation: float = 0.05
+    com_perturbation_m: float = 0.005
+    friction_spread: float = 0.2
+    noise_scale: float = 1.0
+    jitter_s: float = 0.0
+    drop_prob: float = 0.0
+    operator_variability: float = 1.0
+    noise: SensorNoise = field(default_factory=default_noise)
+
+    def __post_init__(self) -> None:
+        if not 1.0 <= self.rate_hz <= 10_000.0:
+            raise InputError(f"rate must be between 1 and 10000 Hz, got {self.rate_hz}")
+        if self.substeps < 1:
+            raise InputError(f"substeps must be at least 1, got {self.substeps}")
+        if not 0.0 <= self.jitter_s < 0.5 / self.rate_hz:
+            raise InputError(f"jitter must be in [0, half a sample period), got "
+                             f"{self.jitter_s} s")
+        if not 0.0 <= self.drop_prob < 1.0:
+            raise InputError(f"drop probability must be in [0, 1), got {self.drop_prob}")
+
+    def to_dict(self) -> dict:
+        """Return the configuration as JSON-ready values (for session metadata)."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class SessionSpec:
+    """Everything that determines one simulated session (with the :class:`SimConfig`).
+
+    Joint vectors in rad, speed in rad/s, times in s.
+    """
+
+    seed: int
+    condition: str
+    action: str
+    pose: str
+    q_start: tuple[float, ...]
+    duration_s: float
+    planned_at_s: float
+    motion_start_s: float
+    motion_duration_s: float
+    operator: str = "sim"
+    target_pose: str | None = None
+    q_target: tuple[float, ...] | None = None
+    speed_rad_s: float | None = None
+    link: int | None = None
+    contact: Contact | None = None
+
+    def as_dict(self) -> dict:
+        """Return the spec as JSON-ready values."""
+        doc = asdict(self)
+        doc["contact"] = None if self.contact is None else self.contact.as_dict()
+        return doc
+
+
+def control_ticks(rate_hz: float) -> int:
+    """Return how many control ticks run per output sample (control at >= 1 kHz)."""
+    return max(1, int(np.ceil(1000.0 / rate_hz - 1e-9)))
+
+
+def n_samples(spec: SessionSpec, rate_hz: float) -> int:
+    """Return the number of output samples of a session at ``rate_hz`` (t = 0 included)."""
+    return round(spec.duration_s * rate_hz) + 1
+
+
+def plan_session(*, seed: int, condition: str, action: str, pose: str,
+                 target_pose: str | None = None, speed_rad_s: float | None = None,
+                 link: int | None = None, planned_at_s: float | None = None,
+                 duration_s: float | None = None, operator: str = "sim",
+                 pose_jitter_rad: float = 0.0, with_hand: bool = True,
+                 operator_variability: float = 1.0) -> SessionSpec:
+    """Turn capture choices into a fully determined :class:`SessionSpec`.
+
+    Random choices (pose jitter, contact link when ``link`` is None, contact point,
+    direction, profile and onset delay) come from ``seed``. Raises InputError for an
+    unknown pose/action/condition, a link outside 1..7, a non-positive duration or
+    a planned time outside the session.
+    """
+    check_action(action)
+    check_condition(condition)
+    rng = np.random.default_rng(seed)
+    model = PandaModel(with_hand)
+    lo, hi = model.limits.q_min + 0.02, model.limits.q_max - 0.02
+    q_start = np.clip(pose_q(pose) + rng.normal(0.0, pose_jitter_rad, N_JOINTS), lo, hi)
+    q_target = None
+    motion_s = 0.0
+    if condition == "dynamic":
+        target_pose = target_pose or "D"
+        if target_pose.upper() == pose.upper():
+            raise InputError(f"target pose {target_pose} is the start pose")
+        speed_rad_s = 0.2 if speed_rad_s is None else speed_rad_s
+        q_target = np.clip(pose_q(target_pose) + rng.normal(0.0, pose_jitter_rad, N_JOINTS),
+                           lo, hi)
+        motion_s = motion_duration_s(q_start, q_target, speed_rad_s)
+    elif target_pose is not None or speed_rad_s is not None:
+        raise InputError("--target-pose and --speed need --condition dynamic")
+    timing = default_timing(condition, motion_s)
+    duration = timing.duration_s if duration_s is None else duration_s
+    if duration <= 0:
+        raise InputError(f"duration must be positive, got {duration} s")
+    planned = timing.planned_at_s if planned_at_s is None else planned_at_s
+    if not 0.0 <= planned < duration:
+        raise InputError(f"planned interaction time {planned} s is outside the session "
+                         f"(0 to {duration} s)")
+    if link is not None and not 1 <= link <= N_JOINTS:
+        raise InputError(f"unknown link {link} (expected 1..{N_JOINTS})")
+    contact = None
+    if action != "none":
+        link = int(rng.integers(1, N_JOINTS + 1)) if link is None else link
+        rotation = model.frame_placement(q_start, link).rotation
+        persona = Persona.from_name(operator, operator_variability)
+        contact = sample_contact(rng, action, planned, link, link_surface(link, with_hand),
+                                 rotation, persona)
+    return SessionSpec(
+        seed=seed, condition=condition, action=action, pose=pose.upper(),
+        q_start=tuple(float(x) for x in q_start), duration_s=float(duration),
+        planned_at_s=float(planned), motion_start_s=timing.motion_start_s,
+        motion_duration_s=timing.motion_duration_s, operator=operator,
+        target_pose=None if target_pose is None else target_pose.upper(),
+        q_target=None if q_target is None else tuple(float(x) for x in q_target),
+        speed_rad_s=speed_rad_s, link=link, contact=contact)
+
+
+class _Batch:
+    """Per-session arrays of the sessions still running, stored column-wise (7, B)."""
+
+    def __init__(self, **arrays: np.ndarray) -> None:
+        self.arrays = arrays
+
+    def keep(self, mask: np.ndarray) -> None:
+        for name, value in self.arrays.items():
+            self.arrays[name] = np.asfortranarray(value[..., mask])
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        try:
+            return self.__dict__["arrays"][name]
+        except KeyError as err:
+            raise AttributeError(name) from err
+
+
+class PandaSimulator:
+    """Simulates batches of sessions on one simulated robot instance."""
+
+    def __init__(self, config: SimConfig) -> None:
+        self.config = config
+        self.nominal = PandaModel(config.with_hand)
+        robot_rng = np.random.default_rng([config.robot_seed, 0xC0FFEE])
+        self.plant = self.nominal.perturbed(robot_rng, config.mass_perturbation,
+                                            config.com_perturbation_m)
+        spread = config.friction_spread
+        self.friction = GAZ_FRICTION.scaled(robot_rng.uniform(1 - spread, 1 + spread, N_JOINTS))
+        self._plant_pool = pin.ModelPool(self.plant.model, 1)
+        self._nominal_pool = pin.ModelPool(self.nominal.model, 1)
+        noise = config.noise
+        scale = config.noise_scale
+        self.sigma = np.concatenate([np.array(noise.q_sigma_rad), np.array(noise.dq_sigma_rad_s),
+                                     np.array(noise.tau_sigma_nm)])[:, None] * scale
+        self.bias_scale = np.array(noise.tau_bias_nm) * scale
+        self.kp, self.kd, self.ki = (np.array(g)[:, None] for g in (KP, KD, KI))
+
+    def _gravity(self, pool: pin.ModelPool, q: np.ndarray) -> np.ndarray:
+        zeros = np.zeros_like(q, order="F")
+        out = np.zeros_like(q, order="F")
+        pin.rneaInParallel(1, pool, q, zeros, zeros, out)
+        return out
+
+    def run(self, specs: list[SessionSpec], chunk: int = 100
+            ) -> Iterator[tuple[int, dict[str, np.ndarray], bool]]:
+        """Simulate ``specs`` together; yield ``(spec index, columns, finished)``.
+
+        ``columns`` holds the next rows of that session in session-file columns
+        (``t``, ``q_*``, ``dq_*``, ``tau_*``, ``q_d_*``, ``dq_d_*``, ``f_ext_*``,
+        ``contact``); ``finished`` is true on a session's last chunk. Rows come in
+        chunks of ``chunk`` samples.
+        """
+        cfg = self.config
+        ticks = control_ticks(cfg.rate_hz)
+        dt = 1.0 / (cfg.rate_hz * ticks)
+        h = dt / cfg.substeps
+        count = len(specs)
+        q0 = np.asfortranarray(np.array([s.q_start for s in specs]).T)
+        q1 = np.asfortranarray(np.array([s.q_target or s.q_start for s in specs]).T)
+        t_move = np.array([s.motion_start_s for s in specs])
+        t_len = np.array([max(s.motion_duration_s, 1e-9) for s in specs])
+        lengths = np.array([n_samples(s, cfg.rate_hz) for s in specs])
+        streams = [np.random.default_rng(s.seed).spawn(3) for s in specs]
+        bias = np.asfortranarray(np.array([st[0].normal(0.0, self.bias_scale) for st in streams]).T)
+        gap = self._gravity(self._plant_pool, q0) - self._gravity(self._nominal_pool, q0)
+        batch = _Batch(
+            index=np.arange(count), q=q0.copy(order="F"), dq=np.zeros_like(q0, order="F"),
+            q0=q0, dq01=np.asfortranarray(q1 - q0), t_move=t_move, t_len=t_len,
+            ei=np.asfortranarray(gap / self.ki), tau_prev=self._gravity(self._plant_pool, q0),
+            bias=bias, length=lengths)
+        contacts = [s.contact for s in specs]
+        k0 = 0
+        while batch.index.size:
+            steps = min(chunk, int(batch.length.max()) - k0)
+            rows = self._advance(batch, contacts, streams, k0, steps, ticks, dt, h)
+            finished = batch.length <= k0 + steps
+            for col, spec_index in enumerate(batch.index):
+                n_keep = min(steps, int(batch.length[col]) - k0)
+                columns = {name: values[:n_keep, ..., col] for name, values in rows.items()}
+                yield int(spec_index), self._finish_rows(columns, streams[spec_index][2],
+                                                         k0), bool(finished[col])
+            batch.keep(~finished)
+            k0 += steps
+
+    def _advance(self, batch: _Batch, contacts: list[Contact | None],
+                 streams: list[list[np.random.Generator]], k0: int, steps: int, ticks: int,
+                 dt: float, h: float) -> dict[str, np.ndarray]:
+        width = batch.index.size
+        noise = np.stack([streams[i][1].standard_normal((steps, ticks, 3 * N_JOINTS))
+                          for i in batch.index], axis=-1) * self.sigma
+        out = {name: np.empty((steps, N_JOINTS, width)) for name in ("q", "dq", "tau", "q_d",
+                                                                       "dq_d")}
+        out["f_ext"] = np.zeros((steps, 3, width))
+        active = [(col, contacts[i]) for col, i in enumerate(batch.index)
+                  if contacts[i] is not None]
+        for j in range(steps):
+            for tick in range(ticks):
+                t = ((k0 + j) * ticks + tick) * dt
+                record = {name: value[j] for name, value in out.items()} if tick == 0 else None
+                self._tick(batch, active, noise[j, tick], t, dt, h, record)
+        return out
+
+    def _tick(self, batch: _Batch, active: list[tuple[int, Contact]], noise: np.ndarray,
+              t: float, dt: float, h: float, record: dict[str, np.ndarray] | None) -> None:
+        """One control period: measure, control, apply contacts, integrate sub-steps.
+
+        When ``record`` is given, the measured sample is written into its arrays.
+        """
+        q, dq = batch.q, batch.dq
+        s = np.clip((t - batch.t_move) / batch.t_len, 0.0, 1.0)
+        blend = s**3 * (10.0 + s * (-15.0 + 6.0 * s))
+        rate = 30.0 * s**2 * (1.0 - s) ** 2 / batch.t_len
+        q_d = batch.q0 + batch.dq01 * blend
+        dq_d = batch.dq01 * rate
+        q_m = q + noise[:N_JOINTS]
+        dq_m = dq + noise[N_JOINTS:2 * N_JOINTS]
+        error = q_d - q_m
+        batch.ei[:] = batch.ei + error * dt
+        tau_c = (self._gravity(self._nominal_pool, np.asfortranarray(q_m))
+                 + self.kp * error + self.kd * (dq_d - dq_m) + self.ki * batch.ei)
+        step_max = self.nominal.limits.dtau_max[:, None] * dt
+        tau_c = np.clip(tau_c, batch.tau_prev - step_max, batch.tau_prev + step_max)
+        tau_max = self.nominal.limits.tau_max[:, None]
+        tau_c = np.asfortranarray(np.clip(tau_c, -tau_max, tau_max))
+        batch.tau_prev[:] = tau_c
+        drive = tau_c.copy(order="F")
+        for col, contact in active:
+            magnitude = float(contact.magnitude(t))
+            if magnitude > 0.0:
+                force = magnitude * np.array(contact.direction)
+                jac = self.plant.point_jacobian(q[:, col], contact.link,
+                                                np.array(contact.point_local))
+                drive[:, col] += jac[:3].T @ force
+                if record is not None:
+                    record["f_ext"][:, col] = force
+        if record is not None:
+            record["q"][:], record["dq"][:] = q_m, dq_m
+            record["tau"][:] = tau_c + batch.bias + noise[2 * N_JOINTS:]
+            record["q_d"][:], record["dq_d"][:] = q_d, dq_d
+        ddq = np.zeros_like(q, order="F")
+        for _ in range(self.config.substeps):
+            pin.abaInParallel(1, self._plant_pool, q, dq, drive - self.friction.torque(dq), ddq)
+            dq += ddq * h
+            q += dq * h
+
+    def _finish_rows(self, rows: dict[str, np.ndarray], timing_rng: np.random.Generator,
+                     k0: int) -> dict[str, np.ndarray]:
+        cfg = self.config
+        n = rows["q"].shape[0]
+        draws = timing_rng.random((n, 2))
+        t = (k0 + np.arange(n)) / cfg.rate_hz + cfg.jitter_s * (2.0 * draws[:, 0] - 1.0)
+        keep = draws[:, 1] >= cfg.drop_prob
+        if k0 == 0:
+            t[0] = 0.0
+            keep[0] = True
+        columns: dict[str, np.ndarray] = {"t": t[keep]}
+        for prefix in ("q", "dq", "tau", "q_d", "dq_d"):
+            for name, values in zip(joint_columns(prefix), rows[prefix][keep].T, strict=True):
+                columns[name] = np.ascontiguousarray(values)
+        f_ext = rows["f_ext"][keep]
+        for axis, name in enumerate(("f_ext_x", "f_ext_y", "f_ext_z")):
+            columns[name] = np.ascontiguousarray(f_ext[:, axis])
+        columns["contact"] = np.linalg.norm(f_ext, axis=1) > 0.0
+        return columns

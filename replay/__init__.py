@@ -1,0 +1,1 @@
+"""Replay of sessions through the feature chain and classifier, logged to Rerun."""

@@ -1,0 +1,34 @@
+"""Arrow schemas, metadata model and validation shared by every contactkit stage.
+
+Everything here depends on pyarrow only, so every other package may import it.
+"""
+
+from schemas.errors import InputError
+from schemas.session import (
+    ACTIONS,
+    CONDITIONS,
+    N_JOINTS,
+    SCHEMA_VERSION,
+    Session,
+    SessionMeta,
+    joint_columns,
+    read_session,
+    read_session_meta,
+    validate_session,
+    write_session,
+)
+
+__all__ = [
+    "ACTIONS",
+    "CONDITIONS",
+    "N_JOINTS",
+    "SCHEMA_VERSION",
+    "InputError",
+    "Session",
+    "SessionMeta",
+    "joint_columns",
+    "read_session",
+    "read_session_meta",
+    "validate_session",
+    "write_session",
+]

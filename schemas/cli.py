@@ -1,0 +1,38 @@
+"""Running a command-line app so that bad input is one line on stderr and exit code 2."""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from schemas.errors import InputError
+
+
+def run_app(app: typer.Typer, prog: str, argv: list[str] | None = None) -> int:
+    """Run a Typer app; return its exit code.
+
+    :class:`InputError` and usage errors print ``prog: error: <one line>`` on stderr
+    and give exit code 2 (a bare command prints its help); Ctrl-C gives 130. No
+    traceback reaches the user for bad input (a bug still shows one).
+    """
+    try:
+        result = app(args=argv, prog_name=prog, standalone_mode=False)
+    except InputError as err:
+        print(f"{prog}: error: {err}", file=sys.stderr)
+        return 2
+    except typer.TyperException as err:
+        ctx = getattr(err, "ctx", None)
+        if type(err).__name__ == "NoArgsIsHelpError":
+            print(err.format_message(), file=sys.stderr)
+            return 2
+        hint = f" (see {ctx.command_path} --help)" if ctx is not None else ""
+        message = f"{prog}: error: {err.format_message()}{hint}"
+        print(" ".join(message.split()), file=sys.stderr)
+        return getattr(err, "exit_code", 2) or 2
+    except typer.Exit as err:
+        return err.exit_code
+    except (typer.Abort, KeyboardInterrupt):
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+    return result if isinstance(result, int) else 0

@@ -1,0 +1,368 @@
+"""Session file format v1: one Parquet file per recording.
+
+Columns (flat, so Polars, DuckDB, pandas and PlotJuggler open the file directly;
+joints are numbered 1..7 as in the thesis):
+
+=====================  =========  =====================================================
+column                 unit       meaning
+=====================  =========  =====================================================
+``t``                  s          time since session start, strictly increasing
+``q_1..q_7``           rad        measured joint positions
+``dq_1..dq_7``         rad/s      measured joint velocities
+``tau_1..tau_7``       Nm         measured link-side joint torque, gravity included
+                                  (libfranka's ``tau_J``)
+``q_d_1..q_d_7``       rad        optional: commanded joint positions
+``dq_d_1..dq_d_7``     rad/s      optional: commanded joint velocities
+``tau_ext_hat_1..7``   Nm         optional: the robot's own external-torque estimate
+                                  (libfranka ``tau_ext_hat_filtered``; its sign is
+                                  opposite to the momentum-observer residual)
+``f_ext_x/y/z``        N          optional: ground-truth applied force, world frame
+``contact``            bool       optional: ground truth, a person is touching the arm
+=====================  =========  =====================================================
+
+The Parquet key-value metadata holds one JSON document under the key
+``contactkit.session``: the :class:`SessionMeta` fields, including
+``schema_version``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import uuid
+from collections.abc import Iterable, Mapping
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from schemas.errors import InputError
+
+SCHEMA_VERSION = 1
+N_JOINTS = 7
+METADATA_KEY = b"contactkit.session"
+ACTIONS = ("none", "bump", "adjust", "shove")
+CONDITIONS = ("static", "dynamic")
+
+
+def joint_columns(prefix: str, n: int = N_JOINTS) -> list[str]:
+    """Return the column names ``prefix_1 .. prefix_n`` (joints numbered from 1)."""
+    return [f"{prefix}_{i}" for i in range(1, n + 1)]
+
+
+REQUIRED_JOINT_PREFIXES = ("q", "dq", "tau")
+OPTIONAL_JOINT_PREFIXES = ("q_d", "dq_d", "tau_ext_hat")
+FORCE_COLUMNS = ("f_ext_x", "f_ext_y", "f_ext_z")
+REQUIRED_COLUMNS = ["t", *[c for p in REQUIRED_JOINT_PREFIXES for c in joint_columns(p)]]
+OPTIONAL_FLOAT_COLUMNS = [
+    *[c for p in OPTIONAL_JOINT_PREFIXES for c in joint_columns(p)],
+    *FORCE_COLUMNS,
+]
+OPTIONAL_COLUMNS = [*OPTIONAL_FLOAT_COLUMNS, "contact"]
+COLUMN_ORDER = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
+ALL_JOINT_PREFIXES = REQUIRED_JOINT_PREFIXES + OPTIONAL_JOINT_PREFIXES
+
+
+def column_type(name: str) -> pa.DataType:
+    """Return the Arrow type of a session column (``contact`` is bool, the rest float64)."""
+    return pa.bool_() if name == "contact" else pa.float64()
+
+
+def session_schema(columns: Iterable[str], meta: SessionMeta | None = None) -> pa.Schema:
+    """Return the Arrow schema for the given session columns, in canonical order."""
+    wanted = set(columns)
+    unknown = wanted - set(COLUMN_ORDER)
+    if unknown:
+        raise InputError(f"unexpected column {sorted(unknown)[0]!r}")
+    schema = pa.schema([pa.field(c, column_type(c), nullable=False) for c in COLUMN_ORDER
+                        if c in wanted])
+    if meta is not None:
+        schema = schema.with_metadata({METADATA_KEY: meta.to_json().encode()})
+    return schema
+
+
+@dataclass
+class SessionMeta:
+    """Metadata of one session (the JSON document in the Parquet key-value metadata).
+
+    Angles are in rad, speeds in rad/s, times in s, rates in Hz.
+    """
+
+    session_id: str
+    source: str
+    action: str
+    condition: str = "static"
+    pose: str | None = None
+    pose_q: list[float] | None = None
+    target_pose: str | None = None
+    target_q: list[float] | None = None
+    speed_rad_s: float | None = None
+    link: int | None = None
+    planned_at_s: float | None = None
+    nominal_rate_hz: float | None = None
+    operator: str = ""
+    notes: str = ""
+    created_utc: str = ""
+    robot: str = "franka_panda"
+    with_hand: bool = True
+    urdf_sha256: str = ""
+    simulator: dict[str, Any] | None = None
+    source_info: dict[str, Any] = field(default_factory=dict)
+    recovered: bool = False
+    recovered_samples: int | None = None
+    tool_version: str = ""
+    schema_version: int = SCHEMA_VERSION
+
+    def to_json(self) -> str:
+        """Return the metadata as one compact JSON document."""
+        return json.dumps(asdict(self), sort_keys=True, separators=(",", ":"))
+
+    @classmethod
+    def from_dict(cls, doc: Mapping[str, Any], path: str | Path | None = None) -> SessionMeta:
+        """Build and check metadata from a parsed JSON document.
+
+        Raises :class:`InputError` naming ``path`` on a missing or wrong field.
+        """
+        if not isinstance(doc, Mapping):
+            raise InputError("session metadata is not a JSON object", path)
+        version = doc.get("schema_version")
+        if version != SCHEMA_VERSION:
+            raise InputError(f"unknown schema version {version!r} (this tool reads "
+                             f"version {SCHEMA_VERSION})", path)
+        known = {f.name for f in fields(cls)}
+        for required in ("session_id", "source", "action"):
+            if required not in doc:
+                raise InputError(f"session metadata lacks {required!r}", path)
+        meta = cls(**{k: v for k, v in doc.items() if k in known})
+        meta.check(path)
+        return meta
+
+    def check(self, path: str | Path | None = None) -> None:
+        """Raise :class:`InputError` when a field holds a value outside its domain."""
+        if self.action not in ACTIONS:
+            raise InputError(f"unknown action {self.action!r} (expected one of "
+                             f"{', '.join(ACTIONS)})", path)
+        if self.condition not in CONDITIONS:
+            raise InputError(f"unknown condition {self.condition!r} (expected static or "
+                             "dynamic)", path)
+        for name in ("pose_q", "target_q"):
+            value = getattr(self, name)
+            if value is not None and len(value) != N_JOINTS:
+                raise InputError(f"metadata {name} has {len(value)} joints, expected "
+                                 f"{N_JOINTS}", path)
+        if self.link is not None and not 1 <= int(self.link) <= N_JOINTS:
+            raise InputError(f"metadata link {self.link} is not a link 1..{N_JOINTS}", path)
+
+
+@dataclass
+class Session:
+    """A validated session: its metadata and its columns as an Arrow table."""
+
+    meta: SessionMeta
+    table: pa.Table
+    path: Path | None = None
+
+    def column(self, name: str) -> np.ndarray:
+        """Return one column as a numpy array (float64, or bool for ``contact``)."""
+        return self.table.column(name).to_numpy()
+
+    def joints(self, prefix: str) -> np.ndarray:
+        """Return the 7 columns ``prefix_1..prefix_7`` as an (N, 7) float64 array."""
+        return np.column_stack([self.column(c) for c in joint_columns(prefix)])
+
+    def has(self, name: str) -> bool:
+        """Return whether the session has the column (optional columns may be absent)."""
+        return name in self.table.column_names
+
+    @property
+    def t(self) -> np.ndarray:
+        """Time stamps [s] since session start, shape (N,)."""
+        return self.column("t")
+
+    @property
+    def q(self) -> np.ndarray:
+        """Joint positions [rad], shape (N, 7)."""
+        return self.joints("q")
+
+    @property
+    def dq(self) -> np.ndarray:
+        """Joint velocities [rad/s], shape (N, 7)."""
+        return self.joints("dq")
+
+    @property
+    def tau(self) -> np.ndarray:
+        """Measured joint torques [Nm], gravity included, shape (N, 7)."""
+        return self.joints("tau")
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples (rows)."""
+        return self.table.num_rows
+
+    @property
+    def duration_s(self) -> float:
+        """Time between the first and last sample [s] (0 for fewer than two samples)."""
+        t = self.t
+        return float(t[-1] - t[0]) if len(t) > 1 else 0.0
+
+
+def new_session_id() -> str:
+    """Return a fresh random session id (32 hex digits)."""
+    return uuid.uuid4().hex
+
+
+def table_from_columns(columns: Mapping[str, np.ndarray], meta: SessionMeta) -> pa.Table:
+    """Build a session table (canonical column order, metadata attached) from arrays."""
+    schema = session_schema(columns.keys(), meta)
+    arrays = [pa.array(np.asarray(columns[f.name]), type=f.type) for f in schema]
+    return pa.Table.from_arrays(arrays, schema=schema)
+
+
+def write_session(path: str | Path, columns: Mapping[str, np.ndarray] | pa.Table,
+                  meta: SessionMeta, *, overwrite: bool = False) -> Path:
+    """Validate and write a session atomically; return the written path.
+
+    The data go to a temporary file in the same directory, are flushed to disk and
+    then linked into place, so a reader never sees a half-written file. An existing
+    file is left untouched (``InputError``) unless ``overwrite`` is true.
+    """
+    path = Path(path)
+    meta.check(path)
+    if isinstance(columns, pa.Table):
+        table = table_from_columns({n: columns.column(n).to_numpy() for n in columns.column_names},
+                                   meta)
+    else:
+        table = table_from_columns(columns, meta)
+    validate_table(table, path)
+    if path.exists() and not overwrite:
+        raise InputError("output file already exists (nothing was written)", path)
+    atomic_write_parquet(table, path, overwrite=overwrite)
+    return path
+
+
+def atomic_write_parquet(table: pa.Table, path: Path, *, overwrite: bool) -> None:
+    """Write ``table`` to ``path`` through a temporary file and a link or rename."""
+    if not path.parent.is_dir():
+        raise InputError("output directory does not exist", path.parent)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        pq.write_table(table, tmp, compression="zstd")
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        if overwrite:
+            os.replace(tmp, path)
+        else:
+            try:
+                os.link(tmp, path)
+            except FileExistsError as err:
+                raise InputError("output file already exists (nothing was written)",
+                                 path) from err
+    except PermissionError as err:
+        raise InputError("cannot write here (permission denied)", path.parent) from err
+    finally:
+        tmp.unlink(missing_ok=True)
+    _fsync_dir(path.parent)
+
+
+def _fsync_dir(directory: Path) -> None:
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def read_session_meta(path: str | Path) -> tuple[SessionMeta, pq.FileMetaData]:
+    """Read only the metadata of a session file (its Parquet footer).
+
+    Returns the session metadata and the Parquet file metadata (row count, column
+    statistics). Raises :class:`InputError` on a foreign or corrupt file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no such file", path)
+    try:
+        footer = pq.read_metadata(path)
+    except (pa.ArrowInvalid, OSError) as err:
+        raise InputError(f"not a readable Parquet file ({_first_line(err)})", path) from err
+    kv = footer.metadata or {}
+    if METADATA_KEY not in kv:
+        raise InputError("no contactkit session metadata (not a contactkit session file)", path)
+    try:
+        doc = json.loads(kv[METADATA_KEY])
+    except json.JSONDecodeError as err:
+        raise InputError(f"session metadata is not valid JSON ({err.msg})", path) from err
+    return SessionMeta.from_dict(doc, path), footer
+
+
+def validate_session(path: str | Path) -> Session:
+    """Read and fully validate a session file; return it.
+
+    Raises :class:`InputError` naming the file and the first problem found: not
+    Parquet, missing metadata, unknown schema version, missing or unexpected
+    column, wrong joint count, wrong type, NaN/inf, non-increasing ``t``.
+    """
+    path = Path(path)
+    meta, _ = read_session_meta(path)
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowInvalid, OSError) as err:
+        raise InputError(f"cannot read the Parquet data ({_first_line(err)})", path) from err
+    validate_table(table, path)
+    return Session(meta=meta, table=table, path=path)
+
+
+read_session = validate_session
+
+
+def validate_table(table: pa.Table, path: str | Path | None = None) -> None:
+    """Check a session table's columns, types and values; raise :class:`InputError`."""
+    names = table.column_names
+    _check_joint_count(names, path)
+    for name in REQUIRED_COLUMNS:
+        if name not in names:
+            raise InputError(f"missing column {name!r}", path)
+    for name in names:
+        if name not in COLUMN_ORDER:
+            raise InputError(f"unexpected column {name!r}", path)
+        expected = column_type(name)
+        if table.schema.field(name).type != expected:
+            raise InputError(f"column {name!r} has type {table.schema.field(name).type}, "
+                             f"expected {expected}", path)
+        if table.column(name).null_count:
+            raise InputError(f"null values in column {name!r}", path)
+    for name in (n for n in names if n != "contact"):
+        values = table.column(name).to_numpy()
+        bad = ~np.isfinite(values)
+        if bad.any():
+            row = int(np.argmax(bad))
+            kind = "NaN" if math.isnan(values[row]) else "infinite value"
+            raise InputError(f"{kind} in column {name!r} at row {row}", path)
+    t = table.column("t").to_numpy()
+    if len(t) == 0:
+        raise InputError("session has no samples", path)
+    steps = np.diff(t)
+    if (steps <= 0).any():
+        row = int(np.argmax(steps <= 0)) + 1
+        raise InputError(f"t is not strictly increasing at row {row} "
+                         f"(t={t[row]:.6f} s after {t[row - 1]:.6f} s)", path)
+
+
+def _check_joint_count(names: list[str], path: str | Path | None) -> None:
+    for prefix in ALL_JOINT_PREFIXES:
+        found = sorted(int(n[len(prefix) + 1:]) for n in names
+                       if n.startswith(prefix + "_") and n[len(prefix) + 1:].isdigit())
+        contiguous = found == list(range(1, len(found) + 1))
+        if found and (found[-1] > N_JOINTS or (contiguous and len(found) != N_JOINTS)):
+            raise InputError(f"wrong joint count: columns {prefix}_{found[0]}..{prefix}_"
+                             f"{found[-1]} ({len(found)} joints), expected {prefix}_1.."
+                             f"{prefix}_{N_JOINTS}", path)
+
+
+def _first_line(err: BaseException) -> str:
+    text = str(err).strip().splitlines()
+    return text[0] if text else type(err).__name__

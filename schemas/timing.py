@@ -1,0 +1,54 @@
+"""Measured sampling of a session's time stamps (real logs are irregular)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+GAP_FACTOR = 3.0
+
+
+@dataclass(frozen=True)
+class SamplingStats:
+    """Sampling of a time column: steps in s, rate in Hz, gaps are steps longer than
+    3x the median step, and ``dropped_estimate`` the samples those gaps stand for."""
+
+    samples: int
+    duration_s: float
+    median_step_s: float
+    min_step_s: float
+    max_step_s: float
+    jitter_s: float
+    rate_hz: float
+    gaps: int
+    dropped_estimate: int
+
+    def as_dict(self) -> dict:
+        """Return the statistics as a plain dict."""
+        return asdict(self)
+
+
+def sampling_stats(t: np.ndarray) -> SamplingStats:
+    """Return the :class:`SamplingStats` of time stamps ``t`` [s] (strictly increasing).
+
+    Jitter is the standard deviation of the steps that are not gaps.
+    """
+    steps = np.diff(np.asarray(t, dtype=float))
+    if steps.size == 0:
+        return SamplingStats(len(t), 0.0, float("nan"), float("nan"), float("nan"),
+                             float("nan"), float("nan"), 0, 0)
+    median = float(np.median(steps))
+    is_gap = steps > GAP_FACTOR * median
+    regular = steps[~is_gap]
+    return SamplingStats(
+        samples=len(t),
+        duration_s=float(t[-1] - t[0]),
+        median_step_s=median,
+        min_step_s=float(steps.min()),
+        max_step_s=float(steps.max()),
+        jitter_s=float(regular.std()) if regular.size else 0.0,
+        rate_hz=1.0 / median,
+        gaps=int(is_gap.sum()),
+        dropped_estimate=int(np.round(steps[is_gap] / median - 1).sum()),
+    )

@@ -1,0 +1,60 @@
+"""Shared fixtures: short simulated sessions and the real Panda reference recording."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from recorder.capture import sim_session_meta
+from recorder.sim import SimConfig, plan_session
+from recorder.sources.sim import SIM_COLUMNS, SimSource
+from schemas import write_session
+
+REFERENCE = Path(__file__).resolve().parents[2] / "shared" / "reference" / "gaz2019-exciting-traj"
+BIN = Path(sys.executable).parent
+
+
+def simulate_columns(spec, config) -> dict[str, np.ndarray]:
+    """Run one spec through the simulator and return its full columns."""
+    chunks = list(SimSource(spec, config, chunk=100).stream())
+    return {name: np.concatenate([c[name] for c in chunks]) for name in SIM_COLUMNS}
+
+
+def make_session(directory: Path, *, seed: int = 3, action: str = "shove", pose: str = "B",
+                 link: int | None = 7, duration_s: float = 3.0, planned_at_s: float = 1.5,
+                 rate_hz: float = 500.0, **kwargs) -> Path:
+    """Simulate and write a short session; return its path."""
+    config = SimConfig(rate_hz=rate_hz)
+    spec = plan_session(seed=seed, condition="static", action=action, pose=pose, link=link,
+                        duration_s=duration_s, planned_at_s=planned_at_s, **kwargs)
+    meta = sim_session_meta(spec, config, SimSource(spec, config).metadata())
+    path = directory / f"{action}_{seed}.parquet"
+    write_session(path, simulate_columns(spec, config), meta)
+    return path
+
+
+@pytest.fixture
+def session_path(tmp_path: Path) -> Path:
+    """A 3 s simulated shove on link 7 at 500 Hz."""
+    return make_session(tmp_path)
+
+
+@pytest.fixture(scope="session")
+def reference_dir() -> Path:
+    """The real Panda recording beside the project (always present in CI)."""
+    if not REFERENCE.is_dir():
+        pytest.skip(f"reference recording not found at {REFERENCE}")
+    return REFERENCE
+
+
+def run_cli(*args: str, cwd: Path | None = None, timeout: float = 300
+            ) -> subprocess.CompletedProcess:
+    """Run one of the project's console scripts and capture its output."""
+    env = dict(os.environ, COLUMNS="200")
+    return subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True,
+                          cwd=cwd, timeout=timeout, env=env)

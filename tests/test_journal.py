@@ -1,0 +1,108 @@
+"""Nothing recorded is lost: the journal, recovery, and a capture killed mid-way."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from recorder.journal import SessionWriter, journal_path, read_journal, recover_directory
+from schemas import InputError, SessionMeta, validate_session
+from tests.conftest import BIN, run_cli
+
+
+def _rows(t0: float, n: int, step: float = 0.001) -> dict[str, np.ndarray]:
+    t = t0 + step * np.arange(n)
+    cols = {"t": t}
+    for prefix in ("q", "dq", "tau"):
+        for i in range(1, 8):
+            cols[f"{prefix}_{i}"] = np.sin(t * i)
+    return cols
+
+
+COLUMNS = list(_rows(0, 1))
+META = SessionMeta(session_id="journaltest", source="sim", action="bump")
+
+
+def test_writer_flushes_every_half_interval_and_closes(tmp_path: Path) -> None:
+    out = tmp_path / "s.parquet"
+    writer = SessionWriter(out, META, COLUMNS, flush_interval_s=0.1)
+    for k in range(30):
+        writer.append(_rows(k * 0.01, 10))
+        pending = (k + 1) * 10 - writer.samples_written
+        assert pending * 0.001 <= 0.1
+        if writer.samples_written:
+            assert read_journal(journal_path(out)).table.num_rows == writer.samples_written
+    path = writer.close()
+    assert not journal_path(out).exists()
+    assert validate_session(path).n_samples == 300
+
+
+def test_writer_refuses_existing_output(tmp_path: Path) -> None:
+    out = tmp_path / "s.parquet"
+    out.write_bytes(b"precious")
+    with pytest.raises(InputError, match="already exists"):
+        SessionWriter(out, META, COLUMNS)
+    assert out.read_bytes() == b"precious" and not journal_path(out).exists()
+
+
+def test_recover_drops_torn_batch_and_marks_session(tmp_path: Path) -> None:
+    out = tmp_path / "s.parquet"
+    writer = SessionWriter(out, META, COLUMNS, flush_interval_s=0.02)
+    for k in range(5):
+        writer.append(_rows(k * 0.02, 20))
+    writer.abort()
+    journal = journal_path(out)
+    journal.write_bytes(journal.read_bytes()[:-500])
+    (recovery,) = recover_directory(tmp_path)
+    session = validate_session(recovery.session)
+    assert session.meta.recovered and session.meta.recovered_samples == 80
+    assert "torn" in recovery.note and not journal.exists()
+    assert np.allclose(session.t, 0.001 * np.arange(80))
+
+
+def test_recover_removes_stale_journal_of_complete_session(tmp_path: Path) -> None:
+    out = tmp_path / "s.parquet"
+    writer = SessionWriter(out, META, COLUMNS)
+    writer.append(_rows(0, 100))
+    writer.close()
+    journal_path(out).write_bytes(b"left over")
+    (recovery,) = recover_directory(tmp_path)
+    assert "stale" in recovery.note and validate_session(out).n_samples == 100
+
+
+def test_capture_killed_midway_loses_nothing_older_than_flush(tmp_path: Path) -> None:
+    args = ["--pose", "C", "--action", "shove", "--seed", "21", "--duration", "6",
+            "--planned-at", "4", "--rate", "1000"]
+    live_dir, full_dir = tmp_path / "live", tmp_path / "full"
+    proc = subprocess.Popen([str(BIN / "recorder"), "capture", *args, "--realtime", "--out",
+                             str(live_dir)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        for line in proc.stderr:
+            if "recording started" in line:
+                break
+        started = time.monotonic()
+        time.sleep(1.5)
+        proc.send_signal(signal.SIGKILL)
+        killed_after = time.monotonic() - started
+    finally:
+        proc.wait(timeout=30)
+    assert proc.returncode == -signal.SIGKILL
+    assert not list(live_dir.glob("*.parquet")) and list(live_dir.glob("*.journal"))
+    recovered = run_cli("recorder", "recover", str(live_dir))
+    assert recovered.returncode == 0, recovered.stderr
+    (path,) = live_dir.glob("*.parquet")
+    session = validate_session(path)
+    assert session.meta.recovered and session.meta.recovered_samples == session.n_samples
+    assert session.t[-1] >= killed_after - 0.1 - 0.05
+    full = run_cli("recorder", "capture", *args, "--out", str(full_dir))
+    reference = pq.read_table(full.stdout.strip())
+    n = session.n_samples
+    for name in session.table.column_names:
+        assert np.array_equal(session.column(name), reference.column(name).to_numpy()[:n]), name
