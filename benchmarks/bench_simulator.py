@@ -15,10 +15,10 @@ import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
-import pinocchio as pin  # noqa: E402
+import numpy as np
+import pinocchio as pin
 
-from recorder.sim import PandaSimulator, SimConfig, plan_session  # noqa: E402
+from recorder.sim import PandaSimulator, SimConfig, plan_session
 
 SIM_SECONDS = 6.0
 
