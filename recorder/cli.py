@@ -16,6 +16,7 @@ from rich.table import Table
 
 from recorder.capture import OperatorCue, capture, session_filename, sim_session_meta
 from recorder.dataset import PRESETS, simulate_dataset
+from recorder.importer import import_arrays
 from recorder.info import session_info
 from recorder.journal import recover_directory
 from recorder.noise import SensorNoise, default_noise
@@ -177,6 +178,25 @@ def recover_command(
         err_console.print("no journals to recover")
     for rec in recoveries:
         print(f"{rec.session or rec.journal}: {rec.note}")
+
+
+@app.command("import-arrays")
+def import_arrays_command(
+    t: Annotated[Path, typer.Option("--t", help="Time stamps [s], one per line.")],
+    q: Annotated[Path, typer.Option("--q", help="Joint positions [rad].")],
+    dq: Annotated[Path, typer.Option("--dq", help="Joint velocities [rad/s].")],
+    tau: Annotated[Path, typer.Option("--tau", help="Measured joint torques [Nm].")],
+    out: Annotated[Path, typer.Option(help="Output directory.")],
+    meta: Annotated[list[str] | None, typer.Option(
+        help="Metadata KEY=VALUE (repeatable), e.g. action=none, with_hand=false, "
+             "planned_at_s=10, pose=A, operator=lab1, notes=...")] = None,
+    name: Annotated[str | None, typer.Option(help="Output file name (default from the "
+                                                   "metadata).")] = None,
+) -> None:
+    """Turn plain arrays (text with 7 values per line or one per line, CSV, or .npy) into
+    a validated session, and print its path. Time is shifted to start at 0 s."""
+    session_path = import_arrays(t, q, dq, tau, _out_dir(out), meta or [], name)
+    print(session_path)
 
 
 @app.command("info")

@@ -48,6 +48,8 @@ def session_path(tmp_path: Path) -> Path:
 def reference_dir() -> Path:
     """The real Panda recording beside the project (always present in CI)."""
     if not REFERENCE.is_dir():
+        if os.environ.get("CI"):
+            pytest.fail(f"reference recording missing at {REFERENCE} (CI must have ../shared)")
         pytest.skip(f"reference recording not found at {REFERENCE}")
     return REFERENCE
 

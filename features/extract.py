@@ -1,0 +1,206 @@
+"""From sessions to a feature matrix: timeseries x window x scalar features.
+
+:class:`SessionFeatures` is a scikit-learn transformer: its input ``X`` is a list
+of sessions (paths or :class:`schemas.Session`), its output one row of scalar
+features per session, with readable names (``range(tau_3)``) from
+``get_feature_names_out``. It composes with scalers and classifiers in a
+``sklearn.pipeline.Pipeline``. :func:`feature_rows` computes it for many sessions
+in parallel processes with a progress callback.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from sklearn.base import BaseEstimator, TransformerMixin
+
+from features.observer import ObserverConfig
+from features.scalars import SCALARS, scalar_features
+from features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
+from features.windows import Window, WindowSpec, find_window
+from schemas import InputError, Session, read_session
+
+DEFAULT_TIMESERIES = ("dq", "tau", "r")
+DEFAULT_SCALARS = ("range",)
+
+
+class SessionFeatures(TransformerMixin, BaseEstimator):
+    """Scalar features of each session's interaction window.
+
+    Parameters: ``timeseries`` (feature or group names, see
+    :mod:`features.timeseries`), ``window`` (fixed, planned, difference, change),
+    ``window_s`` length [s], ``shift_s`` for fixed windows [s], ``signal`` and
+    ``calibration`` of the detection methods, ``scalars`` (see
+    :mod:`features.scalars`), ``fft_k``, observer ``gain`` [1/s] and ``friction``,
+    ``wrench_frame`` ("ee" or a link 1..7). Defaults are the thesis's best SVM
+    input: the range of joint velocity, torque and residual in a 0.5 s window.
+    """
+
+    def __init__(self, timeseries: Sequence[str] = DEFAULT_TIMESERIES,
+                 window: str = "difference", window_s: float = 0.5, shift_s: float = 0.0,
+                 signal: str = "tau", calibration: str = "pre-contact",
+                 scalars: Sequence[str] = DEFAULT_SCALARS, fft_k: int = 3,
+                 gain: float = 50.0, friction: bool = True, wrench_frame: str | int = "ee"
+                 ) -> None:
+        self.timeseries = timeseries
+        self.window = window
+        self.window_s = window_s
+        self.shift_s = shift_s
+        self.signal = signal
+        self.calibration = calibration
+        self.scalars = scalars
+        self.fft_k = fft_k
+        self.gain = gain
+        self.friction = friction
+        self.wrench_frame = wrench_frame
+
+    def _check(self) -> None:
+        try:
+            expand(list(self.timeseries))
+        except KeyError as err:
+            raise InputError(f"unknown timeseries feature {err.args[0]!r}") from err
+        unknown = [s for s in self.scalars if s not in SCALARS]
+        if unknown:
+            raise InputError(f"unknown scalar feature {unknown[0]!r} (expected some of "
+                             f"{', '.join(SCALARS)})")
+
+    @property
+    def window_spec(self) -> WindowSpec:
+        """The window settings as a :class:`WindowSpec`."""
+        return WindowSpec(self.window, self.window_s, self.shift_s, signal=self.signal,
+                          calibration=self.calibration)
+
+    def chain_config(self) -> ChainConfig:
+        """The feature-chain settings."""
+        return ChainConfig(ObserverConfig(gain=self.gain, friction=self.friction),
+                           self.wrench_frame)
+
+    def config(self) -> dict:
+        """Return the parameters as JSON-ready values (stored with tables and models)."""
+        params = self.get_params()
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in params.items()}
+
+    def fit(self, X: Iterable, y=None) -> SessionFeatures:
+        """Nothing to learn; checks the parameters and returns self."""
+        self._check()
+        self.n_features_in_ = 1
+        return self
+
+    def get_feature_names_out(self, input_features=None) -> np.ndarray:
+        """Return the feature names, for example ``range(tau_3)``."""
+        self._check()
+        channels = [c for name in expand(list(self.timeseries)) for c in columns_of(name)]
+        _, names = scalar_features(np.zeros((4, len(channels))), list(self.scalars), channels,
+                                   self.fft_k)
+        return np.array(names, dtype=object)
+
+    def transform(self, X: Iterable) -> np.ndarray:
+        """Return the (n_sessions, n_features) matrix of scalar features."""
+        self._check()
+        return np.array([self.session_row(s)[0] for s in X])
+
+    def session_row(self, session: Session | str | Path) -> tuple[np.ndarray, list[str], Window]:
+        """Return (values, names, window) for one session."""
+        if not isinstance(session, Session):
+            session = read_session(session)
+        names = expand(list(self.timeseries))
+        spec = self.window_spec
+        needed = list(dict.fromkeys(names + ([spec.signal] if spec.method in
+                                             ("difference", "change") else [])))
+        chain = TimeseriesChain(self.chain_config(), session.meta.with_hand)
+        series = chain.compute(session.t, session.q, session.dq, session.tau, needed)
+        window = session_window(session, spec, series.get(spec.signal))
+        mask = window.mask(session.t)
+        if mask.sum() < 2:
+            raise InputError(f"window {window.start_s:.3f}-{window.end_s:.3f} s holds fewer "
+                             "than 2 samples (session too short?)", session.path)
+        values = np.column_stack([series[n] for n in names])[mask]
+        channels = [c for n in names for c in columns_of(n)]
+        row, labels = scalar_features(values, list(self.scalars), channels, self.fft_k)
+        return row, labels, window
+
+
+def session_window(session: Session, spec: WindowSpec,
+                   signal_values: np.ndarray | None) -> Window:
+    """Return the interaction window of a session (needs its planned time)."""
+    planned = session.meta.planned_at_s
+    if planned is None:
+        raise InputError("session has no planned interaction time (planned_at_s)", session.path)
+    return find_window(session.t, planned, spec, signal_values)
+
+
+@dataclass
+class FeatureRows:
+    """Rows of a scalar feature table, the feature names, and files that failed."""
+
+    rows: list[dict]
+    names: list[str]
+    problems: list[tuple[str, str]]
+
+
+def _session_feature_row(path: str, params: dict) -> tuple[dict | None, list[str], str | None]:
+    extractor = SessionFeatures(**params)
+    try:
+        session = read_session(path)
+        values, names, window = extractor.session_row(session)
+    except InputError as err:
+        return None, [], err.problem
+    meta = session.meta
+    row = {"file": Path(path).name, "session_id": meta.session_id, "action": meta.action,
+           "condition": meta.condition, "pose": meta.pose, "target_pose": meta.target_pose,
+           "link": meta.link, "operator": meta.operator, "speed_rad_s": meta.speed_rad_s,
+           "window_start_s": window.start_s, "window_end_s": window.end_s,
+           "window_method": window.method, "window_found": window.found,
+           "planned_at_s": meta.planned_at_s}
+    row.update(zip(names, values.tolist(), strict=True))
+    return row, names, None
+
+
+def feature_rows(paths: Sequence[str | Path], extractor: SessionFeatures, workers: int = 1,
+                 progress: Callable[[int, int], None] | None = None) -> FeatureRows:
+    """Compute the scalar features of many sessions, in ``workers`` processes.
+
+    Sessions that fail (bad file, window too short) are listed in ``problems``.
+    """
+    extractor.fit(None)
+    params = extractor.get_params()
+    names = list(extractor.get_feature_names_out())
+    rows, problems = [], []
+    jobs = [str(p) for p in paths]
+
+    def collect(path: str, result: tuple) -> None:
+        row, _, problem = result
+        if problem is None:
+            rows.append(row)
+        else:
+            problems.append((Path(path).name, problem))
+        if progress:
+            progress(len(rows) + len(problems), len(jobs))
+
+    if workers <= 1:
+        for path in jobs:
+            collect(path, _session_feature_row(path, params))
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            chunk = max(1, len(jobs) // (workers * 8))
+            results = pool.map(_session_feature_row, jobs, [params] * len(jobs), chunksize=chunk)
+            for path, result in zip(jobs, results, strict=True):
+                collect(path, result)
+    return FeatureRows(rows=rows, names=names, problems=problems)
+
+
+def timeseries_columns(session: Session, config: ChainConfig | None = None
+                       ) -> dict[str, np.ndarray]:
+    """Return every timeseries feature of every sample of a session, as flat columns:
+    ``t``, then ``q_1``.., ``r_1``.., ``f_x``.., ``m_norm`` (see :mod:`features.timeseries`)."""
+    chain = TimeseriesChain(config, session.meta.with_hand)
+    series = chain.compute(session.t, session.q, session.dq, session.tau)
+    columns = {"t": session.t}
+    for name, values in series.items():
+        for label, column in zip(columns_of(name), values.T, strict=True):
+            columns[label] = np.ascontiguousarray(column)
+    return columns

@@ -1,0 +1,65 @@
+"""Importing recordings that labs export as plain arrays."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+
+from features.dynamics import urdf_sha256
+from recorder.arrays import load_joint_arrays
+from recorder.capture import session_filename, tool_version, utc_now
+from schemas import InputError, SessionMeta, joint_columns, new_session_id, write_session
+
+_FIELDS = {f.name: f for f in fields(SessionMeta)}
+_NOT_SETTABLE = {"schema_version", "recovered", "recovered_samples", "simulator", "source_info",
+                 "tool_version", "created_utc", "urdf_sha256"}
+
+
+def parse_meta(pairs: list[str]) -> dict:
+    """Parse KEY=VALUE strings into metadata fields (values read as JSON when they can be,
+    so numbers, true/false and lists work; anything else is a string)."""
+    doc: dict = {}
+    for pair in pairs:
+        key, sep, raw = pair.partition("=")
+        key = key.strip()
+        if not sep or key not in _FIELDS or key in _NOT_SETTABLE:
+            settable = sorted(set(_FIELDS) - _NOT_SETTABLE)
+            raise InputError(f"bad --meta {pair!r} (expected KEY=VALUE with KEY one of "
+                             f"{', '.join(settable)})")
+        try:
+            value = json.loads(raw)
+        except json.JSONDecodeError:
+            value = raw
+        if key in ("operator", "notes", "pose", "target_pose", "action", "condition",
+                   "session_id", "source"):
+            value = raw
+        doc[key] = value
+    return doc
+
+
+def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out_dir: Path,
+                  meta_pairs: list[str], name: str | None = None) -> Path:
+    """Write a validated session from array files; return its path."""
+    arrays = load_joint_arrays(t_path, q_path, dq_path, tau_path)
+    doc = {"action": "none", "source": "arrays", "session_id": new_session_id(),
+           **parse_meta(meta_pairs)}
+    with_hand = bool(doc.get("with_hand", True))
+    t = arrays["t"] - arrays["t"][0]
+    steps = np.diff(t)
+    meta = SessionMeta(**doc)
+    meta.with_hand = with_hand
+    meta.created_utc = utc_now()
+    meta.urdf_sha256 = urdf_sha256(with_hand)
+    meta.tool_version = tool_version()
+    meta.source_info = {"imported_from": [str(p) for p in (t_path, q_path, dq_path, tau_path)]}
+    if meta.nominal_rate_hz is None and steps.size and (steps > 0).all():
+        meta.nominal_rate_hz = float(round(1.0 / np.median(steps), 3))
+    columns = {"t": t}
+    for prefix in ("q", "dq", "tau"):
+        for col, values in zip(joint_columns(prefix), arrays[prefix].T, strict=True):
+            columns[col] = values
+    path = out_dir / (name or session_filename(meta))
+    return write_session(path, columns, meta)

@@ -1,0 +1,74 @@
+"""Feature tables: one row per session (scalar features) or per sample (timeseries).
+
+A scalar feature table is Parquet with the identifying columns below, then one
+float64 column per feature named like ``range(tau_3)``. Its key-value metadata
+``contactkit.features`` holds a JSON document with the feature configuration and
+the ordered feature names, so a model can refuse a table made for other features.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from schemas.errors import InputError
+from schemas.session import atomic_write_parquet
+
+FEATURES_KEY = b"contactkit.features"
+FEATURE_TABLE_VERSION = 1
+ID_COLUMNS: list[tuple[str, pa.DataType]] = [
+    ("file", pa.string()),
+    ("session_id", pa.string()),
+    ("action", pa.string()),
+    ("condition", pa.string()),
+    ("pose", pa.string()),
+    ("target_pose", pa.string()),
+    ("link", pa.int8()),
+    ("operator", pa.string()),
+    ("speed_rad_s", pa.float64()),
+    ("window_start_s", pa.float64()),
+    ("window_end_s", pa.float64()),
+    ("window_method", pa.string()),
+    ("window_found", pa.bool_()),
+    ("planned_at_s", pa.float64()),
+]
+ID_NAMES = [name for name, _ in ID_COLUMNS]
+
+
+def feature_table_schema(feature_names: list[str], config: dict) -> pa.Schema:
+    """Return the schema of a scalar feature table for these features and config."""
+    doc = {"version": FEATURE_TABLE_VERSION, "config": config, "features": feature_names}
+    fields = [pa.field(n, t) for n, t in ID_COLUMNS]
+    fields += [pa.field(n, pa.float64()) for n in feature_names]
+    return pa.schema(fields, metadata={FEATURES_KEY: json.dumps(doc).encode()})
+
+
+def write_feature_table(path: str | Path, rows: list[dict], feature_names: list[str],
+                        config: dict, overwrite: bool = True) -> Path:
+    """Write a scalar feature table atomically; return the path."""
+    path = Path(path)
+    schema = feature_table_schema(feature_names, config)
+    table = pa.Table.from_pylist(rows, schema=schema)
+    atomic_write_parquet(table, path, overwrite=overwrite)
+    return path
+
+
+def read_feature_table(path: str | Path) -> tuple[pa.Table, dict]:
+    """Read a scalar feature table; return it and its feature document
+    (``config``, ``features``). Raises InputError on a foreign file."""
+    path = Path(path)
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowInvalid, OSError) as err:
+        raise InputError(f"not a readable Parquet file ({err})", path) from err
+    meta = table.schema.metadata or {}
+    if FEATURES_KEY not in meta:
+        raise InputError("not a contactkit feature table (no feature metadata)", path)
+    doc = json.loads(meta[FEATURES_KEY])
+    missing = [n for n in ID_NAMES + doc["features"] if n not in table.column_names]
+    if missing:
+        raise InputError(f"feature table lacks column {missing[0]!r}", path)
+    return table, doc

@@ -1,0 +1,109 @@
+"""Feature matrices: scikit-learn transformer, dataset tables, and the features command."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+from sklearn.base import clone
+from sklearn.pipeline import make_pipeline
+from sklearn.preprocessing import StandardScaler
+from sklearn.svm import SVC
+
+from features.extract import SessionFeatures, feature_rows
+from schemas import InputError
+from schemas.features import read_feature_table
+from tests.conftest import make_session, run_cli
+
+
+@pytest.fixture(scope="module")
+def small_dataset(tmp_path_factory) -> Path:
+    directory = tmp_path_factory.mktemp("small")
+    for seed in range(8):
+        action = ("none", "bump", "adjust", "shove")[seed % 4]
+        make_session(directory, seed=seed, action=action, link=(seed % 7) + 1, duration_s=4.0,
+                     planned_at_s=2.5, rate_hz=500.0)
+    return directory
+
+
+def test_transformer_names_and_pipeline(small_dataset: Path) -> None:
+    files = sorted(small_dataset.glob("*.parquet"))
+    extractor = SessionFeatures()
+    names = list(extractor.get_feature_names_out())
+    assert len(names) == 21 and names[0] == "range(dq_1)" and names[-1] == "range(r_7)"
+    X = extractor.fit_transform(files)
+    assert X.shape == (8, 21) and np.isfinite(X).all()
+    labels = [f.name.split("_")[0] for f in files]
+    model = make_pipeline(clone(extractor), StandardScaler(), SVC()).fit(files, labels)
+    assert set(model.predict(files[:3])) <= set(labels)
+    wide = SessionFeatures(timeseries=["model", "workspace"], scalars=["mean", "fft"],
+                           window="fixed")
+    assert "fft2(m_norm)" in wide.get_feature_names_out()
+    assert wide.fit_transform(files[:2]).shape == (2, len(wide.get_feature_names_out()))
+
+
+def test_bad_parameters_are_input_errors() -> None:
+    with pytest.raises(InputError, match="unknown timeseries feature 'torque'"):
+        SessionFeatures(timeseries=["torque"]).fit(None)
+    with pytest.raises(InputError, match="unknown scalar feature 'median'"):
+        SessionFeatures(scalars=["median"]).fit(None)
+
+
+def test_parallel_rows_equal_serial_and_bad_files_are_listed(small_dataset: Path,
+                                                            tmp_path: Path) -> None:
+    files = sorted(small_dataset.glob("*.parquet"))
+    broken = tmp_path / "broken.parquet"
+    broken.write_bytes(b"nope")
+    serial = feature_rows(files, SessionFeatures(), workers=1)
+    parallel = feature_rows([*files, broken], SessionFeatures(), workers=2)
+    assert serial.problems == []
+    ((name, problem),) = parallel.problems
+    assert name == "broken.parquet" and "not a readable Parquet file" in problem
+    for a, b in zip(serial.rows, parallel.rows, strict=True):
+        assert a == b
+
+
+def test_features_command_on_dataset_and_per_sample(small_dataset: Path, tmp_path: Path) -> None:
+    out = tmp_path / "features.parquet"
+    result = run_cli("classify", "features", str(small_dataset), "--out", str(out), "--workers",
+                     "2")
+    assert result.returncode == 0, result.stderr
+    table, doc = read_feature_table(out)
+    assert table.num_rows == 8 and doc["features"][0] == "range(dq_1)"
+    frame = pl.read_parquet(out)
+    assert frame["window_found"].dtype == pl.Boolean
+    assert set(frame["action"]) == {"none", "bump", "adjust", "shove"}
+    again = run_cli("classify", "features", str(small_dataset), "--out", str(out))
+    assert again.returncode == 2 and "already exists" in again.stderr
+    session = sorted(small_dataset.glob("*.parquet"))[0]
+    per_sample = tmp_path / "ps.parquet"
+    result = run_cli("classify", "features", str(session), "--out", str(per_sample),
+                     "--per-sample")
+    assert result.returncode == 0, result.stderr
+    columns = pl.read_parquet_schema(per_sample)
+    for name in ("r_1", "g_7", "tau_inv_3", "ddq_2", "p_int_5", "p_ext_6", "f_x", "m_z",
+                 "f_norm", "m_norm"):
+        assert name in columns
+    bad = run_cli("classify", "features", str(session), "--out", str(tmp_path / "x.parquet"),
+                  "--scalars", "median")
+    assert bad.returncode == 2 and "unknown scalar feature 'median'" in bad.stderr
+
+
+def test_import_arrays_round_trip(reference_dir: Path, tmp_path: Path) -> None:
+    args = ["recorder", "import-arrays", "--t", str(reference_dir / "time.txt"), "--q",
+            str(reference_dir / "positions.txt"), "--dq", str(reference_dir / "velocity.txt"),
+            "--tau", str(reference_dir / "torques.txt"), "--meta", "with_hand=false", "--meta",
+            "planned_at_s=10", "--meta", "condition=dynamic", "--out", str(tmp_path)]
+    result = run_cli(*args)
+    assert result.returncode == 0, result.stderr
+    frame = pl.read_parquet(result.stdout.strip())
+    assert frame.height == 20544 and frame["t"][0] == 0.0
+    assert frame["q_1"][0] == pytest.approx(-0.9584)
+    npy = tmp_path / "tau.npy"
+    np.save(npy, np.zeros((20544, 6)))
+    bad = run_cli(*args[:-2], "--out", str(tmp_path / "o"), "--tau", str(npy))
+    assert bad.returncode == 2 and "wrong joint count" in bad.stderr
+    bad_meta = run_cli(*args[:-2], "--out", str(tmp_path / "o"), "--meta", "colour=red")
+    assert bad_meta.returncode == 2 and "bad --meta 'colour=red'" in bad_meta.stderr

@@ -1,0 +1,88 @@
+"""Windows (Appendix A), scalar features (Table 3.4) and filters (Appendix B.4)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.signal
+import scipy.stats
+
+from features.filters import StreamingFilter, design, filter_batch
+from features.scalars import fft_magnitudes, hjorth_complexity, hjorth_mobility, scalar_features
+from features.windows import WindowSpec, find_window
+from schemas import InputError, read_session
+from tests.conftest import make_session
+
+
+def test_fixed_and_planned_windows() -> None:
+    t = np.arange(0, 10, 0.001)
+    w = find_window(t, 5.0, WindowSpec("fixed", 0.5, shift_s=0.1))
+    assert (w.start_s, w.end_s, w.found) == (pytest.approx(4.85), pytest.approx(5.35), False)
+    assert w.mask(t).sum() == pytest.approx(500, abs=1)
+    p = find_window(t, 5.0, WindowSpec("planned", 0.3))
+    assert (p.start_s, p.end_s) == (5.0, pytest.approx(5.3))
+
+
+@pytest.mark.parametrize("method", ["difference", "change"])
+@pytest.mark.parametrize("calibration", ["pre-contact", "thesis"])
+def test_detection_finds_a_shove_just_after_it_starts(tmp_path, method, calibration) -> None:
+    session = read_session(make_session(tmp_path, seed=8, action="shove", link=7,
+                                        duration_s=8.0, planned_at_s=5.0, rate_hz=1000.0))
+    onset = session.t[session.column("contact")][0]
+    window = find_window(session.t, 5.0, WindowSpec(method, calibration=calibration),
+                         session.tau)
+    assert window.found
+    assert onset - 0.01 <= window.onset_s <= onset + 0.2
+
+
+def test_detection_falls_back_to_planned_time_without_contact(tmp_path) -> None:
+    session = read_session(make_session(tmp_path, seed=8, action="none", duration_s=8.0,
+                                        planned_at_s=5.0, rate_hz=1000.0))
+    window = find_window(session.t, 5.0, WindowSpec("difference"), session.tau)
+    assert not window.found and window.start_s == 5.0 and window.onset_s is None
+
+
+def test_bad_window_spec() -> None:
+    with pytest.raises(InputError, match="unknown window method"):
+        WindowSpec("magic")
+    with pytest.raises(InputError, match="must be positive"):
+        WindowSpec("fixed", 0.0)
+
+
+def test_scalars_on_known_signals() -> None:
+    t = np.arange(400) / 1000.0
+    x = np.column_stack([np.sin(2 * np.pi * 10 * t), t**2, np.full(400, 3.0)])
+    values, names = scalar_features(x, ["mean", "variance", "range", "delta", "skew", "energy"],
+                                    ["a", "b", "c"])
+    table = dict(zip(names, values, strict=True))
+    assert table["range(b)"] == pytest.approx(t[-1] ** 2)
+    assert table["delta(b)"] == pytest.approx(t[-1] ** 2)
+    assert table["variance(c)"] == 0 and table["skew(c)"] == 0
+    assert table["skew(b)"] == pytest.approx(scipy.stats.skew(x[:, 1]))
+    assert table["energy(a)"] == pytest.approx((x[:, 0] ** 2).sum())
+    assert table["mean(a)"] == pytest.approx(0, abs=1e-12)
+    mobility = hjorth_mobility(x[:, :1])[0]
+    assert mobility == pytest.approx(2 * np.sin(np.pi * 10 / 1000), rel=1e-2)
+    assert hjorth_complexity(x[:, :1])[0] == pytest.approx(1.0, abs=0.02)
+    mags = fft_magnitudes(x, 3)
+    assert np.allclose(mags, np.abs(np.fft.fft(x, axis=0))[:3].T)
+    _, fft_names = scalar_features(x, ["fft"], ["a", "b", "c"])
+    assert fft_names[:4] == ["fft0(a)", "fft0(b)", "fft0(c)", "fft1(a)"]
+
+
+def test_zero_phase_batch_filter_has_no_lag_and_streaming_is_causal_sosfilt() -> None:
+    rate = 1000.0
+    t = np.arange(2000) / rate
+    x = np.column_stack([np.sin(2 * np.pi * 1.0 * t), np.random.default_rng(1).normal(size=2000)])
+    smooth = filter_batch(x, "low", 20.0, rate)
+    assert np.abs(smooth[200:-200, 0] - x[200:-200, 0]).max() < 0.01
+    stream = StreamingFilter("low", 20.0, rate, channels=2)
+    online = np.array([stream.update(sample) for sample in x])
+    sos = design("low", 20.0, rate)
+    zi = scipy.signal.sosfilt_zi(sos)[:, :, None] * x[0][None, None, :]
+    expected, _ = scipy.signal.sosfilt(sos, x, axis=0, zi=zi)
+    assert np.allclose(online, expected, atol=1e-12)
+    high = StreamingFilter("high", 5.0, rate, channels=2)
+    assert np.allclose(high.update(x[0]), 0.0 * x[0] + high.sos[0, 0] * x[0])
+    with pytest.raises(ValueError, match="Nyquist"):
+        design("low", 600.0, rate)
