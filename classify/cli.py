@@ -1,18 +1,26 @@
-"""The ``classify`` command: features now; training and evaluation build on them."""
+"""The ``classify`` command: features, training, evaluation, prediction, experiments."""
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+from classify.data import GROUP_KEYS, FeatureSet, load_features
+from classify.evaluate import PROTOCOLS, evaluate, report_markdown
+from classify.experiments import EXPERIMENTS, Setting, run_experiment
+from classify.modelfile import load_model, save_model
+from classify.models import MODEL_KINDS, make_model
+from classify.schemes import SCHEMES, check_scheme, scheme_classes
 from features.extract import SessionFeatures, feature_rows, timeseries_columns
 from features.scalars import SCALARS
 from features.timeseries import ALL_TIMESERIES, GROUPS
@@ -20,12 +28,13 @@ from features.windows import METHODS
 from schemas import InputError, read_session
 from schemas.cli import run_app
 from schemas.dataset import session_files
-from schemas.features import write_feature_table
+from schemas.features import FEATURES_KEY, write_feature_table
 
 app = typer.Typer(name="classify", no_args_is_help=True, add_completion=False,
                   pretty_exceptions_enable=False,
                   help="Turn sessions into features and contact predictions.")
 err_console = Console(stderr=True)
+DEFAULT_WORKERS = max(os.cpu_count() or 1, 1)
 
 
 @app.callback()
@@ -50,7 +59,8 @@ def _inputs(source: Path) -> list[Path]:
 
 def progress_bar(label: str) -> Progress:
     """Return a progress bar on stderr for long work."""
-    return Progress(TextColumn(f"[bold]{label}[/]"), BarColumn(), MofNCompleteColumn(),
+    return Progress(TextColumn(f"[bold]{label}[/] {{task.description}}"), BarColumn(),
+                    MofNCompleteColumn(),
                     TimeRemainingColumn(), console=err_console)
 
 
@@ -69,8 +79,7 @@ def features_command(
     per_sample: Annotated[bool, typer.Option(
         help="Write every timeseries feature of every sample instead (r_1..r_7, g_*, "
              "tau_inv_*, ddq_*, p_int_*, p_ext_*, f_x.. m_norm).")] = False,
-    workers: Annotated[int, typer.Option(help="Parallel processes.")] = max(os.cpu_count() or 1,
-                                                                             1),
+    workers: Annotated[int, typer.Option(help="Parallel processes.")] = DEFAULT_WORKERS,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
 ) -> None:
     """Compute features of a session or dataset: one row per session (scalar features
@@ -124,6 +133,199 @@ def _write_per_sample(files: list[Path], out: Path) -> None:
         if writer is not None:
             writer.close()
         tmp.unlink(missing_ok=True)
+
+
+FeaturesOpt = Annotated[str, typer.Option(
+    "--features", help="Timeseries features (comma-separated, or groups sensor, model, "
+                       "workspace) whose scalar features feed the model.")]
+ScalarsOpt = Annotated[str, typer.Option(help=f"Scalar features: {', '.join(SCALARS)}.")]
+WindowOpt = Annotated[str, typer.Option(help=f"Window method: {', '.join(METHODS)}.")]
+SchemeOpt = Annotated[str, typer.Option(help=f"Class scheme: {', '.join(SCHEMES)}.")]
+ModelOpt = Annotated[str, typer.Option(help=f"Classifier: {', '.join(MODEL_KINDS)}.")]
+SeedOpt = Annotated[int, typer.Option(help="Random seed (same seed, same result).")]
+WorkersOpt = Annotated[int, typer.Option(help="Parallel processes for features.")]
+DatasetsArg = Annotated[list[Path], typer.Argument(
+    help="Dataset directories (or feature tables from `classify features`); several are "
+         "combined, e.g. a static and a dynamic set.")]
+
+
+def _extractor(features: str, scalars: str, window: str, window_s: float) -> SessionFeatures:
+    extractor = SessionFeatures(timeseries=_split(features), scalars=_split(scalars),
+                                window=window, window_s=window_s)
+    extractor.fit(None)
+    return extractor
+
+
+def _feature_set(datasets: list[Path], extractor: SessionFeatures, workers: int,
+                 limited: bool = False) -> FeatureSet:
+    with progress_bar("features") as bar:
+        task = bar.add_task("sessions", total=None)
+        data = load_features(datasets, extractor, workers,
+                             lambda done, total: bar.update(task, completed=done, total=total))
+    for name, problem in data.problems:
+        err_console.print(f"[yellow]skipped[/] {name}: {problem}")
+    return data.limited() if limited else data
+
+
+@app.command("train")
+def train_command(
+    datasets: DatasetsArg,
+    out: Annotated[Path, typer.Option(help="Model file to write (.skops).")],
+    model: ModelOpt = "svm",
+    features: FeaturesOpt = "dq,tau,r",
+    scalars: ScalarsOpt = "range",
+    window: WindowOpt = "difference",
+    window_s: Annotated[float, typer.Option(help="Window length [s].")] = 0.5,
+    scheme: SchemeOpt = "full",
+    limited: Annotated[bool, typer.Option(
+        help="Limited context: drop shove from static and adjust from dynamic.")] = False,
+    c: Annotated[float, typer.Option("--C", help="SVM regularisation C.")] = 1.0,
+    seed: SeedOpt = 0,
+    workers: WorkersOpt = DEFAULT_WORKERS,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing model file.")] = False,
+) -> None:
+    """Train a classifier on every session of the datasets and save it as a safe model file."""
+    check_scheme(scheme)
+    if out.exists() and not overwrite:
+        raise InputError("output file already exists (pass --overwrite to replace it)", out)
+    extractor = _extractor(features, scalars, window, window_s)
+    data = _feature_set(datasets, extractor, workers, limited)
+    y = data.labels(scheme)
+    estimator = make_model(model, data.names, seed, c).fit(data.X, y)
+    classes = [str(c) for c in estimator.classes_]
+    save_model(out, estimator, extractor=extractor, feature_names=data.names, classes=classes,
+               kind=model, scheme=scheme, fingerprint=data.fingerprint(),
+               training={"datasets": [str(d) for d in datasets], "sessions": len(data),
+                         "seed": seed, "C": c, "limited": limited},
+               overwrite=overwrite)
+    err_console.print(f"trained {model} on {len(data)} sessions, classes {', '.join(classes)}")
+    print(out)
+
+
+@app.command("evaluate")
+def evaluate_command(
+    datasets: DatasetsArg,
+    protocol: Annotated[str, typer.Option(help="thesis: 25 random 80/20 splits; group: "
+                                               "no group on both sides of a split.")] = "group",
+    group: Annotated[str, typer.Option(help=f"Grouping for the group protocol: "
+                                            f"{', '.join(GROUP_KEYS)}.")] = "pose",
+    model: ModelOpt = "svm",
+    features: FeaturesOpt = "dq,tau,r",
+    scalars: ScalarsOpt = "range",
+    window: WindowOpt = "difference",
+    window_s: Annotated[float, typer.Option(help="Window length [s].")] = 0.5,
+    scheme: SchemeOpt = "full",
+    limited: Annotated[bool, typer.Option(
+        help="Limited context: drop shove from static and adjust from dynamic.")] = False,
+    c: Annotated[float, typer.Option("--C", help="SVM regularisation C.")] = 1.0,
+    seed: SeedOpt = 0,
+    workers: WorkersOpt = DEFAULT_WORKERS,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Also write the report "
+                                                                 "as JSON.")] = None,
+) -> None:
+    """Evaluate a classifier honestly and print accuracy, balanced accuracy, macro-F1,
+    per-class recall with 95 % confidence intervals, and the confusion matrix."""
+    check_scheme(scheme)
+    if protocol not in PROTOCOLS:
+        raise InputError(f"unknown protocol {protocol!r} (expected thesis or group)")
+    extractor = _extractor(features, scalars, window, window_s)
+    data = _feature_set(datasets, extractor, workers, limited)
+    y = data.labels(scheme)
+    groups = data.groups(group) if protocol == "group" else None
+    with progress_bar(f"{protocol} protocol") as bar:
+        task = bar.add_task("splits", total=None)
+        report = evaluate(data.X, y, lambda: make_model(model, data.names, seed, c),
+                          protocol=protocol, groups=groups, group_by=group, model=model,
+                          scheme=scheme, classes=scheme_classes(scheme), seed=seed,
+                          progress=lambda d, t: bar.update(task, completed=d, total=t))
+    print(report_markdown(report))
+    if json_out is not None:
+        json_out.write_text(json.dumps(report.as_dict(), indent=2))
+
+
+@app.command("predict")
+def predict_command(
+    model_path: Annotated[Path, typer.Argument(metavar="MODEL", help="Model file.")],
+    sessions: Annotated[list[Path], typer.Argument(
+        help="Session files or directories, or a feature table.")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON lines.")] = False,
+) -> None:
+    """Predict the contact class of sessions with a trained model."""
+    model = load_model(model_path)
+    extractor = model.extractor()
+    rows = []
+    for source in sessions:
+        if source.is_file() and _is_feature_table(source):
+            data = load_features([source], extractor)
+            model.check_features(data.names, source)
+            X, labels, truth = data.X, data.info["file"], data.info["action"]
+        else:
+            X, labels, truth = [], [], []
+            for path in _inputs(source):
+                try:
+                    values, names, _ = extractor.session_row(path)
+                except InputError as err:
+                    err_console.print(f"[yellow]skipped[/] {err}")
+                    continue
+                model.check_features(names, path)
+                X.append(values)
+                labels.append(str(path))
+                truth.append(read_session(path).meta.action)
+            if not X:
+                continue
+        proba = model.estimator.predict_proba(np.asarray(X))
+        for label, p, true in zip(labels, proba, truth, strict=True):
+            rows.append((label, model.classes[int(np.argmax(p))], p, true))
+    if not rows:
+        raise InputError("nothing to predict")
+    for label, predicted, p, true in rows:
+        if as_json:
+            print(json.dumps({"session": label, "predicted": predicted, "true": true,
+                              "probabilities": dict(zip(model.classes, p.round(4).tolist(),
+                                                        strict=True))}))
+        else:
+            probs = " ".join(f"{c}={v:.2f}" for c, v in zip(model.classes, p, strict=True))
+            print(f"{label}: {predicted} ({probs}; recorded action {true})")
+
+
+@app.command("experiment")
+def experiment_command(
+    name: Annotated[str, typer.Argument(help=f"One of {', '.join(EXPERIMENTS)}.")],
+    datasets: DatasetsArg,
+    out: Annotated[Path, typer.Option(help="Directory for the .md, .json and .png.")],
+    protocol: Annotated[str, typer.Option(help="thesis or group.")] = "group",
+    group: Annotated[str, typer.Option(help=f"Grouping: {', '.join(GROUP_KEYS)}.")] = "pose",
+    scheme: SchemeOpt = "full",
+    c: Annotated[float, typer.Option("--C", help="SVM regularisation C.")] = 10.0,
+    seed: SeedOpt = 0,
+    workers: WorkersOpt = DEFAULT_WORKERS,
+) -> None:
+    """Regenerate a thesis table on any dataset: features (Appendix B), rfe, speed
+    (Figure 6.5) or window (accuracy against window length)."""
+    check_scheme(scheme)
+    if protocol not in PROTOCOLS:
+        raise InputError(f"unknown protocol {protocol!r} (expected thesis or group)")
+    setting = Setting(protocol=protocol, group_by=group, scheme=scheme, seed=seed,
+                      workers=workers, c=c)
+    with progress_bar(f"experiment {name}") as bar:
+        tasks: dict[str, int] = {}
+
+        def progress(label: str, done: int, total: int) -> None:
+            if label not in tasks:
+                tasks[label] = bar.add_task(label, total=total)
+            bar.update(tasks[label], completed=done, total=total, description=label)
+
+        paths = run_experiment(name, datasets, out, setting, progress)
+    for path in paths:
+        print(path)
+
+
+def _is_feature_table(path: Path) -> bool:
+    try:
+        metadata = pq.read_schema(path).metadata or {}
+    except (pa.ArrowInvalid, OSError):
+        return False
+    return FEATURES_KEY in metadata
 
 
 def main() -> None:

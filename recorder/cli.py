@@ -32,6 +32,7 @@ app = typer.Typer(
          "resulting sessions. Without a robot, sessions come from a physics simulation.",
     no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False)
 err_console = Console(stderr=True)
+DEFAULT_WORKERS = max(os.cpu_count() or 1, 1)
 
 
 def _out_dir(path: Path) -> Path:
@@ -130,8 +131,7 @@ def simulate_command(
     sessions: Annotated[int | None, typer.Option(
         help="How many sessions (default: the preset's size).")] = None,
     seed: Annotated[int, typer.Option(help="Dataset seed.")] = 0,
-    workers: Annotated[int, typer.Option(help="Parallel processes.")] = max(os.cpu_count() or 1,
-                                                                             1),
+    workers: Annotated[int, typer.Option(help="Parallel processes.")] = DEFAULT_WORKERS,
     rate: Annotated[float | None, typer.Option(
         help="Sample rate [Hz] (default: the preset's, 600 for the thesis presets).")] = None,
     robot_seed: Annotated[int, typer.Option(help="Simulated robot instance.")] = 0,

@@ -80,9 +80,10 @@ def preset_specs(preset: Preset, n: int, seed: int, with_hand: bool = True,
     return specs
 
 
-def _simulate_batch(specs: list[SessionSpec], config: SimConfig, out_dir: str
-                    ) -> list[str]:
-    """Worker: simulate ``specs`` together and write each session; return the paths."""
+def simulate_specs(specs: list[SessionSpec], config: SimConfig, out_dir: str | Path
+                   ) -> list[str]:
+    """Simulate ``specs`` together (one batch) and write each session into ``out_dir``
+    unless its file exists; return the session paths. Runs in worker processes."""
     parts: dict[int, list[dict[str, np.ndarray]]] = {}
     written = []
     for index, columns, finished in PandaSimulator(config).run(specs):
@@ -152,10 +153,10 @@ def _run_batches(todo: list[SessionSpec], config: SimConfig, out_dir: Path,
     batches = [todo[i:i + size] for i in range(0, len(todo), size)]
     if workers <= 1:
         for batch in batches:
-            yield _simulate_batch(batch, config, str(out_dir))
+            yield simulate_specs(batch, config, str(out_dir))
         return
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(_simulate_batch, batch, config, str(out_dir)) for batch in batches]
+        futures = [pool.submit(simulate_specs, batch, config, str(out_dir)) for batch in batches]
         for future in as_completed(futures):
             yield future.result()
 

@@ -60,3 +60,28 @@ def run_cli(*args: str, cwd: Path | None = None, timeout: float = 300
     env = dict(os.environ, COLUMNS="200")
     return subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True,
                           cwd=cwd, timeout=timeout, env=env)
+
+
+def make_dataset(directory: Path, poses=("A", "B", "C", "D"), repeats: int = 2,
+                 rate_hz: float = 250.0, condition: str = "static") -> Path:
+    """Simulate a small balanced dataset (poses x four actions x repeats) in one batch."""
+    from recorder.dataset import simulate_specs
+    from recorder.sim import SimConfig, plan_session
+
+    specs = []
+    for rep in range(repeats):
+        for p_index, pose in enumerate(poses):
+            for a_index, action in enumerate(("none", "bump", "adjust", "shove")):
+                seed = 1000 * rep + 10 * p_index + a_index
+                operator = f"op{(a_index + rep) % 3}"
+                if condition == "dynamic":
+                    specs.append(plan_session(seed=seed, condition="dynamic", action=action,
+                                              pose="A", target_pose=pose, operator=operator,
+                                              speed_rad_s=0.4 + 0.1 * rep))
+                else:
+                    specs.append(plan_session(seed=seed, condition="static", action=action,
+                                              pose=pose, duration_s=5.0, planned_at_s=3.0,
+                                              operator=operator))
+    directory.mkdir(parents=True, exist_ok=True)
+    simulate_specs(specs, SimConfig(rate_hz=rate_hz), directory)
+    return directory

@@ -1,0 +1,155 @@
+"""Feature sets for training and evaluation: one row per session, with its labels
+and grouping keys.
+
+Features of a dataset directory are computed once per feature configuration and
+cached in ``DATASET/.cache/`` (keyed by the configuration and the names, sizes and
+modification times of the session files), so ``train`` after ``evaluate`` does not
+recompute them. A feature table written by ``classify features`` is read as is.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from classify.schemes import limited_mask, relabel
+from features.extract import SessionFeatures, feature_rows
+from schemas import InputError
+from schemas.dataset import session_files
+from schemas.features import feature_table_schema, read_feature_table
+from schemas.session import atomic_write_parquet
+
+GROUP_KEYS = ("pose", "session", "operator", "condition")
+CACHE_DIR = ".cache"
+
+
+@dataclass
+class FeatureSet:
+    """Feature matrix ``X`` (sessions x features), names, and per-session columns
+    (action, condition, pose, target pose, operator, session id, speed, window)."""
+
+    X: np.ndarray
+    names: list[str]
+    info: dict[str, np.ndarray]
+    config: dict
+    problems: list[tuple[str, str]]
+
+    def __len__(self) -> int:
+        return len(self.X)
+
+    def labels(self, scheme: str = "full") -> np.ndarray:
+        """Return class labels under a class scheme."""
+        return relabel(self.info["action"], scheme)
+
+    def groups(self, by: str) -> np.ndarray:
+        """Return the group of each session for group-aware splits.
+
+        ``pose`` is the pose where the contact happens: the held pose (static) or
+        the target pose of the move (dynamic); ``session``, ``operator`` and
+        ``condition`` are what they say.
+        """
+        if by == "pose":
+            target = self.info["target_pose"]
+            return np.array([t if t else p for p, t in zip(self.info["pose"], target,
+                                                            strict=True)], dtype=object)
+        if by == "session":
+            return self.info["session_id"]
+        if by in ("operator", "condition"):
+            return self.info[by]
+        raise InputError(f"unknown grouping {by!r} (expected one of {', '.join(GROUP_KEYS)})")
+
+    def subset(self, mask: np.ndarray) -> FeatureSet:
+        """Return the sessions where ``mask`` is true."""
+        return FeatureSet(self.X[mask], self.names, {k: v[mask] for k, v in self.info.items()},
+                          self.config, self.problems)
+
+    def limited(self) -> FeatureSet:
+        """Return the limited context: no shove in static, no adjust in dynamic."""
+        return self.subset(limited_mask(self.info["action"], self.info["condition"]))
+
+    def columns(self, names: Sequence[str]) -> FeatureSet:
+        """Return a feature set restricted to the named feature columns."""
+        index = [self.names.index(n) for n in names]
+        return FeatureSet(self.X[:, index], list(names), self.info, self.config, self.problems)
+
+    def fingerprint(self) -> str:
+        """Return a SHA-256 of the session ids, labels and feature values (hex)."""
+        digest = hashlib.sha256()
+        digest.update("\n".join(self.info["session_id"].astype(str)).encode())
+        digest.update("\n".join(self.info["action"].astype(str)).encode())
+        digest.update(np.ascontiguousarray(self.X).tobytes())
+        return digest.hexdigest()
+
+
+def _from_table(table: pa.Table, doc: dict, problems: list) -> FeatureSet:
+    names = list(doc["features"])
+    X = np.column_stack([table.column(n).to_numpy(zero_copy_only=False) for n in names]) \
+        if table.num_rows else np.zeros((0, len(names)))
+    info = {}
+    for key in ("file", "session_id", "action", "condition", "pose", "target_pose", "operator",
+                "window_method"):
+        info[key] = np.array(table.column(key).to_pylist(), dtype=object)
+    for key in ("speed_rad_s", "window_start_s", "planned_at_s", "link"):
+        info[key] = np.array([np.nan if v is None else v for v in table.column(key).to_pylist()],
+                             dtype=float)
+    info["window_found"] = np.array(table.column("window_found").to_pylist(), dtype=bool)
+    return FeatureSet(X, names, info, doc["config"], problems)
+
+
+def _cache_key(files: list[Path], config: dict) -> str:
+    digest = hashlib.sha256(json.dumps(config, sort_keys=True).encode())
+    for path in files:
+        stat = path.stat()
+        digest.update(f"{path.name}:{stat.st_size}:{stat.st_mtime_ns}\n".encode())
+    return digest.hexdigest()[:16]
+
+
+def load_features(sources: Sequence[Path], extractor: SessionFeatures, workers: int = 1,
+                  progress: Callable[[int, int], None] | None = None,
+                  cache: bool = True) -> FeatureSet:
+    """Return the feature set of one or more dataset directories or feature tables.
+
+    Several sources are concatenated (for example a static and a dynamic dataset).
+    """
+    parts = [_load_one(Path(s), extractor, workers, progress, cache) for s in sources]
+    if len(parts) == 1:
+        return parts[0]
+    names = parts[0].names
+    for part in parts[1:]:
+        if part.names != names:
+            raise InputError("the sources have different feature columns")
+    info = {k: np.concatenate([p.info[k] for p in parts]) for k in parts[0].info}
+    return FeatureSet(np.vstack([p.X for p in parts]), names, info, parts[0].config,
+                      [x for p in parts for x in p.problems])
+
+
+def _load_one(source: Path, extractor: SessionFeatures, workers: int,
+              progress: Callable[[int, int], None] | None, cache: bool) -> FeatureSet:
+    if source.is_file():
+        table, doc = read_feature_table(source)
+        return _from_table(table, doc, [])
+    if not source.is_dir():
+        raise InputError("no such dataset directory or feature table", source)
+    files = session_files(source)
+    if not files:
+        raise InputError("no session files (*.parquet) in this directory", source)
+    extractor.fit(None)
+    config = extractor.config()
+    cache_path = source / CACHE_DIR / f"features-{_cache_key(files, config)}.parquet"
+    if cache and cache_path.is_file():
+        table, doc = read_feature_table(cache_path)
+        return _from_table(table, doc, [])
+    result = feature_rows(files, extractor, workers, progress)
+    if not result.rows:
+        raise InputError("no session could be processed", source)
+    table = pa.Table.from_pylist(result.rows, schema=feature_table_schema(result.names, config))
+    if cache:
+        cache_path.parent.mkdir(exist_ok=True)
+        atomic_write_parquet(table, cache_path, overwrite=True)
+    return _from_table(table, {"config": config, "features": result.names}, result.problems)

@@ -1,0 +1,143 @@
+"""Model files that load without executing code from the file.
+
+A model file is a skops archive (a zip of JSON and .npy members, never pickle)
+with one extra member, ``contactkit.json``: the feature configuration and feature
+names, the class names and scheme, the model kind, a SHA-256 fingerprint of the
+training data, package versions, and a SHA-256 over every other member.
+
+Loading (1) checks the digest, so a file changed after it was written is refused;
+(2) asks skops which types the file would build and refuses any outside
+``TRUSTED_TYPES`` (skops' own defaults for numpy and scikit-learn, plus the few
+named below), before anything is constructed; (3) builds the model. Feature
+tables or sessions prepared with other features are refused by
+:meth:`ModelFile.check_features`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.metadata
+import io
+import json
+import platform
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import skops.io as sio
+
+from features.extract import SessionFeatures
+from schemas import InputError
+
+META_MEMBER = "contactkit.json"
+FORMAT = "contactkit-model/1"
+TRUSTED_TYPES = [
+    "classify.models.CalibratedSVC",
+    "classify.models.JointEnsemble",
+    "sklearn.model_selection._split.StratifiedKFold",
+    "sklearn.calibration._CalibratedClassifier",
+    "sklearn.calibration._SigmoidCalibration",
+]
+
+
+def _versions() -> dict[str, str]:
+    names = ("contactkit", "scikit-learn", "numpy", "scipy", "skops", "pin")
+    out = {"python": platform.python_version()}
+    for name in names:
+        try:
+            out[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            out[name] = "missing"
+    return out
+
+
+def _members_digest(archive: zipfile.ZipFile) -> str:
+    digest = hashlib.sha256()
+    for name in sorted(archive.namelist()):
+        if name == META_MEMBER:
+            continue
+        digest.update(name.encode() + b"\0" + archive.read(name) + b"\0")
+    return digest.hexdigest()
+
+
+@dataclass
+class ModelFile:
+    """A loaded model: the estimator and what the file says about it."""
+
+    estimator: object
+    meta: dict
+
+    @property
+    def classes(self) -> list[str]:
+        """Class names in the order of ``predict_proba``'s columns."""
+        return list(self.meta["classes"])
+
+    @property
+    def feature_names(self) -> list[str]:
+        """The feature columns the model expects, in order."""
+        return list(self.meta["feature_names"])
+
+    def extractor(self) -> SessionFeatures:
+        """Return the feature extractor configured as at training time."""
+        return SessionFeatures(**self.meta["features"])
+
+    def check_features(self, names: list[str], where: str | Path | None = None) -> None:
+        """Raise InputError unless ``names`` are exactly the model's feature columns."""
+        if list(names) != self.feature_names:
+            extra = sorted(set(names) - set(self.feature_names))[:3]
+            missing = sorted(set(self.feature_names) - set(names))[:3]
+            raise InputError(f"model was trained on other features (missing {missing}, "
+                             f"unexpected {extra})", where)
+
+
+def save_model(path: str | Path, estimator: object, *, extractor: SessionFeatures,
+               feature_names: list[str], classes: list[str], kind: str, scheme: str,
+               fingerprint: str, training: dict, overwrite: bool = False) -> Path:
+    """Write a model file atomically; return its path."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise InputError("output file already exists (pass --overwrite to replace it)", path)
+    payload = sio.dumps(estimator)
+    with zipfile.ZipFile(io.BytesIO(payload)) as archive:
+        members = {name: archive.read(name) for name in archive.namelist()}
+        digest = _members_digest(archive)
+    meta = {"format": FORMAT, "kind": kind, "scheme": scheme, "classes": list(classes),
+            "features": extractor.config(), "feature_names": list(feature_names),
+            "training_fingerprint": fingerprint, "training": training,
+            "versions": _versions(), "members_sha256": digest}
+    tmp = path.with_name(f".{path.name}.tmp")
+    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as out:
+        for name, data in members.items():
+            out.writestr(name, data)
+        out.writestr(META_MEMBER, json.dumps(meta, indent=2))
+    tmp.replace(path)
+    return path
+
+
+def load_model(path: str | Path) -> ModelFile:
+    """Load a model file safely (see the module docstring); raise InputError if refused."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no such model file", path)
+    data = path.read_bytes()
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as archive:
+            if META_MEMBER not in archive.namelist():
+                raise InputError("not a contactkit model file (no contactkit.json)", path)
+            meta = json.loads(archive.read(META_MEMBER))
+            digest = _members_digest(archive)
+    except (zipfile.BadZipFile, json.JSONDecodeError) as err:
+        raise InputError(f"not a contactkit model file ({err})", path) from err
+    if meta.get("format") != FORMAT:
+        raise InputError(f"unknown model format {meta.get('format')!r}", path)
+    if digest != meta.get("members_sha256"):
+        raise InputError("model file was modified after it was written (digest mismatch); "
+                         "refusing to load it", path)
+    try:
+        untrusted = [t for t in sio.get_untrusted_types(data=data) if t not in TRUSTED_TYPES]
+    except Exception as err:  # skops raises many kinds on a malformed archive
+        raise InputError(f"unreadable model archive ({type(err).__name__})", path) from err
+    if untrusted:
+        raise InputError(f"model file would build untrusted types {untrusted}; refusing", path)
+    estimator = sio.loads(data, trusted=TRUSTED_TYPES)
+    return ModelFile(estimator=estimator, meta=meta)

@@ -1,0 +1,56 @@
+"""Class schemes and contexts (thesis section 6.1.3).
+
+=============  ==========================================  =========================
+scheme         classes                                     mapping
+=============  ==========================================  =========================
+full           none, bump, adjust, shove                   as recorded
+reaction       none, adjust, shove                         bump counts as none
+contact        none, contact                               bump, adjust, shove merged
+intentional    none, intentional                           bump counts as none;
+                                                           adjust and shove merged
+=============  ==========================================  =========================
+
+The *limited* context (the thesis's Figure 6.9) removes the actions that were
+hardest in each condition: shove from static sessions and adjust from dynamic
+sessions. Those sessions are excluded, not relabelled.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from schemas import ACTIONS, InputError
+
+SCHEMES: dict[str, dict[str, str]] = {
+    "full": {a: a for a in ACTIONS},
+    "reaction": {"none": "none", "bump": "none", "adjust": "adjust", "shove": "shove"},
+    "contact": {"none": "none", "bump": "contact", "adjust": "contact", "shove": "contact"},
+    "intentional": {"none": "none", "bump": "none", "adjust": "intentional",
+                    "shove": "intentional"},
+}
+LIMITED_DROP = {"static": "shove", "dynamic": "adjust"}
+
+
+def check_scheme(scheme: str) -> str:
+    """Return ``scheme`` if known, else raise InputError."""
+    if scheme not in SCHEMES:
+        raise InputError(f"unknown class scheme {scheme!r} (expected one of "
+                         f"{', '.join(SCHEMES)})")
+    return scheme
+
+
+def scheme_classes(scheme: str) -> list[str]:
+    """Return the class names of a scheme, in a fixed order (none first)."""
+    mapping = SCHEMES[check_scheme(scheme)]
+    return list(dict.fromkeys(mapping[a] for a in ACTIONS))
+
+
+def relabel(actions: np.ndarray, scheme: str) -> np.ndarray:
+    """Map recorded actions to the scheme's classes."""
+    mapping = SCHEMES[check_scheme(scheme)]
+    return np.array([mapping[a] for a in actions], dtype=object)
+
+
+def limited_mask(actions: np.ndarray, conditions: np.ndarray) -> np.ndarray:
+    """Return the sessions kept in the limited context."""
+    return np.array([LIMITED_DROP.get(c) != a for a, c in zip(actions, conditions, strict=True)])

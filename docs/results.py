@@ -1,0 +1,138 @@
+"""Regenerate docs/results.md: classifiers on thesis-sized simulated datasets.
+
+    .venv/bin/python docs/results.py --data data --workers 2
+
+Simulates ``thesis-static`` and ``thesis-dynamic`` into DATA/static and
+DATA/dynamic when they are missing (about 15 minutes on 2 cores; existing sessions
+are kept), computes features (cached in each dataset's .cache), and evaluates the
+SVM and the per-joint ensembles under the thesis protocol (25 random 80/20 splits)
+and the group protocol (leave one pose out), on the static, dynamic and combined
+sets. Then it breaks the best model's leave-one-pose-out predictions down by the
+touched link. Everything is seeded; re-running gives the same page.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from classify.data import FeatureSet, load_features
+from classify.evaluate import Report, evaluate, splits
+from classify.models import make_model
+from classify.schemes import scheme_classes
+from features.extract import SessionFeatures
+
+ROOT = Path(__file__).resolve().parents[1]
+CLASSES = scheme_classes("full")
+
+
+@dataclass(frozen=True)
+class Config:
+    """A feature and model configuration to report."""
+
+    name: str
+    extractor: SessionFeatures
+    c: float
+
+
+CONFIGS = (
+    Config("thesis best: range(dq, tau, r), difference window, C=1",
+           SessionFeatures(), 1.0),
+    Config("shape-aware: range + Hjorth(dq, tau, r), planned window, C=100",
+           SessionFeatures(scalars=["range", "hjorth_mob", "hjorth_comp"], window="planned"),
+           100.0),
+)
+
+
+def ensure_dataset(directory: Path, preset: str, workers: int) -> None:
+    """Simulate a preset into ``directory`` unless it is complete."""
+    recorder = Path(sys.executable).parent / "recorder"
+    subprocess.run([str(recorder), "simulate", str(directory), "--preset", preset, "--workers",
+                    str(workers)], check=True)
+
+
+def run(data: FeatureSet, kind: str, protocol: str, c: float) -> Report:
+    """Evaluate one model kind under one protocol (leave-one-pose-out for group)."""
+    groups = data.groups("pose") if protocol == "group" else None
+    return evaluate(data.X, data.labels(), lambda: make_model(kind, data.names, 0, c),
+                    protocol=protocol, groups=groups, group_by="pose", model=kind,
+                    classes=CLASSES, seed=0)
+
+
+def per_link(data: FeatureSet, c: float) -> list[tuple[str, int, float]]:
+    """Leave-one-pose-out accuracy of the SVM by touched link (0: no contact)."""
+    from schemas import read_session_meta
+
+    y, groups = data.labels(), data.groups("pose")
+    pred = np.empty(len(y), dtype=object)
+    for train, test in splits("group", y, groups, 0):
+        model = make_model("svm", data.names, 0, c).fit(data.X[train], y[train])
+        pred[test] = model.predict(data.X[test])
+    links = []
+    for directory, name in zip(data.info["dataset"], data.info["file"], strict=True):
+        meta, _ = read_session_meta(Path(directory) / name)
+        links.append(meta.link or 0)
+    links = np.array(links)
+    return [("none" if link == 0 else str(link), int((links == link).sum()),
+             float((pred == y)[links == link].mean())) for link in range(8)
+            if (links == link).any()]
+
+
+def row(dataset: str, config: Config, report: Report) -> str:
+    """One Markdown table row."""
+    protocol = "thesis 25x80/20" if report.protocol == "thesis" else "leave one pose out"
+    return (f"| {dataset} | {report.model} | {protocol} | {report.n_sessions} | "
+            f"{report.accuracy.text()} | {100 * report.split_accuracy_mean:.1f} ± "
+            f"{100 * report.split_accuracy_std:.1f} | {report.balanced_accuracy.text()} | "
+            f"{report.recall['shove'].text()} |")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=ROOT / "data")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "results.md")
+    args = parser.parse_args()
+    started = time.time()
+    static, dynamic = args.data / "static", args.data / "dynamic"
+    ensure_dataset(static, "thesis-static", args.workers)
+    ensure_dataset(dynamic, "thesis-dynamic", args.workers)
+    sections = []
+    for config in CONFIGS:
+        sets = {}
+        for name, sources in (("static", [static]), ("dynamic", [dynamic]),
+                              ("combined", [static, dynamic])):
+            data = load_features(sources, config.extractor, args.workers)
+            data.info["dataset"] = np.array(
+                [str(static) if c == "static" else str(dynamic) for c in data.info["condition"]],
+                dtype=object)
+            sets[name] = data
+        lines = [f"### {config.name}", "",
+                 "| data | model | protocol | sessions | accuracy [95 % CI] | accuracy over "
+                 "splits (mean ± sd) | balanced accuracy [95 % CI] | shove recall [95 % CI] |",
+                 "|---|---|---|---|---|---|---|---|"]
+        for name, data in sets.items():
+            for kind in ("svm", "per-joint", "three-joint"):
+                for protocol in ("thesis", "group"):
+                    report = run(data, kind, protocol, config.c)
+                    lines.append(row(name, config, report))
+                    print(row(name, config, report), flush=True)
+        lines += ["", "Leave-one-pose-out accuracy of the SVM by touched link (combined):", "",
+                  "| link | sessions | accuracy |", "|---|---|---|"]
+        lines += [f"| {link} | {n} | {100 * acc:.1f} % |"
+                  for link, n, acc in per_link(sets["combined"], config.c)]
+        sections.append("\n".join(lines))
+    header = (ROOT / "docs" / "results_intro.md").read_text()
+    footer = f"\n\n_Generated by `docs/results.py` in {(time.time() - started) / 60:.0f} min._\n"
+    args.out.write_text(header + "\n\n" + "\n\n".join(sections) + footer)
+    print(args.out)
+
+
+if __name__ == "__main__":
+    main()

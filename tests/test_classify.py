@@ -1,0 +1,162 @@
+"""Classifiers, protocols, schemes and model files on a small simulated dataset."""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from sklearn.metrics import balanced_accuracy_score, f1_score, recall_score
+
+from classify.data import load_features
+from classify.evaluate import confusion, evaluate, metrics_from_confusion, splits
+from classify.modelfile import META_MEMBER, load_model, save_model
+from classify.models import JointEnsemble, feature_joint, make_model
+from classify.schemes import limited_mask, relabel, scheme_classes
+from features.extract import SessionFeatures
+from schemas import InputError
+from tests.conftest import make_dataset
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    return make_dataset(tmp_path_factory.mktemp("static"))
+
+
+@pytest.fixture(scope="module")
+def features(dataset):
+    return load_features([dataset], SessionFeatures(), workers=1)
+
+
+def test_feature_set_and_cache(dataset, features) -> None:
+    assert features.X.shape == (32, 21)
+    assert sorted(set(features.groups("pose"))) == ["A", "B", "C", "D"]
+    cached = load_features([dataset], SessionFeatures(), workers=1)
+    assert np.array_equal(cached.X, features.X)
+    assert list((dataset / ".cache").glob("features-*.parquet"))
+
+
+def test_per_joint_ensemble_sums_member_probabilities(features) -> None:
+    y = features.labels()
+    model = JointEnsemble(features.names, span=1).fit(features.X, y)
+    members = model.member_probabilities(features.X)
+    assert members.shape == (7, 32, 4)
+    expected = model.classes_[np.argmax(members.sum(axis=0), axis=1)]
+    assert np.array_equal(model.predict(features.X), expected)
+    assert np.allclose(model.predict_proba(features.X).sum(axis=1), 1.0)
+    three = JointEnsemble(features.names, span=3)
+    assert three.member_joints() == [(1, 2, 3), (2, 3, 4), (3, 4, 5), (4, 5, 6), (5, 6, 7)]
+    assert feature_joint("range(tau_3)") == 3 and feature_joint("range(f_x)") is None
+
+
+def test_group_splits_never_share_a_group(features) -> None:
+    y, groups = features.labels(), features.groups("pose")
+    folds = splits("group", y, groups, 0)
+    assert len(folds) == 4
+    for train, test in folds:
+        assert not set(groups[train]) & set(groups[test])
+    sessions = features.groups("session")
+    for train, test in splits("group", y, sessions, 0):
+        assert not set(sessions[train]) & set(sessions[test])
+    thesis = splits("thesis", y, None, 0)
+    assert len(thesis) == 25 and all(len(test) == 7 for _, test in thesis)
+
+
+def test_metrics_match_scikit_learn() -> None:
+    rng = np.random.default_rng(3)
+    classes = ["none", "bump", "adjust", "shove"]
+    y = rng.choice(classes, 200)
+    p = np.where(rng.random(200) < 0.7, y, rng.choice(classes, 200))
+    m = metrics_from_confusion(confusion(y, p, classes))
+    assert m["balanced_accuracy"] == pytest.approx(balanced_accuracy_score(y, p))
+    assert m["macro_f1"] == pytest.approx(f1_score(y, p, average="macro", labels=classes))
+    assert m["recall"] == pytest.approx(list(recall_score(y, p, average=None, labels=classes)))
+
+
+@pytest.mark.parametrize("kind", ["svm", "per-joint", "three-joint"])
+def test_evaluate_reports_everything(features, kind) -> None:
+    y = features.labels()
+    report = evaluate(features.X, y, lambda: make_model(kind, features.names), protocol="group",
+                      groups=features.groups("pose"), group_by="pose", model=kind,
+                      classes=scheme_classes("full"))
+    assert report.n_splits == 4 and report.n_sessions == 32
+    for interval in (report.accuracy, report.balanced_accuracy, report.macro_f1):
+        assert interval.low <= interval.value <= interval.high
+    assert set(report.recall) == {"none", "bump", "adjust", "shove"}
+    assert np.allclose(np.sum(report.confusion_normalised, axis=1), 1.0)
+    assert sum(map(sum, report.confusion_counts)) == 32
+
+
+def test_schemes_and_limited_context() -> None:
+    actions = np.array(["none", "bump", "adjust", "shove"])
+    assert list(relabel(actions, "reaction")) == ["none", "none", "adjust", "shove"]
+    assert list(relabel(actions, "contact")) == ["none", "contact", "contact", "contact"]
+    assert list(relabel(actions, "intentional")) == ["none", "none", "intentional",
+                                                     "intentional"]
+    conditions = np.array(["static", "dynamic", "dynamic", "static"])
+    assert list(limited_mask(actions, conditions)) == [True, True, False, False]
+    with pytest.raises(InputError, match="unknown class scheme"):
+        relabel(actions, "vibes")
+
+
+def test_model_file_round_trip_and_refusals(features, tmp_path: Path) -> None:
+    y = features.labels()
+    model = make_model("per-joint", features.names).fit(features.X, y)
+    path = save_model(tmp_path / "m.skops", model, extractor=SessionFeatures(),
+                      feature_names=features.names, classes=list(model.classes_),
+                      kind="per-joint", scheme="full", fingerprint=features.fingerprint(),
+                      training={})
+    loaded = load_model(path)
+    assert np.array_equal(loaded.estimator.predict(features.X), model.predict(features.X))
+    assert loaded.meta["versions"]["scikit-learn"]
+    with pytest.raises(InputError, match="other features"):
+        loaded.check_features(features.names[::-1])
+    with pytest.raises(InputError, match="already exists"):
+        save_model(path, model, extractor=SessionFeatures(), feature_names=features.names,
+                   classes=[], kind="svm", scheme="full", fingerprint="", training={})
+
+    def rewrite(target: Path, change) -> Path:
+        with zipfile.ZipFile(path) as src, zipfile.ZipFile(target, "w") as dst:
+            for name in src.namelist():
+                data = change(name, src.read(name))
+                if data is not None:
+                    dst.writestr(name, data)
+        return target
+
+    npy = next(n for n in zipfile.ZipFile(path).namelist() if n.endswith(".npy"))
+    tampered = rewrite(tmp_path / "t.skops",
+                       lambda n, d: d[:-8] + b"\x00" * 8 if n == npy else d)
+    with pytest.raises(InputError, match="modified after it was written"):
+        load_model(tampered)
+    stripped = rewrite(tmp_path / "s.skops", lambda n, d: None if n == META_MEMBER else d)
+    with pytest.raises(InputError, match="not a contactkit model file"):
+        load_model(stripped)
+    junk = tmp_path / "junk.skops"
+    junk.write_bytes(b"PK not really")
+    with pytest.raises(InputError, match="not a contactkit model file"):
+        load_model(junk)
+
+
+def test_model_file_refuses_untrusted_types(features, tmp_path: Path) -> None:
+    import skops.io as sio
+    from sklearn.base import BaseEstimator
+
+    from classify.modelfile import FORMAT, _members_digest
+
+    class Smuggled(BaseEstimator):
+        pass
+
+    payload = sio.dumps(Smuggled())
+    with zipfile.ZipFile(io.BytesIO(payload)) as archive:
+        members = {n: archive.read(n) for n in archive.namelist()}
+        digest = _members_digest(archive)
+    evil = tmp_path / "evil.skops"
+    with zipfile.ZipFile(evil, "w") as out:
+        for name, data in members.items():
+            out.writestr(name, data)
+        out.writestr(META_MEMBER, json.dumps({"format": FORMAT, "members_sha256": digest}))
+    with pytest.raises(InputError, match="untrusted types"):
+        load_model(evil)
