@@ -20,11 +20,15 @@ lint: $(STAMP)
 test: $(STAMP) lint
 	$(PY) -m pytest -q -n 2
 
+# Record a simulated adjust on link 5, show it, replay it through the default model
+# (built and cached on first use) into demo.rrd, and open the viewer when there is a display.
 demo: $(STAMP)
 	@mkdir -p $(DEMO)
-	@session=$$($(VENV)/bin/recorder capture --pose B --action adjust --seed 7 --out $(DEMO) --overwrite) \
+	@session=$$($(VENV)/bin/recorder capture --pose B --action adjust --link 5 --seed 7 \
+	    --out $(DEMO) --overwrite) \
 	  && echo "recorded $$session" \
-	  && $(VENV)/bin/recorder info $$session
+	  && $(VENV)/bin/recorder info $$session \
+	  && $(VENV)/bin/replay $$session --viewer rerun --save demo.rrd
 
 clean:
-	rm -rf $(DEMO) .pytest_cache .ruff_cache
+	rm -rf $(DEMO) demo.rrd .pytest_cache .ruff_cache

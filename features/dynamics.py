@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import hashlib
 import importlib.metadata
+import os
+import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from functools import cache
@@ -216,3 +218,37 @@ GAZ_FRICTION = FrictionModel(
     phi2=np.array([5.1181, 9.0657, 10.136, 5.5903, 8.3469, 17.133, 10.336]),
     phi3=np.array([0.039533, 0.025882, -0.04607, 0.036194, 0.026226, -0.021047, 0.0035526]),
 )
+
+
+def cache_dir() -> Path:
+    """Return contactkit's cache directory ($CONTACTKIT_CACHE, else XDG cache), created."""
+    root = os.environ.get("CONTACTKIT_CACHE") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "contactkit")
+    path = Path(root)
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def viewer_urdf_file(with_hand: bool) -> Path:
+    """Return a URDF file for viewers (Rerun), written once into the cache.
+
+    Links are drawn with their coarse collision meshes (about 150 kB in all, against
+    about 10 MB for the visual meshes, which every recording would carry), and
+    ``package://`` references become absolute paths.
+    """
+    share = urdf_path().parents[4]
+    root = ET.fromstring(urdf_text(with_hand))
+    for link in root.iter("link"):
+        for visual in link.findall("visual"):
+            link.remove(visual)
+        for collision in link.findall("collision"):
+            collision.tag = "visual"
+    text = re.sub(r"package://([^\"']+)", lambda m: str(share / m.group(1)),
+                  ET.tostring(root, encoding="unicode"))
+    variant = "hand" if with_hand else "nohand"
+    path = cache_dir() / f"panda_{variant}_{urdf_sha256(with_hand)[:12]}.urdf"
+    if not path.exists():
+        tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+        tmp.write_text(text)
+        tmp.replace(path)
+    return path

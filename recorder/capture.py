@@ -77,25 +77,32 @@ class OperatorCue:
     """Counts down to the planned interaction time on the terminal, then rings the bell."""
 
     def __init__(self, planned_at_s: float, action: str, link: int | None,
-                 stream=sys.stderr, countdown_s: int = 3) -> None:
+                 stream=sys.stderr, countdown_s: int = 3,
+                 echo: Callable[[float, str], None] | None = None) -> None:
         self.planned_at_s = planned_at_s
         self.what = action + (f" link {link}" if link else "")
         self.stream = stream
         self.marks = [planned_at_s - k for k in range(countdown_s, 0, -1)]
         self.started = False
         self.done = False
+        self.echo = echo
+
+    def _say(self, t: float, text: str, bell: bool = False) -> None:
+        print(("\a" if bell else "") + "  " + text, file=self.stream, flush=True)
+        if self.echo is not None:
+            self.echo(t, text)
 
     def update(self, t: float) -> None:
         """Print the countdown marks and the cue that session time ``t`` [s] has passed."""
         if not self.started:
             self.started = True
-            print("  recording started", file=self.stream, flush=True)
+            self._say(t, "recording started")
         while self.marks and t >= self.marks[0]:
             left = round(self.planned_at_s - self.marks.pop(0))
-            print(f"  {self.what} in {left} ...", file=self.stream, flush=True)
+            self._say(t, f"{self.what} in {left} ...")
         if not self.done and t >= self.planned_at_s:
             self.done = True
-            print(f"\a  NOW: {self.what.upper()}", file=self.stream, flush=True)
+            self._say(t, f"NOW: {self.what.upper()}", bell=True)
 
 
 @dataclass

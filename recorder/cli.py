@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import Annotated
 
+import rerun as rr
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -19,12 +20,15 @@ from recorder.dataset import PRESETS, simulate_dataset
 from recorder.importer import import_arrays
 from recorder.info import session_info
 from recorder.journal import recover_directory
+from recorder.live_view import CaptureViewer
 from recorder.noise import SensorNoise, default_noise
 from recorder.sim import SimConfig, plan_session
 from recorder.sources import SOURCES, source_class
-from schemas import ACTIONS, InputError
+from schemas import ACTIONS, InputError, SessionMeta
 from schemas.cli import run_app
 from schemas.dataset import rebuild_index
+from schemas.rerun_layout import capture_blueprint
+from schemas.rerun_viewer import has_display, start_web_viewer
 
 app = typer.Typer(
     name="recorder",
@@ -97,6 +101,11 @@ def capture_command(
     notes: Annotated[str, typer.Option(help="Free text stored in the metadata.")] = "",
     overwrite: Annotated[bool, typer.Option(
         help="Replace an existing session file with the same name.")] = False,
+    viewer: Annotated[str, typer.Option(
+        help="Show the capture live: rerun (native viewer), web (browser, 127.0.0.1) or "
+             "none.")] = "none",
+    save_rrd: Annotated[Path | None, typer.Option(
+        help="Also write the live view to this .rrd file.")] = None,
 ) -> None:
     """Record one session and print the written file's path.
 
@@ -115,13 +124,43 @@ def capture_command(
     out_path = _out_dir(out) / session_filename(meta)
     if out_path.exists() and overwrite:
         out_path.unlink()
+    live = _live_view(viewer, save_rrd, meta, config.rate_hz)
     cue = None
-    if realtime:
+    if realtime or live is not None:
         err_console.print(f"[bold]Recording[/] {spec.condition} pose {spec.pose}, "
                           f"{spec.action} at {spec.planned_at_s:.2f} s of {spec.duration_s:.1f} s")
-        cue = OperatorCue(spec.planned_at_s, spec.action, spec.link)
-    result = capture(sim_source, meta, out_path, realtime=realtime, cue=cue)
+        cue = OperatorCue(spec.planned_at_s, spec.action, spec.link,
+                          echo=None if live is None else live.cue)
+    result = capture(sim_source, meta, out_path, realtime=realtime, cue=cue,
+                     on_chunk=None if live is None else [live.on_chunk])
+    if live is not None:
+        live.rec.flush()
+        live.rec.disconnect()
     print(result.path)
+
+
+def _live_view(viewer: str, save_rrd: Path | None, meta: SessionMeta,
+               rate_hz: float) -> CaptureViewer | None:
+    """Return a live Rerun view of the capture (None for --viewer none without --save-rrd)."""
+    if viewer not in ("rerun", "web", "none"):
+        raise InputError(f"unknown viewer {viewer!r} (expected rerun, web or none)")
+    if viewer == "none" and save_rrd is None:
+        return None
+    rec = rr.RecordingStream("contactkit-capture", recording_id=meta.session_id)
+    blueprint = capture_blueprint()
+    if save_rrd is not None:
+        rec.save(save_rrd, default_blueprint=blueprint)
+    if viewer == "rerun":
+        if has_display():
+            rec.spawn(default_blueprint=blueprint)
+        else:
+            err_console.print("no display for the native viewer; use --viewer web or "
+                              "--save-rrd")
+    elif viewer == "web":
+        _, url, page = start_web_viewer()
+        err_console.print(f"web viewer: {page}")
+        rec.connect_grpc(url, default_blueprint=blueprint)
+    return CaptureViewer(rec, meta, rate_hz)
 
 
 @app.command("simulate")

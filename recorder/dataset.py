@@ -9,6 +9,8 @@ choices of section 5.3.3 and what it listed as future work):
   speed U(0.1, 0.5) rad/s (the thesis simulated 0.01-0.5; below 0.1 rad/s a
   session lasts minutes), the four actions balanced, random link.
 * ``smoke``: 8 static sessions (poses A and B x four actions) for tests and demos.
+* ``default-static`` (96) and ``default-dynamic`` (56, 0.2-0.5 rad/s), at 500 Hz:
+  the training data of replay's default model.
 
 Every session's choices come from ``(seed, session number)``, so re-running a
 preset produces the same files, and sessions already on disk are skipped. Five
@@ -56,6 +58,10 @@ PRESETS: dict[str, Preset] = {
     "thesis-dynamic": Preset("thesis-dynamic", 1380, "dynamic",
                              tuple(p for p in POSES if p != START_POSE), 0.1, (0.1, 0.5)),
     "smoke": Preset("smoke", 8, "static", ("A", "B"), 0.0, rate_hz=500.0),
+    "default-static": Preset("default-static", 96, "static", tuple(POSES), 0.1, rate_hz=500.0),
+    "default-dynamic": Preset("default-dynamic", 56, "dynamic",
+                              tuple(p for p in POSES if p != START_POSE), 0.1, (0.2, 0.5),
+                              rate_hz=500.0),
 }
 
 

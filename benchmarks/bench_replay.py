@@ -1,0 +1,118 @@
+"""Replay cost of Rerun logging, .rrd size, and paced-replay lag.
+
+For a 10 s simulated session at 1 kHz, prints: replay time without logging (the
+baseline, measured in the same run) and with logging to an .rrd file, their ratio,
+the file size, and for a paced replay at --rate 1 the lag between wall clock and
+session time at each hop (median, max).
+
+    .venv/bin/python benchmarks/bench_replay.py
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np
+
+from classify.data import load_features
+from classify.modelfile import load_model, save_model
+from classify.models import make_model
+from features.extract import SessionFeatures
+from recorder.capture import sim_session_meta
+from recorder.dataset import simulate_specs
+from recorder.sim import SimConfig, plan_session
+from recorder.sources.sim import SIM_COLUMNS, SimSource
+from replay.engine import Block, ReplayStream
+from replay.recording import log_block, log_offline, log_static, new_recording
+from schemas import read_session, write_session
+from schemas import rerun_layout as layout
+
+
+def setup(tmp: Path) -> tuple[Path, Path]:
+    """A 10 s session at 1 kHz and a model trained on 32 small sessions."""
+    specs = [plan_session(seed=100 * r + 10 * p + a, condition="static", action=action,
+                          pose=pose, duration_s=4.0, planned_at_s=2.5)
+             for r in range(2) for p, pose in enumerate("ABCD")
+             for a, action in enumerate(("none", "bump", "adjust", "shove"))]
+    (tmp / "train").mkdir()
+    simulate_specs(specs, SimConfig(rate_hz=250.0), tmp / "train")
+    extractor = SessionFeatures(window="planned")
+    data = load_features([tmp / "train"], extractor, workers=2, cache=False)
+    estimator = make_model("svm", data.names).fit(data.X, data.labels())
+    model = save_model(tmp / "m.skops", estimator, extractor=extractor, feature_names=data.names,
+                       classes=list(estimator.classes_), kind="svm", scheme="full",
+                       fingerprint="", training={})
+    config = SimConfig(rate_hz=1000.0)
+    spec = plan_session(seed=9, condition="static", action="shove", pose="B", link=6,
+                        duration_s=10.0, planned_at_s=5.0)
+    source = SimSource(spec, config, chunk=500)
+    chunks = list(source.stream())
+    columns = {k: np.concatenate([c[k] for c in chunks]) for k in SIM_COLUMNS}
+    session = write_session(tmp / "s.parquet", columns,
+                            sim_session_meta(spec, config, source.metadata()))
+    return session, model
+
+
+def replay(session_path: Path, model_path: Path, rrd: Path | None) -> float:
+    """Wall time [s] of one --rate max replay, logging to ``rrd`` when given."""
+    start = time.perf_counter()
+    session = read_session(session_path)
+    stream = ReplayStream(session, load_model(model_path))
+    stream.run()
+    answer = stream.offline()
+    if rrd is not None:
+        rec = new_recording("bench", "bench")
+        rec.save(rrd, default_blueprint=layout.replay_blueprint())
+        tree = log_static(rec, stream)
+        log_block(rec, tree, stream, Block(0, session.n_samples, range(len(stream.pred_t))))
+        log_offline(rec, stream, answer)
+        rec.flush()
+        rec.disconnect()
+    return time.perf_counter() - start
+
+
+def paced_lag(session_path: Path, model_path: Path, rrd: Path) -> np.ndarray:
+    """Lag [s] of wall clock behind session time at every hop of a --rate 1 replay."""
+    session = read_session(session_path)
+    stream = ReplayStream(session, load_model(model_path))
+    rec = new_recording("bench-paced", "bench-paced")
+    rec.save(rrd)
+    tree = log_static(rec, stream)
+    lags = []
+    started = time.monotonic()
+    for block in stream.blocks():
+        log_block(rec, tree, stream, block)
+        due = started + session.t[block.stop - 1] - session.t[0]
+        now = time.monotonic()
+        lags.append(max(0.0, now - due))
+        if due > now:
+            time.sleep(due - now)
+    rec.flush()
+    rec.disconnect()
+    return np.array(lags)
+
+
+def main() -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        session, model = setup(Path(tmp))
+        replay(session, model, None)
+        bare = min(replay(session, model, None) for _ in range(3))
+        logged = min(replay(session, model, Path(tmp) / "r.rrd") for _ in range(3))
+        size = (Path(tmp) / "r.rrd").stat().st_size
+        lags = paced_lag(session, model, Path(tmp) / "paced.rrd")
+    print("replay of a 10 s session at 1 kHz (10001 samples), --rate max")
+    print(f"  without logging (baseline): {bare:.3f} s  ({10.0 / bare:.1f}x real time)")
+    print(f"  with Rerun logging:         {logged:.3f} s  (ratio {logged / bare:.3f}, "
+          f"+{100 * (logged / bare - 1):.1f} %)")
+    print(f"  .rrd size:                  {size / 1e6:.2f} MB")
+    print(f"paced replay at --rate 1: lag behind session time median "
+          f"{1e3 * np.median(lags):.2f} ms, max {1e3 * lags.max():.2f} ms over {len(lags)} hops")
+
+
+if __name__ == "__main__":
+    main()
