@@ -24,6 +24,8 @@ from recorder.live_view import CaptureViewer
 from recorder.noise import SensorNoise, default_noise
 from recorder.sim import SimConfig, plan_session
 from recorder.sources import SOURCES, source_class
+from recorder.stats import build_report, write_noise_file
+from recorder.stats_report import FORMATS, print_summary, write_report
 from schemas import ACTIONS, InputError, SessionMeta
 from schemas.cli import run_app
 from schemas.dataset import rebuild_index
@@ -236,6 +238,43 @@ def import_arrays_command(
     a validated session, and print its path. Time is shifted to start at 0 s."""
     session_path = import_arrays(t, q, dq, tau, _out_dir(out), meta or [], name)
     print(session_path)
+
+
+@app.command("stats")
+def stats_command(
+    directory: Annotated[Path, typer.Argument(help="Dataset directory.")],
+    out: Annotated[Path | None, typer.Option(
+        help="Report file (default: report.html, report.md or report.json here).")] = None,
+    fmt: Annotated[str, typer.Option("--format", help="html (one self-contained file), md "
+                                                      "(with PNGs beside it) or json.")
+                   ] = "html",
+    deep: Annotated[bool, typer.Option(
+        help="Read every session (parallel): sampling, noise baseline, peaks, force "
+             "profiles, windows, joint limits, and a fingerprint over file contents.")
+                    ] = False,
+    workers: Annotated[int, typer.Option(help="Parallel processes for --deep.")
+                       ] = DEFAULT_WORKERS,
+) -> None:
+    """Summarise a dataset on the terminal and write a report of what it holds and of
+    its problems (bad files, duplicates, sessions too short)."""
+    if fmt not in FORMATS:
+        raise InputError(f"unknown format {fmt!r} (expected html, md or json)")
+    out = out or Path(f"report.{fmt}")
+    if not out.parent.is_dir():
+        raise InputError("output directory does not exist", out.parent)
+    with Progress(TextColumn("[bold]reading sessions[/]"), BarColumn(), MofNCompleteColumn(),
+                  TimeRemainingColumn(), console=err_console, disable=not deep) as bar:
+        task = bar.add_task("sessions", total=None)
+        report = build_report(directory, deep, workers,
+                              lambda done, total: bar.update(task, completed=done, total=total))
+    print_summary(report, err_console)
+    noise = report["deep"] and report["deep"]["noise_baseline"]
+    if noise:
+        noise_path = write_noise_file(out.with_name(f"{out.stem}_noise.json"), noise,
+                                      directory)
+        err_console.print(f"noise baseline for the simulator: {noise_path} "
+                          "(recorder capture --noise-file)")
+    print(write_report(report, out, fmt))
 
 
 @app.command("info")

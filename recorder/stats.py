@@ -1,0 +1,257 @@
+"""Dataset statistics: ``recorder stats DIR``.
+
+From the index alone (Polars over ``index.parquet``, fast for 100,000 sessions):
+counts by condition x pose x action and by link (static) or speed band (dynamic),
+as the thesis's Tables 3.5 and 5.3; class balance with warnings; durations;
+sources, operators and recovered sessions; problems (unreadable files, duplicate
+session ids, sessions too short for a 0.5 s window). Counts are over unique
+session ids: a duplicate is reported, not counted twice.
+
+With ``--deep`` every session is read in parallel workers (see
+:mod:`recorder.stats_deep`): measured sampling, the torque-noise baseline of the
+no-contact sessions (thesis section 5.3.5, also written as a noise file the
+simulator reads with ``--noise-file``), per-class peak residual norm and estimated
+force, estimated force profiles by class (thesis Figure 3.2), how often the
+Difference window found the interaction, the planned-to-detected onset delay, and
+joint-limit proximity. The fingerprint then hashes every file's bytes.
+
+The JSON report follows ``schemas/stats_report.schema.json``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+
+from recorder.noise import SensorNoise
+from recorder.stats_deep import PROFILE_T, session_summary
+from schemas import ACTIONS, InputError
+from schemas.dataset import INDEX_NAME, rebuild_index, session_files
+
+SCHEMA_ID = "contactkit-stats/1"
+WINDOW_S = 0.5
+BALANCE_RATIO = 0.5
+NOISE_FILE = "noise_baseline.json"
+
+
+def load_index(directory: Path) -> tuple[pl.LazyFrame, list[dict]]:
+    """Return the dataset index (rebuilt when missing or out of date) and the files
+    that could not be indexed, as problems."""
+    if not directory.is_dir():
+        raise InputError("not a directory", directory)
+    index_path = directory / INDEX_NAME
+    files = {p.name for p in session_files(directory)}
+    if index_path.exists():
+        indexed = set(pl.read_parquet(index_path, columns=["file"])["file"].to_list())
+        if indexed == files:
+            return pl.scan_parquet(index_path), []
+    result = rebuild_index(directory)
+    problems = [{"file": name, "problem": problem} for name, problem in result.problems]
+    return pl.scan_parquet(index_path), problems
+
+
+def _records(frame: pl.DataFrame) -> list[dict]:
+    return frame.to_dicts()
+
+
+def index_stats(index: pl.LazyFrame) -> dict:
+    """Return the index-only part of the report (see the module docstring)."""
+    dupes = (index.group_by("session_id").agg(pl.len().alias("n"), pl.col("file").sort())
+             .filter(pl.col("n") > 1).collect())
+    unique = index.sort("file").unique(subset="session_id", keep="first", maintain_order=True)
+    frame = unique.with_columns(
+        pl.when(pl.col("condition") == "dynamic").then(pl.col("target_pose"))
+        .otherwise(pl.col("pose")).alias("pose_of_contact"),
+        (pl.col("speed_rad_s") * 10).floor().alias("band")).collect()
+    total = frame.height
+    by_action = (frame.group_by("action").agg(pl.len().alias("sessions"))
+                 .with_columns((pl.col("sessions") / max(total, 1)).alias("share"))
+                 .sort("action"))
+    counts_by_action = dict(zip(by_action["action"], by_action["sessions"], strict=True))
+    largest = max(counts_by_action.values(), default=0)
+    warnings = []
+    for action in ACTIONS:
+        n = counts_by_action.get(action, 0)
+        if n == 0:
+            warnings.append(f"no '{action}' sessions")
+        elif n < BALANCE_RATIO * largest:
+            warnings.append(f"'{action}' is under-represented: {n} sessions against {largest} "
+                            f"for the largest class")
+    problems = [{"file": f, "problem": f"duplicate session id {sid} (also in "
+                                       f"{', '.join(files[:1] + files[2:])})"}
+                for sid, files in zip(dupes["session_id"], dupes["file"], strict=True)
+                for f in files[1:]]
+    short = frame.filter((pl.col("duration_s") < WINDOW_S)
+                         | (pl.col("planned_at_s") + WINDOW_S > pl.col("t_end_s")))
+    problems += [{"file": f, "problem": f"session too short for a {WINDOW_S} s window at its "
+                                        "planned time"} for f in short["file"]]
+    durations = frame["duration_s"]
+    return {
+        "sessions": total,
+        "counts": {
+            "by_condition_pose_action": _records(
+                frame.group_by("condition", "pose_of_contact", "action")
+                .agg(pl.len().alias("sessions"))
+                .rename({"pose_of_contact": "pose"}).sort("condition", "pose", "action")),
+            "static_by_link": _records(
+                frame.filter(pl.col("condition") == "static").group_by("link")
+                .agg(pl.len().alias("sessions")).sort("link", nulls_last=True)),
+            "dynamic_by_speed": _records(
+                frame.filter(pl.col("condition") == "dynamic").group_by("band")
+                .agg(pl.len().alias("sessions")).sort("band")
+                .select((pl.col("band") / 10).alias("speed_from_rad_s"),
+                        ((pl.col("band") + 1) / 10).alias("speed_to_rad_s"), "sessions")),
+            "by_action": _records(by_action),
+        },
+        "class_balance_warnings": warnings,
+        "durations": {"total_s": float(durations.sum() or 0.0),
+                      "mean_s": float(durations.mean() or 0.0),
+                      "median_s": float(durations.median() or 0.0),
+                      "min_s": float(durations.min() or 0.0),
+                      "max_s": float(durations.max() or 0.0)},
+        "sources": _records(frame.group_by("source").agg(pl.len().alias("sessions"))
+                            .sort("source")),
+        "operators": _records(frame.group_by("operator").agg(pl.len().alias("sessions"))
+                              .sort("operator")),
+        "recovered": int(frame["recovered"].sum()),
+        "problems": problems,
+        "index_fingerprint": hashlib.sha256("\n".join(
+            f"{s}:{b}" for s, b in sorted(zip(frame["session_id"], frame["file_bytes"],
+                                                strict=True))).encode()).hexdigest(),
+        "_durations": durations.to_numpy(),
+        "_frame": frame,
+    }
+
+
+def deep_stats(paths: list[Path], workers: int,
+               progress: Callable[[int, int], None] | None = None) -> dict:
+    """Read every session in ``workers`` processes and aggregate the summaries."""
+    summaries: list[dict] = []
+    jobs = [str(p) for p in paths]
+    if workers <= 1:
+        for i, path in enumerate(jobs):
+            summaries.append(session_summary(path))
+            if progress:
+                progress(i + 1, len(jobs))
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            chunk = max(1, len(jobs) // (workers * 16))
+            for i, summary in enumerate(pool.map(session_summary, jobs, chunksize=chunk)):
+                summaries.append(summary)
+                if progress:
+                    progress(i + 1, len(jobs))
+    good = [s for s in summaries if "problem" not in s]
+    problems = [{"file": s["file"], "problem": s["problem"]} for s in summaries
+                if "problem" in s]
+    return _aggregate(good) | {"problems": problems, "_summaries": good}
+
+
+def _spread(values: list[float]) -> dict:
+    arr = np.array([v for v in values if v is not None and np.isfinite(v)], dtype=float)
+    if arr.size == 0:
+        return {"n": 0, "median": None, "p10": None, "p90": None}
+    return {"n": int(arr.size), "median": float(np.median(arr)),
+            "p10": float(np.percentile(arr, 10)), "p90": float(np.percentile(arr, 90))}
+
+
+def _aggregate(good: list[dict]) -> dict:
+    if not good:
+        return {"sampling": None, "noise_baseline": None, "peaks_by_class": [],
+                "window_detection": [], "onset_delay_s": _spread([]), "joint_limits": None}
+    steps = [s["sampling"] for s in good]
+    none = [s for s in good if s["action"] == "none"]
+    noise = None
+    if none:
+        noise = {"sessions": len(none),
+                 "tau_std_nm": np.mean([s["tau_std_nm"] for s in none], axis=0).tolist(),
+                 "tau_sigma_nm": np.mean([s["tau_sigma_nm"] for s in none], axis=0).tolist(),
+                 "dq_sigma_rad_s": np.mean([s["dq_sigma_rad_s"] for s in none], axis=0).tolist(),
+                 "q_sigma_rad": np.mean([s["q_sigma_rad"] for s in none], axis=0).tolist(),
+                 "tau_bias_nm": np.std([s["r_median_nm"] for s in none], axis=0).tolist()}
+    peaks, windows = [], []
+    for action in ACTIONS:
+        group = [s for s in good if s["action"] == action]
+        if not group:
+            continue
+        peaks.append({"action": action, "sessions": len(group),
+                      "peak_residual_norm_nm": _spread([s["peak_residual_norm_nm"]
+                                                        for s in group]),
+                      "peak_force_n": _spread([s["peak_force_n"] for s in group])})
+        found = [s["window_found"] for s in group if s["window_found"] is not None]
+        windows.append({"action": action, "found": int(sum(found)),
+                        "fallback": int(len(found) - sum(found))})
+    return {
+        "sampling": {"rate_hz": _spread([s["rate_hz"] for s in steps]),
+                     "median_step_s": _spread([s["median_step_s"] for s in steps]),
+                     "jitter_s": _spread([s["jitter_s"] for s in steps]),
+                     "max_step_s": max(s["max_step_s"] for s in steps),
+                     "sessions_with_gaps": int(sum(s["gaps"] > 0 for s in steps)),
+                     "gaps": int(sum(s["gaps"] for s in steps)),
+                     "dropped_estimate": int(sum(s["dropped_estimate"] for s in steps))},
+        "noise_baseline": noise,
+        "peaks_by_class": peaks,
+        "window_detection": windows,
+        "onset_delay_s": _spread([s["onset_delay_s"] for s in good]),
+        "joint_limits": {
+            "min_margin_rad": np.min([s["limit_margin_rad"] for s in good], axis=0).tolist(),
+            "max_speed_fraction": np.max([s["max_speed_fraction"] for s in good],
+                                         axis=0).tolist(),
+            "max_torque_fraction": np.max([s["max_torque_fraction"] for s in good],
+                                          axis=0).tolist()},
+    }
+
+
+def file_fingerprint(summaries: list[dict]) -> str:
+    """Return the SHA-256 over the sorted (session id, file SHA-256) pairs."""
+    pairs = sorted(f"{s['session_id']}:{s['sha256']}" for s in summaries)
+    return hashlib.sha256("\n".join(pairs).encode()).hexdigest()
+
+
+def write_noise_file(path: Path, noise: dict, dataset: Path) -> Path:
+    """Write the no-contact noise baseline as a simulator noise file (--noise-file)."""
+    sensor = SensorNoise(tau_sigma_nm=noise["tau_sigma_nm"],
+                         dq_sigma_rad_s=noise["dq_sigma_rad_s"],
+                         q_sigma_rad=noise["q_sigma_rad"], tau_bias_nm=noise["tau_bias_nm"],
+                         source=f"recorder stats --deep {dataset} ({noise['sessions']} "
+                                "no-contact sessions)")
+    doc = json.loads(sensor.to_json()) | {"thesis_tau_std_nm": noise["tau_std_nm"]}
+    path.write_text(json.dumps(doc, indent=2))
+    return path
+
+
+def build_report(directory: Path, deep: bool, workers: int,
+                 progress: Callable[[int, int], None] | None = None) -> dict:
+    """Compute the whole report of a dataset directory (see the module docstring)."""
+    index, index_problems = load_index(directory)
+    stats = index_stats(index)
+    report = {"schema": SCHEMA_ID, "dataset": str(directory),
+              "generated_utc": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+              **{k: v for k, v in stats.items() if not k.startswith("_")}}
+    report["problems"] = index_problems + stats["problems"]
+    report["fingerprint"] = {"kind": "index (session ids and file sizes)",
+                             "sha256": stats["index_fingerprint"]}
+    del report["index_fingerprint"]
+    report["deep"] = None
+    private = {"durations": stats["_durations"], "frame": stats["_frame"], "summaries": []}
+    if deep:
+        files = [directory / name for name in stats["_frame"]["file"].to_list()]
+        deep_part = deep_stats(files, workers, progress)
+        report["problems"] += deep_part.pop("problems")
+        private["summaries"] = deep_part.pop("_summaries")
+        report["deep"] = deep_part
+        report["fingerprint"] = {"kind": "files (session ids and file SHA-256)",
+                                 "sha256": file_fingerprint(private["summaries"])}
+    report["_private"] = private
+    return report
+
+
+def profile_time_s() -> list[float]:
+    """Time axis [s] of the force profiles, relative to the onset."""
+    return PROFILE_T.tolist()

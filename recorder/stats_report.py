@@ -1,0 +1,285 @@
+"""Rendering a statistics report: plots, terminal summary, HTML, Markdown or JSON.
+
+HTML is one self-contained file (plots embedded as PNG data); Markdown comes with
+its PNGs beside it; JSON (``schemas/stats_report.schema.json``) is for machines.
+Tables are Polars data frames rendered by Polars.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+from io import BytesIO
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import polars as pl
+from rich.console import Console
+from rich.table import Table
+
+from recorder.stats_deep import PROFILE_T
+from schemas import ACTIONS
+from schemas.rerun_layout import CLASS_COLORS
+
+FORMATS = ("html", "md", "json")
+
+
+def _color(action: str) -> tuple[float, float, float]:
+    return tuple(c / 255 for c in CLASS_COLORS.get(action, (0, 0, 0)))
+
+
+def make_plots(report: dict) -> list[tuple[str, str, bytes]]:
+    """Return (title, caption, PNG bytes) for every plot of the report."""
+    plots = []
+    counts = pl.DataFrame(report["counts"]["by_condition_pose_action"])
+    if counts.height:
+        fig, (ax, balance) = plt.subplots(1, 2, figsize=(11, 3.8),
+                                          gridspec_kw={"width_ratios": [3, 1]})
+        poses = sorted(set(counts["pose"].to_list()))
+        x = np.arange(len(poses))
+        conditions = [c for c in ("static", "dynamic") if (counts["condition"] == c).any()]
+        width = 0.8 / len(conditions)
+        for i, condition in enumerate(conditions):
+            part = counts.filter(pl.col("condition") == condition)
+            bottom = np.zeros(len(poses))
+            for action in ACTIONS:
+                values = np.array([part.filter((pl.col("pose") == p)
+                                               & (pl.col("action") == action))["sessions"].sum()
+                                   for p in poses])
+                ax.bar(x + i * width, values, width, bottom=bottom, color=_color(action),
+                       label=action if i == 0 else None,
+                       hatch="//" if condition == "dynamic" else None)
+                bottom += values
+        ax.set_xticks(x + width * (len(conditions) - 1) / 2, poses)
+        ax.set_title("sessions by pose (hatched: dynamic, by target pose)")
+        ax.set_ylabel("sessions")
+        ax.legend(fontsize=8)
+        actions = [r["action"] for r in report["counts"]["by_action"]]
+        balance.bar(actions, [r["sessions"] for r in report["counts"]["by_action"]],
+                    color=[_color(a) for a in actions])
+        balance.set_title("class balance")
+        plots.append(("Sessions", "Sessions per pose and action, and per class. Static "
+                      "sessions are grouped by the held pose, dynamic ones by the target of "
+                      "the move.", _png(fig)))
+    durations = report["_private"]["durations"]
+    if len(durations):
+        fig, ax = plt.subplots(figsize=(6, 3))
+        ax.hist(durations, bins=30, color="#4c72b0")
+        ax.set_xlabel("session duration [s]")
+        ax.set_ylabel("sessions")
+        plots.append(("Durations", "How long the sessions are.", _png(fig)))
+    summaries = report["_private"]["summaries"]
+    if summaries:
+        plots += _deep_plots(summaries)
+    return plots
+
+
+def _deep_plots(summaries: list[dict]) -> list[tuple[str, str, bytes]]:
+    plots = []
+    by_action = {a: [s for s in summaries if s["action"] == a] for a in ACTIONS}
+    present = [a for a in ACTIONS if by_action[a]]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    for ax, key, label in ((axes[0], "peak_residual_norm_nm", "peak |r| [Nm]"),
+                           (axes[1], "peak_force_n", "peak estimated |f| [N]")):
+        data = [[s[key] for s in by_action[a]] for a in present]
+        parts = ax.boxplot(data, tick_labels=present, patch_artist=True, showfliers=True)
+        for patch, action in zip(parts["boxes"], present, strict=True):
+            patch.set_facecolor(_color(action))
+        ax.set_ylabel(label)
+        ax.set_yscale("log")
+    plots.append(("Peaks by class", "Per session, the largest observer-residual norm and the "
+                  "largest estimated end-effector force. A class whose box overlaps 'none' "
+                  "holds contacts the robot barely felt.", _png(fig)))
+    fig, axes = plt.subplots(1, len(present), figsize=(3.2 * len(present), 3.2), sharey=True,
+                             squeeze=False)
+    for ax, action in zip(axes[0], present, strict=True):
+        profiles = [s["force_profile_n"] for s in by_action[action] if s["force_profile_n"]]
+        for profile in profiles[:40]:
+            ax.plot(PROFILE_T, profile, color=_color(action), alpha=0.35, linewidth=0.8)
+        ax.set_title(action)
+        ax.set_xlabel("time from onset [s]")
+    axes[0][0].set_ylabel("estimated |f| [N]")
+    plots.append(("Force profiles", "Estimated end-effector force magnitude around the onset "
+                  "(detected, or planned when nothing was detected), up to 40 sessions per "
+                  "class, in the style of the thesis's Figure 3.2.", _png(fig)))
+    delays = [s["onset_delay_s"] for s in summaries if s["onset_delay_s"] is not None]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.2))
+    found = [sum(bool(s["window_found"]) for s in by_action[a]) for a in present]
+    fallback = [sum(s["window_found"] is False for s in by_action[a]) for a in present]
+    axes[0].bar(present, found, color="#55a868", label="detected")
+    axes[0].bar(present, fallback, bottom=found, color="#c44e52", label="fell back to planned")
+    axes[0].legend(fontsize=8)
+    axes[0].set_title("Difference window method")
+    if delays:
+        axes[1].hist(delays, bins=30, color="#8172b2")
+    axes[1].set_xlabel("detected minus planned onset [s]")
+    axes[1].set_title("onset delay")
+    plots.append(("Windows", "Left: how often the Difference method (Algorithm 4) found the "
+                  "interaction per class; for 'none' every detection is a false alarm. Right: "
+                  "the delay from the planned to the detected onset.", _png(fig)))
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.2))
+    joints = np.arange(1, 8)
+    for ax, key, label in ((axes[0], "limit_margin_rad", "distance to position limit [rad]"),
+                           (axes[1], "max_speed_fraction", "max |dq| / limit"),
+                           (axes[2], "max_torque_fraction", "max |tau| / limit")):
+        values = np.array([s[key] for s in summaries])
+        ax.boxplot([values[:, j] for j in range(7)], tick_labels=joints)
+        ax.set_xlabel("joint")
+        ax.set_title(label, fontsize=9)
+    plots.append(("Joint limits", "Per session and joint: the closest approach to a position "
+                  "limit, and the largest speed and torque as fractions of their limits.",
+                  _png(fig)))
+    none = by_action.get("none") or []
+    if none:
+        fig, ax = plt.subplots(figsize=(6, 3))
+        ax.bar(joints, np.mean([s["tau_std_nm"] for s in none], axis=0), color="#4c72b0")
+        ax.set_xlabel("joint")
+        ax.set_ylabel("std of tau [Nm]")
+        plots.append(("Torque noise baseline", "Thesis section 5.3.5: the standard deviation "
+                      "of each joint's torque over a no-contact session, averaged over "
+                      "sessions.", _png(fig)))
+    return plots
+
+
+def _png(fig) -> bytes:
+    fig.tight_layout()
+    buffer = BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    return buffer.getvalue()
+
+
+def public(report: dict) -> dict:
+    """Return the report without its private, non-JSON parts."""
+    return {k: v for k, v in report.items() if not k.startswith("_")}
+
+
+def _tables(report: dict) -> list[tuple[str, pl.DataFrame]]:
+    tables = [("Sessions by condition, pose and action",
+               pl.DataFrame(report["counts"]["by_condition_pose_action"]).pivot(
+                   on="action", index=["condition", "pose"], values="sessions")
+               if report["counts"]["by_condition_pose_action"] else pl.DataFrame()),
+              ("Static sessions by touched link (empty: no contact)",
+               pl.DataFrame(report["counts"]["static_by_link"])),
+              ("Dynamic sessions by speed band [rad/s]",
+               pl.DataFrame(report["counts"]["dynamic_by_speed"])),
+              ("Class balance", pl.DataFrame(report["counts"]["by_action"])),
+              ("Sources", pl.DataFrame(report["sources"])),
+              ("Operators", pl.DataFrame(report["operators"]))]
+    deep = report["deep"]
+    if deep:
+        rows = [{"action": p["action"], "sessions": p["sessions"],
+                 "peak |r| median [Nm]": p["peak_residual_norm_nm"]["median"],
+                 "peak |f| median [N]": p["peak_force_n"]["median"]}
+                for p in deep["peaks_by_class"]]
+        tables.append(("Peaks by class", pl.DataFrame(rows)))
+        tables.append(("Difference window method", pl.DataFrame(deep["window_detection"])))
+        if deep["noise_baseline"]:
+            noise = deep["noise_baseline"]
+            tables.append(("Torque noise of no-contact sessions [Nm]", pl.DataFrame({
+                "joint": list(range(1, 8)), "std over session (thesis 5.3.5)":
+                noise["tau_std_nm"], "white-noise sigma": noise["tau_sigma_nm"]})))
+        limits = deep["joint_limits"]
+        tables.append(("Joint-limit proximity", pl.DataFrame({
+            "joint": list(range(1, 8)), "min margin [rad]": limits["min_margin_rad"],
+            "max |dq|/limit": limits["max_speed_fraction"],
+            "max |tau|/limit": limits["max_torque_fraction"]})))
+    return [(title, table) for title, table in tables if table.height]
+
+
+def _summary_lines(report: dict) -> list[str]:
+    d = report["durations"]
+    lines = [f"{report['sessions']} sessions, {d['total_s'] / 60:.1f} min in all (median "
+             f"{d['median_s']:.1f} s, {d['min_s']:.1f}-{d['max_s']:.1f} s); "
+             f"{report['recovered']} recovered",
+             f"fingerprint ({report['fingerprint']['kind']}): {report['fingerprint']['sha256']}"]
+    deep = report["deep"]
+    if deep and deep["sampling"]:
+        s = deep["sampling"]
+        lines.append(f"sampling: median {s['rate_hz']['median']:.1f} Hz, jitter "
+                     f"{1e3 * s['jitter_s']['median']:.3f} ms, {s['gaps']} gaps in "
+                     f"{s['sessions_with_gaps']} sessions (~{s['dropped_estimate']} samples "
+                     "missing)")
+        delay = deep["onset_delay_s"]
+        if delay["n"]:
+            lines.append(f"onset delay (detected - planned): median {delay['median']:.3f} s "
+                         f"over {delay['n']} detections")
+    return lines
+
+
+def print_summary(report: dict, console: Console) -> None:
+    """Print a compact summary: counts, warnings, problems and the fingerprint."""
+    table = Table(title=f"dataset {report['dataset']}", title_justify="left")
+    table.add_column("action")
+    table.add_column("sessions", justify="right")
+    table.add_column("share", justify="right")
+    for row in report["counts"]["by_action"]:
+        table.add_row(row["action"], str(row["sessions"]), f"{100 * row['share']:.0f} %")
+    console.print(table)
+    for line in _summary_lines(report):
+        console.print(line)
+    for warning in report["class_balance_warnings"]:
+        console.print(f"[yellow]warning:[/] {warning}")
+    if report["problems"]:
+        console.print(f"[red]{len(report['problems'])} problems[/] (see the report):")
+        for problem in report["problems"][:10]:
+            console.print(f"  {problem['file']}: {problem['problem']}")
+
+
+def _markdown_table(frame: pl.DataFrame) -> str:
+    def cell(value) -> str:
+        if isinstance(value, float):
+            return f"{value:.4g}"
+        return "" if value is None else str(value)
+
+    lines = ["| " + " | ".join(frame.columns) + " |", "|" + "---|" * frame.width]
+    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in frame.iter_rows()]
+    return "\n".join(lines)
+
+
+def write_report(report: dict, out: Path, fmt: str) -> Path:
+    """Write the report in ``fmt`` (html, md or json) to ``out``; return the path."""
+    if fmt == "json":
+        out.write_text(json.dumps(public(report), indent=2, default=float))
+        return out
+    plots = make_plots(report)
+    intro = _summary_lines(report)
+    problems = report["problems"]
+    if fmt == "md":
+        parts = [f"# Dataset report: {report['dataset']}", "", *[f"- {x}" for x in intro]]
+        parts += ["", "## Warnings", ""] + [f"- {w}" for w in report["class_balance_warnings"]
+                                             or ["none"]]
+        parts += ["", "## Problems", ""] + [f"- `{p['file']}`: {p['problem']}"
+                                             for p in problems or [{"file": "-",
+                                                                    "problem": "none"}]]
+        for title, table in _tables(report):
+            parts += ["", f"## {title}", "", _markdown_table(table)]
+        for i, (title, caption, png) in enumerate(plots):
+            name = f"{out.stem}_plot{i + 1}.png"
+            (out.parent / name).write_bytes(png)
+            parts += ["", f"## {title}", "", caption, "", f"![{title}]({name})"]
+        out.write_text("\n".join(parts) + "\n")
+        return out
+    body = [f"<h1>Dataset report: {html.escape(report['dataset'])}</h1>", "<ul>"]
+    body += [f"<li>{html.escape(x)}</li>" for x in intro] + ["</ul>", "<h2>Warnings</h2><ul>"]
+    body += [f"<li>{html.escape(w)}</li>" for w in report["class_balance_warnings"] or ["none"]]
+    body += ["</ul>", "<h2>Problems</h2><ul>"]
+    body += [f"<li><code>{html.escape(p['file'])}</code>: {html.escape(p['problem'])}</li>"
+             for p in problems] or ["<li>none</li>"]
+    body.append("</ul>")
+    for title, table in _tables(report):
+        body += [f"<h2>{html.escape(title)}</h2>", table._repr_html_()]
+    for title, caption, png in plots:
+        data = base64.b64encode(png).decode()
+        body += [f"<h2>{html.escape(title)}</h2>", f"<p>{html.escape(caption)}</p>",
+                 f'<img alt="{html.escape(title)}" src="data:image/png;base64,{data}">']
+    page = ("<!doctype html><html><head><meta charset='utf-8'><title>contactkit dataset "
+            "report</title><style>body{font-family:sans-serif;max-width:1100px;margin:auto}"
+            "img{max-width:100%}</style></head><body>" + "\n".join(body) + "</body></html>")
+    out.write_text(page)
+    return out

@@ -1,0 +1,104 @@
+"""recorder stats: counts equal the known ones, problems are named, reports render."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import polars as pl
+import pytest
+
+from recorder.noise import SensorNoise
+from recorder.stats import index_stats
+from tests.conftest import make_dataset, run_cli
+
+SCHEMA = Path(__file__).resolve().parents[1] / "schemas" / "stats_report.schema.json"
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    directory = make_dataset(tmp_path_factory.mktemp("stats"))
+    first = sorted(directory.glob("*.parquet"))[0]
+    (directory / "corrupt_a.parquet").write_bytes(b"definitely not parquet")
+    (directory / "corrupt_b.parquet").write_bytes(first.read_bytes()[:2000])
+    shutil.copy(first, directory / "zz_duplicate.parquet")
+    return directory
+
+
+def _check_required(schema: dict, doc, where: str = "report") -> None:
+    if isinstance(doc, dict):
+        for key in schema.get("required", []):
+            assert key in doc, f"{where} lacks {key}"
+        for key, sub in schema.get("properties", {}).items():
+            if doc.get(key) is not None:
+                _check_required(sub, doc[key], f"{where}.{key}")
+    elif isinstance(doc, list) and "items" in schema:
+        for item in doc:
+            _check_required(schema["items"], item, where + "[]")
+
+
+def test_index_report_counts_and_problems(dataset: Path, tmp_path: Path) -> None:
+    out = tmp_path / "report.json"
+    result = run_cli("recorder", "stats", str(dataset), "--format", "json", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    report = json.loads(out.read_text())
+    _check_required(json.loads(SCHEMA.read_text()), report)
+    assert report["sessions"] == 32
+    counts = report["counts"]["by_condition_pose_action"]
+    assert len(counts) == 16 and all(row["sessions"] == 2 for row in counts)
+    assert {(r["action"], r["sessions"]) for r in report["counts"]["by_action"]} == {
+        ("none", 8), ("bump", 8), ("adjust", 8), ("shove", 8)}
+    assert report["class_balance_warnings"] == []
+    named = {p["file"]: p["problem"] for p in report["problems"]}
+    assert "not a readable Parquet file" in named["corrupt_a.parquet"]
+    assert "corrupt_b.parquet" in named
+    assert "duplicate session id" in named["zz_duplicate.parquet"]
+    assert report["deep"] is None and report["fingerprint"]["kind"].startswith("index")
+    assert "problems" in result.stderr and "corrupt_a.parquet" in result.stderr
+
+
+def test_deep_report_markdown_and_noise_file(dataset: Path, tmp_path: Path) -> None:
+    out = tmp_path / "deep.md"
+    result = run_cli("recorder", "stats", str(dataset), "--deep", "--format", "md", "--out",
+                     str(out), "--workers", "2")
+    assert result.returncode == 0, result.stderr
+    text = out.read_text()
+    for heading in ("## Problems", "## Peaks by class", "## Force profiles", "## Windows",
+                    "## Joint limits", "## Torque noise baseline"):
+        assert heading in text
+    assert "corrupt_a.parquet" in text and "duplicate session id" in text
+    plots = sorted(tmp_path.glob("deep_plot*.png"))
+    assert len(plots) >= 6 and all(p.stat().st_size > 5000 for p in plots)
+    noise = SensorNoise.from_file(tmp_path / "deep_noise.json")
+    assert all(0.0 < s < 1.0 for s in noise.tau_sigma_nm)
+    assert "files (session ids and file SHA-256)" in result.stderr.replace("\n", "")
+
+
+def test_deep_json_sections_and_html(dataset: Path, tmp_path: Path) -> None:
+    out = tmp_path / "deep.json"
+    run_cli("recorder", "stats", str(dataset), "--deep", "--format", "json", "--out", str(out))
+    report = json.loads(out.read_text())
+    _check_required(json.loads(SCHEMA.read_text()), report)
+    deep = report["deep"]
+    assert deep["sampling"]["rate_hz"]["median"] == pytest.approx(250.0)
+    assert deep["noise_baseline"]["sessions"] == 8
+    assert {w["action"] for w in deep["window_detection"]} == {"none", "bump", "adjust", "shove"}
+    peaks = {p["action"]: p["peak_residual_norm_nm"]["median"] for p in deep["peaks_by_class"]}
+    assert peaks["shove"] > peaks["none"]
+    html = tmp_path / "r.html"
+    run_cli("recorder", "stats", str(dataset), "--out", str(html))
+    page = html.read_text()
+    assert page.startswith("<!doctype html>") and "data:image/png;base64," in page
+    bad = run_cli("recorder", "stats", str(dataset), "--format", "pdf")
+    assert bad.returncode == 2 and "unknown format 'pdf'" in bad.stderr
+
+
+def test_under_represented_class_warns() -> None:
+    rows = [{"file": f"{i}.parquet", "session_id": str(i), "source": "sim",
+             "condition": "static", "pose": "A", "target_pose": None,
+             "action": "shove" if i < 2 else ("none", "bump", "adjust")[i % 3], "link": 3,
+             "speed_rad_s": None, "planned_at_s": 5.0, "duration_s": 12.0, "t_end_s": 12.0,
+             "operator": "x", "recovered": False, "file_bytes": 100} for i in range(30)]
+    stats = index_stats(pl.LazyFrame(rows))
+    assert any("'shove' is under-represented" in w for w in stats["class_balance_warnings"])
