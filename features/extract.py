@@ -107,6 +107,7 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
         """Return (values, names, window) for one session."""
         if not isinstance(session, Session):
             session = read_session(session)
+        session = session.complete()
         names = expand(list(self.timeseries))
         spec = self.window_spec
         needed = list(dict.fromkeys(names + ([spec.signal] if spec.method in

@@ -16,9 +16,10 @@ import numpy as np
 
 from features.dynamics import urdf_sha256
 from recorder.journal import SessionWriter
+from recorder.protocol import check_action, check_condition, pose_q
 from recorder.sim import SessionSpec, SimConfig
 from recorder.sources.base import Source
-from schemas import SessionMeta
+from schemas import InputError, SessionMeta, new_session_id
 
 ChunkCallback = Callable[[dict[str, np.ndarray]], None]
 
@@ -63,6 +64,27 @@ def sim_session_meta(spec: SessionSpec, config: SimConfig, source_fields: dict) 
         tool_version=tool_version(),
         **source_fields,
     )
+
+
+def protocol_meta(*, source: str, action: str, condition: str, pose: str | None,
+                  target_pose: str | None, speed_rad_s: float | None, link: int | None,
+                  planned_at_s: float | None, operator: str, with_hand: bool,
+                  notes: str = "") -> SessionMeta:
+    """Return the metadata of a session recorded from a robot, bus or log (not simulated):
+    the protocol's choices, checked, with the pose's joint values from Table 3.1."""
+    check_action(action)
+    check_condition(condition)
+    if link is not None and not 1 <= link <= 7:
+        raise InputError(f"unknown link {link} (expected 1..7)")
+    return SessionMeta(
+        session_id=new_session_id(), source=source, action=action, condition=condition,
+        pose=None if pose is None else pose.upper(),
+        pose_q=None if pose is None else pose_q(pose).tolist(),
+        target_pose=None if target_pose is None else target_pose.upper(),
+        target_q=None if target_pose is None else pose_q(target_pose).tolist(),
+        speed_rad_s=speed_rad_s, link=link, planned_at_s=planned_at_s, operator=operator,
+        notes=notes, created_utc=utc_now(), with_hand=with_hand,
+        urdf_sha256=urdf_sha256(with_hand), tool_version=tool_version())
 
 
 def session_filename(meta: SessionMeta) -> str:

@@ -15,7 +15,15 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from recorder.capture import OperatorCue, capture, session_filename, sim_session_meta
+from recorder.can_map import load_map
+from recorder.can_tools import bridge_session, import_can_log
+from recorder.capture import (
+    OperatorCue,
+    capture,
+    protocol_meta,
+    session_filename,
+    sim_session_meta,
+)
 from recorder.dataset import PRESETS, simulate_dataset
 from recorder.importer import import_arrays
 from recorder.info import session_info
@@ -24,9 +32,10 @@ from recorder.live_view import CaptureViewer
 from recorder.noise import SensorNoise, default_noise
 from recorder.sim import SimConfig, plan_session
 from recorder.sources import SOURCES, source_class
+from recorder.sources.can import BusConfig, CanSource, Cue
 from recorder.stats import build_report, write_noise_file
 from recorder.stats_report import FORMATS, print_summary, write_report
-from schemas import ACTIONS, InputError, SessionMeta
+from schemas import ACTIONS, InputError, SessionMeta, read_session, validate_session
 from schemas.cli import run_app
 from schemas.dataset import rebuild_index
 from schemas.rerun_layout import capture_blueprint
@@ -87,7 +96,9 @@ def capture_command(
              "the metadata).")] = None,
     out: Annotated[Path, typer.Option(help="Output directory (created if needed).")] = Path(
         "sessions"),
-    source: Annotated[str, typer.Option(help=f"Data source: {', '.join(SOURCES)}.")] = "sim",
+    source: Annotated[str, typer.Option(
+        help=f"Data source: {', '.join(SOURCES)} (sim: the simulated Panda; can: a CAN bus "
+             "decoded with --map).")] = "sim",
     realtime: Annotated[bool, typer.Option(
         help="Pace the capture at wall-clock speed and show the operator cue "
              "(countdown, then a bell at the planned time).")] = False,
@@ -108,32 +119,66 @@ def capture_command(
              "none.")] = "none",
     save_rrd: Annotated[Path | None, typer.Option(
         help="Also write the live view to this .rrd file.")] = None,
+    interface: Annotated[str, typer.Option(
+        help="--source can: python-can interface (virtual, socketcan, pcan, kvaser, ...).")
+                         ] = "socketcan",
+    channel: Annotated[str | None, typer.Option(
+        help="--source can: bus channel, e.g. can0.")] = None,
+    can_map: Annotated[Path | None, typer.Option(
+        "--map", help="--source can: frame map TOML (default: CANopen CiA 402, "
+                      "recorder/data/can_default_map.toml).")] = None,
+    timeout: Annotated[float, typer.Option(
+        help="--source can: end the capture when the bus is silent this long [s].")] = 1.0,
+    cue_id: Annotated[str | None, typer.Option(
+        help="--source can: send a cue frame with this id (e.g. 0x700) at the planned "
+             "time, for a lamp or buzzer; its bus time goes into the metadata.")] = None,
+    cue_data: Annotated[str, typer.Option(help="Cue frame payload, hex.")] = "01",
 ) -> None:
     """Record one session and print the written file's path.
 
     Example: recorder capture --pose B --action adjust
     """
     source_class(source)
-    seed = secrets.randbits(63) if seed is None else seed
-    config = _sim_config(rate, hand, robot_seed, noise_file, noise_scale, jitter_ms, drop_prob)
-    spec = plan_session(seed=seed, condition=condition, action=action, pose=pose,
-                        target_pose=target_pose, speed_rad_s=speed, link=link,
-                        planned_at_s=planned_at, duration_s=duration, operator=operator,
-                        with_hand=hand)
-    sim_source = source_class(source)(spec, config)
-    meta = sim_session_meta(spec, config, sim_source.metadata())
-    meta.notes = notes
+    if source == "can":
+        planned = 5.0 if planned_at is None else planned_at
+        total = 12.0 if duration is None else duration
+        if total <= 0 or not 0 <= planned < total:
+            raise InputError(f"planned interaction time {planned} s must lie within the "
+                             f"session (0 to {total} s)")
+        if not channel:
+            raise InputError("--source can needs --channel (and --interface)")
+        fmap = load_map(can_map)
+        cue_frame = None if cue_id is None else Cue(int(cue_id, 0), bytes.fromhex(cue_data),
+                                                    planned)
+        chosen = CanSource(BusConfig(interface, channel), fmap, total, timeout, cue_frame)
+        meta = protocol_meta(source="can", action=action, condition=condition, pose=pose,
+                             target_pose=target_pose, speed_rad_s=speed, link=link,
+                             planned_at_s=planned, operator=operator, with_hand=hand,
+                             notes=notes)
+        rate_hz = rate
+    else:
+        seed = secrets.randbits(63) if seed is None else seed
+        config = _sim_config(rate, hand, robot_seed, noise_file, noise_scale, jitter_ms,
+                             drop_prob)
+        spec = plan_session(seed=seed, condition=condition, action=action, pose=pose,
+                            target_pose=target_pose, speed_rad_s=speed, link=link,
+                            planned_at_s=planned_at, duration_s=duration, operator=operator,
+                            with_hand=hand)
+        chosen = source_class(source)(spec, config)
+        meta = sim_session_meta(spec, config, chosen.metadata())
+        meta.notes = notes
+        planned, total, rate_hz = spec.planned_at_s, spec.duration_s, config.rate_hz
     out_path = _out_dir(out) / session_filename(meta)
     if out_path.exists() and overwrite:
         out_path.unlink()
-    live = _live_view(viewer, save_rrd, meta, config.rate_hz)
+    live = _live_view(viewer, save_rrd, meta, rate_hz)
     cue = None
-    if realtime or live is not None:
-        err_console.print(f"[bold]Recording[/] {spec.condition} pose {spec.pose}, "
-                          f"{spec.action} at {spec.planned_at_s:.2f} s of {spec.duration_s:.1f} s")
-        cue = OperatorCue(spec.planned_at_s, spec.action, spec.link,
+    if realtime or live is not None or chosen.live:
+        err_console.print(f"[bold]Recording[/] {meta.condition} pose {meta.pose}, "
+                          f"{meta.action} at {planned:.2f} s of {total:.1f} s")
+        cue = OperatorCue(planned, meta.action, meta.link,
                           echo=None if live is None else live.cue)
-    result = capture(sim_source, meta, out_path, realtime=realtime, cue=cue,
+    result = capture(chosen, meta, out_path, realtime=realtime, cue=cue,
                      on_chunk=None if live is None else [live.on_chunk])
     if live is not None:
         live.rec.flush()
@@ -275,6 +320,66 @@ def stats_command(
         err_console.print(f"noise baseline for the simulator: {noise_path} "
                           "(recorder capture --noise-file)")
     print(write_report(report, out, fmt))
+
+
+@app.command("import-can")
+def import_can_command(
+    log: Annotated[Path, typer.Argument(help="CAN log: .asc, .blf, .trc, .csv, .log "
+                                             "(candump), .mf4 (with asammdf), .db (SQLite).")],
+    pose: Annotated[str, typer.Option(help="Pose A-H of the session.")],
+    action: Annotated[str, typer.Option(help=f"Action: {', '.join(ACTIONS)}.")],
+    can_map: Annotated[Path | None, typer.Option(
+        "--map", help="Frame map TOML (default: CANopen CiA 402).")] = None,
+    planned_at: Annotated[float | None, typer.Option(
+        help="Planned interaction time [s from the first sample].")] = None,
+    condition: Annotated[str, typer.Option(help="static or dynamic.")] = "static",
+    target_pose: Annotated[str | None, typer.Option(help="Dynamic: target pose.")] = None,
+    link: Annotated[int | None, typer.Option(help="Touched link 1-7.")] = None,
+    operator: Annotated[str, typer.Option(help="Who touched the robot.")] = "",
+    hand: Annotated[bool, typer.Option(help="The robot carried its hand.")] = True,
+    out: Annotated[Path, typer.Option(help="Output directory.")] = Path("sessions"),
+) -> None:
+    """Convert a CAN log into a validated session and print its path."""
+    fmap = load_map(can_map)
+    meta = protocol_meta(source="can-log", action=action, condition=condition, pose=pose,
+                         target_pose=target_pose, speed_rad_s=None, link=link,
+                         planned_at_s=planned_at, operator=operator, with_hand=hand)
+    directory = _out_dir(out)
+    path = import_can_log(log, fmap, meta, directory, session_filename(meta))
+    info = validate_session(path).meta.source_info
+    err_console.print(f"{info['samples']} samples from {info['frames']} frames; "
+                      f"{info['incomplete_samples']} incomplete, {info['lost_syncs']} lost "
+                      f"SYNCs, {info['unknown_ids']} unknown ids, {info['bad_lengths']} bad "
+                      f"lengths, {info['duplicates']} duplicates")
+    print(path)
+
+
+@app.command("can-bridge")
+def can_bridge_command(
+    session: Annotated[Path, typer.Argument(help="Session file to publish.")],
+    interface: Annotated[str, typer.Option(help="python-can interface.")] = "socketcan",
+    channel: Annotated[str | None, typer.Option(help="Bus channel.")] = None,
+    can_map: Annotated[Path | None, typer.Option(
+        "--map", help="Frame map TOML (default: CANopen CiA 402).")] = None,
+    rate: Annotated[float | None, typer.Option(
+        help="Pace at this multiple of real time (bus default 1; log default: as fast as "
+             "possible).")] = None,
+    log: Annotated[Path | None, typer.Option(
+        help="Write the frames to this log (.asc, .blf, .trc, .csv, .log, .db) instead "
+             "of a bus.")] = None,
+) -> None:
+    """Publish a recorded or simulated session onto a CAN bus per the frame map (or into
+    a CAN log), to test a CAN setup end to end without a robot."""
+    if rate is not None and rate <= 0:
+        raise InputError(f"--rate must be positive, got {rate}")
+    if log is None and not channel:
+        raise InputError("give --channel (and --interface) for a bus, or --log FILE")
+    fmap = load_map(can_map)
+    recorded = read_session(session)
+    bus = None if log is not None else BusConfig(interface, channel)
+    sent = bridge_session(recorded, fmap, bus=bus, log=log, rate=rate)
+    err_console.print(f"{sent} frames ({recorded.n_samples} samples) sent"
+                      + (f" to {log}" if log else f" on {interface}:{channel}"))
 
 
 @app.command("info")

@@ -98,6 +98,9 @@ class SessionWriter:
         self.flush()
         self._stream.close()
         self._file.close()
+        if self.samples_written == 0:
+            self.journal.unlink()
+            raise InputError("no samples were recorded; nothing written", self.out_path)
         table = read_journal(self.journal).table
         path = write_session(self.out_path, table, self.meta)
         self.journal.unlink()
@@ -180,6 +183,12 @@ def recover_journal(journal: Path) -> Recovery:
     if n == 0:
         return Recovery(journal, None, 0, "journal holds no complete sample; left in place")
     meta = contents.meta
+    measured = np.column_stack([contents.table.column(c).to_numpy() for c in
+                                contents.table.column_names if c.split("_")[0] in
+                                ("q", "dq", "tau") and c[-1].isdigit()])
+    gaps = int((~np.isfinite(measured)).any(axis=1).sum())
+    if gaps:
+        meta.source_info = {**meta.source_info, "incomplete_samples": gaps}
     meta.recovered = True
     meta.recovered_samples = n
     note = f"recovered {n} samples" + (" (torn last batch dropped)" if contents.torn else "")

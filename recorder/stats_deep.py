@@ -45,7 +45,7 @@ def session_summary(path: str) -> dict:
     """Measure one session; on a bad file return ``{"file": name, "problem": text}``."""
     name = Path(path).name
     try:
-        session = read_session(path)
+        session = read_session(path).complete()
     except InputError as err:
         return {"file": name, "problem": err.problem}
     meta = session.meta

@@ -58,7 +58,7 @@ class ReplayStream:
     def __init__(self, session: Session, model: ModelFile, hop_s: float = DEFAULT_HOP_S) -> None:
         if hop_s <= 0:
             raise InputError(f"--hop must be positive, got {hop_s} s")
-        self.session = session
+        self.session = session = session.complete()
         self.model = model
         self.hop_s = hop_s
         self.extractor = model.extractor()

@@ -198,6 +198,15 @@ class Session:
         """Measured joint torques [Nm], gravity included, shape (N, 7)."""
         return self.joints("tau")
 
+    def complete(self) -> Session:
+        """Return the session without samples that lack a joint value (NaN gaps left by a
+        CAN source); the feature chain treats the gap as one longer time step."""
+        measured = np.column_stack([self.q, self.dq, self.tau])
+        keep = np.isfinite(measured).all(axis=1)
+        if keep.all():
+            return self
+        return Session(meta=self.meta, table=self.table.filter(pa.array(keep)), path=self.path)
+
     @property
     def n_samples(self) -> int:
         """Number of samples (rows)."""
@@ -237,7 +246,7 @@ def write_session(path: str | Path, columns: Mapping[str, np.ndarray] | pa.Table
                                    meta)
     else:
         table = table_from_columns(columns, meta)
-    validate_table(table, path)
+    validate_table(table, path, allows_gaps(meta))
     if path.exists() and not overwrite:
         raise InputError("output file already exists (nothing was written)", path)
     atomic_write_parquet(table, path, overwrite=overwrite)
@@ -312,15 +321,26 @@ def validate_session(path: str | Path) -> Session:
         table = pq.read_table(path)
     except (pa.ArrowInvalid, OSError) as err:
         raise InputError(f"cannot read the Parquet data ({_first_line(err)})", path) from err
-    validate_table(table, path)
+    validate_table(table, path, allows_gaps(meta))
     return Session(meta=meta, table=table, path=path)
 
 
 read_session = validate_session
 
 
-def validate_table(table: pa.Table, path: str | Path | None = None) -> None:
-    """Check a session table's columns, types and values; raise :class:`InputError`."""
+def allows_gaps(meta: SessionMeta) -> bool:
+    """Return whether a session may hold NaN joint values: only when its source
+    reported incomplete samples (a CAN frame that never came)."""
+    return int(meta.source_info.get("incomplete_samples", 0) or 0) > 0
+
+
+def validate_table(table: pa.Table, path: str | Path | None = None,
+                   gaps_allowed: bool = False) -> None:
+    """Check a session table's columns, types and values; raise :class:`InputError`.
+
+    NaN is accepted in q, dq and tau only with ``gaps_allowed``; ``t`` must always be
+    finite and strictly increasing.
+    """
     names = table.column_names
     _check_joint_count(names, path)
     for name in REQUIRED_COLUMNS:
@@ -335,9 +355,10 @@ def validate_table(table: pa.Table, path: str | Path | None = None) -> None:
                              f"expected {expected}", path)
         if table.column(name).null_count:
             raise InputError(f"null values in column {name!r}", path)
+    gap_columns = set(REQUIRED_COLUMNS[1:]) if gaps_allowed else set()
     for name in (n for n in names if n != "contact"):
         values = table.column(name).to_numpy()
-        bad = ~np.isfinite(values)
+        bad = np.isinf(values) if name in gap_columns else ~np.isfinite(values)
         if bad.any():
             row = int(np.argmax(bad))
             kind = "NaN" if math.isnan(values[row]) else "infinite value"

@@ -13,6 +13,7 @@ from schemas import InputError
 
 SOURCES: dict[str, str] = {
     "sim": "recorder.sources.sim:SimSource",
+    "can": "recorder.sources.can:CanSource",
 }
 
 

@@ -1,0 +1,123 @@
+"""CAN frame maps: how a bus carries one sample of the arm (a small TOML file).
+
+A map names the SYNC id that closes a sample, whether frames are CAN FD, a list of
+PDOs (``base_id`` + node id, payload length, signals) and the joints (node id and
+scale factors). A signal is ``quantity`` (q, dq or tau), ``start`` byte, ``type``
+(int8/16/32, uint8/16/32, float32), optional ``byte_order`` (little, default, or
+big) and its scaling: value = raw x factor x joint[multiply_by] / joint[divide_by]
+in rad, rad/s or Nm. The default map (``recorder/data/can_default_map.toml``)
+documents CANopen CiA 402 and its quantisation; another arm needs only another map.
+"""
+
+from __future__ import annotations
+
+import struct
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+from schemas import N_JOINTS, InputError
+
+TYPES = {"int8": "b", "uint8": "B", "int16": "h", "uint16": "H", "int32": "i", "uint32": "I",
+         "float32": "f"}
+QUANTITIES = ("q", "dq", "tau")
+
+
+@dataclass(frozen=True)
+class Signal:
+    """One value in a frame: which quantity and joint, where, and its scale
+    (engineering value = raw * scale)."""
+
+    quantity: str
+    joint: int
+    codec: struct.Struct
+    start: int
+    scale: float
+    integer: bool
+
+
+@dataclass(frozen=True)
+class FrameLayout:
+    """One frame id: its payload length and signals."""
+
+    can_id: int
+    length: int
+    signals: tuple[Signal, ...]
+
+
+@dataclass(frozen=True)
+class FrameMap:
+    """A parsed frame map: SYNC id, CAN FD flag, and frame layouts by id."""
+
+    name: str
+    sync_id: int
+    fd: bool
+    frames: dict[int, FrameLayout]
+    source: str
+
+    def describe(self) -> dict:
+        """Return a JSON-ready description for session metadata."""
+        return {"name": self.name, "sync_id": self.sync_id, "fd": self.fd,
+                "frame_ids": sorted(self.frames), "source": self.source}
+
+
+def default_map_path() -> Path:
+    """Return the path of the default CiA 402 map."""
+    return Path(str(resources.files("recorder").joinpath("data/can_default_map.toml")))
+
+
+def load_map(path: str | Path | None = None) -> FrameMap:
+    """Parse and check a frame map (the default map when ``path`` is None)."""
+    path = default_map_path() if path is None else Path(path)
+    try:
+        doc = tomllib.loads(path.read_text())
+    except FileNotFoundError as err:
+        raise InputError("no such frame map", path) from err
+    except tomllib.TOMLDecodeError as err:
+        raise InputError(f"not a valid TOML frame map ({err})", path) from err
+    try:
+        return _parse(doc, str(path))
+    except (KeyError, TypeError, ValueError) as err:
+        raise InputError(f"bad frame map: {err}", path) from err
+
+
+def _parse(doc: dict, source: str) -> FrameMap:
+    joints = {int(j["node"]): (i + 1, j) for i, j in enumerate(doc["joint"])}
+    if len(joints) != N_JOINTS:
+        raise ValueError(f"needs {N_JOINTS} joints, found {len(joints)}")
+    fd = bool(doc.get("fd", False))
+    max_length = 64 if fd else 8
+    frames: dict[int, FrameLayout] = {}
+    covered = set()
+    for pdo in doc["pdo"]:
+        length = int(pdo["length"])
+        if not 0 < length <= max_length:
+            raise ValueError(f"PDO {pdo.get('name')} length {length} exceeds {max_length}")
+        for node, (joint, params) in joints.items():
+            signals = []
+            for sig in pdo["signals"]:
+                quantity = sig["quantity"]
+                if quantity not in QUANTITIES:
+                    raise ValueError(f"unknown quantity {quantity!r}")
+                order = {"little": "<", "big": ">"}[sig.get("byte_order", "little")]
+                codec = struct.Struct(order + TYPES[sig["type"]])
+                start = int(sig["start"])
+                if start + codec.size > length:
+                    raise ValueError(f"signal {quantity} does not fit in {length} bytes")
+                scale = float(sig.get("factor", 1.0))
+                if "multiply_by" in sig:
+                    scale *= float(params[sig["multiply_by"]])
+                if "divide_by" in sig:
+                    scale /= float(params[sig["divide_by"]])
+                signals.append(Signal(quantity, joint, codec, start, scale,
+                                      sig["type"] != "float32"))
+                covered.add((quantity, joint))
+            can_id = int(pdo["base_id"]) + node
+            if can_id in frames or can_id == int(doc["sync_id"]):
+                raise ValueError(f"frame id {can_id:#x} used twice")
+            frames[can_id] = FrameLayout(can_id, length, tuple(signals))
+    missing = {(q, j) for q in QUANTITIES for j in range(1, N_JOINTS + 1)} - covered
+    if missing:
+        raise ValueError(f"no signal carries {sorted(missing)[0]}")
+    return FrameMap(doc.get("name", Path(source).stem), int(doc["sync_id"]), fd, frames, source)

@@ -1,0 +1,111 @@
+"""CAN log import and the session-to-bus bridge.
+
+``import_can_log`` reads any log python-can reads (ASC, BLF, TRC, CSV, candump
+``.log``, MF4 with asammdf installed, SQLite ``.db``) and writes a validated
+session. ``bridge_session`` publishes a session onto a bus (paced by ``rate``,
+1 = real time) or writes the same frames, time-stamped as on the bus, to a log
+file with python-can's writers.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import can
+import numpy as np
+
+from recorder.can_codec import SampleAssembler, rows_to_columns, session_frames, session_values
+from recorder.can_map import FrameMap
+from recorder.sources.can import BusConfig
+from schemas import InputError, Session, SessionMeta, write_session
+
+LOG_SUFFIXES = (".asc", ".blf", ".trc", ".csv", ".log", ".mf4", ".db")
+
+
+def read_log(path: Path, fmap: FrameMap) -> tuple[dict[str, np.ndarray], SampleAssembler]:
+    """Decode a CAN log file into session columns; return them and the assembler."""
+    if not path.is_file():
+        raise InputError("no such log file", path)
+    if path.suffix.lower() not in LOG_SUFFIXES:
+        raise InputError(f"unknown log format {path.suffix!r} (python-can reads "
+                         f"{', '.join(LOG_SUFFIXES)})", path)
+    assembler = SampleAssembler(fmap)
+    rows = []
+    try:
+        for msg in can.LogReader(path):
+            rows += assembler.feed(msg)
+    except ImportError as err:
+        raise InputError(f"reading this format needs an extra package ({err})", path) from err
+    except (ValueError, OSError, EOFError, IndexError, UnicodeDecodeError) as err:
+        raise InputError(f"cannot read this log ({type(err).__name__}: {err})", path) from err
+    rows += assembler.finish()
+    if not rows:
+        raise InputError("no complete sample in this log (no SYNC frame of the map?)", path)
+    return rows_to_columns(rows), assembler
+
+
+def import_can_log(path: Path, fmap: FrameMap, meta: SessionMeta, out_dir: Path,
+                   name: str) -> Path:
+    """Write the session decoded from a CAN log; return its path."""
+    columns, assembler = read_log(path, fmap)
+    meta.source_info = {"log": str(path), "map": fmap.describe(), **assembler.stats.as_dict()}
+    steps = np.diff(columns["t"])
+    if meta.nominal_rate_hz is None and steps.size:
+        meta.nominal_rate_hz = float(round(1.0 / np.median(steps), 3))
+    return write_session(out_dir / name, columns, meta)
+
+
+def bridge_session(session: Session, fmap: FrameMap, *, bus: BusConfig | None = None,
+                   log: Path | None = None, rate: float | None = None) -> int:
+    """Send a session's frames onto a bus, or write them to ``log``; return the count.
+
+    On a bus the frames are paced at ``rate`` x real time (default 1). Into a log
+    they are written as fast as possible unless ``rate`` is given, time-stamped as
+    they would be on the bus.
+    """
+    session = session.complete()
+    values = session_values(session.q, session.dq, session.tau)
+    if (bus is None) == (log is None):
+        raise InputError("give either a bus (--interface/--channel) or --log")
+    if log is not None:
+        if log.suffix.lower() not in LOG_SUFFIXES:
+            raise InputError(f"unknown log format {log.suffix!r}", log)
+        start = time.time()
+        writer = can.Logger(log)
+        sent = 0
+        try:
+            for msg in _paced(session_frames(fmap, session.t, values, start), rate, start):
+                writer.on_message_received(msg)
+                sent += 1
+        finally:
+            _drain(writer)
+            writer.stop()
+        return sent
+    channel = bus.open(fmap.fd)
+    sent = 0
+    try:
+        start = time.time()
+        for msg in _paced(session_frames(fmap, session.t, values, start), rate or 1.0, start):
+            channel.send(msg)
+            sent += 1
+    finally:
+        channel.shutdown()
+    return sent
+
+
+def _drain(writer: can.Listener) -> None:
+    """Wait until a threaded writer (python-can's SqliteWriter) has taken every queued
+    frame: its stop() writes one more batch and drops the rest of its queue."""
+    buffer = getattr(writer, "buffer", None)
+    while buffer is not None and not buffer.empty():
+        time.sleep(0.02)
+
+
+def _paced(frames, rate: float | None, start: float):
+    for msg in frames:
+        if rate is not None:
+            delay = start + (msg.timestamp - start) / rate - time.time()
+            if delay > 0:
+                time.sleep(delay)
+        yield msg

@@ -1,0 +1,201 @@
+"""CAN source: live round trip on python-can's virtual bus, log import, faults, kill."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from recorder.can_codec import SampleAssembler, rows_to_columns, session_frames, session_values
+from recorder.can_map import load_map
+from recorder.can_tools import bridge_session, read_log
+from recorder.capture import capture, protocol_meta
+from recorder.journal import recover_directory
+from recorder.sources.can import BusConfig, CanSource
+from schemas import InputError, read_session, validate_session
+from schemas.timing import sampling_stats
+from tests.conftest import make_session, run_cli
+
+FMAP = load_map()
+Q_STEP = 1 / 166886.0
+
+
+@pytest.fixture(scope="module")
+def source_session(tmp_path_factory) -> Path:
+    return make_session(tmp_path_factory.mktemp("src"), seed=12, action="shove", link=6,
+                        duration_s=2.0, planned_at_s=1.0, rate_hz=250.0)
+
+
+def _meta():
+    return protocol_meta(source="can", action="shove", condition="static", pose="C",
+                         target_pose=None, speed_rad_s=None, link=6, planned_at_s=1.0,
+                         operator="test", with_hand=True)
+
+
+def _assert_quantised_equal(got, want) -> None:
+    assert got.n_samples == want.n_samples
+    assert np.abs(got.q - want.q).max() <= Q_STEP / 2 + 1e-12
+    assert np.abs(got.dq - want.dq).max() <= Q_STEP / 2 + 1e-12
+    rated = np.array([87.0] * 4 + [12.0] * 3)
+    assert (np.abs(got.tau - want.tau) <= rated / 2000 + 1e-12).all()
+
+
+def test_default_map() -> None:
+    assert FMAP.sync_id == 0x080 and not FMAP.fd
+    assert sorted(FMAP.frames) == [0x181 + i for i in range(7)] + [0x281 + i for i in range(7)]
+    tau_signal = FMAP.frames[0x285].signals[0]
+    assert tau_signal.quantity == "tau" and tau_signal.joint == 5
+    assert tau_signal.scale == pytest.approx(0.012)
+
+
+def test_live_round_trip_on_virtual_bus(source_session: Path, tmp_path: Path) -> None:
+    channel = f"rt-{uuid.uuid4().hex[:8]}"
+    source = CanSource(BusConfig("virtual", channel), FMAP, duration_s=60.0, timeout_s=0.5)
+    out = tmp_path / "live.parquet"
+    result = {}
+    worker = threading.Thread(target=lambda: result.update(
+        capture=capture(source, _meta(), out)))
+    worker.start()
+    time.sleep(0.5)
+    recorded = read_session(source_session)
+    bridge_session(recorded, FMAP, bus=BusConfig("virtual", channel), rate=1.0)
+    worker.join(timeout=30)
+    live = validate_session(out)
+    _assert_quantised_equal(live, recorded)
+    assert np.abs(live.t - recorded.t).max() < 0.05
+    info = live.meta.source_info
+    assert info["samples"] == recorded.n_samples and info["incomplete_samples"] == 0
+    assert "bus silent" in info["end"]
+    for suffix in (".asc", ".blf"):
+        log = tmp_path / f"bridge{suffix}"
+        bridge_session(recorded, FMAP, log=log)
+        imported = run_cli("recorder", "import-can", str(log), "--pose", "C", "--action",
+                           "shove", "--planned-at", "1", "--out", str(tmp_path / suffix[1:]))
+        assert imported.returncode == 0, imported.stderr
+        from_log = read_session(imported.stdout.strip())
+        for name in [c for c in live.table.column_names if c != "t"]:
+            assert np.array_equal(from_log.column(name), live.column(name)), (suffix, name)
+
+
+def test_every_log_format_python_can_writes(source_session: Path, tmp_path: Path) -> None:
+    recorded = read_session(source_session)
+    for suffix in (".trc", ".csv", ".log", ".db"):
+        log = tmp_path / f"x{suffix}"
+        bridge_session(recorded, FMAP, log=log)
+        columns, assembler = read_log(log, FMAP)
+        assert len(columns["t"]) == recorded.n_samples, suffix
+        assert assembler.stats.incomplete_samples == 0
+
+
+def test_faults_are_counted_not_raised(source_session: Path, tmp_path: Path) -> None:
+    recorded = read_session(source_session)
+    frames = list(session_frames(FMAP, recorded.t, session_values(recorded.q, recorded.dq,
+                                                                  recorded.tau)))
+    per_sample = len(FMAP.frames) + 1
+    out = []
+    for i, msg in enumerate(frames):
+        k, slot = divmod(i, per_sample)
+        shifted = msg.timestamp + (2.0 if k > 60 else 0.0)
+        msg = can.Message(timestamp=shifted, arbitration_id=msg.arbitration_id,
+                          data=msg.data, is_extended_id=False)
+        if k == 10 and msg.arbitration_id == 0x283:
+            continue
+        if k == 40 and msg.arbitration_id == 0x182:
+            msg = can.Message(timestamp=shifted, arbitration_id=0x182, data=msg.data[:4],
+                              is_extended_id=False)
+        if k == 80 and msg.arbitration_id == FMAP.sync_id:
+            continue
+        out.append(msg)
+        if k == 20 and msg.arbitration_id == 0x181:
+            out.append(msg)
+        if k == 30 and slot == 0:
+            out.append(can.Message(timestamp=shifted, arbitration_id=0x555, data=b"\x01",
+                                   is_extended_id=False))
+            out.append(can.Message(timestamp=shifted, is_error_frame=True,
+                                   arbitration_id=0, is_extended_id=False))
+    log = tmp_path / "faults.asc"
+    with can.Logger(log) as writer:
+        for msg in out:
+            writer.on_message_received(msg)
+    result = run_cli("recorder", "import-can", str(log), "--pose", "C", "--action", "shove",
+                     "--out", str(tmp_path / "o"))
+    assert result.returncode == 0, result.stderr
+    session = validate_session(result.stdout.strip())
+    stats = session.meta.source_info
+    assert stats["samples"] == recorded.n_samples - 1
+    assert stats["incomplete_samples"] == 2
+    assert stats["duplicates"] == 1 + len(FMAP.frames)
+    assert stats["unknown_ids"] == 1 and stats["bad_lengths"] == 1 and stats["bus_errors"] == 1
+    assert stats["lost_syncs"] == 1
+    assert np.isnan(session.column("tau_3")[10]) and np.isnan(session.column("q_2")[40])
+    assert sampling_stats(session.t).gaps == 1
+    assert session.complete().n_samples == session.n_samples - 2
+
+
+def test_silent_bus_ends_capture_and_keeps_data(tmp_path: Path) -> None:
+    channel = f"quiet-{uuid.uuid4().hex[:8]}"
+    source = CanSource(BusConfig("virtual", channel), FMAP, duration_s=60.0, timeout_s=0.3,
+                       first_frame_timeout_s=0.3)
+    with pytest.raises(InputError, match="no samples were recorded"):
+        capture(source, _meta(), tmp_path / "empty.parquet")
+    assert "bus silent" in source.end_reason
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_can_capture_killed_midway_recovers(source_session: Path, tmp_path: Path) -> None:
+    helper = (
+        "import sys, threading, time\n"
+        "from recorder.can_map import load_map\n"
+        "from recorder.can_tools import bridge_session\n"
+        "from recorder.cli import main\n"
+        "from recorder.sources.can import BusConfig\n"
+        "from schemas import read_session\n"
+        f"s = read_session({str(source_session)!r})\n"
+        "def feed():\n"
+        "    time.sleep(0.5)\n"
+        "    for _ in range(5):\n"
+        "        bridge_session(s, load_map(), bus=BusConfig('virtual', 'kill'), rate=1.0)\n"
+        "threading.Thread(target=feed, daemon=True).start()\n"
+        "sys.argv = ['recorder', 'capture', '--source', 'can', '--interface', 'virtual',\n"
+        "            '--channel', 'kill', '--pose', 'C', '--action', 'bump', '--duration',\n"
+        f"            '30', '--timeout', '3', '--out', {str(tmp_path)!r}]\n"
+        "main()\n")
+    proc = subprocess.Popen([sys.executable, "-c", helper], stderr=subprocess.PIPE, text=True)
+    try:
+        for line in proc.stderr:
+            if "recording started" in line:
+                break
+        started = time.monotonic()
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGKILL)
+        killed_after = time.monotonic() - started
+    finally:
+        proc.wait(timeout=30)
+    (recovery,) = recover_directory(tmp_path)
+    session = validate_session(recovery.session)
+    assert session.meta.recovered and session.meta.source == "can"
+    assert session.t[-1] >= killed_after - 0.1 - 0.1
+    recorded = read_session(source_session)
+    n = session.n_samples
+    assert np.abs(session.q - recorded.q[:n]).max() <= Q_STEP / 2 + 1e-12
+
+
+def test_assembler_uses_late_frames_to_fill_the_previous_sample() -> None:
+    values = np.arange(21, dtype=float) * 0.01
+    first = [m for m in session_frames(FMAP, np.array([0.0, 0.004]), np.vstack([values] * 2))]
+    late = next(m for m in first[:15] if m.arbitration_id == 0x184)
+    ordered = [m for m in first if m is not late]
+    ordered.insert(20, late)
+    assembler = SampleAssembler(FMAP)
+    rows = [r for m in ordered for r in assembler.feed(m)] + assembler.finish()
+    columns = rows_to_columns(rows)
+    assert assembler.stats.out_of_order == 1 and assembler.stats.incomplete_samples == 0
+    assert columns["q_4"][0] == pytest.approx(values[3], abs=Q_STEP)
