@@ -5,7 +5,9 @@ bench_features.py); every hop the classifier turns the last window into scalar
 features and class probabilities. This measures that step for a 0.5 s window at
 1 kHz (500 samples x 21 channels) with each model kind trained on a small simulated
 dataset, against a baseline measured in the same run: numpy's own max-min over the
-same window. Prints median and p99 [us].
+same window. Prints median and p99 [us] for scikit-learn's predict_proba and for
+the online path replay uses (:mod:`classify.fast`, the same numbers without
+scikit-learn's per-call input checks).
 
     .venv/bin/python benchmarks/bench_predict.py
 """
@@ -22,6 +24,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from classify.data import load_features
+from classify.fast import fast_predictor
 from classify.models import MODEL_KINDS, make_model
 from features.extract import SessionFeatures
 from features.scalars import scalar_features
@@ -66,14 +69,16 @@ def main() -> None:
           f"{feats[1] / base[1]:>13.1f}")
     for kind in MODEL_KINDS:
         model = make_model(kind, data.names).fit(data.X, data.labels())
+        for label, predict in (("sklearn", model.predict_proba),
+                               ("online", fast_predictor(model))):
 
-        def step(model=model) -> None:
-            row, _ = scalar_features(window, ["range"], channels)
-            model.predict_proba(row[None, :])
+            def step(predict=predict) -> None:
+                row, _ = scalar_features(window, ["range"], channels)
+                predict(row[None, :])
 
-        med, p99 = percentiles(step)
-        print(f"{'features + ' + kind + ' predict_proba':<34} {med:>10.1f} {p99:>9.1f} "
-              f"{p99 / base[1]:>13.1f}")
+            med, p99 = percentiles(step)
+            name = f"features + {kind} ({label})"
+            print(f"{name:<34} {med:>10.1f} {p99:>9.1f} {p99 / base[1]:>13.1f}")
 
 
 if __name__ == "__main__":

@@ -35,7 +35,8 @@ def synthetic_index(path: Path) -> Path:
         "source": "sim",
         "condition": np.where(dynamic, "dynamic", "static"),
         "pose": np.where(dynamic, "A", rng.choice(list("ABCDEFGH"), ROWS)),
-        "target_pose": np.where(dynamic, rng.choice(list("BCDEFGH"), ROWS), None),
+        "target_pose": [t if d else None for t, d in zip(rng.choice(list("BCDEFGH"), ROWS),
+                                                          dynamic, strict=True)],
         "action": rng.choice(ACTIONS, ROWS),
         "link": rng.integers(1, 8, ROWS).astype(np.int8),
         "speed_rad_s": np.where(dynamic, rng.uniform(0.1, 0.5, ROWS), np.nan),
@@ -59,6 +60,7 @@ def synthetic_index(path: Path) -> Path:
 
 def deep_dataset(directory: Path, sessions: int = 24) -> list[Path]:
     """Simulate ``sessions`` 6 s static sessions at 500 Hz."""
+    directory.mkdir()
     specs = [plan_session(seed=k, condition="static", action=ACTIONS[k % 4],
                           pose="ABCDEFGH"[k % 8], duration_s=6.0, planned_at_s=3.0)
              for k in range(sessions)]

@@ -203,10 +203,19 @@ class FrictionModel:
         ``dq`` may be (7,), (N, 7) or (7, B); the parameters broadcast along the
         axis of length 7 that comes last, or first when the array is (7, B).
         """
-        phi1, phi2, phi3 = self.phi1, self.phi2, self.phi3
+        phi1, phi2, phi3, rest = self.phi1, self.phi2, self.phi3, self.at_rest
         if dq.ndim == 2 and dq.shape[0] == N_JOINTS and dq.shape[1] != N_JOINTS:
-            phi1, phi2, phi3 = phi1[:, None], phi2[:, None], phi3[:, None]
-        return phi1 / (1.0 + np.exp(-phi2 * (dq + phi3))) - phi1 / (1.0 + np.exp(-phi2 * phi3))
+            phi1, phi2, phi3, rest = phi1[:, None], phi2[:, None], phi3[:, None], rest[:, None]
+        return phi1 / (1.0 + np.exp(-phi2 * (dq + phi3))) - rest
+
+    @property
+    def at_rest(self) -> np.ndarray:
+        """The sigmoid's value at dq = 0, subtracted so that friction is zero at rest [Nm]."""
+        cached = self.__dict__.get("_at_rest")
+        if cached is None:
+            cached = self.phi1 / (1.0 + np.exp(-self.phi2 * self.phi3))
+            object.__setattr__(self, "_at_rest", cached)
+        return cached
 
     def scaled(self, scale: np.ndarray) -> FrictionModel:
         """Return a copy with the amplitudes phi1 multiplied by ``scale`` (per joint)."""

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from classify.fast import fast_predictor
 from classify.modelfile import ModelFile
 from features.scalars import scalar_features
 from features.timeseries import ChainConfig, OnlineChain, columns_of, expand
@@ -62,6 +63,7 @@ class ReplayStream:
         self.model = model
         self.hop_s = hop_s
         self.extractor = model.extractor()
+        self._predict_proba = fast_predictor(model.estimator)
         self.classes = model.classes
         self.names = expand(list(self.extractor.timeseries))
         self.channels = [c for name in self.names for c in columns_of(name)]
@@ -86,7 +88,7 @@ class ReplayStream:
         first = int(np.searchsorted(self.t, self.t[k] - self.window_s, side="right"))
         row, _ = scalar_features(self._values[first:k + 1], list(self.extractor.scalars),
                                  self.channels, self.extractor.fft_k)
-        proba = self.model.estimator.predict_proba(row[None, :])[0]
+        proba = self._predict_proba(row[None, :])[0]
         self.pred_t.append(float(self.t[k]))
         self.pred_sample.append(k)
         self.pred_proba.append(proba)

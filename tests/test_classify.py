@@ -160,3 +160,15 @@ def test_model_file_refuses_untrusted_types(features, tmp_path: Path) -> None:
         out.writestr(META_MEMBER, json.dumps({"format": FORMAT, "members_sha256": digest}))
     with pytest.raises(InputError, match="untrusted types"):
         load_model(evil)
+
+
+@pytest.mark.parametrize("kind", ["svm", "per-joint", "three-joint"])
+@pytest.mark.parametrize("scheme", ["full", "contact", "reaction"])
+def test_fast_online_predictor_equals_scikit_learn(features, kind, scheme) -> None:
+    from classify.fast import fast_predictor
+
+    y = features.labels(scheme)
+    model = make_model(kind, features.names, c=10.0).fit(features.X, y)
+    rng = np.random.default_rng(1)
+    X = features.X + rng.normal(size=features.X.shape) * features.X.std(axis=0)
+    assert np.abs(fast_predictor(model)(X) - model.predict_proba(X)).max() <= 1e-9
