@@ -199,3 +199,27 @@ def test_assembler_uses_late_frames_to_fill_the_previous_sample() -> None:
     columns = rows_to_columns(rows)
     assert assembler.stats.out_of_order == 1 and assembler.stats.incomplete_samples == 0
     assert columns["q_4"][0] == pytest.approx(values[3], abs=Q_STEP)
+
+
+def test_cue_frame_goes_out_at_the_planned_time(source_session: Path, tmp_path: Path) -> None:
+    from recorder.sources.can import Cue
+
+    channel = f"cue-{uuid.uuid4().hex[:8]}"
+    listener = can.Bus(interface="virtual", channel=channel)
+    source = CanSource(BusConfig("virtual", channel), FMAP, duration_s=60.0, timeout_s=0.5,
+                       cue=Cue(0x700, b"\x01", planned_at_s=1.0))
+    worker = threading.Thread(target=lambda: capture(source, _meta(), tmp_path / "c.parquet"))
+    worker.start()
+    time.sleep(0.5)
+    bridge_session(read_session(source_session), FMAP, bus=BusConfig("virtual", channel),
+                   rate=1.0)
+    worker.join(timeout=30)
+    seen = []
+    while (msg := listener.recv(timeout=0.1)) is not None:
+        seen.append(msg)
+    listener.shutdown()
+    cues = [m for m in seen if m.arbitration_id == 0x700]
+    assert len(cues) == 1 and cues[0].data == b"\x01"
+    info = validate_session(tmp_path / "c.parquet").meta.source_info
+    assert info["cue_id"] == 0x700
+    assert 1.0 <= info["cue_bus_time_s"] < 1.1
