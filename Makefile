@@ -9,7 +9,7 @@ DEMO    := demo
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[dev]"
+	$(PY) -m pip install --quiet -e ".[dev,nn]"
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -18,13 +18,16 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from classify.data import GROUP_KEYS, FeatureSet, load_features
 from classify.evaluate import PROTOCOLS, evaluate, report_markdown
 from classify.experiments import EXPERIMENTS, Setting, run_experiment
-from classify.modelfile import load_model, save_model
+from classify.grids import CNN_INPUT, LSTM_INPUT, GridSpec, load_grids, session_grid
+from classify.modelfile import load_model, model_meta, save_model
 from classify.models import MODEL_KINDS, make_model
+from classify.nn import NN_KINDS, check_available, make_network
+from classify.onnx_model import save_onnx_model
 from classify.schemes import SCHEMES, check_scheme, scheme_classes
 from features.extract import SessionFeatures, feature_rows, timeseries_columns
 from features.scalars import SCALARS
 from features.timeseries import ALL_TIMESERIES, GROUPS
-from features.windows import METHODS
+from features.windows import METHODS, WindowSpec
 from schemas import InputError, read_session
 from schemas.cli import run_app
 from schemas.dataset import session_files
@@ -135,13 +138,19 @@ def _write_per_sample(files: list[Path], out: Path) -> None:
         tmp.unlink(missing_ok=True)
 
 
-FeaturesOpt = Annotated[str, typer.Option(
+FeaturesOpt = Annotated[str | None, typer.Option(
     "--features", help="Timeseries features (comma-separated, or groups sensor, model, "
-                       "workspace) whose scalar features feed the model.")]
+                       "workspace): their scalar features feed an SVM, their raw window a "
+                       "network (default dq,tau,r; q,dq,tau for cnn and minirocket).")]
 ScalarsOpt = Annotated[str, typer.Option(help=f"Scalar features: {', '.join(SCALARS)}.")]
-WindowOpt = Annotated[str, typer.Option(help=f"Window method: {', '.join(METHODS)}.")]
+WindowOpt = Annotated[str | None, typer.Option(
+    help=f"Window method: {', '.join(METHODS)} (default difference; planned for networks).")]
 SchemeOpt = Annotated[str, typer.Option(help=f"Class scheme: {', '.join(SCHEMES)}.")]
-ModelOpt = Annotated[str, typer.Option(help=f"Classifier: {', '.join(MODEL_KINDS)}.")]
+ModelOpt = Annotated[str, typer.Option(
+    help=f"Classifier: {', '.join(MODEL_KINDS + NN_KINDS)} (networks need the nn extra).")]
+EpochsOpt = Annotated[int, typer.Option(help="Networks: most training epochs (early "
+                                             "stopping on a validation split).")]
+StepsOpt = Annotated[int, typer.Option(help="Networks: time steps of a window grid.")]
 SeedOpt = Annotated[int, typer.Option(help="Random seed (same seed, same result).")]
 WorkersOpt = Annotated[int, typer.Option(help="Parallel processes for features.")]
 DatasetsArg = Annotated[list[Path], typer.Argument(
@@ -149,11 +158,38 @@ DatasetsArg = Annotated[list[Path], typer.Argument(
          "combined, e.g. a static and a dynamic set.")]
 
 
-def _extractor(features: str, scalars: str, window: str, window_s: float) -> SessionFeatures:
-    extractor = SessionFeatures(timeseries=_split(features), scalars=_split(scalars),
-                                window=window, window_s=window_s)
+def _extractor(features: str | None, scalars: str, window: str | None,
+               window_s: float) -> SessionFeatures:
+    extractor = SessionFeatures(timeseries=_split(features or "dq,tau,r"),
+                                scalars=_split(scalars), window=window or "difference",
+                                window_s=window_s)
     extractor.fit(None)
     return extractor
+
+
+def _grid_spec(model: str, features: str | None, window: str | None, window_s: float,
+               steps: int) -> GridSpec:
+    check_available(model)
+    default = LSTM_INPUT if model == "lstm" else CNN_INPUT
+    spec = GridSpec(timeseries=tuple(_split(features)) if features else default,
+                    window=window or "planned", window_s=window_s, steps=steps)
+    try:
+        spec.channels()
+    except KeyError as err:
+        raise InputError(f"unknown timeseries feature {err.args[0]!r}") from err
+    WindowSpec(spec.window, spec.window_s)
+    return spec
+
+
+def _grid_set(datasets: list[Path], spec: GridSpec, workers: int, limited: bool) -> FeatureSet:
+    with progress_bar("window grids") as bar:
+        task = bar.add_task("sessions", total=None)
+        data = load_grids(datasets, spec, workers,
+                          progress=lambda done, total: bar.update(task, completed=done,
+                                                                  total=total))
+    for name, problem in data.problems:
+        err_console.print(f"[yellow]skipped[/] {name}: {problem}")
+    return data.limited() if limited else data
 
 
 def _feature_set(datasets: list[Path], extractor: SessionFeatures, workers: int,
@@ -183,21 +219,41 @@ def train_command(
     seed: SeedOpt = 0,
     workers: WorkersOpt = DEFAULT_WORKERS,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing model file.")] = False,
+    epochs: EpochsOpt = 100,
+    steps: StepsOpt = 300,
 ) -> None:
-    """Train a classifier on every session of the datasets and save it as a safe model file."""
+    """Train a classifier on every session of the datasets and save it as a safe model file
+    (.skops; a CNN or LSTM as .onnx)."""
     check_scheme(scheme)
     if out.exists() and not overwrite:
         raise InputError("output file already exists (pass --overwrite to replace it)", out)
-    extractor = _extractor(features, scalars, window, window_s)
-    data = _feature_set(datasets, extractor, workers, limited)
-    y = data.labels(scheme)
-    estimator = make_model(model, data.names, seed, c).fit(data.X, y)
-    classes = [str(c) for c in estimator.classes_]
-    save_model(out, estimator, extractor=extractor, feature_names=data.names, classes=classes,
-               kind=model, scheme=scheme, fingerprint=data.fingerprint(),
-               training={"datasets": [str(d) for d in datasets], "sessions": len(data),
-                         "seed": seed, "C": c, "limited": limited},
-               overwrite=overwrite)
+    training = {"datasets": [str(d) for d in datasets], "seed": seed, "limited": limited}
+    if model in NN_KINDS:
+        if model in ("cnn", "lstm") and out.suffix != ".onnx":
+            raise InputError(f"a {model} is saved as ONNX: give --out with .onnx", out)
+        spec = _grid_spec(model, features, window, window_s, steps)
+        data = _grid_set(datasets, spec, workers, limited)
+        network = make_network(model, seed, epochs).fit(data.X, data.labels(scheme))
+        classes = [str(c) for c in network.classes_]
+        training.update(sessions=len(data), epochs=getattr(network, "n_epochs_", None))
+        if model in ("cnn", "lstm"):
+            meta = model_meta(kind=model, scheme=scheme, classes=classes,
+                              fingerprint=data.fingerprint(), training=training,
+                              grid=spec.as_dict())
+            save_onnx_model(out, network, data.X.shape[1], data.X.shape[2], meta, overwrite)
+        else:
+            save_model(out, network, classes=classes, kind=model, scheme=scheme,
+                       fingerprint=data.fingerprint(), training=training,
+                       overwrite=overwrite, grid=spec.as_dict())
+    else:
+        extractor = _extractor(features, scalars, window, window_s)
+        data = _feature_set(datasets, extractor, workers, limited)
+        estimator = make_model(model, data.names, seed, c).fit(data.X, data.labels(scheme))
+        classes = [str(c) for c in estimator.classes_]
+        training.update(sessions=len(data), C=c)
+        save_model(out, estimator, extractor=extractor, feature_names=data.names,
+                   classes=classes, kind=model, scheme=scheme, fingerprint=data.fingerprint(),
+                   training=training, overwrite=overwrite)
     err_console.print(f"trained {model} on {len(data)} sessions, classes {', '.join(classes)}")
     print(out)
 
@@ -222,21 +278,33 @@ def evaluate_command(
     workers: WorkersOpt = DEFAULT_WORKERS,
     json_out: Annotated[Path | None, typer.Option("--json", help="Also write the report "
                                                                  "as JSON.")] = None,
+    epochs: EpochsOpt = 100,
+    steps: StepsOpt = 300,
 ) -> None:
     """Evaluate a classifier honestly and print accuracy, balanced accuracy, macro-F1,
     per-class recall with 95 % confidence intervals, and the confusion matrix."""
     check_scheme(scheme)
     if protocol not in PROTOCOLS:
         raise InputError(f"unknown protocol {protocol!r} (expected thesis or group)")
-    extractor = _extractor(features, scalars, window, window_s)
-    data = _feature_set(datasets, extractor, workers, limited)
+    if model in NN_KINDS:
+        data = _grid_set(datasets, _grid_spec(model, features, window, window_s, steps),
+                         workers, limited)
+
+        def factory():
+            return make_network(model, seed, epochs)
+    else:
+        extractor = _extractor(features, scalars, window, window_s)
+        data = _feature_set(datasets, extractor, workers, limited)
+
+        def factory():
+            return make_model(model, data.names, seed, c)
     y = data.labels(scheme)
     groups = data.groups(group) if protocol == "group" else None
     with progress_bar(f"{protocol} protocol") as bar:
         task = bar.add_task("splits", total=None)
-        report = evaluate(data.X, y, lambda: make_model(model, data.names, seed, c),
-                          protocol=protocol, groups=groups, group_by=group, model=model,
-                          scheme=scheme, classes=scheme_classes(scheme), seed=seed,
+        report = evaluate(data.X, y, factory, protocol=protocol, groups=groups, group_by=group,
+                          model=model, scheme=scheme, classes=scheme_classes(scheme),
+                          seed=seed,
                           progress=lambda d, t: bar.update(task, completed=d, total=t))
     print(report_markdown(report))
     if json_out is not None:
@@ -252,14 +320,28 @@ def predict_command(
 ) -> None:
     """Predict the contact class of sessions with a trained model."""
     model = load_model(model_path)
-    extractor = model.extractor()
     rows = []
     for source in sessions:
-        if source.is_file() and _is_feature_table(source):
+        if model.input == "grid":
+            X, labels, truth = [], [], []
+            for path in _inputs(source):
+                try:
+                    session = read_session(path)
+                    X.append(session_grid(session, model.grid_spec()))
+                except InputError as err:
+                    err_console.print(f"[yellow]skipped[/] {err}")
+                    continue
+                labels.append(str(path))
+                truth.append(session.meta.action)
+            if not X:
+                continue
+        elif source.is_file() and _is_feature_table(source):
+            extractor = model.extractor()
             data = load_features([source], extractor)
             model.check_features(data.names, source)
             X, labels, truth = data.X, data.info["file"], data.info["action"]
         else:
+            extractor = model.extractor()
             X, labels, truth = [], [], []
             for path in _inputs(source):
                 try:

@@ -32,8 +32,11 @@ from schemas import InputError
 META_MEMBER = "contactkit.json"
 FORMAT = "contactkit-model/1"
 TRUSTED_TYPES = [
+    "aeon.classification.convolution_based._minirocket.MiniRocketClassifier",
+    "aeon.transformations.collection.convolution_based._minirocket.MiniRocket",
     "classify.models.CalibratedSVC",
     "classify.models.JointEnsemble",
+    "classify.nn.MiniRocketClassifier",
     "sklearn.model_selection._split.StratifiedKFold",
     "sklearn.calibration._CalibratedClassifier",
     "sklearn.calibration._SigmoidCalibration",
@@ -77,9 +80,24 @@ class ModelFile:
         """The feature columns the model expects, in order."""
         return list(self.meta["feature_names"])
 
+    @property
+    def input(self) -> str:
+        """What the model takes: "features" (scalar features) or "grid" (raw windows)."""
+        return self.meta.get("input", "features")
+
     def extractor(self) -> SessionFeatures:
         """Return the feature extractor configured as at training time."""
+        if self.input != "features":
+            raise InputError("this model takes timeseries grids, not scalar features")
         return SessionFeatures(**self.meta["features"])
+
+    def grid_spec(self):
+        """Return the grid specification of a network model."""
+        from classify.grids import GridSpec
+
+        doc = dict(self.meta["grid"])
+        doc["timeseries"] = tuple(doc["timeseries"])
+        return GridSpec(**doc)
 
     def check_features(self, names: list[str], where: str | Path | None = None) -> None:
         """Raise InputError unless ``names`` are exactly the model's feature columns."""
@@ -90,10 +108,25 @@ class ModelFile:
                              f"unexpected {extra})", where)
 
 
-def save_model(path: str | Path, estimator: object, *, extractor: SessionFeatures,
-               feature_names: list[str], classes: list[str], kind: str, scheme: str,
-               fingerprint: str, training: dict, overwrite: bool = False) -> Path:
-    """Write a model file atomically; return its path."""
+def model_meta(*, kind: str, scheme: str, classes: list[str], fingerprint: str,
+               training: dict, extractor: SessionFeatures | None = None,
+               feature_names: list[str] | None = None, grid: dict | None = None) -> dict:
+    """Return the metadata document every model file carries."""
+    meta = {"format": FORMAT, "kind": kind, "scheme": scheme, "classes": list(classes),
+            "training_fingerprint": fingerprint, "training": training, "versions": _versions()}
+    if grid is not None:
+        meta.update({"input": "grid", "grid": grid})
+    else:
+        meta.update({"input": "features", "features": extractor.config(),
+                     "feature_names": list(feature_names)})
+    return meta
+
+
+def save_model(path: str | Path, estimator: object, *, extractor: SessionFeatures | None = None,
+               feature_names: list[str] | None = None, classes: list[str], kind: str,
+               scheme: str, fingerprint: str, training: dict, overwrite: bool = False,
+               grid: dict | None = None) -> Path:
+    """Write a skops model file atomically; return its path."""
     path = Path(path)
     if path.exists() and not overwrite:
         raise InputError("output file already exists (pass --overwrite to replace it)", path)
@@ -101,10 +134,9 @@ def save_model(path: str | Path, estimator: object, *, extractor: SessionFeature
     with zipfile.ZipFile(io.BytesIO(payload)) as archive:
         members = {name: archive.read(name) for name in archive.namelist()}
         digest = _members_digest(archive)
-    meta = {"format": FORMAT, "kind": kind, "scheme": scheme, "classes": list(classes),
-            "features": extractor.config(), "feature_names": list(feature_names),
-            "training_fingerprint": fingerprint, "training": training,
-            "versions": _versions(), "members_sha256": digest}
+    meta = model_meta(kind=kind, scheme=scheme, classes=classes, fingerprint=fingerprint,
+                      training=training, extractor=extractor, feature_names=feature_names,
+                      grid=grid) | {"members_sha256": digest}
     tmp = path.with_name(f".{path.name}.tmp")
     with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as out:
         for name, data in members.items():
@@ -119,6 +151,11 @@ def load_model(path: str | Path) -> ModelFile:
     path = Path(path)
     if not path.is_file():
         raise InputError("no such model file", path)
+    if path.suffix.lower() == ".onnx":
+        from classify.onnx_model import load_onnx_model
+
+        estimator, meta = load_onnx_model(path)
+        return ModelFile(estimator=estimator, meta=meta)
     data = path.read_bytes()
     try:
         with zipfile.ZipFile(io.BytesIO(data)) as archive:

@@ -1,0 +1,154 @@
+"""Timeseries grids: the raw-window input of the networks (thesis section 5.2).
+
+A grid is channels x time: the chosen timeseries features (default for the CNN:
+joint positions, velocities and torques, 21 channels; for the LSTM: velocities,
+torques and residuals) inside the interaction window, resampled by linear
+interpolation onto ``steps`` equally spaced instants (default 300: a 0.5 s window
+at 600 Hz, as the thesis's ~21 x 300). The thesis zero-padded windows to the longest
+one; resampling does the same job for sessions of different or irregular rates
+and keeps one network usable online at any rate.
+
+Augmentation (thesis section 5.3.5) happens here, before the observer runs:
+zero-mean Gaussian torque noise of ``noise_multiplier`` times a per-joint baseline
+[Nm], and the observer gain scaled by ``gain_factor`` (0.9 and 1.1 double a set).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from classify.data import FeatureSet
+from features.observer import DEFAULT_GAIN, ObserverConfig
+from features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
+from features.windows import WindowSpec, find_window
+from schemas import InputError, Session, read_session
+from schemas.dataset import session_files
+
+CNN_INPUT = ("q", "dq", "tau")
+LSTM_INPUT = ("dq", "tau", "r")
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    """Which timeseries, which window, how many time steps."""
+
+    timeseries: tuple[str, ...] = CNN_INPUT
+    window: str = "planned"
+    window_s: float = 0.5
+    steps: int = 300
+    gain: float = DEFAULT_GAIN
+
+    def channels(self) -> list[str]:
+        """Return the channel names, for example ``tau_3``."""
+        return [c for name in expand(list(self.timeseries)) for c in columns_of(name)]
+
+    def as_dict(self) -> dict:
+        """Return the spec as JSON-ready values."""
+        doc = asdict(self)
+        doc["timeseries"] = list(self.timeseries)
+        return doc
+
+
+@dataclass(frozen=True)
+class Augmentation:
+    """Torque noise (multiple of ``noise_nm`` per joint) and observer-gain factor."""
+
+    noise_multiplier: float = 0.0
+    noise_nm: tuple[float, ...] = (0.0,) * 7
+    gain_factor: float = 1.0
+    seed: int = 0
+
+
+def resample_window(t: np.ndarray, values: np.ndarray, start_s: float, length_s: float,
+                    steps: int) -> np.ndarray:
+    """Return ``values`` (N, C) interpolated at ``steps`` instants from ``start_s`` over
+    ``length_s`` [s], as (C, steps); instants outside the recording are zero."""
+    grid_t = start_s + np.arange(steps) * (length_s / steps)
+    out = np.empty((values.shape[1], steps))
+    for c in range(values.shape[1]):
+        out[c] = np.interp(grid_t, t, values[:, c], left=0.0, right=0.0)
+    return out
+
+
+def session_grid(session: Session, spec: GridSpec,
+                 augmentation: Augmentation | None = None) -> np.ndarray:
+    """Return one session's grid (channels x steps)."""
+    session = session.complete()
+    tau = session.tau
+    gain = spec.gain
+    if augmentation is not None:
+        rng = np.random.default_rng([augmentation.seed, abs(hash(session.meta.session_id))
+                                     % (2**32)])
+        tau = tau + rng.normal(size=tau.shape) * np.asarray(augmentation.noise_nm) * \
+            augmentation.noise_multiplier
+        gain *= augmentation.gain_factor
+    names = expand(list(spec.timeseries))
+    chain = TimeseriesChain(ChainConfig(ObserverConfig(gain=gain)), session.meta.with_hand)
+    needed = list(dict.fromkeys([*names, "tau"]))
+    series = chain.compute(session.t, session.q, session.dq, tau, needed)
+    planned = session.meta.planned_at_s
+    if planned is None:
+        raise InputError("session has no planned interaction time", session.path)
+    window = find_window(session.t, planned, WindowSpec(spec.window, spec.window_s),
+                         series["tau"])
+    values = np.column_stack([series[n] for n in names])
+    return resample_window(session.t, values, window.start_s, spec.window_s, spec.steps)
+
+
+def _grid_job(path: str, spec: GridSpec, augmentation: Augmentation | None
+              ) -> tuple[np.ndarray | None, dict | None, str | None]:
+    try:
+        session = read_session(path)
+        meta = session.meta
+        info = {"file": Path(path).name, "session_id": meta.session_id, "action": meta.action,
+                "condition": meta.condition, "pose": meta.pose, "target_pose": meta.target_pose,
+                "operator": meta.operator,
+                "speed_rad_s": np.nan if meta.speed_rad_s is None else meta.speed_rad_s}
+        return session_grid(session, spec, augmentation), info, None
+    except InputError as err:
+        return None, None, err.problem
+
+
+def load_grids(sources: Sequence[Path], spec: GridSpec, workers: int = 1,
+               augmentation: Augmentation | None = None,
+               progress: Callable[[int, int], None] | None = None) -> FeatureSet:
+    """Compute the grids of every session of the dataset directories (in parallel).
+
+    Returns a :class:`classify.data.FeatureSet` whose X is (sessions, channels, steps),
+    so labels, groups and the limited context work as for scalar features.
+    """
+    paths = []
+    for source in sources:
+        if not Path(source).is_dir():
+            raise InputError("no such dataset directory", source)
+        paths += [str(p) for p in session_files(source)]
+    if not paths:
+        raise InputError("no session files (*.parquet) in these directories")
+    results = []
+    if workers <= 1:
+        for i, p in enumerate(paths):
+            results.append(_grid_job(p, spec, augmentation))
+            if progress:
+                progress(i + 1, len(paths))
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            for i, r in enumerate(pool.map(_grid_job, paths, [spec] * len(paths),
+                                           [augmentation] * len(paths), chunksize=4)):
+                results.append(r)
+                if progress:
+                    progress(i + 1, len(paths))
+    good = [r for r in results if r[2] is None]
+    problems = [(Path(p).name, r[2]) for p, r in zip(paths, results, strict=True)
+                if r[2] is not None]
+    if not good:
+        raise InputError("no session could be processed")
+    info = {key: np.array([r[1][key] for r in good],
+                          dtype=float if key == "speed_rad_s" else object)
+            for key in good[0][1]}
+    return FeatureSet(np.stack([r[0] for r in good]), spec.channels(), info, spec.as_dict(),
+                      problems)

@@ -1,0 +1,86 @@
+"""Network model files as ONNX: a graph, no code, with contactkit's metadata inside.
+
+``save_onnx_model`` exports a trained CNN or LSTM (standardisation and softmax
+included) and stores the same metadata document as a skops model file (grid
+specification, classes, kind, training fingerprint, versions) in the ONNX
+``metadata_props``, with a SHA-256 of the graph so that a modified file is
+refused. ``OnnxClassifier`` runs it with onnxruntime on one CPU thread.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+
+from schemas import InputError
+
+META_KEY = "contactkit"
+
+
+def _graph_digest(model) -> str:
+    return hashlib.sha256(model.graph.SerializeToString()).hexdigest()
+
+
+def save_onnx_model(path: Path, network, channels: int, steps: int, meta: dict,
+                    overwrite: bool = False) -> Path:
+    """Export ``network`` to ONNX with ``meta`` embedded; return the path."""
+    import onnx
+
+    if path.exists() and not overwrite:
+        raise InputError("output file already exists (pass --overwrite to replace it)", path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    network.export_onnx(tmp, channels, steps)
+    model = onnx.load(str(tmp))
+    doc = {**meta, "graph_sha256": _graph_digest(model)}
+    entry = model.metadata_props.add()
+    entry.key, entry.value = META_KEY, json.dumps(doc)
+    onnx.save(model, str(tmp))
+    tmp.replace(path)
+    return path
+
+
+class OnnxClassifier:
+    """predict_proba / predict over (sessions, channels, steps) grids with onnxruntime."""
+
+    def __init__(self, path: Path, classes: list[str]) -> None:
+        import onnxruntime as ort
+
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = 1
+        options.inter_op_num_threads = 1
+        self.session = ort.InferenceSession(str(path), options,
+                                            providers=["CPUExecutionProvider"])
+        self.classes_ = np.array(classes, dtype=object)
+
+    def predict_proba(self, X: np.ndarray) -> np.ndarray:
+        """Return class probabilities."""
+        return self.session.run(None, {"grid": np.asarray(X, dtype=np.float32)})[0]
+
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        """Return the most probable class."""
+        return self.classes_[np.argmax(self.predict_proba(X), axis=1)]
+
+
+def load_onnx_model(path: Path) -> tuple[OnnxClassifier, dict]:
+    """Load an ONNX model file; check its metadata and graph digest."""
+    try:
+        import onnx
+    except ImportError as err:
+        raise InputError("ONNX models need onnx and onnxruntime: pip install "
+                         "'contactkit[nn]'", path) from err
+    try:
+        model = onnx.load(str(path))
+    except Exception as err:  # onnx raises DecodeError and others on foreign bytes
+        raise InputError(f"not a readable ONNX file ({type(err).__name__})", path) from err
+    props = {p.key: p.value for p in model.metadata_props}
+    if META_KEY not in props:
+        raise InputError("not a contactkit model (no contactkit metadata in the ONNX file)",
+                         path)
+    meta = json.loads(props[META_KEY])
+    if meta.get("graph_sha256") != _graph_digest(model):
+        raise InputError("model file was modified after it was written (digest mismatch); "
+                         "refusing to load it", path)
+    return OnnxClassifier(path, meta["classes"]), meta

@@ -1,0 +1,107 @@
+"""Networks on window grids: CNN, LSTM, MiniRocket, ONNX export, and the nn extra."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from classify.grids import GridSpec, load_grids, resample_window
+from classify.nn import CNNClassifier, LSTMClassifier
+from tests.conftest import make_dataset, run_cli
+
+torch = pytest.importorskip("torch")
+SMALL = {"depth": 1, "width": 0.5, "epochs": 3, "patience": 2}
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    return make_dataset(tmp_path_factory.mktemp("nn"))
+
+
+@pytest.fixture(scope="module")
+def grids(dataset):
+    return load_grids([dataset], GridSpec(steps=40))
+
+
+def test_grid_shape_and_resampling(grids) -> None:
+    assert grids.X.shape == (32, 21, 40)
+    t = np.arange(0, 1, 0.01)
+    values = np.column_stack([t, 2 * t])
+    out = resample_window(t, values, 0.5, 0.2, 4)
+    assert np.allclose(out, [[0.5, 0.55, 0.6, 0.65], [1.0, 1.1, 1.2, 1.3]])
+
+
+@pytest.mark.parametrize("cls", [CNNClassifier, LSTMClassifier])
+def test_same_seed_same_network(grids, cls) -> None:
+    y = grids.labels()
+    a = cls(seed=3, **SMALL).fit(grids.X, y).predict_proba(grids.X)
+    b = cls(seed=3, **SMALL).fit(grids.X, y).predict_proba(grids.X)
+    assert np.array_equal(a, b)
+    assert np.allclose(a.sum(axis=1), 1.0, atol=1e-5)
+
+
+def test_onnx_model_file_round_trip_and_refusal(dataset: Path, tmp_path: Path) -> None:
+    model = tmp_path / "cnn.onnx"
+    trained = run_cli("classify", "train", str(dataset), "--model", "cnn", "--epochs", "2",
+                      "--steps", "40", "--out", str(model), "--workers", "1")
+    assert trained.returncode == 0, trained.stderr
+    session = sorted(dataset.glob("static_*.parquet"))[0]
+    predicted = run_cli("classify", "predict", str(model), str(session), "--json")
+    assert predicted.returncode == 0, predicted.stderr
+    import json
+
+    line = json.loads(predicted.stdout.splitlines()[0])
+    assert sum(line["probabilities"].values()) == pytest.approx(1.0, abs=1e-4)
+    import onnx
+
+    graph = onnx.load(str(model))
+    graph.graph.initializer[0].raw_data = bytes(len(graph.graph.initializer[0].raw_data))
+    tampered = tmp_path / "tampered.onnx"
+    onnx.save(graph, str(tampered))
+    refused = run_cli("classify", "predict", str(tampered), str(session))
+    assert refused.returncode == 2 and "modified after it was written" in refused.stderr
+
+
+def test_onnx_equals_torch(grids, tmp_path: Path) -> None:
+    import onnxruntime as ort
+
+    net = LSTMClassifier(seed=1, **SMALL).fit(grids.X, grids.labels())
+    path = tmp_path / "l.onnx"
+    net.export_onnx(path, grids.X.shape[1], grids.X.shape[2])
+    session = ort.InferenceSession(str(path))
+    out = session.run(None, {"grid": grids.X.astype(np.float32)})[0]
+    assert np.abs(out - net.predict_proba(grids.X)).max() < 1e-5
+
+
+def test_group_protocol_and_minirocket(dataset: Path, tmp_path: Path) -> None:
+    result = run_cli("classify", "evaluate", str(dataset), "--model", "lstm", "--epochs", "2",
+                     "--steps", "30", "--protocol", "group", "--group", "pose", "--workers", "1")
+    assert result.returncode == 0, result.stderr
+    assert "balanced accuracy" in result.stdout and "4 splits" in result.stdout
+    model = tmp_path / "mr.skops"
+    trained = run_cli("classify", "train", str(dataset), "--model", "minirocket", "--steps",
+                      "30", "--out", str(model), "--workers", "1")
+    assert trained.returncode == 0, trained.stderr
+    session = sorted(dataset.glob("static_*.parquet"))[0]
+    assert run_cli("classify", "predict", str(model), str(session)).returncode == 0
+
+
+def test_without_torch_a_network_gives_one_line(dataset: Path, tmp_path: Path) -> None:
+    code = ("import sys, importlib.abc\n"
+            "class NoTorch(importlib.abc.MetaPathFinder):\n"
+            "    def find_spec(self, name, path, target=None):\n"
+            "        if name.split('.')[0] == 'torch':\n"
+            "            raise ImportError('No module named torch')\n"
+            "sys.meta_path.insert(0, NoTorch())\n"
+            "from classify.cli import main\n"
+            f"sys.argv = ['classify', 'train', {str(dataset)!r}, '--model', 'cnn', '--out', "
+            f"{str(tmp_path / 'x.onnx')!r}, '--workers', '1', '--steps', '20']\n"
+            "main()\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 2
+    assert "pip install 'contactkit[nn]'" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
