@@ -2,9 +2,10 @@
 
 Samples go one at a time through :class:`features.timeseries.OnlineChain` (as on a
 live robot). Every ``hop_s`` seconds, once a full window is available, the scalar
-features of the last ``window_s`` seconds (the window length the model was trained
-with) go through the model: each prediction is stamped with the time of the last
-sample it used, so it never looks ahead. The engine also computes the offline
+features of the last ``window_s`` seconds (the window length the model was
+trained with), or for a network the resampled window grid, go through the model:
+each prediction is stamped with the time of the last sample it used, so it never
+looks ahead. The engine also computes the offline
 answer: the window found by the thesis method and the model's label for it.
 
 :meth:`ReplayStream.blocks` yields after every hop, so a paced replay can sleep and
@@ -19,10 +20,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from classify.fast import fast_predictor
+from classify.grids import resample_window, session_grid
 from classify.modelfile import ModelFile
+from features.observer import ObserverConfig
 from features.scalars import scalar_features
 from features.timeseries import ChainConfig, OnlineChain, columns_of, expand
-from features.windows import Window
+from features.windows import Window, WindowSpec, find_window
 from schemas import InputError, Session
 
 DEFAULT_HOP_S = 0.02
@@ -62,12 +65,22 @@ class ReplayStream:
         self.session = session = session.complete()
         self.model = model
         self.hop_s = hop_s
-        self.extractor = model.extractor()
         self._predict_proba = fast_predictor(model.estimator)
         self.classes = model.classes
-        self.names = expand(list(self.extractor.timeseries))
+        if model.input == "grid":
+            self.grid = model.grid_spec()
+            self.extractor = None
+            timeseries, self.window_s = self.grid.timeseries, float(self.grid.window_s)
+            self.observer = ObserverConfig(gain=self.grid.gain)
+            self.wrench_frame = "ee"
+        else:
+            self.grid = None
+            self.extractor = model.extractor()
+            timeseries, self.window_s = self.extractor.timeseries, float(self.extractor.window_s)
+            self.observer = self.extractor.chain_config().observer
+            self.wrench_frame = self.extractor.wrench_frame
+        self.names = expand(list(timeseries))
         self.channels = [c for name in self.names for c in columns_of(name)]
-        self.window_s = float(self.extractor.window_s)
         n = session.n_samples
         self.t = session.t
         steps = np.diff(self.t)
@@ -86,9 +99,14 @@ class ReplayStream:
 
     def _predict(self, k: int) -> None:
         first = int(np.searchsorted(self.t, self.t[k] - self.window_s, side="right"))
-        row, _ = scalar_features(self._values[first:k + 1], list(self.extractor.scalars),
-                                 self.channels, self.extractor.fft_k)
-        proba = self._predict_proba(row[None, :])[0]
+        if self.grid is not None:
+            start = max(0, first - 1)
+            row = resample_window(self.t[start:k + 1], self._values[start:k + 1],
+                                  self.t[k] - self.window_s, self.window_s, self.grid.steps)
+        else:
+            row, _ = scalar_features(self._values[first:k + 1], list(self.extractor.scalars),
+                                     self.channels, self.extractor.fft_k)
+        proba = self._predict_proba(row[None, ...])[0]
         self.pred_t.append(float(self.t[k]))
         self.pred_sample.append(k)
         self.pred_proba.append(proba)
@@ -97,8 +115,8 @@ class ReplayStream:
     def blocks(self) -> Iterator[Block]:
         """Advance sample by sample; yield a :class:`Block` after every hop (and at the end)."""
         session = self.session
-        chain = OnlineChain(ChainConfig(self.extractor.chain_config().observer,
-                                        self.extractor.wrench_frame), session.meta.with_hand)
+        chain = OnlineChain(ChainConfig(self.observer, self.wrench_frame),
+                            session.meta.with_hand)
         ee = chain.model.end_effector
         q, dq, tau = session.q, session.dq, session.tau
         next_hop = self.t[0] + self.window_s
@@ -127,7 +145,13 @@ class ReplayStream:
 
     def offline(self) -> OfflineAnswer:
         """Return the thesis method's window and the model's label for it."""
-        values, names, window = self.extractor.session_row(self.session)
-        self.model.check_features(names, self.session.path)
-        proba = self.model.estimator.predict_proba(values[None, :])[0]
+        if self.grid is not None:
+            spec = self.grid
+            window = find_window(self.session.t, self.session.meta.planned_at_s or 0.0,
+                                 WindowSpec(spec.window, spec.window_s), self.session.tau)
+            values = session_grid(self.session, spec)
+        else:
+            values, names, window = self.extractor.session_row(self.session)
+            self.model.check_features(names, self.session.path)
+        proba = self.model.estimator.predict_proba(values[None, ...])[0]
         return OfflineAnswer(window, self.classes[int(np.argmax(proba))], proba)

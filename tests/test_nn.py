@@ -105,3 +105,21 @@ def test_without_torch_a_network_gives_one_line(dataset: Path, tmp_path: Path) -
     assert result.returncode == 2
     assert "pip install 'contactkit[nn]'" in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
+
+
+def test_replay_with_an_onnx_network(dataset: Path, tmp_path: Path) -> None:
+    import rerun.chunk as rc
+
+    model = tmp_path / "lstm.onnx"
+    trained = run_cli("classify", "train", str(dataset), "--model", "lstm", "--epochs", "2",
+                      "--steps", "30", "--out", str(model), "--workers", "1")
+    assert trained.returncode == 0, trained.stderr
+    session = sorted(dataset.glob("static_*.parquet"))[0]
+    rrd = tmp_path / "r.rrd"
+    result = run_cli("replay", str(session), "--model", str(model), "--viewer", "none",
+                     "--save", str(rrd))
+    assert result.returncode == 0, result.stderr
+    rows = [c.to_record_batch() for c in rc.RrdReader(rrd).stream()
+            if c.entity_path == "/classifier/probability" and not c.is_static]
+    proba = np.array([v for b in rows for v in b.column("Scalars:scalars").to_pylist()])
+    assert len(proba) > 10 and np.allclose(proba.sum(axis=1), 1.0, atol=1e-4)
