@@ -15,6 +15,7 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+from classify.augmentation import run_augmentation
 from classify.data import GROUP_KEYS, FeatureSet, load_features
 from classify.evaluate import PROTOCOLS, evaluate, report_markdown
 from classify.experiments import EXPERIMENTS, Setting, run_experiment
@@ -372,7 +373,8 @@ def predict_command(
 
 @app.command("experiment")
 def experiment_command(
-    name: Annotated[str, typer.Argument(help=f"One of {', '.join(EXPERIMENTS)}.")],
+    name: Annotated[str, typer.Argument(
+        help=f"One of {', '.join(EXPERIMENTS)}, augmentation.")],
     datasets: DatasetsArg,
     out: Annotated[Path, typer.Option(help="Directory for the .md, .json and .png.")],
     protocol: Annotated[str, typer.Option(help="thesis or group.")] = "group",
@@ -381,12 +383,26 @@ def experiment_command(
     c: Annotated[float, typer.Option("--C", help="SVM regularisation C.")] = 10.0,
     seed: SeedOpt = 0,
     workers: WorkersOpt = DEFAULT_WORKERS,
+    model: Annotated[str, typer.Option(
+        help="augmentation: the network, cnn, lstm or minirocket.")] = "cnn",
+    repeats: Annotated[int, typer.Option(
+        help="augmentation: repetitions, each with its own real test split.")] = 3,
+    epochs: EpochsOpt = 60,
+    steps: StepsOpt = 300,
+    noise_file: Annotated[Path | None, typer.Option(
+        help="augmentation: noise baseline from `recorder stats --deep` (default: "
+             "measured on the real set's no-contact sessions).")] = None,
 ) -> None:
     """Regenerate a thesis table on any dataset: features (Appendix B), rfe, speed
-    (Figure 6.5) or window (accuracy against window length)."""
+    (Figure 6.5), window (accuracy against window length), or augmentation REAL SIM
+    (Algorithm 3: less real data, added simulated data and noise augmentation)."""
     check_scheme(scheme)
     if protocol not in PROTOCOLS:
         raise InputError(f"unknown protocol {protocol!r} (expected thesis or group)")
+    if name == "augmentation" and len(datasets) != 2:
+        raise InputError("augmentation takes two datasets: REAL_DIR SIM_DIR")
+    if name == "augmentation" and repeats < 1:
+        raise InputError(f"--repeats must be at least 1, got {repeats}")
     setting = Setting(protocol=protocol, group_by=group, scheme=scheme, seed=seed,
                       workers=workers, c=c)
     with progress_bar(f"experiment {name}") as bar:
@@ -397,7 +413,14 @@ def experiment_command(
                 tasks[label] = bar.add_task(label, total=total)
             bar.update(tasks[label], completed=done, total=total, description=label)
 
-        paths = run_experiment(name, datasets, out, setting, progress)
+        if name == "augmentation":
+            spec = _grid_spec(model, None, None, 0.5, steps)
+            paths = run_augmentation(datasets[0], datasets[1], out, model=model, spec=spec,
+                                     repeats=repeats, epochs=epochs, seed=seed,
+                                     workers=workers, noise_file=noise_file,
+                                     progress=progress)
+        else:
+            paths = run_experiment(name, datasets, out, setting, progress)
     for path in paths:
         print(path)
 

@@ -220,15 +220,18 @@ def simulate_command(
     workers: Annotated[int, typer.Option(help="Parallel processes.")] = DEFAULT_WORKERS,
     rate: Annotated[float | None, typer.Option(
         help="Sample rate [Hz] (default: the preset's, 600 for the thesis presets).")] = None,
-    robot_seed: Annotated[int, typer.Option(help="Simulated robot instance.")] = 0,
+    robot_seed: Annotated[int | None, typer.Option(
+        help="Simulated robot instance (default: the preset's).")] = None,
     noise_scale: Annotated[float, typer.Option(help="Multiply the sensor noise.")] = 1.0,
-    variability: Annotated[float, typer.Option(
-        help="Spread of strength and tempo between simulated people (1 = default).")] = 1.0,
+    variability: Annotated[float | None, typer.Option(
+        help="Spread of strength and tempo between simulated people (default: the "
+             "preset's, 1 for most).")] = None,
 ) -> None:
     """Write many simulated sessions in parallel (existing ones are skipped) and index them."""
     if preset not in PRESETS:
         raise InputError(f"unknown preset {preset!r} (available: {', '.join(PRESETS)})")
-    config = _sim_config(rate or PRESETS[preset].rate_hz, True, robot_seed, None, noise_scale,
+    chosen_robot = PRESETS[preset].robot_seed if robot_seed is None else robot_seed
+    config = _sim_config(rate or PRESETS[preset].rate_hz, True, chosen_robot, None, noise_scale,
                          0.0, 0.0)
     with Progress(TextColumn("[bold]simulating[/]"), BarColumn(), MofNCompleteColumn(),
                   TimeRemainingColumn(), console=err_console) as bar:

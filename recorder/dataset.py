@@ -11,6 +11,12 @@ choices of section 5.3.3 and what it listed as future work):
 * ``smoke``: 8 static sessions (poses A and B x four actions) for tests and demos.
 * ``default-static`` (96) and ``default-dynamic`` (56, 0.2-0.5 rad/s), at 500 Hz:
   the training data of replay's default model.
+* ``aug-real`` (256) and ``aug-sim`` (512), static at 500 Hz: the two roles of the
+  augmentation experiment (``classify experiment augmentation``). They differ as a
+  lab's real data differ from its simulation: another robot instance (robot seed 7
+  against 0, so other true inertias and friction: model mismatch between the two),
+  people 1.5 times as variable in strength and tempo, and contacts on every link
+  where the simulation, like the thesis's, only touches the distal links 5-7.
 
 Every session's choices come from ``(seed, session number)``, so re-running a
 preset produces the same files, and sessions already on disk are skipped. Five
@@ -51,6 +57,9 @@ class Preset:
     speed_range: tuple[float, float] | None = None
     rate_hz: float = 600.0
     duration_s: float | None = None
+    robot_seed: int = 0
+    variability: float = 1.0
+    links: tuple[int, ...] | None = None
 
 
 PRESETS: dict[str, Preset] = {
@@ -62,11 +71,15 @@ PRESETS: dict[str, Preset] = {
     "default-dynamic": Preset("default-dynamic", 56, "dynamic",
                               tuple(p for p in POSES if p != START_POSE), 0.1, (0.2, 0.5),
                               rate_hz=500.0),
+    "aug-real": Preset("aug-real", 256, "static", tuple(POSES), 0.1, rate_hz=500.0,
+                       robot_seed=7, variability=1.5),
+    "aug-sim": Preset("aug-sim", 512, "static", tuple(POSES), 0.1, rate_hz=500.0,
+                      robot_seed=0, variability=1.0, links=(5, 6, 7)),
 }
 
 
 def preset_specs(preset: Preset, n: int, seed: int, with_hand: bool = True,
-                 variability: float = 1.0) -> list[SessionSpec]:
+                 variability: float | None = None) -> list[SessionSpec]:
     """Return the first ``n`` session specs of a preset for ``seed`` (deterministic)."""
     specs = []
     for k in range(n):
@@ -74,9 +87,13 @@ def preset_specs(preset: Preset, n: int, seed: int, with_hand: bool = True,
         pose = preset.poses[k % len(preset.poses)]
         action = ACTIONS[(k // len(preset.poses)) % len(ACTIONS)]
         session_seed = int(rng.integers(2**63))
+        link = None if preset.links is None or action == "none" else \
+            int(preset.links[int(rng.integers(len(preset.links)))])
         common = dict(seed=session_seed, action=action, operator=OPERATORS[k % len(OPERATORS)],
                       pose_jitter_rad=preset.pose_jitter_rad, with_hand=with_hand,
-                      duration_s=preset.duration_s, operator_variability=variability)
+                      duration_s=preset.duration_s, link=link,
+                      operator_variability=preset.variability if variability is None
+                      else variability)
         if preset.condition == "dynamic":
             speed = float(rng.uniform(*preset.speed_range))
             specs.append(plan_session(condition="dynamic", pose=START_POSE, target_pose=pose,
@@ -118,7 +135,7 @@ class SimulateResult:
 def simulate_dataset(out_dir: str | Path, preset_name: str, sessions: int | None, seed: int,
                      workers: int, config: SimConfig | None = None,
                      progress: Callable[[int, int], None] | None = None,
-                     variability: float = 1.0) -> SimulateResult:
+                     variability: float | None = None) -> SimulateResult:
     """Write a preset's sessions into ``out_dir`` with ``workers`` processes.
 
     Sessions whose file exists are skipped. ``progress(done, total)`` is called as
@@ -132,7 +149,7 @@ def simulate_dataset(out_dir: str | Path, preset_name: str, sessions: int | None
     out_dir.mkdir(parents=True, exist_ok=True)
     if not os.access(out_dir, os.W_OK):
         raise InputError("cannot write here (permission denied)", out_dir)
-    config = config or SimConfig(rate_hz=preset.rate_hz)
+    config = config or SimConfig(rate_hz=preset.rate_hz, robot_seed=preset.robot_seed)
     count = preset.sessions if sessions is None else sessions
     if count < 1:
         raise InputError(f"--sessions must be at least 1, got {count}")

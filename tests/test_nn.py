@@ -123,3 +123,28 @@ def test_replay_with_an_onnx_network(dataset: Path, tmp_path: Path) -> None:
             if c.entity_path == "/classifier/probability" and not c.is_static]
     proba = np.array([v for b in rows for v in b.column("Scalars:scalars").to_pylist()])
     assert len(proba) > 10 and np.allclose(proba.sum(axis=1), 1.0, atol=1e-4)
+
+
+def test_augmentation_experiment_end_to_end(tmp_path: Path) -> None:
+    for preset, directory in (("aug-real", "real"), ("aug-sim", "sim")):
+        made = run_cli("recorder", "simulate", str(tmp_path / directory), "--preset", preset,
+                       "--sessions", "16", "--rate", "200", "--workers", "1")
+        assert made.returncode == 0, made.stderr
+    import json
+
+    from schemas import read_session
+
+    sim_links = {read_session(p).meta.link for p in (tmp_path / "sim").glob("static_*.parquet")}
+    assert sim_links <= {None, 5, 6, 7}
+    result = run_cli("classify", "experiment", "augmentation", str(tmp_path / "real"),
+                     str(tmp_path / "sim"), "--out", str(tmp_path / "out"), "--model", "lstm",
+                     "--repeats", "2", "--epochs", "2", "--steps", "30", "--workers", "1")
+    assert result.returncode == 0, result.stderr
+    doc = json.loads((tmp_path / "out" / "augmentation.json").read_text())
+    cells = {(c["fraction"], c["condition"]) for c in doc["cells"]}
+    assert len(cells) == 18 and (0.5, "noise x10") in cells
+    assert all(len(c["balanced_accuracy"]) == 2 for c in doc["cells"])
+    assert (tmp_path / "out" / "augmentation.png").stat().st_size > 10_000
+    bad = run_cli("classify", "experiment", "augmentation", str(tmp_path / "real"), "--out",
+                  str(tmp_path / "x"))
+    assert bad.returncode == 2 and "REAL_DIR SIM_DIR" in bad.stderr

@@ -1,0 +1,188 @@
+"""The augmentation experiment (thesis Algorithm 3, section 5.3.5).
+
+For each repetition, 15 % of the "real" dataset is held out as the test set
+(stratified). For 50 %, 75 % and 100 % of the remaining real sessions, a network is
+trained on the real sessions only, then with one copy of the simulated set (1xSim),
+then with two identical copies (2xSim), then with the simulated set augmented
+twice over: torque noise of 1, 5 and 10 times the measured sensor noise, once with
+the observer gain 10 % lower and once 10 % higher. Every model is scored on the
+same real test set; the table gives the mean balanced accuracy over repetitions
+with a 95 % confidence interval (Student t), and two plots in the style of the
+thesis's Figures 6.10 and 6.11.
+
+The noise baseline is the thesis's statistic measured on the real set's no-contact
+sessions (per joint, the standard deviation of the torque over a session, averaged
+over sessions), or a noise file from ``recorder stats --deep`` (``--noise-file``).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from scipy import stats
+from sklearn.model_selection import train_test_split
+
+from classify.data import FeatureSet
+from classify.evaluate import confusion, metrics_from_confusion
+from classify.grids import Augmentation, GridSpec, load_grids
+from classify.nn import check_available, make_network
+from schemas import InputError, read_session
+from schemas.dataset import session_files
+
+FRACTIONS = (0.5, 0.75, 1.0)
+NOISE_LEVELS = (1, 5, 10)
+GAIN_FACTORS = (0.9, 1.1)
+Progress = Callable[[str, int, int], None]
+
+
+def noise_baseline(real_dir: Path, noise_file: Path | None = None) -> np.ndarray:
+    """Return the per-joint torque-noise baseline [Nm] (see the module docstring)."""
+    if noise_file is not None:
+        try:
+            doc = json.loads(noise_file.read_text())
+            values = doc.get("thesis_tau_std_nm") or doc["tau_sigma_nm"]
+        except (OSError, KeyError, json.JSONDecodeError) as err:
+            raise InputError(f"not a noise file ({err})", noise_file) from err
+        return np.asarray(values, dtype=float)
+    stds = []
+    for path in session_files(real_dir):
+        try:
+            session = read_session(path)
+        except InputError:
+            continue
+        if session.meta.action == "none":
+            stds.append(np.nanstd(session.tau, axis=0))
+    if not stds:
+        raise InputError("no no-contact session to measure the noise baseline; give "
+                         "--noise-file", real_dir)
+    return np.mean(stds, axis=0)
+
+
+@dataclass
+class Cell:
+    """One experiment cell: real fraction, condition, and its scores over repetitions."""
+
+    fraction: float
+    condition: str
+    scores: list[float]
+
+    def interval(self) -> tuple[float, float, float]:
+        """Mean and 95 % Student-t interval of the scores."""
+        values = np.asarray(self.scores)
+        mean = float(values.mean())
+        if len(values) < 2:
+            return mean, float("nan"), float("nan")
+        half = float(stats.t.ppf(0.975, len(values) - 1) * values.std(ddof=1)
+                     / np.sqrt(len(values)))
+        return mean, mean - half, mean + half
+
+
+def _score(network, X: np.ndarray, y: np.ndarray, classes: list[str]) -> float:
+    predicted = network.predict(X)
+    return float(metrics_from_confusion(confusion(y, predicted, classes))["balanced_accuracy"])
+
+
+def run_augmentation(real_dir: Path, sim_dir: Path, out_dir: Path, *, model: str = "cnn",
+                     spec: GridSpec, repeats: int = 3, epochs: int = 60, seed: int = 0,
+                     workers: int = 1, noise_file: Path | None = None,
+                     progress: Progress | None = None) -> list[Path]:
+    """Run the experiment; write augmentation.md, .json and .png; return their paths."""
+    check_available(model)
+    baseline = noise_baseline(real_dir, noise_file)
+
+    def grids(source: Path, aug: Augmentation | None, label: str) -> FeatureSet:
+        report = None if progress is None else (lambda d, t: progress(label, d, t))
+        return load_grids([source], spec, workers, aug, report)
+
+    real = grids(real_dir, None, "real grids")
+    sim_sets = {"1xSim": grids(sim_dir, None, "sim grids")}
+    for level in NOISE_LEVELS:
+        parts = [grids(sim_dir, Augmentation(level, tuple(baseline), factor, seed),
+                       f"sim grids, noise x{level}, gain x{factor}")
+                 for factor in GAIN_FACTORS]
+        sim_sets[f"noise x{level}"] = parts
+    classes = sorted(set(real.labels()))
+    conditions = ["real", "1xSim", "2xSim", *[f"noise x{n}" for n in NOISE_LEVELS]]
+    cells = {(f, c): Cell(f, c, []) for f in FRACTIONS for c in conditions}
+    total, done = repeats * len(FRACTIONS) * len(conditions), 0
+    y_real = real.labels()
+    for r in range(repeats):
+        pool, test = train_test_split(np.arange(len(y_real)), test_size=0.15,
+                                      random_state=seed + r, stratify=y_real)
+        rng = np.random.default_rng([seed, r])
+        order = rng.permutation(pool)
+        for fraction in FRACTIONS:
+            chosen = order[:max(len(classes) * 2, round(fraction * len(pool)))]
+            for condition in conditions:
+                X = [real.X[chosen]]
+                y = [y_real[chosen]]
+                if condition in ("1xSim", "2xSim"):
+                    copies = 1 if condition == "1xSim" else 2
+                    X += [sim_sets["1xSim"].X] * copies
+                    y += [sim_sets["1xSim"].labels()] * copies
+                elif condition.startswith("noise"):
+                    for part in sim_sets[condition]:
+                        X.append(part.X)
+                        y.append(part.labels())
+                network = make_network(model, seed + r, epochs)
+                network.fit(np.concatenate(X), np.concatenate(y))
+                cells[(fraction, condition)].scores.append(
+                    _score(network, real.X[test], y_real[test], classes))
+                done += 1
+                if progress:
+                    progress("trainings", done, total)
+    return _write(out_dir, cells, conditions, model, spec, repeats, baseline, real_dir, sim_dir)
+
+
+def _write(out_dir: Path, cells: dict, conditions: list[str], model: str, spec: GridSpec,
+           repeats: int, baseline: np.ndarray, real_dir: Path, sim_dir: Path) -> list[Path]:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    header = "| real data | " + " | ".join(conditions) + " |"
+    lines = ["# Augmentation experiment (thesis Algorithm 3)", "",
+             f"{model.upper()} on {spec.steps}-step window grids of "
+             f"{', '.join(spec.timeseries)}; {repeats} repetitions, each with its own "
+             "held-out 15 % real test set. Balanced accuracy, mean [95 % CI].", "",
+             f"Real: `{real_dir}`; simulated: `{sim_dir}`; torque-noise baseline [Nm]: "
+             + ", ".join(f"{v:.3f}" for v in baseline), "", header,
+             "|---|" + "---|" * len(conditions)]
+    for fraction in FRACTIONS:
+        row = []
+        for condition in conditions:
+            mean, lo, hi = cells[(fraction, condition)].interval()
+            row.append(f"{100 * mean:.1f} [{100 * lo:.1f}, {100 * hi:.1f}]")
+        lines.append(f"| {int(fraction * 100)} % | " + " | ".join(row) + " |")
+    md, js, png = (out_dir / f"augmentation.{ext}" for ext in ("md", "json", "png"))
+    md.write_text("\n".join(lines) + "\n")
+    js.write_text(json.dumps({"model": model, "grid": spec.as_dict(), "repeats": repeats,
+                              "noise_baseline_nm": baseline.tolist(),
+                              "cells": [{"fraction": c.fraction, "condition": c.condition,
+                                         "balanced_accuracy": c.scores,
+                                         "mean_ci": c.interval()} for c in cells.values()]},
+                             indent=2))
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    for fraction in FRACTIONS:
+        for ax, names, labels in ((left, conditions[:3], ["real", "1xSim", "2xSim"]),
+                                  (right, ["2xSim", *conditions[3:]], ["0", "1", "5", "10"])):
+            means = np.array([cells[(fraction, c)].interval() for c in names])
+            ax.errorbar(labels, 100 * means[:, 0],
+                        yerr=[100 * (means[:, 0] - means[:, 1]),
+                              100 * (means[:, 2] - means[:, 0])],
+                        marker="o", capsize=3, label=f"{int(fraction * 100)} % real")
+    left.set_title("adding simulated data")
+    right.set_title("noise augmentation (x measured sensor noise)")
+    left.set_ylabel("balanced accuracy [%] (95 % CI)")
+    right.legend()
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(png, dpi=120)
+    plt.close(fig)
+    return [md, js, png]
