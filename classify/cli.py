@@ -61,6 +61,18 @@ def _inputs(source: Path) -> list[Path]:
     return [source]
 
 
+def labelled_progress(bar: Progress):
+    """Return a callback ``(label, done, total)`` that keeps one bar per label."""
+    tasks: dict[str, int] = {}
+
+    def progress(label: str, done: int, total: int) -> None:
+        if label not in tasks:
+            tasks[label] = bar.add_task(label, total=total)
+        bar.update(tasks[label], completed=done, total=total, description=label)
+
+    return progress
+
+
 def progress_bar(label: str) -> Progress:
     """Return a progress bar on stderr for long work."""
     return Progress(TextColumn(f"[bold]{label}[/] {{task.description}}"), BarColumn(),
@@ -149,6 +161,10 @@ WindowOpt = Annotated[str | None, typer.Option(
 SchemeOpt = Annotated[str, typer.Option(help=f"Class scheme: {', '.join(SCHEMES)}.")]
 ModelOpt = Annotated[str, typer.Option(
     help=f"Classifier: {', '.join(MODEL_KINDS + NN_KINDS)} (networks need the nn extra).")]
+WindowSOpt = Annotated[float, typer.Option(help="Window length [s].")]
+LimitedOpt = Annotated[bool, typer.Option(
+    help="Limited context: drop shove from static and adjust from dynamic.")]
+COpt = Annotated[float, typer.Option("--C", help="SVM regularisation C.")]
 EpochsOpt = Annotated[int, typer.Option(help="Networks: most training epochs (early "
                                              "stopping on a validation split).")]
 StepsOpt = Annotated[int, typer.Option(help="Networks: time steps of a window grid.")]
@@ -209,14 +225,13 @@ def train_command(
     datasets: DatasetsArg,
     out: Annotated[Path, typer.Option(help="Model file to write (.skops).")],
     model: ModelOpt = "svm",
-    features: FeaturesOpt = "dq,tau,r",
+    features: FeaturesOpt = None,
     scalars: ScalarsOpt = "range",
-    window: WindowOpt = "difference",
-    window_s: Annotated[float, typer.Option(help="Window length [s].")] = 0.5,
+    window: WindowOpt = None,
+    window_s: WindowSOpt = 0.5,
     scheme: SchemeOpt = "full",
-    limited: Annotated[bool, typer.Option(
-        help="Limited context: drop shove from static and adjust from dynamic.")] = False,
-    c: Annotated[float, typer.Option("--C", help="SVM regularisation C.")] = 1.0,
+    limited: LimitedOpt = False,
+    c: COpt = 1.0,
     seed: SeedOpt = 0,
     workers: WorkersOpt = DEFAULT_WORKERS,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing model file.")] = False,
@@ -267,14 +282,13 @@ def evaluate_command(
     group: Annotated[str, typer.Option(help=f"Grouping for the group protocol: "
                                             f"{', '.join(GROUP_KEYS)}.")] = "pose",
     model: ModelOpt = "svm",
-    features: FeaturesOpt = "dq,tau,r",
+    features: FeaturesOpt = None,
     scalars: ScalarsOpt = "range",
-    window: WindowOpt = "difference",
-    window_s: Annotated[float, typer.Option(help="Window length [s].")] = 0.5,
+    window: WindowOpt = None,
+    window_s: WindowSOpt = 0.5,
     scheme: SchemeOpt = "full",
-    limited: Annotated[bool, typer.Option(
-        help="Limited context: drop shove from static and adjust from dynamic.")] = False,
-    c: Annotated[float, typer.Option("--C", help="SVM regularisation C.")] = 1.0,
+    limited: LimitedOpt = False,
+    c: COpt = 1.0,
     seed: SeedOpt = 0,
     workers: WorkersOpt = DEFAULT_WORKERS,
     json_out: Annotated[Path | None, typer.Option("--json", help="Also write the report "
@@ -380,7 +394,7 @@ def experiment_command(
     protocol: Annotated[str, typer.Option(help="thesis or group.")] = "group",
     group: Annotated[str, typer.Option(help=f"Grouping: {', '.join(GROUP_KEYS)}.")] = "pose",
     scheme: SchemeOpt = "full",
-    c: Annotated[float, typer.Option("--C", help="SVM regularisation C.")] = 10.0,
+    c: COpt = 10.0,
     seed: SeedOpt = 0,
     workers: WorkersOpt = DEFAULT_WORKERS,
     model: Annotated[str, typer.Option(
@@ -406,13 +420,7 @@ def experiment_command(
     setting = Setting(protocol=protocol, group_by=group, scheme=scheme, seed=seed,
                       workers=workers, c=c)
     with progress_bar(f"experiment {name}") as bar:
-        tasks: dict[str, int] = {}
-
-        def progress(label: str, done: int, total: int) -> None:
-            if label not in tasks:
-                tasks[label] = bar.add_task(label, total=total)
-            bar.update(tasks[label], completed=done, total=total, description=label)
-
+        progress = labelled_progress(bar)
         if name == "augmentation":
             spec = _grid_spec(model, None, None, 0.5, steps)
             paths = run_augmentation(datasets[0], datasets[1], out, model=model, spec=spec,

@@ -107,7 +107,24 @@ def _lstm_module(torch, channels: int, classes: int, depth: int, width: float,
 
 
 class _TorchClassifier(ClassifierMixin, BaseEstimator):
-    """Shared training loop of the CNN and the LSTM."""
+    """Shared parameters and training loop of the CNN and the LSTM."""
+
+    default_depth = 1
+
+    def __init__(self, depth: int | None = None, width: float = 2.0, dropout: float = 0.02,
+                 epochs: int = 100, patience: int = 10, batch_size: int = 32,
+                 learning_rate: float = 1e-3, seed: int = 0) -> None:
+        self.depth = depth
+        self.width = width
+        self.dropout = dropout
+        self.epochs = epochs
+        self.patience = patience
+        self.batch_size = batch_size
+        self.learning_rate = learning_rate
+        self.seed = seed
+
+    def _depth(self) -> int:
+        return self.default_depth if self.depth is None else self.depth
 
     def _module(self, torch, channels: int, steps: int, classes: int):
         raise NotImplementedError
@@ -195,42 +212,22 @@ class _TorchClassifier(ClassifierMixin, BaseEstimator):
 
 
 class CNNClassifier(_TorchClassifier):
-    """The thesis's CNN (see the module docstring)."""
+    """The thesis's CNN (see the module docstring); ``depth`` None is its choice, 4."""
 
-    def __init__(self, depth: int = 4, width: float = 2.0, dropout: float = 0.02,
-                 epochs: int = 100, patience: int = 10, batch_size: int = 32,
-                 learning_rate: float = 1e-3, seed: int = 0) -> None:
-        self.depth = depth
-        self.width = width
-        self.dropout = dropout
-        self.epochs = epochs
-        self.patience = patience
-        self.batch_size = batch_size
-        self.learning_rate = learning_rate
-        self.seed = seed
+    default_depth = 4
 
     def _module(self, torch, channels: int, steps: int, classes: int):
-        return _cnn_module(torch, channels, steps, classes, self.depth, self.width,
+        return _cnn_module(torch, channels, steps, classes, self._depth(), self.width,
                            self.dropout)
 
 
 class LSTMClassifier(_TorchClassifier):
-    """The thesis's LSTM (see the module docstring)."""
+    """The thesis's LSTM (see the module docstring); ``depth`` None is its choice, 2."""
 
-    def __init__(self, depth: int = 2, width: float = 2.0, dropout: float = 0.02,
-                 epochs: int = 100, patience: int = 10, batch_size: int = 32,
-                 learning_rate: float = 1e-3, seed: int = 0) -> None:
-        self.depth = depth
-        self.width = width
-        self.dropout = dropout
-        self.epochs = epochs
-        self.patience = patience
-        self.batch_size = batch_size
-        self.learning_rate = learning_rate
-        self.seed = seed
+    default_depth = 2
 
     def _module(self, torch, channels: int, steps: int, classes: int):
-        return _lstm_module(torch, channels, classes, self.depth, self.width, self.dropout)
+        return _lstm_module(torch, channels, classes, self._depth(), self.width, self.dropout)
 
 
 class MiniRocketClassifier(ClassifierMixin, BaseEstimator):

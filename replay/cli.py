@@ -11,6 +11,7 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+from classify.cli import labelled_progress
 from classify.modelfile import ModelFile, load_model
 from replay.default_model import build_default_model, default_model_path
 from replay.engine import DEFAULT_HOP_S, Block, ReplayStream
@@ -43,14 +44,7 @@ def _model(path: Path | None) -> ModelFile:
         err_console.print("No --model given: building the default model once (simulated "
                           "data, then an SVM); it is cached for next time.")
     with _progress() as bar:
-        tasks: dict[str, int] = {}
-
-        def progress(label: str, done: int, total: int) -> None:
-            if label not in tasks:
-                tasks[label] = bar.add_task(label, total=total)
-            bar.update(tasks[label], completed=done, total=total)
-
-        return load_model(build_default_model(progress=progress))
+        return load_model(build_default_model(progress=labelled_progress(bar)))
 
 
 def _sessions(inputs: list[Path]) -> list[Path]:
@@ -153,14 +147,7 @@ def replay_command(
     """
     if build_default_model_:
         with _progress() as bar:
-            tasks: dict[str, int] = {}
-
-            def progress(label: str, done: int, total: int) -> None:
-                if label not in tasks:
-                    tasks[label] = bar.add_task(label, total=total)
-                bar.update(tasks[label], completed=done, total=total)
-
-            print(build_default_model(progress=progress, rebuild=True))
+            print(build_default_model(progress=labelled_progress(bar), rebuild=True))
         return
     if not sessions:
         raise InputError("give at least one session file or directory (see replay --help)")
