@@ -282,8 +282,11 @@ def import_arrays_command(
     name: Annotated[str | None, typer.Option(help="Output file name (default from the "
                                                    "metadata).")] = None,
 ) -> None:
-    """Turn plain arrays (text with 7 values per line or one per line, CSV, or .npy) into
-    a validated session, and print its path. Time is shifted to start at 0 s."""
+    """Turn plain arrays (text, CSV or .npy) into a validated session; print its path.
+
+    Joint files hold 7 values per line, or one per line (7 lines a sample); the time
+    file one value per line. Time is shifted to start at 0 s.
+    """
     session_path = import_arrays(t, q, dq, tau, _out_dir(out), meta or [], name)
     print(session_path)
 
