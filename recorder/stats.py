@@ -31,7 +31,7 @@ import numpy as np
 import polars as pl
 
 from recorder.noise import SensorNoise
-from recorder.stats_deep import PROFILE_T, session_summary
+from recorder.stats_deep import session_summary
 from schemas import ACTIONS, InputError
 from schemas.dataset import INDEX_NAME, rebuild_index, session_files
 
@@ -251,7 +251,3 @@ def build_report(directory: Path, deep: bool, workers: int,
     report["_private"] = private
     return report
 
-
-def profile_time_s() -> list[float]:
-    """Time axis [s] of the force profiles, relative to the onset."""
-    return PROFILE_T.tolist()

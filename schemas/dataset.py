@@ -8,7 +8,6 @@ skipped.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -136,7 +135,3 @@ def rebuild_index(directory: str | Path) -> IndexResult:
     write_index(directory, result.table)
     return result
 
-
-def row_metadata(row: dict) -> SessionMeta:
-    """Return the full :class:`SessionMeta` stored in an index row."""
-    return SessionMeta.from_dict(json.loads(row["metadata_json"]), row.get("file"))
