@@ -223,7 +223,8 @@ def _feature_set(datasets: list[Path], extractor: SessionFeatures, workers: int,
 @app.command("train")
 def train_command(
     datasets: DatasetsArg,
-    out: Annotated[Path, typer.Option(help="Model file to write (.skops).")],
+    out: Annotated[Path, typer.Option(
+        help="Model file to write: .skops (SVMs, MiniRocket) or .onnx (CNN, LSTM).")],
     model: ModelOpt = "svm",
     features: FeaturesOpt = None,
     scalars: ScalarsOpt = "range",
@@ -360,14 +361,15 @@ def predict_command(
             X, labels, truth = [], [], []
             for path in _inputs(source):
                 try:
-                    values, names, _ = extractor.session_row(path)
+                    session = read_session(path)
+                    values, names, _ = extractor.session_row(session)
                 except InputError as err:
                     err_console.print(f"[yellow]skipped[/] {err}")
                     continue
                 model.check_features(names, path)
                 X.append(values)
                 labels.append(str(path))
-                truth.append(read_session(path).meta.action)
+                truth.append(session.meta.action)
             if not X:
                 continue
         proba = model.estimator.predict_proba(np.asarray(X))
