@@ -70,7 +70,9 @@ def default_noise() -> SensorNoise:
     return SensorNoise(**{k: v for k, v in doc.items() if k != "how"})
 
 
-def _robust_sigma_of_difference(x: np.ndarray) -> np.ndarray:
+def robust_noise_sigma(x: np.ndarray) -> np.ndarray:
+    """Return each column's white-noise standard deviation, estimated as
+    1.4826 x MAD of the second difference / sqrt(6) (same unit as ``x``)."""
     d = np.diff(x, n=2, axis=0)
     mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
     return 1.4826 * mad / np.sqrt(6.0)
@@ -92,9 +94,9 @@ def estimate_noise(t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.ndarray
                           for k in range(len(t))])
     residual = tau - predicted - GAZ_FRICTION.torque(dq_smooth)
     return SensorNoise(
-        tau_sigma_nm=_robust_sigma_of_difference(tau).round(6).tolist(),
-        dq_sigma_rad_s=_robust_sigma_of_difference(dq).round(7).tolist(),
-        q_sigma_rad=_robust_sigma_of_difference(q).round(8).tolist(),
+        tau_sigma_nm=robust_noise_sigma(tau).round(6).tolist(),
+        dq_sigma_rad_s=robust_noise_sigma(dq).round(7).tolist(),
+        q_sigma_rad=robust_noise_sigma(q).round(8).tolist(),
         tau_bias_nm=np.abs(np.median(residual, axis=0)).round(6).tolist(),
         source=source,
     )

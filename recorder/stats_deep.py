@@ -18,6 +18,7 @@ import numpy as np
 from features.dynamics import PandaModel
 from features.timeseries import TimeseriesChain
 from features.windows import WindowSpec, find_window
+from recorder.noise import robust_noise_sigma
 from schemas import InputError, read_session
 from schemas.timing import sampling_stats
 
@@ -25,11 +26,6 @@ PROFILE_BEFORE_S = 0.25
 PROFILE_AFTER_S = 2.0
 PROFILE_HZ = 100.0
 PROFILE_T = np.arange(-PROFILE_BEFORE_S, PROFILE_AFTER_S, 1.0 / PROFILE_HZ)
-
-
-def _robust_sigma(x: np.ndarray) -> np.ndarray:
-    d = np.diff(x, n=2, axis=0)
-    return 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / np.sqrt(6.0)
 
 
 def file_sha256(path: Path) -> str:
@@ -59,9 +55,9 @@ def session_summary(path: str) -> dict:
            "condition": meta.condition, "sha256": file_sha256(Path(path)),
            "duration_s": session.duration_s, "sampling": sampling,
            "tau_std_nm": session.tau.std(axis=0).tolist(),
-           "tau_sigma_nm": _robust_sigma(session.tau).tolist(),
-           "dq_sigma_rad_s": _robust_sigma(session.dq).tolist(),
-           "q_sigma_rad": _robust_sigma(session.q).tolist(),
+           "tau_sigma_nm": robust_noise_sigma(session.tau).tolist(),
+           "dq_sigma_rad_s": robust_noise_sigma(session.dq).tolist(),
+           "q_sigma_rad": robust_noise_sigma(session.q).tolist(),
            "r_median_nm": np.median(series["r"][t > t[0] + 1.0], axis=0).tolist()
            if (t > t[0] + 1.0).any() else [0.0] * 7,
            "peak_residual_norm_nm": float(r_norm.max()),
