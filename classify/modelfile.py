@@ -97,6 +97,7 @@ class ModelFile:
 
         doc = dict(self.meta["grid"])
         doc["timeseries"] = tuple(doc["timeseries"])
+        doc.setdefault("baseline_s", 0.0)
         return GridSpec(**doc)
 
     def check_features(self, names: list[str], where: str | Path | None = None) -> None:

@@ -112,8 +112,8 @@ class _TorchClassifier(ClassifierMixin, BaseEstimator):
     default_depth = 1
 
     def __init__(self, depth: int | None = None, width: float = 2.0, dropout: float = 0.02,
-                 epochs: int = 100, patience: int = 10, batch_size: int = 32,
-                 learning_rate: float = 1e-3, seed: int = 0) -> None:
+                 epochs: int = 100, patience: int = 20, batch_size: int = 32,
+                 learning_rate: float = 3e-3, seed: int = 0) -> None:
         self.depth = depth
         self.width = width
         self.dropout = dropout
@@ -146,6 +146,8 @@ class _TorchClassifier(ClassifierMixin, BaseEstimator):
                                   random_state=self.seed, stratify=stratify)
         self.model_ = self._module(torch, X.shape[1], X.shape[2], len(self.classes_))
         optimiser = torch.optim.Adam(self.model_.parameters(), lr=self.learning_rate)
+        scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(
+            optimiser, factor=0.5, patience=max(1, self.patience // 4))
         loss_fn = torch.nn.CrossEntropyLoss()
         xt, yt = torch.from_numpy(Xn), torch.from_numpy(codes.astype(np.int64))
         best, best_state, waited = np.inf, None, 0
@@ -165,6 +167,7 @@ class _TorchClassifier(ClassifierMixin, BaseEstimator):
             with torch.no_grad():
                 val = float(loss_fn(self.model_(xt[va]), yt[va]))
             self.history_.append(val)
+            scheduler.step(val)
             if val < best - 1e-6:
                 best, best_state, waited = val, copy.deepcopy(self.model_.state_dict()), 0
             else:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from classify.fast import fast_predictor
-from classify.grids import resample_window, session_grid
+from classify.grids import session_grid, window_grid
 from classify.modelfile import ModelFile
 from features.observer import ObserverConfig
 from features.scalars import scalar_features
@@ -100,9 +100,11 @@ class ReplayStream:
     def _predict(self, k: int) -> None:
         first = int(np.searchsorted(self.t, self.t[k] - self.window_s, side="right"))
         if self.grid is not None:
-            start = max(0, first - 1)
-            row = resample_window(self.t[start:k + 1], self._values[start:k + 1],
-                                  self.t[k] - self.window_s, self.window_s, self.grid.steps)
+            start = int(np.searchsorted(self.t, self.t[k] - self.window_s - self.grid.baseline_s,
+                                        side="left"))
+            start = max(0, min(start, first) - 1)
+            row = window_grid(self.t[start:k + 1], self._values[start:k + 1],
+                              self.t[k] - self.window_s, self.grid)
         else:
             row, _ = scalar_features(self._values[first:k + 1], list(self.extractor.scalars),
                                      self.channels, self.extractor.fft_k)

@@ -9,8 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from classify.grids import GridSpec, load_grids, resample_window
+from classify.grids import GridSpec, load_grids, resample_window, window_grid
+from classify.modelfile import load_model
 from classify.nn import CNNClassifier, LSTMClassifier
+from features.observer import ObserverConfig
+from features.timeseries import ChainConfig, TimeseriesChain
+from schemas import read_session
 from tests.conftest import make_dataset, run_cli
 
 torch = pytest.importorskip("torch")
@@ -33,6 +37,19 @@ def test_grid_shape_and_resampling(grids) -> None:
     values = np.column_stack([t, 2 * t])
     out = resample_window(t, values, 0.5, 0.2, 4)
     assert np.allclose(out, [[0.5, 0.55, 0.6, 0.65], [1.0, 1.1, 1.2, 1.3]])
+
+
+def test_grid_is_relative_to_the_pre_window_mean() -> None:
+    t = np.arange(0, 1, 0.01)
+    ramp = np.where(t < 0.5, 0.0, t - 0.5)
+    values = np.column_stack([ramp + 3.0, ramp - 40.0])
+    spec = GridSpec(window_s=0.2, steps=4, baseline_s=0.1)
+    out = window_grid(t, values, 0.5, spec)
+    assert np.allclose(out, [[0.0, 0.05, 0.1, 0.15]] * 2)
+    absolute = window_grid(t, values, 0.5, GridSpec(window_s=0.2, steps=4, baseline_s=0.0))
+    assert np.allclose(absolute, resample_window(t, values, 0.5, 0.2, 4))
+    at_start = window_grid(t, values, 0.0, spec)
+    assert np.allclose(at_start, 0.0)
 
 
 @pytest.mark.parametrize("cls", [CNNClassifier, LSTMClassifier])
@@ -123,6 +140,19 @@ def test_replay_with_an_onnx_network(dataset: Path, tmp_path: Path) -> None:
             if c.entity_path == "/classifier/probability" and not c.is_static]
     proba = np.array([v for b in rows for v in b.column("Scalars:scalars").to_pylist()])
     assert len(proba) > 10 and np.allclose(proba.sum(axis=1), 1.0, atol=1e-4)
+    t_pred = np.concatenate([b.column("time").cast("int64").to_numpy() for b in rows]) / 1e9
+    order = np.argsort(t_pred, kind="stable")
+    t_pred, proba = t_pred[order], proba[order]
+    s = read_session(session)
+    spec = load_model(model).grid_spec()
+    net = load_model(model).estimator
+    for k in (0, len(t_pred) // 2, len(t_pred) - 1):
+        past = slice(0, int(np.searchsorted(s.t, t_pred[k] + 1e-9)))
+        chain = TimeseriesChain(ChainConfig(ObserverConfig(gain=spec.gain)), True).compute(
+            s.t[past], s.q[past], s.dq[past], s.tau[past], list(spec.timeseries))
+        values = np.column_stack([chain[n] for n in spec.timeseries])
+        grid = window_grid(s.t[past], values, s.t[past][-1] - spec.window_s, spec)
+        assert np.allclose(proba[k], net.predict_proba(grid[None])[0], atol=1e-5)
 
 
 def test_augmentation_experiment_end_to_end(tmp_path: Path) -> None:
