@@ -169,7 +169,8 @@ EpochsOpt = Annotated[int, typer.Option(help="Networks: most training epochs (ea
                                              "stopping on a validation split).")]
 StepsOpt = Annotated[int, typer.Option(help="Networks: time steps of a window grid.")]
 SeedOpt = Annotated[int, typer.Option(help="Random seed (same seed, same result).")]
-WorkersOpt = Annotated[int, typer.Option(help="Parallel processes for features.")]
+WorkersOpt = Annotated[int, typer.Option(
+    help="Parallel processes for features (and, for networks, for evaluation splits).")]
 DatasetsArg = Annotated[list[Path], typer.Argument(
     help="Dataset directories (or feature tables from `classify features`); several are "
          "combined, e.g. a static and a dynamic set.")]
@@ -320,7 +321,7 @@ def evaluate_command(
         task = bar.add_task("splits", total=None)
         report = evaluate(data.X, y, factory, protocol=protocol, groups=groups, group_by=group,
                           model=model, scheme=scheme, classes=scheme_classes(scheme),
-                          seed=seed,
+                          seed=seed, workers=workers if model in NN_KINDS else 1,
                           progress=lambda d, t: bar.update(task, completed=d, total=t))
     print(report_markdown(report))
     if json_out is not None:

@@ -16,7 +16,9 @@ feature selection are part of the model, so they are fitted inside each split.
 
 from __future__ import annotations
 
+import multiprocessing
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -98,10 +100,13 @@ class Report:
     split_accuracy_mean: float
     split_accuracy_std: float
     split_accuracies: list[float] = field(default_factory=list)
+    out_of_fold: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def as_dict(self) -> dict:
-        """Return the report as JSON-ready values."""
-        return asdict(self)
+        """Return the report as JSON-ready values (without the per-session predictions)."""
+        doc = asdict(self)
+        doc.pop("out_of_fold")
+        return doc
 
 
 def _bootstrap(y_true, y_pred, clusters, classes, rng) -> dict[str, np.ndarray]:
@@ -142,28 +147,52 @@ def splits(protocol: str, y: np.ndarray, groups: np.ndarray | None, seed: int):
     return list(folds.split(np.zeros(len(y)), y, groups))
 
 
+def _fit_predict(estimator, X_train: np.ndarray, y_train: np.ndarray,
+                 X_test: np.ndarray) -> np.ndarray:
+    """Fit one split's estimator and return its predictions on the test sessions."""
+    return estimator.fit(X_train, y_train).predict(X_test)
+
+
 def evaluate(X: np.ndarray, y: np.ndarray, make_estimator: Callable[[], object], *,
              protocol: str, groups: np.ndarray | None = None, group_by: str | None = None,
              model: str = "svm", scheme: str = "full", classes: list[str] | None = None,
-             seed: int = 0, progress: Callable[[int, int], None] | None = None) -> Report:
+             seed: int = 0, progress: Callable[[int, int], None] | None = None,
+             workers: int = 1) -> Report:
     """Evaluate a classifier under a protocol; return the :class:`Report`.
 
-    ``make_estimator()`` returns a fresh, unfitted estimator for each split.
+    ``make_estimator()`` returns a fresh, unfitted estimator for each split. With
+    ``workers`` > 1 the splits are fitted in that many processes (worth it for
+    networks, whose training is single-threaded); the result does not depend on it.
     """
     classes = classes or sorted(set(y))
     classes = [c for c in classes if c in set(y)]
     if len(classes) < 2:
         raise InputError("evaluation needs at least two classes in the data")
     folds = splits(protocol, y, groups, seed)
+    predictions: list[np.ndarray | None] = [None] * len(folds)
+    try:
+        if workers > 1 and len(folds) > 1:
+            context = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(min(workers, len(folds)), mp_context=context) as pool:
+                jobs = {pool.submit(_fit_predict, clone(make_estimator()), X[train],
+                                    y[train], X[test]): i
+                        for i, (train, test) in enumerate(folds)}
+                for done, job in enumerate(as_completed(jobs)):
+                    predictions[jobs[job]] = job.result()
+                    if progress:
+                        progress(done + 1, len(folds))
+        else:
+            for i, (train, test) in enumerate(folds):
+                predictions[i] = _fit_predict(clone(make_estimator()), X[train], y[train],
+                                              X[test])
+                if progress:
+                    progress(i + 1, len(folds))
+    except ValueError as err:
+        raise InputError(f"cannot fit a split of {len(folds)}: {err}") from err
     true_all, pred_all, cluster_all = [], [], []
     split_acc, normalised = [], np.zeros((len(classes), len(classes)))
     sessions = np.arange(len(y)) if protocol == "thesis" or groups is None else groups
-    for i, (train, test) in enumerate(folds):
-        try:
-            estimator = clone(make_estimator()).fit(X[train], y[train])
-        except ValueError as err:
-            raise InputError(f"cannot fit split {i + 1} of {len(folds)}: {err}") from err
-        pred = estimator.predict(X[test])
+    for (_, test), pred in zip(folds, predictions, strict=True):
         counts = confusion(y[test], pred, classes)
         split_acc.append(float(np.trace(counts) / counts.sum()))
         rows = counts.sum(axis=1, keepdims=True)
@@ -172,8 +201,6 @@ def evaluate(X: np.ndarray, y: np.ndarray, make_estimator: Callable[[], object],
         true_all.append(y[test])
         pred_all.append(pred)
         cluster_all.append(sessions[test])
-        if progress:
-            progress(i + 1, len(folds))
     y_true, y_pred = np.concatenate(true_all), np.concatenate(pred_all)
     clusters = np.concatenate(cluster_all)
     counts = confusion(y_true, y_pred, classes)
@@ -193,7 +220,16 @@ def evaluate(X: np.ndarray, y: np.ndarray, make_estimator: Callable[[], object],
                                        where=row_sums > 0).tolist(),
         split_accuracy_mean=float(np.mean(split_acc)),
         split_accuracy_std=float(np.std(split_acc)),
-        split_accuracies=split_acc)
+        split_accuracies=split_acc,
+        out_of_fold=_out_of_fold(folds, predictions, len(y)) if protocol == "group" else None)
+
+
+def _out_of_fold(folds: list, predictions: list[np.ndarray], n: int) -> np.ndarray:
+    """Return each session's prediction from the split that tested it."""
+    out = np.empty(n, dtype=object)
+    for (_, test), pred in zip(folds, predictions, strict=True):
+        out[test] = pred
+    return out
 
 
 def report_markdown(report: Report) -> str:

@@ -83,6 +83,18 @@ def test_onnx_model_file_round_trip_and_refusal(dataset: Path, tmp_path: Path) -
     assert refused.returncode == 2 and "modified after it was written" in refused.stderr
 
 
+def test_parallel_splits_give_the_same_report(grids) -> None:
+    from classify.evaluate import evaluate
+
+    def run(workers: int):
+        return evaluate(grids.X, grids.labels(), lambda: LSTMClassifier(seed=2, **SMALL),
+                        protocol="group", groups=grids.groups("pose"), workers=workers)
+
+    serial, parallel = run(1), run(2)
+    assert serial.confusion_counts == parallel.confusion_counts
+    assert serial.balanced_accuracy == parallel.balanced_accuracy
+
+
 def test_onnx_equals_torch(grids, tmp_path: Path) -> None:
     import onnxruntime as ort
 
