@@ -31,7 +31,7 @@ from scipy import stats
 from sklearn.model_selection import train_test_split
 
 from classify.data import FeatureSet
-from classify.evaluate import confusion, metrics_from_confusion
+from classify.evaluate import confusion, fit_predict_many, metrics_from_confusion
 from classify.grids import Augmentation, GridSpec, load_grids
 from classify.nn import check_available, make_network
 from schemas import InputError, read_session
@@ -85,12 +85,7 @@ class Cell:
         return mean, mean - half, mean + half
 
 
-def _score(network, X: np.ndarray, y: np.ndarray, classes: list[str]) -> float:
-    predicted = network.predict(X)
-    return float(metrics_from_confusion(confusion(y, predicted, classes))["balanced_accuracy"])
-
-
-def run_augmentation(real_dir: Path, sim_dir: Path, out_dir: Path, *, model: str = "cnn",
+def run_augmentation(real_dir: Path, sim_dir: Path, out_dir: Path, *, model: str = "lstm",
                      spec: GridSpec, repeats: int = 3, epochs: int = 60, seed: int = 0,
                      workers: int = 1, noise_file: Path | None = None,
                      progress: Progress | None = None) -> list[Path]:
@@ -111,34 +106,35 @@ def run_augmentation(real_dir: Path, sim_dir: Path, out_dir: Path, *, model: str
         sim_sets[f"noise x{level}"] = parts
     classes = sorted(set(real.labels()))
     conditions = ["real", "1xSim", "2xSim", *[f"noise x{n}" for n in NOISE_LEVELS]]
-    cells = {(f, c): Cell(f, c, []) for f in FRACTIONS for c in conditions}
-    total, done = repeats * len(FRACTIONS) * len(conditions), 0
     y_real = real.labels()
+    plan = []
     for r in range(repeats):
         pool, test = train_test_split(np.arange(len(y_real)), test_size=0.15,
                                       random_state=seed + r, stratify=y_real)
-        rng = np.random.default_rng([seed, r])
-        order = rng.permutation(pool)
+        order = np.random.default_rng([seed, r]).permutation(pool)
         for fraction in FRACTIONS:
             chosen = order[:max(len(classes) * 2, round(fraction * len(pool)))]
-            for condition in conditions:
-                X = [real.X[chosen]]
-                y = [y_real[chosen]]
-                if condition in ("1xSim", "2xSim"):
-                    copies = 1 if condition == "1xSim" else 2
-                    X += [sim_sets["1xSim"].X] * copies
-                    y += [sim_sets["1xSim"].labels()] * copies
-                elif condition.startswith("noise"):
-                    for part in sim_sets[condition]:
-                        X.append(part.X)
-                        y.append(part.labels())
-                network = make_network(model, seed + r, epochs)
-                network.fit(np.concatenate(X), np.concatenate(y))
-                cells[(fraction, condition)].scores.append(
-                    _score(network, real.X[test], y_real[test], classes))
-                done += 1
-                if progress:
-                    progress("trainings", done, total)
+            plan += [(r, fraction, condition, chosen, test) for condition in conditions]
+
+    def tasks():
+        for r, _, condition, chosen, test in plan:
+            X, y = [real.X[chosen]], [y_real[chosen]]
+            if condition in ("1xSim", "2xSim"):
+                copies = 1 if condition == "1xSim" else 2
+                X += [sim_sets["1xSim"].X] * copies
+                y += [sim_sets["1xSim"].labels()] * copies
+            elif condition.startswith("noise"):
+                X += [part.X for part in sim_sets[condition]]
+                y += [part.labels() for part in sim_sets[condition]]
+            yield (make_network(model, seed + r, epochs), np.concatenate(X),
+                   np.concatenate(y), real.X[test])
+
+    report = None if progress is None else (lambda d, t: progress("trainings", d, t))
+    predictions = fit_predict_many(tasks(), workers, report, len(plan))
+    cells = {(f, c): Cell(f, c, []) for f in FRACTIONS for c in conditions}
+    for (_, fraction, condition, _, test), predicted in zip(plan, predictions, strict=True):
+        score = metrics_from_confusion(confusion(y_real[test], predicted, classes))
+        cells[(fraction, condition)].scores.append(float(score["balanced_accuracy"]))
     return _write(out_dir, cells, conditions, model, spec, repeats, baseline, real_dir, sim_dir)
 
 

@@ -17,8 +17,8 @@ feature selection are part of the model, so they are fitted inside each split.
 from __future__ import annotations
 
 import multiprocessing
-from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Callable, Iterable
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -149,8 +149,48 @@ def splits(protocol: str, y: np.ndarray, groups: np.ndarray | None, seed: int):
 
 def _fit_predict(estimator, X_train: np.ndarray, y_train: np.ndarray,
                  X_test: np.ndarray) -> np.ndarray:
-    """Fit one split's estimator and return its predictions on the test sessions."""
+    """Fit one estimator and return its predictions on the test sessions."""
     return estimator.fit(X_train, y_train).predict(X_test)
+
+
+def fit_predict_many(tasks: Iterable[tuple], workers: int = 1,
+                     progress: Callable[[int, int], None] | None = None,
+                     total: int | None = None) -> list[np.ndarray]:
+    """Fit and predict every ``(estimator, X_train, y_train, X_test)`` task; return the
+    predictions in task order.
+
+    With ``workers`` > 1 the tasks run in that many fresh (spawned) processes, at
+    most two per worker held in memory at once; the results do not depend on it.
+    ``tasks`` may be a generator, so training sets are built only when needed.
+    """
+    if workers <= 1:
+        out = []
+        for estimator, X_train, y_train, X_test in tasks:
+            out.append(_fit_predict(estimator, X_train, y_train, X_test))
+            if progress:
+                progress(len(out), total or len(out))
+        return out
+    results: dict[int, np.ndarray] = {}
+    pending: dict = {}
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(workers, mp_context=context) as pool:
+        for i, task in enumerate(tasks):
+            pending[pool.submit(_fit_predict, *task)] = i
+            while len(pending) >= 2 * workers:
+                _collect(pending, results, progress, total)
+        while pending:
+            _collect(pending, results, progress, total)
+    return [results[i] for i in range(len(results))]
+
+
+def _collect(pending: dict, results: dict, progress: Callable[[int, int], None] | None,
+             total: int | None) -> None:
+    """Wait for at least one running task; move the finished ones into ``results``."""
+    done, _ = wait(pending, return_when=FIRST_COMPLETED)
+    for job in done:
+        results[pending.pop(job)] = job.result()
+        if progress:
+            progress(len(results), total or len(results) + len(pending))
 
 
 def evaluate(X: np.ndarray, y: np.ndarray, make_estimator: Callable[[], object], *,
@@ -169,24 +209,9 @@ def evaluate(X: np.ndarray, y: np.ndarray, make_estimator: Callable[[], object],
     if len(classes) < 2:
         raise InputError("evaluation needs at least two classes in the data")
     folds = splits(protocol, y, groups, seed)
-    predictions: list[np.ndarray | None] = [None] * len(folds)
+    tasks = ((clone(make_estimator()), X[train], y[train], X[test]) for train, test in folds)
     try:
-        if workers > 1 and len(folds) > 1:
-            context = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(min(workers, len(folds)), mp_context=context) as pool:
-                jobs = {pool.submit(_fit_predict, clone(make_estimator()), X[train],
-                                    y[train], X[test]): i
-                        for i, (train, test) in enumerate(folds)}
-                for done, job in enumerate(as_completed(jobs)):
-                    predictions[jobs[job]] = job.result()
-                    if progress:
-                        progress(done + 1, len(folds))
-        else:
-            for i, (train, test) in enumerate(folds):
-                predictions[i] = _fit_predict(clone(make_estimator()), X[train], y[train],
-                                              X[test])
-                if progress:
-                    progress(i + 1, len(folds))
+        predictions = fit_predict_many(tasks, min(workers, len(folds)), progress, len(folds))
     except ValueError as err:
         raise InputError(f"cannot fit a split of {len(folds)}: {err}") from err
     true_all, pred_all, cluster_all = [], [], []
