@@ -169,6 +169,12 @@ EpochsOpt = Annotated[int, typer.Option(help="Networks: most training epochs (ea
                                              "stopping on a validation split).")]
 StepsOpt = Annotated[int, typer.Option(help="Networks: time steps of a window grid.")]
 SeedOpt = Annotated[int, typer.Option(help="Random seed (same seed, same result).")]
+DepthOpt = Annotated[int | None, typer.Option(
+    help="CNN/LSTM: layer multiplier (thesis grid 1, 2, 4; default CNN 4, LSTM 2).")]
+WidthOpt = Annotated[float, typer.Option(
+    help="CNN/LSTM: kernel and neuron multiplier (thesis grid 0.5, 1, 2).")]
+DropoutOpt = Annotated[float, typer.Option(
+    help="CNN/LSTM: dropout after each pooling and dense layer (thesis grid 0, 0.1, 0.25).")]
 WorkersOpt = Annotated[int, typer.Option(
     help="Parallel processes for features (and, for networks, for evaluation splits).")]
 DatasetsArg = Annotated[list[Path], typer.Argument(
@@ -197,6 +203,22 @@ def _grid_spec(model: str, features: str | None, window: str | None, window_s: f
         raise InputError(f"unknown timeseries feature {err.args[0]!r}") from err
     WindowSpec(spec.window, spec.window_s)
     return spec
+
+
+def _network(model: str, seed: int, epochs: int, depth: int | None, width: float,
+             dropout: float):
+    """Return an unfitted network with the size options checked."""
+    if epochs < 1:
+        raise InputError(f"--epochs must be at least 1, got {epochs}")
+    if model == "minirocket":
+        return make_network(model, seed)
+    if depth is not None and depth < 1:
+        raise InputError(f"--depth must be at least 1, got {depth}")
+    if width <= 0:
+        raise InputError(f"--width must be positive, got {width}")
+    if not 0 <= dropout < 1:
+        raise InputError(f"--dropout must be in [0, 1), got {dropout}")
+    return make_network(model, seed, epochs, depth=depth, width=width, dropout=dropout)
 
 
 def _grid_set(datasets: list[Path], spec: GridSpec, workers: int, limited: bool) -> FeatureSet:
@@ -239,6 +261,9 @@ def train_command(
     overwrite: Annotated[bool, typer.Option(help="Replace an existing model file.")] = False,
     epochs: EpochsOpt = 100,
     steps: StepsOpt = 300,
+    depth: DepthOpt = None,
+    width: WidthOpt = 2.0,
+    dropout: DropoutOpt = 0.02,
 ) -> None:
     """Train a classifier on every session of the datasets and save it as a safe model file
     (.skops; a CNN or LSTM as .onnx)."""
@@ -250,10 +275,12 @@ def train_command(
         if model in ("cnn", "lstm") and out.suffix != ".onnx":
             raise InputError(f"a {model} is saved as ONNX: give --out with .onnx", out)
         spec = _grid_spec(model, features, window, window_s, steps)
+        network = _network(model, seed, epochs, depth, width, dropout)
         data = _grid_set(datasets, spec, workers, limited)
-        network = make_network(model, seed, epochs).fit(data.X, data.labels(scheme))
+        network.fit(data.X, data.labels(scheme))
         classes = [str(c) for c in network.classes_]
-        training.update(sessions=len(data), epochs=getattr(network, "n_epochs_", None))
+        training.update(sessions=len(data), epochs=getattr(network, "n_epochs_", None),
+                        network=network.get_params())
         if model in ("cnn", "lstm"):
             meta = model_meta(kind=model, scheme=scheme, classes=classes,
                               fingerprint=data.fingerprint(), training=training,
@@ -297,6 +324,9 @@ def evaluate_command(
                                                                  "as JSON.")] = None,
     epochs: EpochsOpt = 100,
     steps: StepsOpt = 300,
+    depth: DepthOpt = None,
+    width: WidthOpt = 2.0,
+    dropout: DropoutOpt = 0.02,
 ) -> None:
     """Evaluate a classifier honestly and print accuracy, balanced accuracy, macro-F1,
     per-class recall with 95 % confidence intervals, and the confusion matrix."""
@@ -304,11 +334,12 @@ def evaluate_command(
     if protocol not in PROTOCOLS:
         raise InputError(f"unknown protocol {protocol!r} (expected thesis or group)")
     if model in NN_KINDS:
-        data = _grid_set(datasets, _grid_spec(model, features, window, window_s, steps),
-                         workers, limited)
+        spec = _grid_spec(model, features, window, window_s, steps)
+        _network(model, seed, epochs, depth, width, dropout)
+        data = _grid_set(datasets, spec, workers, limited)
 
         def factory():
-            return make_network(model, seed, epochs)
+            return _network(model, seed, epochs, depth, width, dropout)
     else:
         extractor = _extractor(features, scalars, window, window_s)
         data = _feature_set(datasets, extractor, workers, limited)

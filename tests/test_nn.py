@@ -64,8 +64,15 @@ def test_same_seed_same_network(grids, cls) -> None:
 def test_onnx_model_file_round_trip_and_refusal(dataset: Path, tmp_path: Path) -> None:
     model = tmp_path / "cnn.onnx"
     trained = run_cli("classify", "train", str(dataset), "--model", "cnn", "--epochs", "2",
-                      "--steps", "40", "--out", str(model), "--workers", "1")
+                      "--steps", "40", "--out", str(model), "--workers", "1", "--depth", "1",
+                      "--width", "0.5")
     assert trained.returncode == 0, trained.stderr
+    network = load_model(model).meta["training"]["network"]
+    assert network["depth"] == 1 and network["width"] == 0.5
+    bad = run_cli("classify", "train", str(dataset), "--model", "cnn", "--depth", "0",
+                  "--out", str(tmp_path / "bad.onnx"))
+    assert bad.returncode == 2 and "--depth must be at least 1" in bad.stderr
+    assert len(bad.stderr.strip().splitlines()) == 1
     session = sorted(dataset.glob("static_*.parquet"))[0]
     predicted = run_cli("classify", "predict", str(model), str(session), "--json")
     assert predicted.returncode == 0, predicted.stderr
