@@ -9,7 +9,9 @@ Physics (thesis section 5.3.1, extended):
   recorded. Its torque is held over ``substeps`` integration steps per tick
   (default 5: 5 kHz at 1 kHz output; the thesis used 1.2 kHz x 10).
 * Control: gravity compensation with the *nominal* model plus joint PID, torque
-  and torque-rate limits of the Franka datasheet enforced.
+  and torque-rate limits of the Franka datasheet enforced. A joint's integrator
+  holds while its torque is saturated (anti-windup): without it, a hard shove that
+  saturates the shoulder motors left the arm in a growing oscillation.
 * The plant differs from the nominal model the observer uses, as a real robot's
   does: link masses, inertias and centres of mass are perturbed (a fixed "robot
   instance" chosen by ``robot_seed``, the same for every session of a dataset, as
@@ -325,6 +327,8 @@ class PandaSimulator:
         step_max = self.nominal.limits.dtau_max[:, None] * dt
         tau_c = np.clip(tau_c, batch.tau_prev - step_max, batch.tau_prev + step_max)
         tau_max = self.nominal.limits.tau_max[:, None]
+        saturated = np.abs(tau_c) > tau_max
+        batch.ei[saturated] -= error[saturated] * dt
         tau_c = np.asfortranarray(np.clip(tau_c, -tau_max, tau_max))
         batch.tau_prev[:] = tau_c
         drive = tau_c.copy(order="F")

@@ -134,3 +134,19 @@ def test_plan_rejects_bad_choices(kwargs: dict, message: str) -> None:
     args = {"seed": 0, "condition": "static", "action": "bump", "pose": "A", **kwargs}
     with pytest.raises(InputError, match=message):
         plan_session(**args)
+
+
+def test_a_hard_shove_that_saturates_the_motors_does_not_diverge() -> None:
+    """aug-sim session 63: a 135 N shove on link 7 at pose H saturates joints 1-2.
+    Without anti-windup the integrators drove the arm unstable and it reached NaN."""
+    from recorder.dataset import PRESETS, preset_specs
+
+    preset = PRESETS["aug-sim"]
+    config = SimConfig(rate_hz=preset.rate_hz, robot_seed=preset.robot_seed)
+    spec = preset_specs(preset, 64, 0, config.with_hand)[63]
+    assert spec.contact.peak_n > 130 and spec.contact.link == 7
+    cols = simulate_columns(spec, config)
+    dq = np.column_stack([cols[f"dq_{i}"] for i in range(1, 8)])
+    assert np.isfinite(dq).all()
+    settled = cols["t"] > spec.duration_s - 1.0
+    assert np.abs(dq[settled]).max() < 0.05
