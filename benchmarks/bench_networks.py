@@ -44,6 +44,7 @@ def timed(fn) -> tuple[float, float]:
 
 CASES = (("thesis CNN, 300 steps", "cnn", {}, 300),
          ("thesis LSTM, 300 steps", "lstm", {}, 300),
+         ("thesis CNN, 100 steps", "cnn", {}, 100),
          ("CNN depth 1 width 1, 100 steps", "cnn", {"depth": 1, "width": 1.0}, 100),
          ("thesis LSTM, 100 steps", "lstm", {}, 100))
 
