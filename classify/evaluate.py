@@ -162,6 +162,8 @@ def fit_predict_many(tasks: Iterable[tuple], workers: int = 1,
     With ``workers`` > 1 the tasks run in that many fresh (spawned) processes, at
     most two per worker held in memory at once; the results do not depend on it.
     ``tasks`` may be a generator, so training sets are built only when needed.
+    As with any spawned pool, a script that calls this with ``workers`` > 1 must do
+    so under ``if __name__ == "__main__":``.
     """
     if workers <= 1:
         out = []
