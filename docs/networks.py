@@ -1,7 +1,7 @@
 """Networks beside the SVM on the hardest benchmark: writes the "Networks" section of
 docs/results.md.
 
-    .venv/bin/python docs/networks.py            # about 45 min on 2 cores
+    .venv/bin/python docs/networks.py --data data    # 51 min on 2 cores
 
 The benchmark is the combined static + dynamic set under leave one pose out, the
 hardest the project has (the SVM's lowest balanced accuracy in results.md). The
