@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -85,3 +87,20 @@ def make_dataset(directory: Path, poses=("A", "B", "C", "D"), repeats: int = 2,
     directory.mkdir(parents=True, exist_ok=True)
     simulate_specs(specs, SimConfig(rate_hz=rate_hz), directory)
     return directory
+
+
+def kill_after_recording_starts(command: list[str], seconds: float) -> tuple[int, float]:
+    """Start ``command``, SIGKILL it ``seconds`` after it prints "recording started" on
+    stderr; return its exit code and the time [s] from that line to the kill."""
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for line in proc.stderr:
+            if "recording started" in line:
+                break
+        started = time.monotonic()
+        time.sleep(seconds)
+        proc.send_signal(signal.SIGKILL)
+        killed_after = time.monotonic() - started
+    finally:
+        proc.wait(timeout=30)
+    return proc.returncode, killed_after

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import signal
-import subprocess
 import sys
 import threading
 import time
@@ -22,7 +20,7 @@ from recorder.journal import recover_directory
 from recorder.sources.can import BusConfig, CanSource
 from schemas import InputError, read_session, validate_session
 from schemas.timing import sampling_stats
-from tests.conftest import make_session, run_cli
+from tests.conftest import kill_after_recording_starts, make_session, run_cli
 
 FMAP = load_map()
 Q_STEP = 1 / 166886.0
@@ -168,17 +166,7 @@ def test_can_capture_killed_midway_recovers(source_session: Path, tmp_path: Path
         "            '--channel', 'kill', '--pose', 'C', '--action', 'bump', '--duration',\n"
         f"            '30', '--timeout', '3', '--out', {str(tmp_path)!r}]\n"
         "main()\n")
-    proc = subprocess.Popen([sys.executable, "-c", helper], stderr=subprocess.PIPE, text=True)
-    try:
-        for line in proc.stderr:
-            if "recording started" in line:
-                break
-        started = time.monotonic()
-        time.sleep(1.0)
-        proc.send_signal(signal.SIGKILL)
-        killed_after = time.monotonic() - started
-    finally:
-        proc.wait(timeout=30)
+    _, killed_after = kill_after_recording_starts([sys.executable, "-c", helper], 1.0)
     (recovery,) = recover_directory(tmp_path)
     session = validate_session(recovery.session)
     assert session.meta.recovered and session.meta.source == "can"

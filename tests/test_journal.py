@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import signal
-import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +11,7 @@ import pytest
 
 from recorder.journal import SessionWriter, journal_path, read_journal, recover_directory
 from schemas import InputError, SessionMeta, validate_session
-from tests.conftest import BIN, run_cli
+from tests.conftest import BIN, kill_after_recording_starts, run_cli
 
 
 def _rows(t0: float, n: int, step: float = 0.001) -> dict[str, np.ndarray]:
@@ -80,20 +78,9 @@ def test_capture_killed_midway_loses_nothing_older_than_flush(tmp_path: Path) ->
     args = ["--pose", "C", "--action", "shove", "--seed", "21", "--duration", "6",
             "--planned-at", "4", "--rate", "1000"]
     live_dir, full_dir = tmp_path / "live", tmp_path / "full"
-    proc = subprocess.Popen([str(BIN / "recorder"), "capture", *args, "--realtime", "--out",
-                             str(live_dir)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
-    try:
-        for line in proc.stderr:
-            if "recording started" in line:
-                break
-        started = time.monotonic()
-        time.sleep(1.5)
-        proc.send_signal(signal.SIGKILL)
-        killed_after = time.monotonic() - started
-    finally:
-        proc.wait(timeout=30)
-    assert proc.returncode == -signal.SIGKILL
+    returncode, killed_after = kill_after_recording_starts(
+        [str(BIN / "recorder"), "capture", *args, "--realtime", "--out", str(live_dir)], 1.5)
+    assert returncode == -signal.SIGKILL
     assert not list(live_dir.glob("*.parquet")) and list(live_dir.glob("*.journal"))
     recovered = run_cli("recorder", "recover", str(live_dir))
     assert recovered.returncode == 0, recovered.stderr
