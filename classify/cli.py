@@ -335,11 +335,11 @@ def evaluate_command(
         raise InputError(f"unknown protocol {protocol!r} (expected thesis or group)")
     if model in NN_KINDS:
         spec = _grid_spec(model, features, window, window_s, steps)
-        _network(model, seed, epochs, depth, width, dropout)
+        network = _network(model, seed, epochs, depth, width, dropout)
         data = _grid_set(datasets, spec, workers, limited)
 
         def factory():
-            return _network(model, seed, epochs, depth, width, dropout)
+            return network
     else:
         extractor = _extractor(features, scalars, window, window_s)
         data = _feature_set(datasets, extractor, workers, limited)
