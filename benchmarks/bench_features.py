@@ -22,12 +22,12 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 import pinocchio as pin
 
-from features.timeseries import OnlineChain, TimeseriesChain
-from recorder.arrays import load_joint_arrays
-from recorder.capture import sim_session_meta
-from recorder.sim import SimConfig, plan_session
-from recorder.sources.sim import SIM_COLUMNS, SimSource
-from schemas import read_session, write_session
+from contactkit.features.timeseries import OnlineChain, TimeseriesChain
+from contactkit.recorder.arrays import load_joint_arrays
+from contactkit.recorder.capture import sim_session_meta
+from contactkit.recorder.sim import SimConfig, plan_session
+from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
+from contactkit.schemas import read_session, write_session
 
 REFERENCE = Path(__file__).resolve().parents[2] / "shared/reference/gaz2019-exciting-traj"
 

@@ -23,10 +23,10 @@ import numpy as np
 import onnxruntime as ort
 import torch
 
-from classify.fast import fast_predictor
-from classify.models import make_model
-from classify.nn import make_network
-from features.scalars import scalar_features
+from contactkit.classify.fast import fast_predictor
+from contactkit.classify.models import make_model
+from contactkit.classify.nn import make_network
+from contactkit.features.scalars import scalar_features
 
 torch.set_num_threads(1)
 REPEATS = 300

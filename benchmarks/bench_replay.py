@@ -21,18 +21,18 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-from classify.data import load_features
-from classify.modelfile import load_model, save_model
-from classify.models import make_model
-from features.extract import SessionFeatures
-from recorder.capture import sim_session_meta
-from recorder.dataset import simulate_specs
-from recorder.sim import SimConfig, plan_session
-from recorder.sources.sim import SIM_COLUMNS, SimSource
-from replay.engine import Block, ReplayStream
-from replay.recording import log_block, log_offline, log_static, new_recording
-from schemas import read_session, write_session
-from schemas import rerun_layout as layout
+from contactkit.classify.data import load_features
+from contactkit.classify.modelfile import load_model, save_model
+from contactkit.classify.models import make_model
+from contactkit.features.extract import SessionFeatures
+from contactkit.recorder.capture import sim_session_meta
+from contactkit.recorder.dataset import simulate_specs
+from contactkit.recorder.sim import SimConfig, plan_session
+from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
+from contactkit.replay.engine import Block, ReplayStream
+from contactkit.replay.recording import log_block, log_offline, log_static, new_recording
+from contactkit.schemas import read_session, write_session
+from contactkit.schemas import rerun_layout as layout
 
 
 def setup(tmp: Path) -> tuple[Path, Path]:

@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from recorder.dataset import simulate_specs
-from recorder.sim import SimConfig, plan_session
-from recorder.stats import deep_stats, index_stats
-from schemas import ACTIONS
+from contactkit.recorder.dataset import simulate_specs
+from contactkit.recorder.sim import SimConfig, plan_session
+from contactkit.recorder.stats import deep_stats, index_stats
+from contactkit.schemas import ACTIONS
 
 ROWS = 100_000
 

@@ -30,12 +30,12 @@ import numpy as np
 from scipy import stats
 from sklearn.model_selection import train_test_split
 
-from classify.data import FeatureSet
-from classify.evaluate import confusion, fit_predict_many, metrics_from_confusion
-from classify.grids import Augmentation, GridSpec, load_grids
-from classify.nn import check_available, make_network
-from schemas import InputError, read_session
-from schemas.dataset import session_files
+from contactkit.classify.data import FeatureSet
+from contactkit.classify.evaluate import confusion, fit_predict_many, metrics_from_confusion
+from contactkit.classify.grids import Augmentation, GridSpec, load_grids
+from contactkit.classify.nn import check_available, make_network
+from contactkit.schemas import InputError, read_session
+from contactkit.schemas.dataset import session_files
 
 FRACTIONS = (0.5, 0.75, 1.0)
 NOISE_LEVELS = (1, 5, 10)

@@ -15,24 +15,24 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from classify.augmentation import run_augmentation
-from classify.data import GROUP_KEYS, FeatureSet, load_features
-from classify.evaluate import PROTOCOLS, evaluate, report_markdown
-from classify.experiments import EXPERIMENTS, Setting, run_experiment
-from classify.grids import CNN_INPUT, LSTM_INPUT, GridSpec, load_grids, session_grid
-from classify.modelfile import load_model, model_meta, save_model
-from classify.models import MODEL_KINDS, make_model
-from classify.nn import NN_KINDS, check_available, make_network
-from classify.onnx_model import save_onnx_model
-from classify.schemes import SCHEMES, check_scheme, scheme_classes
-from features.extract import SessionFeatures, feature_rows, timeseries_columns
-from features.scalars import SCALARS
-from features.timeseries import ALL_TIMESERIES, GROUPS
-from features.windows import METHODS, WindowSpec
-from schemas import InputError, read_session
-from schemas.cli import run_app
-from schemas.dataset import session_files
-from schemas.features import FEATURES_KEY, write_feature_table
+from contactkit.classify.augmentation import run_augmentation
+from contactkit.classify.data import GROUP_KEYS, FeatureSet, load_features
+from contactkit.classify.evaluate import PROTOCOLS, evaluate, report_markdown
+from contactkit.classify.experiments import EXPERIMENTS, Setting, run_experiment
+from contactkit.classify.grids import CNN_INPUT, LSTM_INPUT, GridSpec, load_grids, session_grid
+from contactkit.classify.modelfile import load_model, model_meta, save_model
+from contactkit.classify.models import MODEL_KINDS, make_model
+from contactkit.classify.nn import NN_KINDS, check_available, make_network
+from contactkit.classify.onnx_model import save_onnx_model
+from contactkit.classify.schemes import SCHEMES, check_scheme, scheme_classes
+from contactkit.features.extract import SessionFeatures, feature_rows, timeseries_columns
+from contactkit.features.scalars import SCALARS
+from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS
+from contactkit.features.windows import METHODS, WindowSpec
+from contactkit.schemas import InputError, read_session
+from contactkit.schemas.dataset import session_files
+from contactkit.schemas.features import FEATURES_KEY, write_feature_table
+from contactkit.util.cli import run_app
 
 app = typer.Typer(name="classify", no_args_is_help=True, add_completion=False,
                   pretty_exceptions_enable=False,

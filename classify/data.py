@@ -18,12 +18,12 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from classify.schemes import limited_mask, relabel
-from features.extract import SessionFeatures, feature_rows
-from schemas import InputError
-from schemas.dataset import session_files
-from schemas.features import feature_table_schema, read_feature_table
-from schemas.session import atomic_write_parquet
+from contactkit.classify.schemes import limited_mask, relabel
+from contactkit.features.extract import SessionFeatures, feature_rows
+from contactkit.schemas import InputError
+from contactkit.schemas.dataset import session_files
+from contactkit.schemas.features import feature_table_schema, read_feature_table
+from contactkit.schemas.session import atomic_write_parquet
 
 GROUP_KEYS = ("pose", "session", "operator", "condition")
 CACHE_DIR = ".cache"

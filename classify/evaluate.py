@@ -25,7 +25,7 @@ import numpy as np
 from sklearn.base import clone
 from sklearn.model_selection import LeaveOneGroupOut, ShuffleSplit, StratifiedGroupKFold
 
-from schemas import InputError
+from contactkit.schemas import InputError
 
 PROTOCOLS = ("thesis", "group")
 THESIS_SPLITS = 25

@@ -34,14 +34,14 @@ from sklearn.pipeline import Pipeline
 from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC, LinearSVC
 
-from classify.data import FeatureSet, load_features
-from classify.evaluate import Report, evaluate
-from classify.models import make_model
-from classify.schemes import scheme_classes
-from features.extract import SessionFeatures
-from features.scalars import SCALARS
-from features.timeseries import ALL_TIMESERIES, GROUPS, columns_of
-from schemas import InputError
+from contactkit.classify.data import FeatureSet, load_features
+from contactkit.classify.evaluate import Report, evaluate
+from contactkit.classify.models import make_model
+from contactkit.classify.schemes import scheme_classes
+from contactkit.features.extract import SessionFeatures
+from contactkit.features.scalars import SCALARS
+from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS, columns_of
+from contactkit.schemas import InputError
 
 EXPERIMENTS = ("features", "rfe", "speed", "window")
 MVR = ("mean", "variance", "range")

@@ -22,7 +22,7 @@ from collections.abc import Callable
 import numpy as np
 from sklearn.pipeline import Pipeline
 
-from classify.models import CalibratedSVC, JointEnsemble
+from contactkit.classify.models import CalibratedSVC, JointEnsemble
 
 
 class _CompiledSVM:

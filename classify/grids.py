@@ -30,12 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
-from classify.data import FeatureSet
-from features.observer import DEFAULT_GAIN, ObserverConfig
-from features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
-from features.windows import WindowSpec, find_window
-from schemas import InputError, Session, read_session
-from schemas.dataset import session_files
+from contactkit.classify.data import FeatureSet
+from contactkit.features.observer import DEFAULT_GAIN, ObserverConfig
+from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
+from contactkit.features.windows import WindowSpec, find_window
+from contactkit.schemas import InputError, Session, read_session
+from contactkit.schemas.dataset import session_files
 
 CNN_INPUT = ("q", "dq", "tau")
 LSTM_INPUT = ("dq", "tau", "r")
@@ -148,7 +148,7 @@ def load_grids(sources: Sequence[Path], spec: GridSpec, workers: int = 1,
                progress: Callable[[int, int], None] | None = None) -> FeatureSet:
     """Compute the grids of every session of the dataset directories (in parallel).
 
-    Returns a :class:`classify.data.FeatureSet` whose X is (sessions, channels, steps),
+    Returns a :class:`contactkit.classify.data.FeatureSet` whose X is (sessions, channels, steps),
     so labels, groups and the limited context work as for scalar features.
     """
     paths = []

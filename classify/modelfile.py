@@ -26,17 +26,17 @@ from pathlib import Path
 
 import skops.io as sio
 
-from features.extract import SessionFeatures
-from schemas import InputError
+from contactkit.features.extract import SessionFeatures
+from contactkit.schemas import InputError
 
 META_MEMBER = "contactkit.json"
 FORMAT = "contactkit-model/1"
 TRUSTED_TYPES = [
     "aeon.classification.convolution_based._minirocket.MiniRocketClassifier",
     "aeon.transformations.collection.convolution_based._minirocket.MiniRocket",
-    "classify.models.CalibratedSVC",
-    "classify.models.JointEnsemble",
-    "classify.nn.MiniRocketClassifier",
+    "contactkit.classify.models.CalibratedSVC",
+    "contactkit.classify.models.JointEnsemble",
+    "contactkit.classify.nn.MiniRocketClassifier",
     "sklearn.model_selection._split.StratifiedKFold",
     "sklearn.calibration._CalibratedClassifier",
     "sklearn.calibration._SigmoidCalibration",
@@ -93,7 +93,7 @@ class ModelFile:
 
     def grid_spec(self):
         """Return the grid specification of a network model."""
-        from classify.grids import GridSpec
+        from contactkit.classify.grids import GridSpec
 
         doc = dict(self.meta["grid"])
         doc["timeseries"] = tuple(doc["timeseries"])
@@ -153,7 +153,7 @@ def load_model(path: str | Path) -> ModelFile:
     if not path.is_file():
         raise InputError("no such model file", path)
     if path.suffix.lower() == ".onnx":
-        from classify.onnx_model import load_onnx_model
+        from contactkit.classify.onnx_model import load_onnx_model
 
         estimator, meta = load_onnx_model(path)
         return ModelFile(estimator=estimator, meta=meta)

@@ -23,7 +23,7 @@ from sklearn.pipeline import Pipeline
 from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
 
-from schemas import InputError
+from contactkit.schemas import InputError
 
 MODEL_KINDS = ("svm", "per-joint", "three-joint")
 JOINT_OF_FEATURE = re.compile(r"\((?:[a-z_]+)_(\d)\)$")

@@ -1,6 +1,6 @@
 """Neural classifiers on timeseries grids (thesis section 5.2), behind the
 scikit-learn estimator interface: ``fit(X, y)``, ``predict``, ``predict_proba`` with
-X of shape (sessions, channels, steps) from :mod:`classify.grids`.
+X of shape (sessions, channels, steps) from :mod:`contactkit.classify.grids`.
 
 * :class:`CNNClassifier`: 2-D convolutions over the channels x time grid, max pooling
   in time, batch normalisation, leaky ReLU and dropout after each pooling and dense
@@ -32,7 +32,7 @@ import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 from sklearn.model_selection import train_test_split
 
-from schemas import InputError
+from contactkit.schemas import InputError
 
 NN_KINDS = ("cnn", "lstm", "minirocket")
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from schemas import InputError
+from contactkit.schemas import InputError
 
 META_KEY = "contactkit"
 

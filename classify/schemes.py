@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from schemas import ACTIONS, InputError
+from contactkit.schemas import ACTIONS, InputError
 
 SCHEMES: dict[str, dict[str, str]] = {
     "full": {a: a for a in ACTIONS},

@@ -23,13 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
-from classify.data import FeatureSet, load_features
-from classify.evaluate import Report, evaluate
-from classify.grids import CNN_INPUT, LSTM_INPUT, GridSpec, load_grids
-from classify.models import make_model
-from classify.nn import make_network
-from classify.schemes import scheme_classes
-from features.extract import SessionFeatures
+from contactkit.classify.data import FeatureSet, load_features
+from contactkit.classify.evaluate import Report, evaluate
+from contactkit.classify.grids import CNN_INPUT, LSTM_INPUT, GridSpec, load_grids
+from contactkit.classify.models import make_model
+from contactkit.classify.nn import make_network
+from contactkit.classify.schemes import scheme_classes
+from contactkit.features.extract import SessionFeatures
 
 ROOT = Path(__file__).resolve().parents[1]
 CLASSES = scheme_classes("full")
@@ -86,7 +86,7 @@ def write_section(out: Path, text: str) -> None:
 def touched_links(directories: np.ndarray, files: np.ndarray) -> np.ndarray:
     """Return each session's touched link as text ("none" without contact), read from
     the session files' footers."""
-    from schemas import read_session_meta
+    from contactkit.schemas import read_session_meta
 
     links = []
     for directory, name in zip(directories, files, strict=True):

@@ -24,11 +24,11 @@ from pathlib import Path
 import numpy as np
 from networks import SECTION, touched_links
 
-from classify.data import FeatureSet, load_features
-from classify.evaluate import Report, evaluate
-from classify.models import make_model
-from classify.schemes import scheme_classes
-from features.extract import SessionFeatures
+from contactkit.classify.data import FeatureSet, load_features
+from contactkit.classify.evaluate import Report, evaluate
+from contactkit.classify.models import make_model
+from contactkit.classify.schemes import scheme_classes
+from contactkit.features.extract import SessionFeatures
 
 ROOT = Path(__file__).resolve().parents[1]
 CLASSES = scheme_classes("full")

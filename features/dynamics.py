@@ -24,6 +24,8 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from contactkit.util.cache import cache_dir
+
 N_JOINTS = 7
 URDF_RELATIVE = ("cmeel.prefix/share/example-robot-data/robots/panda_description/urdf/"
                  "panda.urdf")
@@ -227,15 +229,6 @@ GAZ_FRICTION = FrictionModel(
     phi2=np.array([5.1181, 9.0657, 10.136, 5.5903, 8.3469, 17.133, 10.336]),
     phi3=np.array([0.039533, 0.025882, -0.04607, 0.036194, 0.026226, -0.021047, 0.0035526]),
 )
-
-
-def cache_dir() -> Path:
-    """Return contactkit's cache directory ($CONTACTKIT_CACHE, else XDG cache), created."""
-    root = os.environ.get("CONTACTKIT_CACHE") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "contactkit")
-    path = Path(root)
-    path.mkdir(parents=True, exist_ok=True)
-    return path
 
 
 def viewer_urdf_file(with_hand: bool) -> Path:

@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 from sklearn.base import BaseEstimator, TransformerMixin
 
-from features.observer import ObserverConfig
-from features.scalars import SCALARS, scalar_features
-from features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
-from features.windows import Window, WindowSpec, find_window
-from schemas import InputError, Session, read_session
+from contactkit.features.observer import ObserverConfig
+from contactkit.features.scalars import SCALARS, scalar_features
+from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
+from contactkit.features.windows import Window, WindowSpec, find_window
+from contactkit.schemas import InputError, Session, read_session
 
 DEFAULT_TIMESERIES = ("dq", "tau", "r")
 DEFAULT_SCALARS = ("range",)
@@ -32,10 +32,10 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
     """Scalar features of each session's interaction window.
 
     Parameters: ``timeseries`` (feature or group names, see
-    :mod:`features.timeseries`), ``window`` (fixed, planned, difference, change),
+    :mod:`contactkit.features.timeseries`), ``window`` (fixed, planned, difference, change),
     ``window_s`` length [s], ``shift_s`` for fixed windows [s], ``signal`` and
     ``calibration`` of the detection methods, ``scalars`` (see
-    :mod:`features.scalars`), ``fft_k``, observer ``gain`` [1/s] and ``friction``,
+    :mod:`contactkit.features.scalars`), ``fft_k``, observer ``gain`` [1/s] and ``friction``,
     ``wrench_frame`` ("ee" or a link 1..7). Defaults are the thesis's best SVM
     input: the range of joint velocity, torque and residual in a 0.5 s window.
     """
@@ -197,7 +197,8 @@ def feature_rows(paths: Sequence[str | Path], extractor: SessionFeatures, worker
 def timeseries_columns(session: Session, config: ChainConfig | None = None
                        ) -> dict[str, np.ndarray]:
     """Return every timeseries feature of every sample of a session, as flat columns:
-    ``t``, then ``q_1``.., ``r_1``.., ``f_x``.., ``m_norm`` (see :mod:`features.timeseries`)."""
+    ``t``, then ``q_1``.., ``r_1``.., ``f_x``.., ``m_norm``
+    (see :mod:`contactkit.features.timeseries`)."""
     chain = TimeseriesChain(config, session.meta.with_hand)
     series = chain.compute(session.t, session.q, session.dq, session.tau)
     columns = {"t": session.t}

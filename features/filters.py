@@ -5,7 +5,7 @@ zero-phase (``sosfiltfilt``: forward and backward, no delay, twice the order's
 attenuation) for offline analysis; the streaming path is causal (``sosfilt`` with
 kept state, as a live robot must), so the two differ by the causal filter's phase
 lag and are not meant to agree sample by sample. Both assume a uniform rate: pass
-the session's median rate (``schemas.timing.sampling_stats``). Cut-offs in Hz.
+the session's median rate (``contactkit.schemas.timing.sampling_stats``). Cut-offs in Hz.
 """
 
 from __future__ import annotations

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from features.dynamics import GAZ_FRICTION, FrictionModel
+from contactkit.features.dynamics import GAZ_FRICTION, FrictionModel
 
 DEFAULT_GAIN = 50.0
 BLOCK_DECAY = np.log(1e-3)

@@ -16,7 +16,7 @@ ddq        ddq_1..ddq_7            rad/s^2   backward difference of dq on the ac
 p_int      p_int_1..p_int_7        W         internal power dq * tau
 **model-based**
 r          r_1..r_7                Nm        momentum-observer residual
-                                             (:mod:`features.observer`)
+                                             (:mod:`contactkit.features.observer`)
 g          g_1..g_7                Nm        gravity torque g(q)
 tau_inv    tau_inv_1..tau_inv_7    Nm        inverse dynamics M ddq + C dq + g with
                                              no external force
@@ -44,9 +44,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from features.dynamics import PandaModel
-from features.linalg import solve_spd
-from features.observer import (
+from contactkit.features.dynamics import PandaModel
+from contactkit.features.linalg import solve_spd
+from contactkit.features.observer import (
     ObserverConfig,
     RecurrenceStep,
     observer_coefficients,

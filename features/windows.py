@@ -35,7 +35,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from schemas import InputError
+from contactkit.schemas import InputError
 
 METHODS = ("fixed", "planned", "difference", "change")
 THRESHOLD_C = 5.5

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from schemas import N_JOINTS, InputError
+from contactkit.schemas import N_JOINTS, InputError
 
 
 def load_array(path: str | Path, width: int) -> np.ndarray:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from schemas import N_JOINTS, InputError
+from contactkit.schemas import N_JOINTS, InputError
 
 TYPES = {"int8": "b", "uint8": "B", "int16": "h", "uint16": "H", "int32": "i", "uint32": "I",
          "float32": "f"}
@@ -64,7 +64,7 @@ class FrameMap:
 
 def default_map_path() -> Path:
     """Return the path of the default CiA 402 map."""
-    return Path(str(resources.files("recorder").joinpath("data/can_default_map.toml")))
+    return Path(str(resources.files("contactkit.recorder").joinpath("data/can_default_map.toml")))
 
 
 def load_map(path: str | Path | None = None) -> FrameMap:

@@ -15,10 +15,16 @@ from pathlib import Path
 import can
 import numpy as np
 
-from recorder.can_codec import SampleAssembler, rows_to_columns, session_frames, session_values
-from recorder.can_map import FrameMap
-from recorder.sources.can import BusConfig
-from schemas import InputError, Session, SessionMeta, write_session
+from contactkit.recorder.can_codec import (
+    SampleAssembler,
+    rows_to_columns,
+    session_frames,
+    session_values,
+)
+from contactkit.recorder.can_map import FrameMap
+from contactkit.recorder.importer import write_imported_session
+from contactkit.recorder.sources.can import BusConfig
+from contactkit.schemas import InputError, Session, SessionMeta
 
 LOG_SUFFIXES = (".asc", ".blf", ".trc", ".csv", ".log", ".mf4", ".db")
 
@@ -50,10 +56,7 @@ def import_can_log(path: Path, fmap: FrameMap, meta: SessionMeta, out_dir: Path,
     """Write the session decoded from a CAN log; return its path."""
     columns, assembler = read_log(path, fmap)
     meta.source_info = {"log": str(path), "map": fmap.describe(), **assembler.stats.as_dict()}
-    steps = np.diff(columns["t"])
-    if meta.nominal_rate_hz is None and steps.size:
-        meta.nominal_rate_hz = float(round(1.0 / np.median(steps), 3))
-    return write_session(out_dir / name, columns, meta)
+    return write_imported_session(columns, meta, out_dir, name)
 
 
 def bridge_session(session: Session, fmap: FrameMap, *, bus: BusConfig | None = None,

@@ -14,12 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from features.dynamics import urdf_sha256
-from recorder.journal import SessionWriter
-from recorder.protocol import check_action, check_condition, pose_q
-from recorder.sim import SessionSpec, SimConfig
-from recorder.sources.base import Source
-from schemas import InputError, SessionMeta, new_session_id
+from contactkit.features.dynamics import urdf_sha256
+from contactkit.recorder.journal import SessionWriter
+from contactkit.recorder.protocol import check_action, check_condition, pose_q
+from contactkit.recorder.sim import SessionSpec, SimConfig
+from contactkit.recorder.sources.base import Source
+from contactkit.schemas import InputError, SessionMeta, new_session_id
 
 ChunkCallback = Callable[[dict[str, np.ndarray]], None]
 

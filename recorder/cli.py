@@ -15,31 +15,31 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from recorder.can_map import load_map
-from recorder.can_tools import bridge_session, import_can_log
-from recorder.capture import (
+from contactkit.recorder.can_map import load_map
+from contactkit.recorder.can_tools import bridge_session, import_can_log
+from contactkit.recorder.capture import (
     OperatorCue,
     capture,
     protocol_meta,
     session_filename,
     sim_session_meta,
 )
-from recorder.dataset import PRESETS, simulate_dataset
-from recorder.importer import import_arrays
-from recorder.info import session_info
-from recorder.journal import recover_directory
-from recorder.live_view import CaptureViewer
-from recorder.noise import SensorNoise, default_noise
-from recorder.sim import SimConfig, plan_session
-from recorder.sources import SOURCES, source_class
-from recorder.sources.can import BusConfig, CanSource, Cue
-from recorder.stats import build_report, write_noise_file
-from recorder.stats_report import FORMATS, print_summary, write_report
-from schemas import ACTIONS, InputError, SessionMeta, read_session, validate_session
-from schemas.cli import run_app
-from schemas.dataset import rebuild_index
-from schemas.rerun_layout import capture_blueprint
-from schemas.rerun_viewer import has_display, start_web_viewer
+from contactkit.recorder.dataset import PRESETS, simulate_dataset
+from contactkit.recorder.importer import import_arrays
+from contactkit.recorder.info import session_info
+from contactkit.recorder.journal import recover_directory
+from contactkit.recorder.live_view import CaptureViewer
+from contactkit.recorder.noise import SensorNoise, default_noise
+from contactkit.recorder.sim import SimConfig, plan_session
+from contactkit.recorder.sources import SOURCES, source_class
+from contactkit.recorder.sources.can import BusConfig, CanSource, Cue
+from contactkit.recorder.stats import build_report, write_noise_file
+from contactkit.recorder.stats_report import FORMATS, print_summary, write_report
+from contactkit.schemas import ACTIONS, InputError, SessionMeta, read_session, validate_session
+from contactkit.schemas.dataset import rebuild_index
+from contactkit.schemas.rerun_layout import capture_blueprint
+from contactkit.util.cli import run_app
+from contactkit.util.viewer import has_display, start_web_viewer
 
 app = typer.Typer(
     name="recorder",

@@ -34,12 +34,12 @@ from pathlib import Path
 
 import numpy as np
 
-from recorder.capture import session_filename, sim_session_meta
-from recorder.protocol import POSES, START_POSE
-from recorder.sim import PandaSimulator, SessionSpec, SimConfig, plan_session
-from recorder.sources.sim import SIM_COLUMNS, SimSource
-from schemas import ACTIONS, InputError, write_session
-from schemas.dataset import IndexResult, rebuild_index
+from contactkit.recorder.capture import session_filename, sim_session_meta
+from contactkit.recorder.protocol import POSES, START_POSE
+from contactkit.recorder.sim import PandaSimulator, SessionSpec, SimConfig, plan_session
+from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
+from contactkit.schemas import ACTIONS, InputError, write_session
+from contactkit.schemas.dataset import IndexResult, rebuild_index
 
 OPERATORS = tuple(f"sim-op-{i}" for i in range(1, 6))
 MAX_BATCH = 32

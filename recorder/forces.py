@@ -40,8 +40,8 @@ from functools import cache
 
 import numpy as np
 
-from features.dynamics import PandaModel, urdf_path
-from recorder.protocol import MAX_ONSET_DELAY_S
+from contactkit.features.dynamics import PandaModel, urdf_path
+from contactkit.recorder.protocol import MAX_ONSET_DELAY_S
 
 STL_TRIANGLE = np.dtype([("normal", "<f4", 3), ("vertices", "<f4", (3, 3)), ("attr", "<u2")])
 PROFILE_RANGES: dict[str, dict[str, tuple[float, float]]] = {

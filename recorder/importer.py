@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from features.dynamics import urdf_sha256
-from recorder.arrays import load_joint_arrays
-from recorder.capture import session_filename, tool_version, utc_now
-from schemas import InputError, SessionMeta, joint_columns, new_session_id, write_session
+from contactkit.features.dynamics import urdf_sha256
+from contactkit.recorder.arrays import load_joint_arrays
+from contactkit.recorder.capture import session_filename, tool_version, utc_now
+from contactkit.schemas import InputError, SessionMeta, joint_columns, new_session_id, write_session
 
 _FIELDS = {f.name: f for f in fields(SessionMeta)}
 _NOT_SETTABLE = {"schema_version", "recovered", "recovered_samples", "simulator", "source_info",
@@ -40,6 +40,26 @@ def parse_meta(pairs: list[str]) -> dict:
     return doc
 
 
+def write_imported_session(columns: dict[str, np.ndarray], meta: SessionMeta, out_dir: Path,
+                           name: str | None = None) -> Path:
+    """Write an imported recording as a validated session; return its path.
+
+    The one path from arrays to a session file that every importer (plain arrays, CAN
+    logs, CSV, bags) takes: time [s] is shifted to start at 0, the nominal rate [Hz] is
+    measured from the median time step where the metadata has none, and the file name
+    comes from the metadata unless ``name`` is given. The write is atomic and the file is
+    validated (an InputError names the problem).
+    """
+    columns = dict(columns)
+    t = np.asarray(columns["t"], dtype=float)
+    if t.size:
+        columns["t"] = t - t[0]
+    steps = np.diff(t)
+    if meta.nominal_rate_hz is None and steps.size and (steps > 0).all():
+        meta.nominal_rate_hz = float(round(1.0 / np.median(steps), 3))
+    return write_session(out_dir / (name or session_filename(meta)), columns, meta)
+
+
 def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out_dir: Path,
                   meta_pairs: list[str], name: str | None = None) -> Path:
     """Write a validated session from array files; return its path."""
@@ -47,19 +67,14 @@ def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out
     doc = {"action": "none", "source": "arrays", "session_id": new_session_id(),
            **parse_meta(meta_pairs)}
     with_hand = bool(doc.get("with_hand", True))
-    t = arrays["t"] - arrays["t"][0]
-    steps = np.diff(t)
     meta = SessionMeta(**doc)
     meta.with_hand = with_hand
     meta.created_utc = utc_now()
     meta.urdf_sha256 = urdf_sha256(with_hand)
     meta.tool_version = tool_version()
     meta.source_info = {"imported_from": [str(p) for p in (t_path, q_path, dq_path, tau_path)]}
-    if meta.nominal_rate_hz is None and steps.size and (steps > 0).all():
-        meta.nominal_rate_hz = float(round(1.0 / np.median(steps), 3))
-    columns = {"t": t}
+    columns = {"t": arrays["t"]}
     for prefix in ("q", "dq", "tau"):
         for col, values in zip(joint_columns(prefix), arrays[prefix].T, strict=True):
             columns[col] = values
-    path = out_dir / (name or session_filename(meta))
-    return write_session(path, columns, meta)
+    return write_imported_session(columns, meta, out_dir, name)

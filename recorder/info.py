@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from schemas import Session, validate_session
-from schemas.timing import sampling_stats
+from contactkit.schemas import Session, validate_session
+from contactkit.schemas.timing import sampling_stats
 
 
 def contact_interval(session: Session) -> tuple[float, float] | None:

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from schemas import InputError, SessionMeta, write_session
-from schemas.session import METADATA_KEY, session_schema
+from contactkit.schemas import InputError, SessionMeta, write_session
+from contactkit.schemas.session import METADATA_KEY, session_schema
 
 JOURNAL_SUFFIX = ".journal"
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from features.dynamics import viewer_urdf_file
-from schemas import SessionMeta, joint_columns
-from schemas import rerun_layout as layout
+from contactkit.features.dynamics import viewer_urdf_file
+from contactkit.schemas import SessionMeta, joint_columns
+from contactkit.schemas import rerun_layout as layout
 
 ROBOT_VIEW_HZ = 60.0
 

@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
-from features.dynamics import GAZ_FRICTION, PandaModel
-from schemas import InputError
+from contactkit.features.dynamics import GAZ_FRICTION, PandaModel
+from contactkit.schemas import InputError
 
 
 @dataclass(frozen=True)
@@ -65,7 +65,7 @@ class SensorNoise:
 
 def default_noise() -> SensorNoise:
     """Return the noise measured on the real Panda reference recording."""
-    text = resources.files("recorder").joinpath("data/panda_noise.json").read_text()
+    text = resources.files("contactkit.recorder").joinpath("data/panda_noise.json").read_text()
     doc = json.loads(text)
     return SensorNoise(**{k: v for k, v in doc.items() if k != "how"})
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from schemas import ACTIONS, CONDITIONS, InputError
+from contactkit.schemas import ACTIONS, CONDITIONS, InputError
 
 POSES: dict[str, tuple[float, ...]] = {
     "A": (0.0, -0.78, 0.0, -2.36, 0.0, 1.57, 0.78),

@@ -24,9 +24,9 @@ Physics (thesis section 5.3.1, extended):
   ``tests/test_features_real.py`` holds it to a factor of 3). With the thesis-like
   +-5 % the simulated residuals were 2-2.5x too small on joints 1-4.
 * Sensors: white noise on q, dq and tau at the levels measured on the real Panda
-  recording (:mod:`recorder.noise`), a per-session torque bias, optional time-stamp
+  recording (:mod:`contactkit.recorder.noise`), a per-session torque bias, optional time-stamp
   jitter and dropped samples.
-* Contacts: :mod:`recorder.forces` (any link, any direction, person-dependent).
+* Contacts: :mod:`contactkit.recorder.forces` (any link, any direction, person-dependent).
 
 Sessions are stepped in lockstep in batches, with ``pin.abaInParallel`` over the
 batch, which amortises Python overhead (see ``benchmarks/bench_simulator.py``).
@@ -42,17 +42,17 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from features.dynamics import GAZ_FRICTION, N_JOINTS, PandaModel
-from recorder.forces import Contact, Persona, link_surface, sample_contact
-from recorder.noise import SensorNoise, default_noise
-from recorder.protocol import (
+from contactkit.features.dynamics import GAZ_FRICTION, N_JOINTS, PandaModel
+from contactkit.recorder.forces import Contact, Persona, link_surface, sample_contact
+from contactkit.recorder.noise import SensorNoise, default_noise
+from contactkit.recorder.protocol import (
     check_action,
     check_condition,
     default_timing,
     motion_duration_s,
     pose_q,
 )
-from schemas import InputError, joint_columns
+from contactkit.schemas import InputError, joint_columns
 
 KP = (600.0, 600.0, 600.0, 600.0, 250.0, 150.0, 50.0)  # Nm/rad
 KD = (50.0, 50.0, 50.0, 40.0, 7.0, 6.0, 1.5)  # Nm s/rad, about critical damping

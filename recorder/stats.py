@@ -8,7 +8,7 @@ session ids, sessions too short for a 0.5 s window). Counts are over unique
 session ids: a duplicate is reported, not counted twice.
 
 With ``--deep`` every session is read in parallel workers (see
-:mod:`recorder.stats_deep`): measured sampling, the torque-noise baseline of the
+:mod:`contactkit.recorder.stats_deep`): measured sampling, the torque-noise baseline of the
 no-contact sessions (thesis section 5.3.5, also written as a noise file the
 simulator reads with ``--noise-file``), per-class peak residual norm and estimated
 force, estimated force profiles by class (thesis Figure 3.2), how often the
@@ -30,12 +30,12 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from recorder.noise import SensorNoise
-from recorder.stats_deep import session_summary
-from schemas import ACTIONS, InputError
-from schemas.dataset import INDEX_NAME, rebuild_index, session_files
+from contactkit.recorder.noise import SensorNoise
+from contactkit.recorder.stats_deep import session_summary
+from contactkit.schemas import ACTIONS, InputError
+from contactkit.schemas.dataset import INDEX_NAME, rebuild_index, session_files
 
-SCHEMA_ID = "contactkit-stats/1"
+SCHEMA_ID = "contactkit.schemas/stats_report/1"
 WINDOW_S = 0.5
 BALANCE_RATIO = 0.5
 NOISE_FILE = "noise_baseline.json"

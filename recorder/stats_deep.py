@@ -15,12 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from features.dynamics import PandaModel
-from features.timeseries import TimeseriesChain
-from features.windows import WindowSpec, find_window
-from recorder.noise import robust_noise_sigma
-from schemas import InputError, read_session
-from schemas.timing import sampling_stats
+from contactkit.features.dynamics import PandaModel
+from contactkit.features.timeseries import TimeseriesChain
+from contactkit.features.windows import WindowSpec, find_window
+from contactkit.recorder.noise import robust_noise_sigma
+from contactkit.schemas import InputError, read_session
+from contactkit.schemas.timing import sampling_stats
 
 PROFILE_BEFORE_S = 0.25
 PROFILE_AFTER_S = 2.0

@@ -22,9 +22,9 @@ import polars as pl
 from rich.console import Console
 from rich.table import Table
 
-from recorder.stats_deep import PROFILE_T
-from schemas import ACTIONS
-from schemas.rerun_layout import CLASS_COLORS
+from contactkit.recorder.stats_deep import PROFILE_T
+from contactkit.schemas import ACTIONS
+from contactkit.schemas.rerun_layout import CLASS_COLORS
 
 FORMATS = ("html", "md", "json")
 

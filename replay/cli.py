@@ -11,22 +11,22 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from classify.cli import labelled_progress
-from classify.modelfile import ModelFile, load_model
-from replay.default_model import build_default_model, default_model_path
-from replay.engine import DEFAULT_HOP_S, Block, ReplayStream
-from replay.recording import (
+from contactkit.classify.cli import labelled_progress
+from contactkit.classify.modelfile import ModelFile, load_model
+from contactkit.replay.default_model import build_default_model, default_model_path
+from contactkit.replay.engine import DEFAULT_HOP_S, Block, ReplayStream
+from contactkit.replay.recording import (
     log_block,
     log_offline,
     log_static,
     new_recording,
     save_path_for,
 )
-from schemas import InputError, read_session
-from schemas import rerun_layout as layout
-from schemas.cli import run_app
-from schemas.dataset import session_files
-from schemas.rerun_viewer import has_display, start_web_viewer
+from contactkit.schemas import InputError, read_session
+from contactkit.schemas import rerun_layout as layout
+from contactkit.schemas.dataset import session_files
+from contactkit.util.cli import run_app
+from contactkit.util.viewer import has_display, start_web_viewer
 
 err_console = Console(stderr=True)
 VIEWERS = ("rerun", "web", "none")

@@ -21,12 +21,12 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
-from classify.data import load_features
-from classify.modelfile import save_model
-from classify.models import make_model
-from features.dynamics import cache_dir
-from features.extract import SessionFeatures
-from recorder.dataset import simulate_dataset
+from contactkit.classify.data import load_features
+from contactkit.classify.modelfile import save_model
+from contactkit.classify.models import make_model
+from contactkit.features.extract import SessionFeatures
+from contactkit.recorder.dataset import simulate_dataset
+from contactkit.util.cache import cache_dir
 
 RECIPE = {
     "presets": ["default-static", "default-dynamic"],

@@ -1,6 +1,6 @@
 """The replay engine: a session fed through the streaming chain and the classifier.
 
-Samples go one at a time through :class:`features.timeseries.OnlineChain` (as on a
+Samples go one at a time through :class:`contactkit.features.timeseries.OnlineChain` (as on a
 live robot). Every ``hop_s`` seconds, once a full window is available, the scalar
 features of the last ``window_s`` seconds (the window length the model was
 trained with), or for a network the resampled window grid, go through the model:
@@ -19,14 +19,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from classify.fast import fast_predictor
-from classify.grids import session_grid, window_grid
-from classify.modelfile import ModelFile
-from features.observer import ObserverConfig
-from features.scalars import scalar_features
-from features.timeseries import ChainConfig, OnlineChain, columns_of, expand
-from features.windows import Window, WindowSpec, find_window
-from schemas import InputError, Session
+from contactkit.classify.fast import fast_predictor
+from contactkit.classify.grids import session_grid, window_grid
+from contactkit.classify.modelfile import ModelFile
+from contactkit.features.observer import ObserverConfig
+from contactkit.features.scalars import scalar_features
+from contactkit.features.timeseries import ChainConfig, OnlineChain, columns_of, expand
+from contactkit.features.windows import Window, WindowSpec, find_window
+from contactkit.schemas import InputError, Session
 
 DEFAULT_HOP_S = 0.02
 ROBOT_VIEW_HZ = 60.0

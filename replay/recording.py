@@ -1,4 +1,4 @@
-"""Logging a replay to Rerun, following the layout in :mod:`schemas.rerun_layout`.
+"""Logging a replay to Rerun, following the layout in :mod:`contactkit.schemas.rerun_layout`.
 
 Whole series go out with ``send_columns``: at once after a ``--rate max`` replay,
 or block by block (every hop) during a paced replay, where the viewer updates live.
@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from features.dynamics import viewer_urdf_file
-from replay.engine import Block, OfflineAnswer, ReplayStream
-from schemas import rerun_layout as layout
+from contactkit.features.dynamics import viewer_urdf_file
+from contactkit.replay.engine import Block, OfflineAnswer, ReplayStream
+from contactkit.schemas import rerun_layout as layout
 
 
 def new_recording(session_name: str, recording_id: str) -> rr.RecordingStream:

@@ -3,8 +3,8 @@
 Everything here depends on pyarrow only, so every other package may import it.
 """
 
-from schemas.errors import InputError
-from schemas.session import (
+from contactkit.errors import InputError
+from contactkit.schemas.session import (
     ACTIONS,
     CONDITIONS,
     N_JOINTS,

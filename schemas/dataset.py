@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pyarrow as pa
 
-from schemas.errors import InputError
-from schemas.session import SessionMeta, atomic_write_parquet, read_session_meta
+from contactkit.errors import InputError
+from contactkit.schemas.session import SessionMeta, atomic_write_parquet, read_session_meta
 
 INDEX_NAME = "index.parquet"
 SESSION_GLOB = "*.parquet"

@@ -14,8 +14,8 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from schemas.errors import InputError
-from schemas.session import atomic_write_parquet
+from contactkit.errors import InputError
+from contactkit.schemas.session import atomic_write_parquet
 
 FEATURES_KEY = b"contactkit.features"
 FEATURE_TABLE_VERSION = 1

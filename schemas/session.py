@@ -40,7 +40,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from schemas.errors import InputError
+from contactkit.errors import InputError
 
 SCHEMA_VERSION = 1
 N_JOINTS = 7

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from recorder.capture import sim_session_meta
-from recorder.sim import SimConfig, plan_session
-from recorder.sources.sim import SIM_COLUMNS, SimSource
-from schemas import write_session
+from contactkit.recorder.capture import sim_session_meta
+from contactkit.recorder.sim import SimConfig, plan_session
+from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
+from contactkit.schemas import write_session
 
 REFERENCE = Path(__file__).resolve().parents[2] / "shared" / "reference" / "gaz2019-exciting-traj"
 BIN = Path(sys.executable).parent
@@ -67,8 +67,8 @@ def run_cli(*args: str, cwd: Path | None = None, timeout: float = 300
 def make_dataset(directory: Path, poses=("A", "B", "C", "D"), repeats: int = 2,
                  rate_hz: float = 250.0, condition: str = "static") -> Path:
     """Simulate a small balanced dataset (poses x four actions x repeats) in one batch."""
-    from recorder.dataset import simulate_specs
-    from recorder.sim import SimConfig, plan_session
+    from contactkit.recorder.dataset import simulate_specs
+    from contactkit.recorder.sim import SimConfig, plan_session
 
     specs = []
     for rep in range(repeats):

@@ -12,14 +12,19 @@ import can
 import numpy as np
 import pytest
 
-from recorder.can_codec import SampleAssembler, rows_to_columns, session_frames, session_values
-from recorder.can_map import load_map
-from recorder.can_tools import bridge_session, read_log
-from recorder.capture import capture, protocol_meta
-from recorder.journal import recover_directory
-from recorder.sources.can import BusConfig, CanSource
-from schemas import InputError, read_session, validate_session
-from schemas.timing import sampling_stats
+from contactkit.recorder.can_codec import (
+    SampleAssembler,
+    rows_to_columns,
+    session_frames,
+    session_values,
+)
+from contactkit.recorder.can_map import load_map
+from contactkit.recorder.can_tools import bridge_session, read_log
+from contactkit.recorder.capture import capture, protocol_meta
+from contactkit.recorder.journal import recover_directory
+from contactkit.recorder.sources.can import BusConfig, CanSource
+from contactkit.schemas import InputError, read_session, validate_session
+from contactkit.schemas.timing import sampling_stats
 from tests.conftest import kill_after_recording_starts, make_session, run_cli
 
 FMAP = load_map()
@@ -151,10 +156,10 @@ def test_silent_bus_ends_capture_and_keeps_data(tmp_path: Path) -> None:
 def test_can_capture_killed_midway_recovers(source_session: Path, tmp_path: Path) -> None:
     helper = (
         "import sys, threading, time\n"
-        "from recorder.can_map import load_map\n"
-        "from recorder.can_tools import bridge_session\n"
-        "from recorder.cli import main\n"
-        "from recorder.sources.can import BusConfig\n"
+        "from contactkit.recorder.can_map import load_map\n"
+        "from contactkit.recorder.can_tools import bridge_session\n"
+        "from contactkit.recorder.cli import main\n"
+        "from contactkit.recorder.sources.can import BusConfig\n"
         "from schemas import read_session\n"
         f"s = read_session({str(source_session)!r})\n"
         "def feed():\n"
@@ -190,7 +195,7 @@ def test_assembler_uses_late_frames_to_fill_the_previous_sample() -> None:
 
 
 def test_cue_frame_goes_out_at_the_planned_time(source_session: Path, tmp_path: Path) -> None:
-    from recorder.sources.can import Cue
+    from contactkit.recorder.sources.can import Cue
 
     channel = f"cue-{uuid.uuid4().hex[:8]}"
     listener = can.Bus(interface="virtual", channel=channel)

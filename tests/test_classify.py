@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 from sklearn.metrics import balanced_accuracy_score, f1_score, recall_score
 
-from classify.data import load_features
-from classify.evaluate import confusion, evaluate, metrics_from_confusion, splits
-from classify.modelfile import META_MEMBER, load_model, save_model
-from classify.models import JointEnsemble, feature_joint, make_model
-from classify.schemes import limited_mask, relabel, scheme_classes
-from features.extract import SessionFeatures
-from schemas import InputError
+from contactkit.classify.data import load_features
+from contactkit.classify.evaluate import confusion, evaluate, metrics_from_confusion, splits
+from contactkit.classify.modelfile import META_MEMBER, load_model, save_model
+from contactkit.classify.models import JointEnsemble, feature_joint, make_model
+from contactkit.classify.schemes import limited_mask, relabel, scheme_classes
+from contactkit.features.extract import SessionFeatures
+from contactkit.schemas import InputError
 from tests.conftest import make_dataset
 
 
@@ -144,7 +144,7 @@ def test_model_file_refuses_untrusted_types(features, tmp_path: Path) -> None:
     import skops.io as sio
     from sklearn.base import BaseEstimator
 
-    from classify.modelfile import FORMAT, _members_digest
+    from contactkit.classify.modelfile import FORMAT, _members_digest
 
     class Smuggled(BaseEstimator):
         pass
@@ -165,7 +165,7 @@ def test_model_file_refuses_untrusted_types(features, tmp_path: Path) -> None:
 @pytest.mark.parametrize("kind", ["svm", "per-joint", "three-joint"])
 @pytest.mark.parametrize("scheme", ["full", "contact", "reaction"])
 def test_fast_online_predictor_equals_scikit_learn(features, kind, scheme) -> None:
-    from classify.fast import fast_predictor
+    from contactkit.classify.fast import fast_predictor
 
     y = features.labels(scheme)
     model = make_model(kind, features.names, c=10.0).fit(features.X, y)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from features.dynamics import GAZ_FRICTION, PandaModel
+from contactkit.features.dynamics import GAZ_FRICTION, PandaModel
 
 POSE_B = np.array([-1.92, -0.26, 2.72, -1.71, 0.46, 2.8, -1.0])
 

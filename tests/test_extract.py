@@ -12,9 +12,9 @@ from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
 
-from features.extract import SessionFeatures, feature_rows
-from schemas import InputError
-from schemas.features import read_feature_table
+from contactkit.features.extract import SessionFeatures, feature_rows
+from contactkit.schemas import InputError
+from contactkit.schemas.features import read_feature_table
 from tests.conftest import make_session, run_cli
 
 

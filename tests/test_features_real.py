@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from features.observer import ObserverConfig
-from features.timeseries import ALL_TIMESERIES, ChainConfig, OnlineChain, TimeseriesChain
-from features.windows import WindowSpec, find_window
-from recorder.arrays import load_joint_arrays
-from recorder.sim import SimConfig, TrackingSimulator, plan_session
-from schemas import read_session
+from contactkit.features.observer import ObserverConfig
+from contactkit.features.timeseries import ALL_TIMESERIES, ChainConfig, OnlineChain, TimeseriesChain
+from contactkit.features.windows import WindowSpec, find_window
+from contactkit.recorder.arrays import load_joint_arrays
+from contactkit.recorder.sim import SimConfig, TrackingSimulator, plan_session
+from contactkit.schemas import read_session
 from tests.conftest import make_session
 
 

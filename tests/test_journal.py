@@ -9,8 +9,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from recorder.journal import SessionWriter, journal_path, read_journal, recover_directory
-from schemas import InputError, SessionMeta, validate_session
+from contactkit.recorder.journal import SessionWriter, journal_path, read_journal, recover_directory
+from contactkit.schemas import InputError, SessionMeta, validate_session
 from tests.conftest import BIN, kill_after_recording_starts, run_cli
 
 

@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from classify.grids import GridSpec, load_grids, resample_window, window_grid
-from classify.modelfile import load_model
-from classify.nn import CNNClassifier, LSTMClassifier
-from features.observer import ObserverConfig
-from features.timeseries import ChainConfig, TimeseriesChain
-from schemas import read_session
+from contactkit.classify.grids import GridSpec, load_grids, resample_window, window_grid
+from contactkit.classify.modelfile import load_model
+from contactkit.classify.nn import CNNClassifier, LSTMClassifier
+from contactkit.features.observer import ObserverConfig
+from contactkit.features.timeseries import ChainConfig, TimeseriesChain
+from contactkit.schemas import read_session
 from tests.conftest import make_dataset, run_cli
 
 torch = pytest.importorskip("torch")
@@ -91,7 +91,7 @@ def test_onnx_model_file_round_trip_and_refusal(dataset: Path, tmp_path: Path) -
 
 
 def test_parallel_splits_give_the_same_report(grids) -> None:
-    from classify.evaluate import evaluate
+    from contactkit.classify.evaluate import evaluate
 
     def run(workers: int):
         return evaluate(grids.X, grids.labels(), lambda: LSTMClassifier(seed=2, **SMALL),
@@ -133,7 +133,7 @@ def test_without_torch_a_network_gives_one_line(dataset: Path, tmp_path: Path) -
             "        if name.split('.')[0] == 'torch':\n"
             "            raise ImportError('No module named torch')\n"
             "sys.meta_path.insert(0, NoTorch())\n"
-            "from classify.cli import main\n"
+            "from contactkit.classify.cli import main\n"
             f"sys.argv = ['classify', 'train', {str(dataset)!r}, '--model', 'cnn', '--out', "
             f"{str(tmp_path / 'x.onnx')!r}, '--workers', '1', '--steps', '20']\n"
             "main()\n")
@@ -181,7 +181,7 @@ def test_augmentation_experiment_end_to_end(tmp_path: Path) -> None:
         assert made.returncode == 0, made.stderr
     import json
 
-    from schemas import read_session
+    from contactkit.schemas import read_session
 
     sim_links = {read_session(p).meta.link for p in (tmp_path / "sim").glob("static_*.parquet")}
     assert sim_links <= {None, 5, 6, 7}

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from recorder.arrays import load_joint_arrays
-from recorder.noise import SensorNoise, default_noise, estimate_noise
+from contactkit.recorder.arrays import load_joint_arrays
+from contactkit.recorder.noise import SensorNoise, default_noise, estimate_noise
 
 
 def test_default_noise_is_recomputed_from_reference(reference_dir: Path) -> None:

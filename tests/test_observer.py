@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from features.dynamics import PandaModel
-from features.observer import RecurrenceStep, observer_coefficients, solve_recurrence
-from features.timeseries import TimeseriesChain
-from schemas import read_session
+from contactkit.features.dynamics import PandaModel
+from contactkit.features.observer import RecurrenceStep, observer_coefficients, solve_recurrence
+from contactkit.features.timeseries import TimeseriesChain
+from contactkit.schemas import read_session
 from tests.conftest import make_session
 
 

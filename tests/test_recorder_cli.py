@@ -8,7 +8,7 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
-from schemas import validate_session
+from contactkit.schemas import validate_session
 from tests.conftest import run_cli
 
 

@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 import rerun.chunk as rc
 
-from classify.data import load_features
-from classify.modelfile import load_model, save_model
-from classify.models import make_model
-from features.extract import SessionFeatures
-from features.scalars import scalar_features
-from features.timeseries import TimeseriesChain, columns_of
-from schemas import read_session
-from schemas import rerun_layout as layout
+from contactkit.classify.data import load_features
+from contactkit.classify.modelfile import load_model, save_model
+from contactkit.classify.models import make_model
+from contactkit.features.extract import SessionFeatures
+from contactkit.features.scalars import scalar_features
+from contactkit.features.timeseries import TimeseriesChain, columns_of
+from contactkit.schemas import read_session
+from contactkit.schemas import rerun_layout as layout
 from tests.conftest import make_dataset, make_session, run_cli
 
 ENTITIES = [layout.Q, layout.DQ, layout.TAU, layout.RESIDUAL, layout.FORCE, layout.MOMENT,

@@ -10,9 +10,15 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from schemas import InputError, SessionMeta, read_session, validate_session, write_session
-from schemas.dataset import build_index, rebuild_index
-from schemas.session import METADATA_KEY
+from contactkit.schemas import (
+    InputError,
+    SessionMeta,
+    read_session,
+    validate_session,
+    write_session,
+)
+from contactkit.schemas.dataset import build_index, rebuild_index
+from contactkit.schemas.session import METADATA_KEY
 
 
 def _table_and_meta(path: Path) -> tuple[pa.Table, dict]:

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from features.dynamics import PandaModel
-from recorder.forces import PROFILE_RANGES
-from recorder.protocol import MAX_ONSET_DELAY_S, pose_q
-from recorder.sim import PandaSimulator, SimConfig, plan_session
-from schemas import InputError
+from contactkit.features.dynamics import PandaModel
+from contactkit.recorder.forces import PROFILE_RANGES
+from contactkit.recorder.protocol import MAX_ONSET_DELAY_S, pose_q
+from contactkit.recorder.sim import PandaSimulator, SimConfig, plan_session
+from contactkit.schemas import InputError
 from tests.conftest import simulate_columns
 
 CONFIG = SimConfig(rate_hz=500.0)
@@ -139,7 +139,7 @@ def test_plan_rejects_bad_choices(kwargs: dict, message: str) -> None:
 def test_a_hard_shove_that_saturates_the_motors_does_not_diverge() -> None:
     """aug-sim session 63: a 135 N shove on link 7 at pose H saturates joints 1-2.
     Without anti-windup the integrators drove the arm unstable and it reached NaN."""
-    from recorder.dataset import PRESETS, preset_specs
+    from contactkit.recorder.dataset import PRESETS, preset_specs
 
     preset = PRESETS["aug-sim"]
     config = SimConfig(rate_hz=preset.rate_hz, robot_seed=preset.robot_seed)

@@ -7,10 +7,15 @@ import pytest
 import scipy.signal
 import scipy.stats
 
-from features.filters import StreamingFilter, design, filter_batch
-from features.scalars import fft_magnitudes, hjorth_complexity, hjorth_mobility, scalar_features
-from features.windows import WindowSpec, find_window
-from schemas import InputError, read_session
+from contactkit.features.filters import StreamingFilter, design, filter_batch
+from contactkit.features.scalars import (
+    fft_magnitudes,
+    hjorth_complexity,
+    hjorth_mobility,
+    scalar_features,
+)
+from contactkit.features.windows import WindowSpec, find_window
+from contactkit.schemas import InputError, read_session
 from tests.conftest import make_session
 
 

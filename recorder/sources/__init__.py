@@ -1,6 +1,6 @@
 """Data sources, chosen by name (like python-can's interface registry).
 
-A source is a small class implementing :class:`recorder.sources.base.Source`; a
+A source is a small class implementing :class:`contactkit.recorder.sources.base.Source`; a
 new robot is one new module here and one line in ``SOURCES``.
 """
 
@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import importlib
 
-from recorder.sources.base import Source
-from schemas import InputError
+from contactkit.recorder.sources.base import Source
+from contactkit.schemas import InputError
 
 SOURCES: dict[str, str] = {
-    "sim": "recorder.sources.sim:SimSource",
-    "can": "recorder.sources.can:CanSource",
+    "sim": "contactkit.recorder.sources.sim:SimSource",
+    "can": "contactkit.recorder.sources.can:CanSource",
 }
 
 

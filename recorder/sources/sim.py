@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from recorder.sim import PandaSimulator, SessionSpec, SimConfig
-from schemas import joint_columns
+from contactkit.recorder.sim import PandaSimulator, SessionSpec, SimConfig
+from contactkit.schemas import joint_columns
 
 SIM_COLUMNS = ["t", *joint_columns("q"), *joint_columns("dq"), *joint_columns("tau"),
                *joint_columns("q_d"), *joint_columns("dq_d"), "f_ext_x", "f_ext_y", "f_ext_z",

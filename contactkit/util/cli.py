@@ -1,4 +1,5 @@
-"""Running a command-line app so that bad input is one line on stderr and exit code 2."""
+"""Command-line apps: one factory, and running them so that bad input is one line on
+stderr and exit code 2."""
 
 from __future__ import annotations
 
@@ -6,7 +7,16 @@ import sys
 
 import typer
 
-from schemas.errors import InputError
+from contactkit.errors import InputError
+
+
+def new_app(name: str | None = None, help: str | None = None, **settings) -> typer.Typer:
+    """Return a Typer app with contactkit's settings: plain help text (rich markup off, so
+    units in brackets such as "[s]" or "[rad]" print as written), no shell-completion
+    options, no pretty tracebacks, and help when called without arguments."""
+    defaults = {"rich_markup_mode": None, "add_completion": False,
+                "pretty_exceptions_enable": False, "no_args_is_help": True}
+    return typer.Typer(name=name, help=help, **(defaults | settings))
 
 
 def run_app(app: typer.Typer, prog: str, argv: list[str] | None = None) -> int:

@@ -5,8 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 
-class InputError(Exception):
+class InputError(ValueError):
     """Bad input: a file, argument or stream that cannot be used as given.
+
+    A ``ValueError``, so code that catches those catches it too.
 
     ``str(err)`` is one line naming the offending file (when there is one) and the
     problem, for example ``sessions/x.parquet: NaN in column tau_3 at row 12``.

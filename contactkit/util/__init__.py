@@ -1,0 +1,1 @@
+"""Shared helpers below every subpackage: progress bars, pacing, parallel work, CLI runner."""

@@ -1,0 +1,89 @@
+"""The one seam for parallel work: map a function over items, in order, with progress.
+
+Every parallel step (simulating datasets, reading sessions for statistics, feature
+and grid extraction, evaluation splits, trainings) calls :func:`map_ordered`. The
+local executor runs the items in a pool of processes on this machine (or in this
+process with one worker); the results come back in the order of the items, so the
+output never depends on the number of workers.
+
+Functions and items must be picklable (module-level functions, plain data). A job
+that reports a problem with an input returns it as data rather than raising, so one
+bad session never stops a run; :func:`split_problems` separates them afterwards.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from typing import Any, TypeVar
+
+from contactkit.util.progress import ProgressCallback
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+def map_ordered(fn: Callable[..., R], items: Iterable[Any], *, workers: int = 1,
+                progress: ProgressCallback | None = None, total: int | None = None,
+                spawn: bool = False, in_flight: int = 4) -> Iterator[R]:
+    """Yield ``fn(item)`` for each item, in the order of ``items``.
+
+    ``workers`` <= 1 runs in this process. Otherwise a pool of ``workers`` processes
+    (``spawn``: fresh interpreters, needed where a library keeps threads, such as
+    PyTorch; scripts must then guard with ``if __name__ == "__main__":``) holds at most
+    ``in_flight`` jobs per worker, so ``items`` may be a lazy generator of large
+    inputs. ``progress(done, total)`` is called as jobs finish; ``total`` defaults to
+    ``len(items)`` where it has one. An exception raised by ``fn`` propagates.
+    """
+    if total is None and hasattr(items, "__len__"):
+        total = len(items)  # type: ignore[arg-type]
+    done = 0
+    if workers <= 1:
+        for item in items:
+            result = fn(item)
+            done += 1
+            if progress:
+                progress(done, total or done)
+            yield result
+        return
+    context = multiprocessing.get_context("spawn") if spawn else None
+    results: dict[int, R] = {}
+    pending: dict[Future, int] = {}
+    next_out = 0
+    with ProcessPoolExecutor(workers, mp_context=context) as pool:
+        iterator = iter(enumerate(items))
+        exhausted = False
+        while not exhausted or pending:
+            while not exhausted and len(pending) < in_flight * workers:
+                try:
+                    index, item = next(iterator)
+                except StopIteration:
+                    exhausted = True
+                    break
+                pending[pool.submit(fn, item)] = index
+            if not pending:
+                break
+            finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for job in finished:
+                results[pending.pop(job)] = job.result()
+                done += 1
+                if progress:
+                    progress(done, total or done + len(pending))
+            while next_out in results:
+                yield results.pop(next_out)
+                next_out += 1
+
+
+def split_problems(results: Iterable[tuple[str, T | None, str | None]]
+                   ) -> tuple[list[T], list[tuple[str, str]]]:
+    """Split ``(name, value, problem)`` job results into the good values and the
+    ``(name, problem)`` pairs of the jobs that reported a problem."""
+    good: list[T] = []
+    problems: list[tuple[str, str]] = []
+    for name, value, problem in results:
+        if problem is None:
+            good.append(value)  # type: ignore[arg-type]
+        else:
+            problems.append((name, problem))
+    return good, problems
