@@ -24,7 +24,6 @@ import pinocchio as pin
 
 from contactkit.features.timeseries import OnlineChain, TimeseriesChain
 from contactkit.recorder.arrays import load_joint_arrays
-from contactkit.recorder.capture import sim_session_meta
 from contactkit.recorder.sim import SimConfig, plan_session
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
 from contactkit.schemas import read_session, write_session
@@ -41,7 +40,7 @@ def simulated_session() -> tuple[str, dict[str, np.ndarray], bool]:
     data = {k: np.concatenate([c[k] for c in chunks]) for k in SIM_COLUMNS}
     with tempfile.TemporaryDirectory() as tmp:
         path = write_session(Path(tmp) / "s.parquet", data,
-                             sim_session_meta(spec, config, source.metadata()))
+                             source.session_meta())
         session = read_session(path)
     return "simulated 12 s", {"t": session.t, "q": session.q, "dq": session.dq,
                               "tau": session.tau}, True

@@ -25,7 +25,6 @@ from contactkit.classify.data import load_features
 from contactkit.classify.modelfile import load_model, save_model
 from contactkit.classify.models import make_model
 from contactkit.features.extract import SessionFeatures
-from contactkit.recorder.capture import sim_session_meta
 from contactkit.recorder.dataset import simulate_specs
 from contactkit.recorder.sim import SimConfig, plan_session
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
@@ -56,7 +55,7 @@ def setup(tmp: Path) -> tuple[Path, Path]:
     chunks = list(source.stream())
     columns = {k: np.concatenate([c[k] for c in chunks]) for k in SIM_COLUMNS}
     session = write_session(tmp / "s.parquet", columns,
-                            sim_session_meta(spec, config, source.metadata()))
+                            source.session_meta())
     return session, model
 
 

@@ -2,97 +2,32 @@
 
 from __future__ import annotations
 
-import hashlib
-import importlib.metadata
-import json
+import os
 import sys
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 
-from contactkit.features.dynamics import urdf_sha256
 from contactkit.recorder.journal import SessionWriter
-from contactkit.recorder.protocol import check_action, check_condition, pose_q
-from contactkit.recorder.sim import SessionSpec, SimConfig
 from contactkit.recorder.sources.base import Source
-from contactkit.schemas import InputError, SessionMeta, new_session_id
+from contactkit.schemas import InputError, SessionMeta
+from contactkit.util.pacing import paced
 
 ChunkCallback = Callable[[dict[str, np.ndarray]], None]
 
 
-def tool_version() -> str:
-    """Return the installed contactkit version."""
+def output_directory(path: Path) -> Path:
+    """Return ``path`` after creating it if needed; raise InputError when it cannot be
+    created or written to."""
     try:
-        return importlib.metadata.version("contactkit")
-    except importlib.metadata.PackageNotFoundError:
-        return "0+unknown"
-
-
-def utc_now() -> str:
-    """Return the current UTC time in ISO 8601 with a Z suffix."""
-    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
-
-
-def sim_session_id(spec: SessionSpec, config: SimConfig) -> str:
-    """Return a session id determined by the spec and configuration (same seed, same id)."""
-    doc = json.dumps({"spec": spec.as_dict(), "config": config.to_dict()}, sort_keys=True)
-    return hashlib.sha256(doc.encode()).hexdigest()[:16]
-
-
-def sim_session_meta(spec: SessionSpec, config: SimConfig, source_fields: dict) -> SessionMeta:
-    """Return the metadata of a simulated session."""
-    return SessionMeta(
-        session_id=sim_session_id(spec, config),
-        action=spec.action,
-        condition=spec.condition,
-        pose=spec.pose,
-        pose_q=list(spec.q_start),
-        target_pose=spec.target_pose,
-        target_q=None if spec.q_target is None else list(spec.q_target),
-        speed_rad_s=spec.speed_rad_s,
-        link=spec.link,
-        planned_at_s=spec.planned_at_s,
-        nominal_rate_hz=config.rate_hz,
-        operator=spec.operator,
-        created_utc=utc_now(),
-        with_hand=config.with_hand,
-        urdf_sha256=urdf_sha256(config.with_hand),
-        tool_version=tool_version(),
-        **source_fields,
-    )
-
-
-def protocol_meta(*, source: str, action: str, condition: str, pose: str | None,
-                  target_pose: str | None, speed_rad_s: float | None, link: int | None,
-                  planned_at_s: float | None, operator: str, with_hand: bool,
-                  notes: str = "") -> SessionMeta:
-    """Return the metadata of a session recorded from a robot, bus or log (not simulated):
-    the protocol's choices, checked, with the pose's joint values from Table 3.1."""
-    check_action(action)
-    check_condition(condition)
-    if link is not None and not 1 <= link <= 7:
-        raise InputError(f"unknown link {link} (expected 1..7)")
-    return SessionMeta(
-        session_id=new_session_id(), source=source, action=action, condition=condition,
-        pose=None if pose is None else pose.upper(),
-        pose_q=None if pose is None else pose_q(pose).tolist(),
-        target_pose=None if target_pose is None else target_pose.upper(),
-        target_q=None if target_pose is None else pose_q(target_pose).tolist(),
-        speed_rad_s=speed_rad_s, link=link, planned_at_s=planned_at_s, operator=operator,
-        notes=notes, created_utc=utc_now(), with_hand=with_hand,
-        urdf_sha256=urdf_sha256(with_hand), tool_version=tool_version())
-
-
-def session_filename(meta: SessionMeta) -> str:
-    """Return the file name of a session: condition, pose(s), action and short id."""
-    poses = meta.pose or "x"
-    if meta.target_pose:
-        poses += "to" + meta.target_pose
-    return f"{meta.condition}_{poses}_{meta.action}_{meta.session_id[:12]}.parquet"
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"cannot create output directory ({err.strerror})", path) from err
+    if not os.access(path, os.W_OK):
+        raise InputError("cannot write here (permission denied)", path)
+    return path
 
 
 class OperatorCue:
@@ -137,22 +72,20 @@ class CaptureResult:
 
 def capture(source: Source, meta: SessionMeta, out_path: Path, *, realtime: bool = False,
             cue: OperatorCue | None = None, on_chunk: list[ChunkCallback] | None = None,
-            flush_interval_s: float = 0.1) -> CaptureResult:
+            overwrite: bool = False, flush_interval_s: float = 0.1) -> CaptureResult:
     """Record ``source`` into ``out_path`` through the journal; return the result.
 
     With ``realtime`` (or a live source) each chunk is handed on when the wall clock
     reaches its last time stamp, as with a live robot; otherwise as fast as possible.
     ``on_chunk`` callbacks (for example a Rerun logger) see every chunk. If the
-    capture is interrupted, the journal stays for ``recorder recover``.
+    capture is interrupted, the journal stays for ``recorder recover``. An existing
+    file at ``out_path`` is replaced only with ``overwrite``.
     """
-    pace = realtime and not source.live
+    if overwrite and out_path.exists():
+        out_path.unlink()
+    rate = 1.0 if realtime and not source.live else None
     with SessionWriter(out_path, meta, source.columns, flush_interval_s) as writer:
-        start = time.monotonic()
-        for chunk in source.stream():
-            if pace:
-                delay = start + float(chunk["t"][-1]) - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)
+        for chunk in paced(source.stream(), lambda c: c["t"][-1], rate, origin_s=0.0):
             writer.append(chunk)
             for callback in on_chunk or ():
                 callback(chunk)

@@ -4,216 +4,71 @@ from __future__ import annotations
 
 import json
 import os
-import secrets
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
-import rerun as rr
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-from rich.table import Table
 
 from contactkit.recorder.can_map import load_map
 from contactkit.recorder.can_tools import bridge_session, import_can_log
-from contactkit.recorder.capture import (
-    OperatorCue,
-    capture,
-    protocol_meta,
-    session_filename,
-    sim_session_meta,
+from contactkit.recorder.capture import output_directory
+from contactkit.recorder.capture_cli import (
+    Action,
+    Condition,
+    Pose,
+    capture_command,
+    shared_options,
 )
 from contactkit.recorder.dataset import PRESETS, simulate_dataset
 from contactkit.recorder.importer import import_arrays
-from contactkit.recorder.info import session_info
+from contactkit.recorder.info import print_info, session_info
 from contactkit.recorder.journal import recover_directory
-from contactkit.recorder.live_view import CaptureViewer
-from contactkit.recorder.noise import SensorNoise, default_noise
-from contactkit.recorder.sim import SimConfig, plan_session
-from contactkit.recorder.sources import SOURCES, source_class
-from contactkit.recorder.sources.can import BusConfig, CanSource, Cue
+from contactkit.recorder.metadata import session_filename, session_meta
+from contactkit.recorder.sim import SimConfig
+from contactkit.recorder.sources import load_sources, source_options
+from contactkit.recorder.sources.can import BusConfig
 from contactkit.recorder.stats import build_report, write_noise_file
-from contactkit.recorder.stats_report import FORMATS, print_summary, write_report
-from contactkit.schemas import ACTIONS, InputError, SessionMeta, read_session, validate_session
+from contactkit.recorder.stats_report import print_summary, write_report
+from contactkit.schemas import read_session
 from contactkit.schemas.dataset import rebuild_index
-from contactkit.schemas.rerun_layout import capture_blueprint
-from contactkit.util.cli import run_app
-from contactkit.util.viewer import has_display, start_web_viewer
+from contactkit.util.cli import new_app, run_app
+from contactkit.util.progress import bar_callback, err_console, progress_bar
 
-app = typer.Typer(
-    name="recorder",
-    help="Record Panda joint streams while a person touches the arm on cue, and manage the "
-         "resulting sessions. Without a robot, sessions come from a physics simulation.",
-    no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False)
-err_console = Console(stderr=True)
+app = new_app("recorder", help="Record Panda joint streams while a person touches the arm on "
+              "cue, and manage the resulting sessions. Without a robot, sessions come from a "
+              "physics simulation.")
 DEFAULT_WORKERS = max(os.cpu_count() or 1, 1)
+Preset = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
+ReportFormat = Literal["html", "md", "json"]
+SOURCE_CLASSES, SOURCE_PROBLEMS = load_sources()
+_TAKEN = {"--" + p for p in ("pose", "action", "source", "condition", "target-pose", "speed",
+                             "link", "planned-at", "duration", "operator", "hand", "no-hand",
+                             "notes", "out", "overwrite", "realtime", "viewer", "save-rrd",
+                             "help")}
+SOURCE_OPTIONS, _CLASHES = shared_options(SOURCE_CLASSES, _TAKEN)
+SOURCE_PROBLEMS |= _CLASHES
+USABLE_SOURCES = {k: v for k, v in SOURCE_CLASSES.items() if k not in _CLASHES}
+app.command("capture")(capture_command(USABLE_SOURCES, SOURCE_OPTIONS))
 
 
-def _out_dir(path: Path) -> Path:
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise InputError(f"cannot create output directory ({err.strerror})", path) from err
-    if not os.access(path, os.W_OK):
-        raise InputError("cannot write here (permission denied)", path)
-    return path
-
-
-def _sim_config(rate: float, with_hand: bool, robot_seed: int, noise_file: Path | None,
-                noise_scale: float, jitter_ms: float, drop_prob: float) -> SimConfig:
-    noise = default_noise() if noise_file is None else SensorNoise.from_file(noise_file)
-    if noise_scale < 0:
-        raise InputError(f"--noise-scale must be >= 0, got {noise_scale}")
-    return SimConfig(rate_hz=rate, with_hand=with_hand, robot_seed=robot_seed, noise=noise,
-                     noise_scale=noise_scale, jitter_s=jitter_ms / 1000.0, drop_prob=drop_prob)
-
-
-@app.command("capture")
-def capture_command(
-    pose: Annotated[str, typer.Option(help="Start pose, A-H (thesis Table 3.1).")],
-    action: Annotated[str, typer.Option(help=f"What the person does: {', '.join(ACTIONS)}.")],
-    condition: Annotated[str, typer.Option(
-        help="static: hold the pose; dynamic: move to --target-pose.")] = "static",
-    target_pose: Annotated[str | None, typer.Option(
-        help="Dynamic condition: pose to move to (default D).")] = None,
-    speed: Annotated[float | None, typer.Option(
-        help="Dynamic condition: average speed of the furthest-moving joint [rad/s] "
-             "(default 0.2).")] = None,
-    link: Annotated[int | None, typer.Option(
-        help="Link 1-7 to touch (default: random for a contact).")] = None,
-    planned_at: Annotated[float | None, typer.Option(
-        help="Planned interaction time [s from start] (default: thesis timing, 5 s "
-             "static, mid-motion dynamic).")] = None,
-    duration: Annotated[float | None, typer.Option(
-        help="Session length [s] (default: 3 s hold + 4 s or the motion + 5 s hold).")] = None,
-    rate: Annotated[float, typer.Option(help="Sample rate [Hz] (thesis: ~600).")] = 1000.0,
-    operator: Annotated[str, typer.Option(
-        help="Who touches the robot; in simulation, names a person with their own "
-             "strength and tempo.")] = "sim",
-    seed: Annotated[int | None, typer.Option(
-        help="Random seed; the same seed gives the same data (default: random, stored in "
-             "the metadata).")] = None,
-    out: Annotated[Path, typer.Option(help="Output directory (created if needed).")] = Path(
-        "sessions"),
-    source: Annotated[str, typer.Option(
-        help=f"Data source: {', '.join(SOURCES)} (sim: the simulated Panda; can: a CAN bus "
-             "decoded with --map).")] = "sim",
-    realtime: Annotated[bool, typer.Option(
-        help="Pace the capture at wall-clock speed and show the operator cue "
-             "(countdown, then a bell at the planned time).")] = False,
-    hand: Annotated[bool, typer.Option(help="Simulate the Panda with its hand mounted.")] = True,
-    robot_seed: Annotated[int, typer.Option(
-        help="Simulated robot instance (its true inertia and friction).")] = 0,
-    noise_file: Annotated[Path | None, typer.Option(
-        help="Sensor-noise JSON (from `recorder stats --deep`); default: measured on the "
-             "real Panda reference recording.")] = None,
-    noise_scale: Annotated[float, typer.Option(help="Multiply the sensor noise.")] = 1.0,
-    jitter_ms: Annotated[float, typer.Option(help="Time-stamp jitter, uniform +- [ms].")] = 0.0,
-    drop_prob: Annotated[float, typer.Option(help="Probability of losing a sample.")] = 0.0,
-    notes: Annotated[str, typer.Option(help="Free text stored in the metadata.")] = "",
-    overwrite: Annotated[bool, typer.Option(
-        help="Replace an existing session file with the same name.")] = False,
-    viewer: Annotated[str, typer.Option(
-        help="Show the capture live: rerun (native viewer), web (browser, 127.0.0.1) or "
-             "none.")] = "none",
-    save_rrd: Annotated[Path | None, typer.Option(
-        help="Also write the live view to this .rrd file.")] = None,
-    interface: Annotated[str, typer.Option(
-        help="--source can: python-can interface (virtual, socketcan, pcan, kvaser, ...).")
-                         ] = "socketcan",
-    channel: Annotated[str | None, typer.Option(
-        help="--source can: bus channel, e.g. can0.")] = None,
-    can_map: Annotated[Path | None, typer.Option(
-        "--map", help="--source can: frame map TOML (default: CANopen CiA 402, "
-                      "recorder/data/can_default_map.toml).")] = None,
-    timeout: Annotated[float, typer.Option(
-        help="--source can: end the capture when the bus is silent this long [s].")] = 1.0,
-    cue_id: Annotated[str | None, typer.Option(
-        help="--source can: send a cue frame with this id (e.g. 0x700) at the planned "
-             "time, for a lamp or buzzer; its bus time goes into the metadata.")] = None,
-    cue_data: Annotated[str, typer.Option(help="Cue frame payload, hex.")] = "01",
-) -> None:
-    """Record one session and print the written file's path.
-
-    Example: recorder capture --pose B --action adjust
-    """
-    source_class(source)
-    if source == "can":
-        planned = 5.0 if planned_at is None else planned_at
-        total = 12.0 if duration is None else duration
-        if total <= 0 or not 0 <= planned < total:
-            raise InputError(f"planned interaction time {planned} s must lie within the "
-                             f"session (0 to {total} s)")
-        if not channel:
-            raise InputError("--source can needs --channel (and --interface)")
-        fmap = load_map(can_map)
-        cue_frame = None if cue_id is None else Cue(int(cue_id, 0), bytes.fromhex(cue_data),
-                                                    planned)
-        chosen = CanSource(BusConfig(interface, channel), fmap, total, timeout, cue_frame)
-        meta = protocol_meta(source="can", action=action, condition=condition, pose=pose,
-                             target_pose=target_pose, speed_rad_s=speed, link=link,
-                             planned_at_s=planned, operator=operator, with_hand=hand,
-                             notes=notes)
-        rate_hz = rate
-    else:
-        seed = secrets.randbits(63) if seed is None else seed
-        config = _sim_config(rate, hand, robot_seed, noise_file, noise_scale, jitter_ms,
-                             drop_prob)
-        spec = plan_session(seed=seed, condition=condition, action=action, pose=pose,
-                            target_pose=target_pose, speed_rad_s=speed, link=link,
-                            planned_at_s=planned_at, duration_s=duration, operator=operator,
-                            with_hand=hand)
-        chosen = source_class(source)(spec, config)
-        meta = sim_session_meta(spec, config, chosen.metadata())
-        meta.notes = notes
-        planned, total, rate_hz = spec.planned_at_s, spec.duration_s, config.rate_hz
-    out_path = _out_dir(out) / session_filename(meta)
-    if out_path.exists() and overwrite:
-        out_path.unlink()
-    live = _live_view(viewer, save_rrd, meta, rate_hz)
-    cue = None
-    if realtime or live is not None or chosen.live:
-        err_console.print(f"[bold]Recording[/] {meta.condition} pose {meta.pose}, "
-                          f"{meta.action} at {planned:.2f} s of {total:.1f} s")
-        cue = OperatorCue(planned, meta.action, meta.link,
-                          echo=None if live is None else live.cue)
-    result = capture(chosen, meta, out_path, realtime=realtime, cue=cue,
-                     on_chunk=None if live is None else [live.on_chunk])
-    if live is not None:
-        live.rec.flush()
-        live.rec.disconnect()
-    print(result.path)
-
-
-def _live_view(viewer: str, save_rrd: Path | None, meta: SessionMeta,
-               rate_hz: float) -> CaptureViewer | None:
-    """Return a live Rerun view of the capture (None for --viewer none without --save-rrd)."""
-    if viewer not in ("rerun", "web", "none"):
-        raise InputError(f"unknown viewer {viewer!r} (expected rerun, web or none)")
-    if viewer == "none" and save_rrd is None:
-        return None
-    rec = rr.RecordingStream("contactkit-capture", recording_id=meta.session_id)
-    blueprint = capture_blueprint()
-    if save_rrd is not None:
-        rec.save(save_rrd, default_blueprint=blueprint)
-    if viewer == "rerun":
-        if has_display():
-            rec.spawn(default_blueprint=blueprint)
-        else:
-            err_console.print("no display for the native viewer; use --viewer web or "
-                              "--save-rrd")
-    elif viewer == "web":
-        _, url, page = start_web_viewer()
-        err_console.print(f"web viewer: {page}")
-        rec.connect_grpc(url, default_blueprint=blueprint)
-    return CaptureViewer(rec, meta, rate_hz)
+@app.command("sources")
+def sources_command() -> None:
+    """List the data sources (built in or installed by other packages) and their options."""
+    for name, cls in SOURCE_CLASSES.items():
+        print(f"{name}: {(cls.__doc__ or '').strip().splitlines()[0]} "
+              f"({cls.__module__}.{cls.__qualname__})")
+        for opt in source_options(cls.Config):
+            print(f"  --{opt.name}  {opt.describe()}")
+    for name, problem in SOURCE_PROBLEMS.items():
+        print(f"{name}: unusable: {problem}")
 
 
 @app.command("simulate")
 def simulate_command(
     out_dir: Annotated[Path, typer.Argument(help="Dataset directory (created if needed).")],
-    preset: Annotated[str, typer.Option(help=f"One of {', '.join(PRESETS)}.")] = "smoke",
+    preset: Annotated[Preset, typer.Option(help="Which sessions to draw.")] = "smoke",
     sessions: Annotated[int | None, typer.Option(
         help="How many sessions (default: the preset's size).")] = None,
     seed: Annotated[int, typer.Option(help="Dataset seed.")] = 0,
@@ -228,18 +83,12 @@ def simulate_command(
              "preset's, 1 for most).")] = None,
 ) -> None:
     """Write many simulated sessions in parallel (existing ones are skipped) and index them."""
-    if preset not in PRESETS:
-        raise InputError(f"unknown preset {preset!r} (available: {', '.join(PRESETS)})")
-    chosen_robot = PRESETS[preset].robot_seed if robot_seed is None else robot_seed
-    config = _sim_config(rate or PRESETS[preset].rate_hz, True, chosen_robot, None, noise_scale,
-                         0.0, 0.0)
-    with Progress(TextColumn("[bold]simulating[/]"), BarColumn(), MofNCompleteColumn(),
-                  TimeRemainingColumn(), console=err_console) as bar:
-        task = bar.add_task("sessions", total=None)
-        result = simulate_dataset(_out_dir(out_dir), preset, sessions, seed, workers, config,
-                                  lambda done, total: bar.update(task, completed=done,
-                                                                 total=total),
-                                  variability)
+    chosen = PRESETS[preset]
+    config = SimConfig(rate_hz=rate or chosen.rate_hz, noise_scale=noise_scale,
+                       robot_seed=chosen.robot_seed if robot_seed is None else robot_seed)
+    with progress_bar("simulating") as bar:
+        result = simulate_dataset(output_directory(out_dir), preset, sessions, seed, workers,
+                                  config, bar_callback(bar, "sessions"), variability)
     err_console.print(f"{result.written} written, {result.skipped} already there; index has "
                       f"{result.index.table.num_rows} sessions")
     _print_problems(result.index.problems)
@@ -287,8 +136,7 @@ def import_arrays_command(
     Joint files hold 7 values per line, or one per line (7 lines a sample); the time
     file one value per line. Time is shifted to start at 0 s.
     """
-    session_path = import_arrays(t, q, dq, tau, _out_dir(out), meta or [], name)
-    print(session_path)
+    print(import_arrays(t, q, dq, tau, output_directory(out), meta or [], name))
 
 
 @app.command("stats")
@@ -296,9 +144,9 @@ def stats_command(
     directory: Annotated[Path, typer.Argument(help="Dataset directory.")],
     out: Annotated[Path | None, typer.Option(
         help="Report file (default: report.html, report.md or report.json here).")] = None,
-    fmt: Annotated[str, typer.Option("--format", help="html (one self-contained file), md "
-                                                      "(with PNGs beside it) or json.")
-                   ] = "html",
+    fmt: Annotated[ReportFormat, typer.Option(
+        "--format", help="html (one self-contained file), md (with PNGs beside it) or "
+                         "json.")] = "html",
     deep: Annotated[bool, typer.Option(
         help="Read every session (parallel): sampling, noise baseline, peaks, force "
              "profiles, windows, joint limits, and a fingerprint over file contents.")
@@ -308,16 +156,11 @@ def stats_command(
 ) -> None:
     """Summarise a dataset on the terminal and write a report of what it holds and of
     its problems (bad files, duplicates, sessions too short)."""
-    if fmt not in FORMATS:
-        raise InputError(f"unknown format {fmt!r} (expected html, md or json)")
     out = out or Path(f"report.{fmt}")
     if not out.parent.is_dir():
-        raise InputError("output directory does not exist", out.parent)
-    with Progress(TextColumn("[bold]reading sessions[/]"), BarColumn(), MofNCompleteColumn(),
-                  TimeRemainingColumn(), console=err_console, disable=not deep) as bar:
-        task = bar.add_task("sessions", total=None)
-        report = build_report(directory, deep, workers,
-                              lambda done, total: bar.update(task, completed=done, total=total))
+        raise typer.BadParameter(f"{out.parent} does not exist", param_hint="--out")
+    with progress_bar("reading", disable=not deep) as bar:
+        report = build_report(directory, deep, workers, bar_callback(bar, "sessions"))
     print_summary(report, err_console)
     noise = report["deep"] and report["deep"]["noise_baseline"]
     if noise:
@@ -332,31 +175,30 @@ def stats_command(
 def import_can_command(
     log: Annotated[Path, typer.Argument(help="CAN log: .asc, .blf, .trc, .csv, .log "
                                              "(candump), .mf4 (with asammdf), .db (SQLite).")],
-    pose: Annotated[str, typer.Option(help="Pose A-H of the session.")],
-    action: Annotated[str, typer.Option(help=f"Action: {', '.join(ACTIONS)}.")],
+    pose: Annotated[Pose, typer.Option(help="Pose of the session (thesis Table 3.1).")],
+    action: Annotated[Action, typer.Option(help="What the person did.")],
     can_map: Annotated[Path | None, typer.Option(
         "--map", help="Frame map TOML (default: CANopen CiA 402).")] = None,
     planned_at: Annotated[float | None, typer.Option(
         help="Planned interaction time [s from the first sample].")] = None,
-    condition: Annotated[str, typer.Option(help="static or dynamic.")] = "static",
-    target_pose: Annotated[str | None, typer.Option(help="Dynamic: target pose.")] = None,
+    condition: Annotated[Condition, typer.Option(help="Protocol condition.")] = "static",
+    target_pose: Annotated[Pose | None, typer.Option(help="Dynamic: target pose.")] = None,
     link: Annotated[int | None, typer.Option(help="Touched link 1-7.")] = None,
     operator: Annotated[str, typer.Option(help="Who touched the robot.")] = "",
     hand: Annotated[bool, typer.Option(help="The robot carried its hand.")] = True,
     out: Annotated[Path, typer.Option(help="Output directory.")] = Path("sessions"),
 ) -> None:
     """Convert a CAN log into a validated session and print its path."""
-    fmap = load_map(can_map)
-    meta = protocol_meta(source="can-log", action=action, condition=condition, pose=pose,
-                         target_pose=target_pose, speed_rad_s=None, link=link,
-                         planned_at_s=planned_at, operator=operator, with_hand=hand)
-    directory = _out_dir(out)
-    path = import_can_log(log, fmap, meta, directory, session_filename(meta))
-    info = validate_session(path).meta.source_info
-    err_console.print(f"{info['samples']} samples from {info['frames']} frames; "
-                      f"{info['incomplete_samples']} incomplete, {info['lost_syncs']} lost "
-                      f"SYNCs, {info['unknown_ids']} unknown ids, {info['bad_lengths']} bad "
-                      f"lengths, {info['duplicates']} duplicates")
+    meta = session_meta(source="can-log", action=action, condition=condition, pose=pose,
+                        target_pose=target_pose, link=link, planned_at_s=planned_at,
+                        operator=operator, with_hand=hand)
+    path = import_can_log(log, load_map(can_map), meta, output_directory(out),
+                          session_filename(meta))
+    stats = read_session(path).meta.source_info
+    err_console.print(f"{stats['samples']} samples from {stats['frames']} frames; "
+                      f"{stats['incomplete_samples']} incomplete, {stats['lost_syncs']} lost "
+                      f"SYNCs, {stats['unknown_ids']} unknown ids, {stats['bad_lengths']} bad "
+                      f"lengths, {stats['duplicates']} duplicates")
     print(path)
 
 
@@ -376,14 +218,11 @@ def can_bridge_command(
 ) -> None:
     """Publish a recorded or simulated session onto a CAN bus per the frame map (or into
     a CAN log), to test a CAN setup end to end without a robot."""
-    if rate is not None and rate <= 0:
-        raise InputError(f"--rate must be positive, got {rate}")
     if log is None and not channel:
-        raise InputError("give --channel (and --interface) for a bus, or --log FILE")
-    fmap = load_map(can_map)
+        raise typer.BadParameter("give --channel (and --interface) for a bus, or --log FILE")
     recorded = read_session(session)
     bus = None if log is not None else BusConfig(interface, channel)
-    sent = bridge_session(recorded, fmap, bus=bus, log=log, rate=rate)
+    sent = bridge_session(recorded, load_map(can_map), bus=bus, log=log, rate=rate)
     err_console.print(f"{sent} frames ({recorded.n_samples} samples) sent"
                       + (f" to {log}" if log else f" on {interface}:{channel}"))
 
@@ -397,27 +236,8 @@ def info_command(
     info = session_info(session)
     if as_json:
         print(json.dumps(info, indent=2, default=str))
-        return
-    console = Console()
-    meta, s = info["metadata"], info["sampling"]
-    table = Table(title=str(session), show_header=False, title_justify="left")
-    for key in ("session_id", "source", "condition", "pose", "target_pose", "speed_rad_s",
-                "action", "link", "planned_at_s", "operator", "with_hand", "recovered",
-                "recovered_samples", "created_utc", "notes"):
-        if meta.get(key) not in (None, ""):
-            table.add_row(key, str(meta[key]))
-    table.add_row("samples", str(s["samples"]))
-    table.add_row("duration", f"{s['duration_s']:.3f} s")
-    table.add_row("rate", f"{s['rate_hz']:.1f} Hz (median step {s['median_step_s'] * 1e3:.3f} "
-                          f"ms, min {s['min_step_s'] * 1e3:.3f}, max {s['max_step_s'] * 1e3:.3f})")
-    table.add_row("gaps", f"{s['gaps']} longer than 3x median (~{s['dropped_estimate']} "
-                          "samples missing)")
-    if info["contact_interval_s"]:
-        lo, hi = info["contact_interval_s"]
-        table.add_row("contact", f"{lo:.3f} s to {hi:.3f} s, peak {info['peak_force_n']:.1f} N")
-    elif info["peak_force_n"] is not None:
-        table.add_row("contact", "none")
-    console.print(table)
+    else:
+        print_info(info, Console())
 
 
 def _print_problems(problems: list[tuple[str, str]]) -> None:

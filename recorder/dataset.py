@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from contactkit.recorder.capture import session_filename, sim_session_meta
+from contactkit.recorder.metadata import session_filename
 from contactkit.recorder.protocol import POSES, START_POSE
 from contactkit.recorder.sim import PandaSimulator, SessionSpec, SimConfig, plan_session
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
@@ -114,8 +114,7 @@ def simulate_specs(specs: list[SessionSpec], config: SimConfig, out_dir: str | P
         if finished:
             chunks = parts.pop(index)
             data = {name: np.concatenate([c[name] for c in chunks]) for name in SIM_COLUMNS}
-            source = SimSource(specs[index], config)
-            meta = sim_session_meta(specs[index], config, source.metadata())
+            meta = SimSource(specs[index], config).session_meta()
             path = Path(out_dir) / session_filename(meta)
             if not path.exists():
                 write_session(path, data, meta)
@@ -152,11 +151,11 @@ def simulate_dataset(out_dir: str | Path, preset_name: str, sessions: int | None
     config = config or SimConfig(rate_hz=preset.rate_hz, robot_seed=preset.robot_seed)
     count = preset.sessions if sessions is None else sessions
     if count < 1:
-        raise InputError(f"--sessions must be at least 1, got {count}")
+        raise InputError(f"a dataset needs at least 1 session, got {count}")
     specs = preset_specs(preset, count, seed, config.with_hand, variability)
     todo = []
     for spec in specs:
-        meta = sim_session_meta(spec, config, SimSource(spec, config).metadata())
+        meta = SimSource(spec, config).session_meta()
         if not (out_dir / session_filename(meta)).exists():
             todo.append(spec)
     done = len(specs) - len(todo)

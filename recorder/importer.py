@@ -8,10 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from contactkit.features.dynamics import urdf_sha256
 from contactkit.recorder.arrays import load_joint_arrays
-from contactkit.recorder.capture import session_filename, tool_version, utc_now
-from contactkit.schemas import InputError, SessionMeta, joint_columns, new_session_id, write_session
+from contactkit.recorder.metadata import session_filename, session_meta
+from contactkit.schemas import InputError, SessionMeta, joint_columns, write_session
 
 _FIELDS = {f.name: f for f in fields(SessionMeta)}
 _NOT_SETTABLE = {"schema_version", "recovered", "recovered_samples", "simulator", "source_info",
@@ -27,7 +26,7 @@ def parse_meta(pairs: list[str]) -> dict:
         key = key.strip()
         if not sep or key not in _FIELDS or key in _NOT_SETTABLE:
             settable = sorted(set(_FIELDS) - _NOT_SETTABLE)
-            raise InputError(f"bad --meta {pair!r} (expected KEY=VALUE with KEY one of "
+            raise InputError(f"bad metadata pair {pair!r} (expected KEY=VALUE with KEY one of "
                              f"{', '.join(settable)})")
         try:
             value = json.loads(raw)
@@ -64,15 +63,13 @@ def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out
                   meta_pairs: list[str], name: str | None = None) -> Path:
     """Write a validated session from array files; return its path."""
     arrays = load_joint_arrays(t_path, q_path, dq_path, tau_path)
-    doc = {"action": "none", "source": "arrays", "session_id": new_session_id(),
-           **parse_meta(meta_pairs)}
-    with_hand = bool(doc.get("with_hand", True))
-    meta = SessionMeta(**doc)
-    meta.with_hand = with_hand
-    meta.created_utc = utc_now()
-    meta.urdf_sha256 = urdf_sha256(with_hand)
-    meta.tool_version = tool_version()
-    meta.source_info = {"imported_from": [str(p) for p in (t_path, q_path, dq_path, tau_path)]}
+    doc = {"action": "none", "source": "arrays", **parse_meta(meta_pairs)}
+    for key, name in (("pose_q", "pose_q_rad"), ("target_q", "target_q_rad")):
+        if key in doc:
+            doc[name] = doc.pop(key)
+    doc["with_hand"] = bool(doc.get("with_hand", True))
+    meta = session_meta(**doc, source_info={
+        "imported_from": [str(p) for p in (t_path, q_path, dq_path, tau_path)]})
     columns = {"t": arrays["t"]}
     for prefix in ("q", "dq", "tau"):
         for col, values in zip(joint_columns(prefix), arrays[prefix].T, strict=True):

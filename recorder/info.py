@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from rich.console import Console
+from rich.table import Table
 
 from contactkit.schemas import Session, validate_session
 from contactkit.schemas.timing import sampling_stats
@@ -41,3 +43,26 @@ def session_info(path: str | Path) -> dict:
         "contact_interval_s": contact_interval(session),
         "peak_force_n": peak_force_n(session),
     }
+
+
+def print_info(info: dict, console: Console) -> None:
+    """Print what :func:`session_info` returns as a table: metadata, sampling, contact."""
+    meta, s = info["metadata"], info["sampling"]
+    table = Table(title=info["file"], show_header=False, title_justify="left")
+    for key in ("session_id", "source", "condition", "pose", "target_pose", "speed_rad_s",
+                "action", "link", "planned_at_s", "operator", "with_hand", "recovered",
+                "recovered_samples", "created_utc", "notes"):
+        if meta.get(key) not in (None, ""):
+            table.add_row(key, str(meta[key]))
+    table.add_row("samples", str(s["samples"]))
+    table.add_row("duration", f"{s['duration_s']:.3f} s")
+    table.add_row("rate", f"{s['rate_hz']:.1f} Hz (median step {s['median_step_s'] * 1e3:.3f} "
+                          f"ms, min {s['min_step_s'] * 1e3:.3f}, max {s['max_step_s'] * 1e3:.3f})")
+    table.add_row("gaps", f"{s['gaps']} longer than 3x median (~{s['dropped_estimate']} "
+                          "samples missing)")
+    if info["contact_interval_s"]:
+        lo, hi = info["contact_interval_s"]
+        table.add_row("contact", f"{lo:.3f} s to {hi:.3f} s, peak {info['peak_force_n']:.1f} N")
+    elif info["peak_force_n"] is not None:
+        table.add_row("contact", "none")
+    console.print(table)

@@ -7,23 +7,30 @@ operator cue (countdown and the planned time) as text events.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from pathlib import Path
+
 import numpy as np
 import rerun as rr
 
 from contactkit.features.dynamics import viewer_urdf_file
 from contactkit.schemas import SessionMeta, joint_columns
 from contactkit.schemas import rerun_layout as layout
+from contactkit.schemas.rerun_layout import capture_blueprint
+from contactkit.util.viewer import has_display, start_web_viewer
 
 ROBOT_VIEW_HZ = 60.0
+PANDA_RATE_HZ = 1000.0
 
 
 class CaptureViewer:
     """Logs a capture to a recording stream; use :meth:`on_chunk` as a capture callback."""
 
-    def __init__(self, rec: rr.RecordingStream, meta: SessionMeta, rate_hz: float) -> None:
+    def __init__(self, rec: rr.RecordingStream, meta: SessionMeta,
+                 rate_hz: float | None) -> None:
         self.rec = rec
         self.sample = 0
-        self.stride = max(1, round(rate_hz / ROBOT_VIEW_HZ))
+        self.stride = max(1, round((rate_hz or PANDA_RATE_HZ) / ROBOT_VIEW_HZ))
         layout.log_series_styles(rec)
         self.tree = layout.log_robot_model(rec, viewer_urdf_file(meta.with_hand))
         rec.send_property("session", rr.AnyValues(session_id=meta.session_id, pose=meta.pose,
@@ -53,3 +60,31 @@ class CaptureViewer:
         keep = sample % self.stride == 0
         if keep.any():
             layout.log_joint_transforms(self.rec, self.tree, t[keep], sample[keep], q[keep])
+
+    def close(self) -> None:
+        """Flush the recording and disconnect from the viewer."""
+        self.rec.flush()
+        self.rec.disconnect()
+
+
+def open_live_view(viewer: str, save_rrd: Path | None, meta: SessionMeta,
+                   rate_hz: float | None, say: Callable[[str], None]) -> CaptureViewer | None:
+    """Return a live Rerun view of a capture at ``rate_hz`` [Hz] (None: the Panda's 1 kHz)
+    in ``viewer`` (rerun, web or none) and/or saved to ``save_rrd``; None when neither
+    is asked for. ``say`` receives notes for the person (the web viewer's address)."""
+    if viewer == "none" and save_rrd is None:
+        return None
+    rec = rr.RecordingStream("contactkit-capture", recording_id=meta.session_id)
+    blueprint = capture_blueprint()
+    if save_rrd is not None:
+        rec.save(save_rrd, default_blueprint=blueprint)
+    if viewer == "rerun":
+        if has_display():
+            rec.spawn(default_blueprint=blueprint)
+        else:
+            say("no display for the native viewer: use the web viewer or save an .rrd file")
+    elif viewer == "web":
+        _, url, page = start_web_viewer()
+        say(f"web viewer: {page}")
+        rec.connect_grpc(url, default_blueprint=blueprint)
+    return CaptureViewer(rec, meta, rate_hz)

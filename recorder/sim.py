@@ -171,7 +171,7 @@ def plan_session(*, seed: int, condition: str, action: str, pose: str,
                            lo, hi)
         motion_s = motion_duration_s(q_start, q_target, speed_rad_s)
     elif target_pose is not None or speed_rad_s is not None:
-        raise InputError("--target-pose and --speed need --condition dynamic")
+        raise InputError("a target pose and a speed need the dynamic condition")
     timing = default_timing(condition, motion_s)
     duration = timing.duration_s if duration_s is None else duration_s
     if duration <= 0:

@@ -12,7 +12,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contactkit.recorder.capture import sim_session_meta
 from contactkit.recorder.sim import SimConfig, plan_session
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
 from contactkit.schemas import write_session
@@ -34,7 +33,7 @@ def make_session(directory: Path, *, seed: int = 3, action: str = "shove", pose:
     config = SimConfig(rate_hz=rate_hz)
     spec = plan_session(seed=seed, condition="static", action=action, pose=pose, link=link,
                         duration_s=duration_s, planned_at_s=planned_at_s, **kwargs)
-    meta = sim_session_meta(spec, config, SimSource(spec, config).metadata())
+    meta = SimSource(spec, config).session_meta()
     path = directory / f"{action}_{seed}.parquet"
     write_session(path, simulate_columns(spec, config), meta)
     return path

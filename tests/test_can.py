@@ -20,8 +20,9 @@ from contactkit.recorder.can_codec import (
 )
 from contactkit.recorder.can_map import load_map
 from contactkit.recorder.can_tools import bridge_session, read_log
-from contactkit.recorder.capture import capture, protocol_meta
+from contactkit.recorder.capture import capture
 from contactkit.recorder.journal import recover_directory
+from contactkit.recorder.metadata import session_meta
 from contactkit.recorder.sources.can import BusConfig, CanSource
 from contactkit.schemas import InputError, read_session, validate_session
 from contactkit.schemas.timing import sampling_stats
@@ -38,9 +39,8 @@ def source_session(tmp_path_factory) -> Path:
 
 
 def _meta():
-    return protocol_meta(source="can", action="shove", condition="static", pose="C",
-                         target_pose=None, speed_rad_s=None, link=6, planned_at_s=1.0,
-                         operator="test", with_hand=True)
+    return session_meta(source="can", action="shove", pose="C", link=6, planned_at_s=1.0,
+                        operator="test")
 
 
 def _assert_quantised_equal(got, want) -> None:
@@ -155,15 +155,17 @@ def test_silent_bus_ends_capture_and_keeps_data(tmp_path: Path) -> None:
 
 def test_can_capture_killed_midway_recovers(source_session: Path, tmp_path: Path) -> None:
     helper = (
-        "import sys, threading, time\n"
+        "import pathlib, sys, threading, time\n"
         "from contactkit.recorder.can_map import load_map\n"
         "from contactkit.recorder.can_tools import bridge_session\n"
         "from contactkit.recorder.cli import main\n"
         "from contactkit.recorder.sources.can import BusConfig\n"
-        "from schemas import read_session\n"
+        "from contactkit.schemas import read_session\n"
         f"s = read_session({str(source_session)!r})\n"
         "def feed():\n"
-        "    time.sleep(0.5)\n"
+        f"    while not list(pathlib.Path({str(tmp_path)!r}).glob('*.journal')):\n"
+        "        time.sleep(0.05)\n"
+        "    time.sleep(0.3)\n"
         "    for _ in range(5):\n"
         "        bridge_session(s, load_map(), bus=BusConfig('virtual', 'kill'), rate=1.0)\n"
         "threading.Thread(target=feed, daemon=True).start()\n"

@@ -41,13 +41,13 @@ def test_capture_dynamic_options(tmp_path: Path) -> None:
 
 
 BAD = [
-    (["--pose", "Z", "--action", "bump"], "unknown pose 'Z'"),
-    (["--pose", "A", "--action", "hug"], "unknown action 'hug'"),
+    (["--pose", "Z", "--action", "bump"], "'Z' is not one of"),
+    (["--pose", "A", "--action", "hug"], "'hug' is not one of"),
     (["--pose", "A", "--action", "bump", "--link", "0"], "unknown link 0"),
     (["--pose", "A", "--action", "bump", "--duration", "-2"], "duration must be positive"),
     (["--pose", "A", "--action", "bump", "--planned-at", "30"], "outside the session"),
     (["--pose", "A", "--action", "bump", "--rate", "0"], "rate must be between"),
-    (["--pose", "A", "--action", "bump", "--source", "ros"], "unknown source 'ros'"),
+    (["--pose", "A", "--action", "bump", "--source", "ros"], "'ros' is not one of"),
     (["--pose", "A"], "Missing option '--action'"),
 ]
 

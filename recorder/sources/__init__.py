@@ -1,28 +1,104 @@
 """Data sources, chosen by name (like python-can's interface registry).
 
-A source is a small class implementing :class:`contactkit.recorder.sources.base.Source`; a
-new robot is one new module here and one line in ``SOURCES``.
+A source is one class (subclass of :class:`Source`) that owns everything about
+where samples come from:
+
+* ``name``: the name ``recorder capture --source NAME`` selects it by;
+* ``Config``: a dataclass whose fields are its options. ``recorder capture`` offers
+  each field as ``--field-name VALUE`` (``--flag/--no-flag`` for a bool), with the
+  help, unit and default taken from the field (``metadata={"help": ..., "unit":
+  ...}``, see :mod:`contactkit.recorder.sources.options`); ``recorder sources``
+  lists every source with its options;
+* ``from_config(config, choices)``: builds the source from its options and the
+  protocol choices (:class:`ProtocolChoices`: pose, action, timing, operator...);
+* ``stream()``: yields chunks of session columns (``t`` in s, then ``q_1..``);
+* ``metadata()``: the fields it contributes to the session metadata (``source``,
+  ``source_info`` with its statistics, ``simulator``), asked again after the stream.
+
+Built-in sources are listed in ``SOURCES``. A lab adds its arm from its own package
+without touching contactkit: it declares an entry point in the group
+``contactkit.sources``, for example in its ``pyproject.toml``::
+
+    [project.entry-points."contactkit.sources"]
+    myarm = "mylab.myarm:MyArmSource"
+
+after which ``recorder capture --source myarm --my-option 3 --pose B --action adjust``
+works. A source module should import heavy or optional packages (robot SDKs) inside
+``from_config`` or ``stream``, since the CLI imports every source to list its options.
 """
 
 from __future__ import annotations
 
 import importlib
+import importlib.metadata
+import inspect
 
-from contactkit.recorder.sources.base import Source
+from contactkit.recorder.sources.base import ProtocolChoices, Source
+from contactkit.recorder.sources.options import SourceOption, make_config, source_options
 from contactkit.schemas import InputError
 
+ENTRY_POINT_GROUP = "contactkit.sources"
 SOURCES: dict[str, str] = {
     "sim": "contactkit.recorder.sources.sim:SimSource",
     "can": "contactkit.recorder.sources.can:CanSource",
 }
 
 
+def registered_sources() -> dict[str, str]:
+    """Return every source name with its ``module:Class``: the built-in ones, then those
+    that installed packages declare in the ``contactkit.sources`` entry-point group (a
+    built-in name cannot be taken over)."""
+    found = dict(SOURCES)
+    for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        found.setdefault(entry.name, entry.value)
+    return found
+
+
+def _load(name: str, target: str) -> type[Source]:
+    module, _, attr = target.partition(":")
+    try:
+        cls = getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError) as err:
+        raise InputError(f"source {name!r} ({target}) cannot be loaded: {err}") from err
+    if not (inspect.isclass(cls) and issubclass(cls, Source)) or inspect.isabstract(cls):
+        raise InputError(f"source {name!r} ({target}) is not a complete Source subclass")
+    try:
+        source_options(cls.Config)
+    except (AttributeError, TypeError, NameError) as err:
+        raise InputError(f"source {name!r} ({target}) has no usable Config dataclass: "
+                         f"{err}") from err
+    return cls
+
+
 def source_class(name: str) -> type[Source]:
-    """Return the source class registered under ``name``, or raise InputError."""
-    if name not in SOURCES:
-        raise InputError(f"unknown source {name!r} (available: {', '.join(SOURCES)})")
-    module, cls = SOURCES[name].split(":")
-    return getattr(importlib.import_module(module), cls)
+    """Return the source class registered under ``name``; raise InputError for an unknown
+    name or a source that cannot be loaded."""
+    found = registered_sources()
+    if name not in found:
+        raise InputError(f"unknown source {name!r} (available: {', '.join(found)})")
+    return _load(name, found[name])
 
 
-__all__ = ["SOURCES", "Source", "source_class"]
+def load_sources() -> tuple[dict[str, type[Source]], dict[str, str]]:
+    """Return the loadable sources by name, and the problem of each one that is not (a
+    broken plugin must not break the others)."""
+    classes: dict[str, type[Source]] = {}
+    problems: dict[str, str] = {}
+    for name, target in registered_sources().items():
+        try:
+            classes[name] = _load(name, target)
+        except InputError as err:
+            problems[name] = str(err)
+    return classes, problems
+
+
+def open_source(name: str, options: dict, choices: ProtocolChoices) -> Source:
+    """Return source ``name`` built from ``options`` (values keyed by ``Config`` field
+    name; None means the default) and the protocol ``choices``."""
+    cls = source_class(name)
+    return cls.from_config(make_config(name, cls.Config, options), choices)
+
+
+__all__ = ["ENTRY_POINT_GROUP", "SOURCES", "ProtocolChoices", "Source", "SourceOption",
+           "load_sources", "open_source", "registered_sources", "source_class",
+           "source_options"]

@@ -14,14 +14,16 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import can
 import numpy as np
 
 from contactkit.recorder.can_codec import COLUMNS, SampleAssembler, rows_to_columns
-from contactkit.recorder.can_map import FrameMap
+from contactkit.recorder.can_map import FrameMap, load_map
+from contactkit.recorder.sources.base import ProtocolChoices, Source
 from contactkit.schemas import InputError
 
 CHUNK_S = 0.01
@@ -53,16 +55,37 @@ class Cue:
     planned_at_s: float
 
 
-class CanSource:
+class CanSource(Source):
     """Samples from a live CAN bus, decoded with a frame map."""
 
     name = "can"
     columns = COLUMNS
     live = True
 
+    @dataclass(frozen=True)
+    class Config:
+        """Options of a CAN bus source."""
+
+        channel: str = field(metadata={"help": "Bus channel, e.g. can0."})
+        interface: str = field(default="socketcan", metadata={
+            "help": "python-can interface (virtual, socketcan, pcan, kvaser, ...)."})
+        map_file: Path | None = field(default=None, metadata={
+            "name": "map", "help": "Frame map TOML (default: CANopen CiA 402, "
+                                   "recorder/data/can_default_map.toml)."})
+        timeout: float = field(default=1.0, metadata={
+            "help": "End the capture when the bus is silent this long.", "unit": "s"})
+        cue_id: str | None = field(default=None, metadata={
+            "help": "Send a cue frame with this id (e.g. 0x700) at the planned time, for a "
+                    "lamp or buzzer; its bus time goes into the metadata."})
+        cue_data: str = field(default="01", metadata={"help": "Cue frame payload, hex."})
+
     def __init__(self, bus: BusConfig, fmap: FrameMap, duration_s: float,
                  timeout_s: float = 1.0, cue: Cue | None = None,
-                 first_frame_timeout_s: float = 30.0) -> None:
+                 first_frame_timeout_s: float = 30.0,
+                 choices: ProtocolChoices | None = None) -> None:
+        self.choices = choices or ProtocolChoices(action="none")
+        self.planned_at_s = cue.planned_at_s if cue is not None else \
+            self.choices.timing()[0]
         self.bus_config = bus
         self.fmap = fmap
         self.duration_s = duration_s
@@ -72,6 +95,20 @@ class CanSource:
         self.assembler = SampleAssembler(fmap)
         self.end_reason = ""
         self.cue_time_s: float | None = None
+
+    @classmethod
+    def from_config(cls, config: CanSource.Config, choices: ProtocolChoices) -> CanSource:
+        """Return the bus source for options ``config``, ending at the session duration."""
+        planned, duration = choices.timing()
+        cue = None
+        if config.cue_id is not None:
+            try:
+                cue = Cue(int(config.cue_id, 0), bytes.fromhex(config.cue_data), planned)
+            except ValueError as err:
+                raise InputError(f"bad cue frame id {config.cue_id!r} or payload "
+                                 f"{config.cue_data!r} ({err})") from err
+        return cls(BusConfig(config.interface, config.channel), load_map(config.map_file),
+                   duration, config.timeout, cue, choices=choices)
 
     def stream(self) -> Iterator[dict[str, np.ndarray]]:
         """Yield chunks of samples until the duration is reached or the bus goes silent."""

@@ -2,30 +2,93 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
+import secrets
 from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from contactkit.recorder.sim import PandaSimulator, SessionSpec, SimConfig
-from contactkit.schemas import joint_columns
+from contactkit.recorder.metadata import session_meta
+from contactkit.recorder.noise import SensorNoise, default_noise
+from contactkit.recorder.sim import PandaSimulator, SessionSpec, SimConfig, plan_session
+from contactkit.recorder.sources.base import ProtocolChoices, Source
+from contactkit.schemas import InputError, SessionMeta, joint_columns
 
 SIM_COLUMNS = ["t", *joint_columns("q"), *joint_columns("dq"), *joint_columns("tau"),
                *joint_columns("q_d"), *joint_columns("dq_d"), "f_ext_x", "f_ext_y", "f_ext_z",
                "contact"]
 
 
-class SimSource:
+def sim_session_id(spec: SessionSpec, config: SimConfig) -> str:
+    """Return a session id determined by the spec and configuration (same seed, same id)."""
+    doc = json.dumps({"spec": spec.as_dict(), "config": config.to_dict()}, sort_keys=True)
+    return hashlib.sha256(doc.encode()).hexdigest()[:16]
+
+
+class SimSource(Source):
     """One simulated session, streamed in chunks of ``chunk`` samples."""
 
     name = "sim"
     columns = SIM_COLUMNS
     live = False
 
-    def __init__(self, spec: SessionSpec, config: SimConfig, chunk: int = 10) -> None:
+    @dataclass(frozen=True)
+    class Config:
+        """Options of the simulated Panda."""
+
+        rate: float = field(default=1000.0, metadata={
+            "help": "Sample rate (the thesis recorded at ~600).", "unit": "Hz"})
+        seed: int | None = field(default=None, metadata={
+            "help": "Random seed; the same seed gives the same data (default: random, stored "
+                    "in the metadata)."})
+        robot_seed: int = field(default=0, metadata={
+            "help": "Simulated robot instance (its true inertia and friction)."})
+        noise_file: Path | None = field(default=None, metadata={
+            "help": "Sensor-noise JSON (from recorder stats --deep); default: measured on "
+                    "the real Panda reference recording."})
+        noise_scale: float = field(default=1.0, metadata={
+            "help": "Multiply the sensor noise."})
+        jitter_ms: float = field(default=0.0, metadata={
+            "help": "Time-stamp jitter, uniform +-.", "unit": "ms"})
+        drop_prob: float = field(default=0.0, metadata={
+            "help": "Probability of losing a sample."})
+
+    def __init__(self, spec: SessionSpec, config: SimConfig, chunk: int = 10,
+                 choices: ProtocolChoices | None = None) -> None:
         self.spec = spec
         self.config = config
         self.chunk = chunk
+        self.choices = choices or ProtocolChoices(
+            action=spec.action, pose=spec.pose, condition=spec.condition,
+            operator=spec.operator, with_hand=config.with_hand)
+        self.planned_at_s = spec.planned_at_s
+        self.duration_s = spec.duration_s
+        self.nominal_rate_hz = config.rate_hz
+
+    @classmethod
+    def from_config(cls, config: SimSource.Config, choices: ProtocolChoices) -> SimSource:
+        """Return the simulated session planned from ``choices`` with options ``config``."""
+        if config.noise_scale < 0:
+            raise InputError(f"noise scale must be >= 0, got {config.noise_scale}")
+        if choices.pose is None:
+            raise InputError("the simulator needs a start pose")
+        noise = default_noise() if config.noise_file is None else \
+            SensorNoise.from_file(config.noise_file)
+        sim_config = SimConfig(rate_hz=config.rate, with_hand=choices.with_hand,
+                               robot_seed=config.robot_seed, noise=noise,
+                               noise_scale=config.noise_scale,
+                               jitter_s=config.jitter_ms / 1000.0, drop_prob=config.drop_prob)
+        seed = secrets.randbits(63) if config.seed is None else config.seed
+        spec = plan_session(seed=seed, condition=choices.condition, action=choices.action,
+                            pose=choices.pose, target_pose=choices.target_pose,
+                            speed_rad_s=choices.speed_rad_s, link=choices.link,
+                            planned_at_s=choices.planned_at_s, duration_s=choices.duration_s,
+                            operator=choices.operator or "sim", with_hand=choices.with_hand)
+        return cls(spec, sim_config, choices=choices)
 
     def stream(self) -> Iterator[dict[str, np.ndarray]]:
         """Yield the session's rows, ``chunk`` samples at a time."""
@@ -37,3 +100,16 @@ class SimSource:
         return {"source": self.name,
                 "simulator": {"seed": self.spec.seed, "config": self.config.to_dict(),
                               "session": self.spec.as_dict()}}
+
+    def session_meta(self) -> SessionMeta:
+        """Return the metadata of the simulated session: the spec's resolved choices (the
+        jittered pose actually simulated, the drawn link), an id determined by spec and
+        configuration, and the simulator's parameters."""
+        spec = self.spec
+        return session_meta(
+            session_id=sim_session_id(spec, self.config), action=spec.action,
+            condition=spec.condition, pose=spec.pose, pose_q_rad=spec.q_start,
+            target_pose=spec.target_pose, target_q_rad=spec.q_target,
+            speed_rad_s=spec.speed_rad_s, link=spec.link, planned_at_s=spec.planned_at_s,
+            nominal_rate_hz=self.config.rate_hz, operator=spec.operator,
+            notes=self.choices.notes, with_hand=self.config.with_hand, **self.metadata())

@@ -1,0 +1,175 @@
+"""``recorder capture``: the protocol's options plus every registered source's options.
+
+The command is built when the CLI starts: each source's ``Config`` fields become
+options (``--field-name``) in a help panel of their own, so a source installed from
+another package (entry-point group ``contactkit.sources``) shows up in ``recorder
+capture --help`` without changes here. An option several sources declare with the
+same type is shared; an option that clashes with a protocol option or with another
+source's option of another type makes that source unusable, which ``recorder
+sources`` reports.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import typer
+
+from contactkit.recorder.capture import OperatorCue, capture, output_directory
+from contactkit.recorder.live_view import open_live_view
+from contactkit.recorder.metadata import session_filename
+from contactkit.recorder.protocol import POSES
+from contactkit.recorder.sources import ProtocolChoices, Source, open_source, source_options
+from contactkit.schemas import ACTIONS, InputError
+from contactkit.util.progress import err_console
+
+Viewer = Literal["rerun", "web", "none"]
+Condition = Literal["static", "dynamic"]
+Action = Literal[ACTIONS]  # type: ignore[valid-type]
+Pose = Literal[tuple(POSES)]  # type: ignore[valid-type]
+
+
+@dataclass
+class SharedOption:
+    """A source option on the command line and the sources that take it."""
+
+    param: str
+    flag: str
+    type: Any
+    help: str
+    fields: dict[str, str] = field(default_factory=dict)
+    """Source name -> its ``Config`` field behind this option."""
+
+
+def _protocol_parameters(source_names: list[str]) -> list[inspect.Parameter]:
+    source_type = Literal[tuple(source_names)]  # type: ignore[valid-type]
+    spec: list[tuple[str, Any, Any, Any]] = [
+        ("pose", Pose, ..., typer.Option(help="Start pose (thesis Table 3.1).")),
+        ("action", Action, ..., typer.Option(help="What the person does.")),
+        ("source", source_type, "sim", typer.Option(
+            help="Where the samples come from (recorder sources lists each source's "
+                 "options): sim is the simulated Panda.")),
+        ("condition", Condition, "static", typer.Option(
+            help="static: hold the pose; dynamic: move to the target pose.")),
+        ("target_pose", Pose | None, None, typer.Option(
+            help="Dynamic condition: pose to move to (default D).")),
+        ("speed", float | None, None, typer.Option(
+            help="Dynamic condition: average speed of the furthest-moving joint [rad/s] "
+                 "(default 0.2).")),
+        ("link", int | None, None, typer.Option(
+            help="Link 1-7 to touch (default: random for a contact).")),
+        ("planned_at", float | None, None, typer.Option(
+            help="Planned interaction time [s from start] (default: thesis timing, 5 s "
+                 "static, mid-motion dynamic).")),
+        ("duration", float | None, None, typer.Option(
+            help="Session length [s] (default: 3 s hold + 4 s or the motion + 5 s hold).")),
+        ("operator", str, "", typer.Option(
+            help="Who touches the robot; in simulation, names a person with their own "
+                 "strength and tempo (default: sim).")),
+        ("hand", bool, True, typer.Option(help="The Panda carries its hand.")),
+        ("notes", str, "", typer.Option(help="Free text stored in the metadata.")),
+        ("out", Path, Path("sessions"), typer.Option(
+            help="Output directory (created if needed).")),
+        ("overwrite", bool, False, typer.Option(
+            help="Replace an existing session file with the same name.")),
+        ("realtime", bool, False, typer.Option(
+            help="Pace the capture at wall-clock speed and show the operator cue "
+                 "(countdown, then a bell at the planned time).")),
+        ("viewer", Viewer, "none", typer.Option(
+            help="Show the capture live: rerun (native viewer), web (browser, 127.0.0.1) "
+                 "or none.")),
+        ("save_rrd", Path | None, None, typer.Option(
+            help="Also write the live view to this .rrd file.")),
+    ]
+    return [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=default,
+                              annotation=Annotated[kind, option])
+            for name, kind, default, option in spec]
+
+
+def shared_options(sources: dict[str, type[Source]], taken: set[str]
+                   ) -> tuple[dict[str, SharedOption], dict[str, str]]:
+    """Return the source options by flag, and the problem of each source whose options
+    clash with ``taken`` flags or with another source's option of another type."""
+    options: dict[str, SharedOption] = {}
+    problems: dict[str, str] = {}
+    for name, cls in sources.items():
+        declared = source_options(cls.Config)
+        clash = [o.name for o in declared if "--" + o.name in taken or (
+            "--" + o.name in options and options["--" + o.name].type != o.type)]
+        if clash:
+            problems[name] = f"source {name!r}: option(s) {', '.join(clash)} clash with " \
+                             "another option"
+            continue
+        for opt in declared:
+            flag = "--" + opt.name
+            shared = options.setdefault(flag, SharedOption(
+                "opt_" + opt.name.replace("-", "_"), flag, opt.type, opt.describe()))
+            shared.fields[name] = opt.field
+    return options, problems
+
+
+def _source_parameter(opt: SharedOption, first_source: str) -> inspect.Parameter:
+    names = ", ".join(opt.fields)
+    decl = f"{opt.flag}/--no-{opt.flag[2:]}" if opt.type is bool else opt.flag
+    info = typer.Option(decl, help=f"{opt.help} (source: {names})",
+                        rich_help_panel=f"Options of source {first_source}")
+    return inspect.Parameter(opt.param, inspect.Parameter.KEYWORD_ONLY, default=None,
+                             annotation=Annotated[opt.type | None, info])
+
+
+def capture_command(sources: dict[str, type[Source]], options: dict[str, SharedOption]
+                    ) -> Callable[..., None]:
+    """Return the ``capture`` command function for these sources and their options."""
+
+    def command(**values: Any) -> None:
+        """Record one session and print the written file's path.
+
+        Example: recorder capture --pose B --action adjust
+        """
+        name = values["source"]
+        chosen: dict[str, Any] = {}
+        for opt in options.values():
+            value = values[opt.param]
+            if name in opt.fields:
+                chosen[opt.fields[name]] = value
+            elif value is not None:
+                raise InputError(f"{opt.flag} is not an option of source {name!r} (it belongs "
+                                 f"to {', '.join(opt.fields)}); see recorder sources")
+        choices = ProtocolChoices(
+            action=values["action"], pose=values["pose"], condition=values["condition"],
+            target_pose=values["target_pose"], speed_rad_s=values["speed"],
+            link=values["link"], planned_at_s=values["planned_at"],
+            duration_s=values["duration"], operator=values["operator"],
+            with_hand=values["hand"], notes=values["notes"])
+        _record(open_source(name, chosen, choices), values)
+
+    params = _protocol_parameters(list(sources))
+    for opt in options.values():
+        params.append(_source_parameter(opt, next(iter(opt.fields))))
+    command.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
+    command.__annotations__ = {p.name: p.annotation for p in params}
+    return command
+
+
+def _record(source: Source, values: dict[str, Any]) -> None:
+    meta = source.session_meta()
+    out = output_directory(values["out"])
+    live = open_live_view(values["viewer"], values["save_rrd"], meta, source.nominal_rate_hz,
+                          err_console.print)
+    cue = None
+    if values["realtime"] or live is not None or source.live:
+        err_console.print(f"[bold]Recording[/] {meta.condition} pose {meta.pose}, "
+                          f"{meta.action} at {source.planned_at_s:.2f} s of "
+                          f"{source.duration_s:.1f} s")
+        cue = OperatorCue(source.planned_at_s, meta.action, meta.link,
+                          echo=None if live is None else live.cue)
+    result = capture(source, meta, out / session_filename(meta), realtime=values["realtime"],
+                     cue=cue, on_chunk=None if live is None else [live.on_chunk],
+                     overwrite=values["overwrite"])
+    if live is not None:
+        live.close()
+    print(result.path)

@@ -1,0 +1,78 @@
+"""Session metadata: the one place a session's metadata document is assembled.
+
+Every way of making a session (capture from any source, simulated datasets, array,
+CAN-log, CSV and bag imports) calls :func:`session_meta` with the protocol's choices
+and the fields its source contributes; the provenance (creation time, URDF hash,
+tool version, a fresh session id unless one is given) is added here.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+from collections.abc import Sequence
+from datetime import UTC, datetime
+from typing import Any
+
+from contactkit.features.dynamics import urdf_sha256
+from contactkit.recorder.protocol import check_action, check_condition, pose_q
+from contactkit.schemas import InputError, SessionMeta, new_session_id
+
+N_LINKS = 7
+
+
+def tool_version() -> str:
+    """Return the installed contactkit version."""
+    try:
+        return importlib.metadata.version("contactkit")
+    except importlib.metadata.PackageNotFoundError:
+        return "0+unknown"
+
+
+def utc_now() -> str:
+    """Return the current UTC time in ISO 8601 with a Z suffix."""
+    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+def session_meta(*, source: str, action: str, condition: str = "static",
+                 pose: str | None = None, target_pose: str | None = None,
+                 pose_q_rad: Sequence[float] | None = None,
+                 target_q_rad: Sequence[float] | None = None,
+                 speed_rad_s: float | None = None, link: int | None = None,
+                 planned_at_s: float | None = None, nominal_rate_hz: float | None = None,
+                 operator: str = "", notes: str = "", with_hand: bool = True,
+                 session_id: str | None = None, **source_fields: Any) -> SessionMeta:
+    """Return checked session metadata with its provenance filled in.
+
+    ``action``, ``condition`` and ``link`` (1-7) are checked (InputError otherwise).
+    Pose names are upper-cased; their joint values [rad] come from thesis Table 3.1
+    unless ``pose_q_rad``/``target_q_rad`` give the values actually used (a simulated
+    session's jittered pose). ``session_id`` defaults to a fresh random id.
+    ``source_fields`` are the fields a source contributes (``simulator``,
+    ``source_info``, ``recovered``...), passed to :class:`SessionMeta` as they are.
+    """
+    check_action(action)
+    check_condition(condition)
+    if link is not None and not 1 <= link <= N_LINKS:
+        raise InputError(f"unknown link {link} (expected 1..{N_LINKS})")
+    if pose_q_rad is None and pose is not None:
+        pose_q_rad = pose_q(pose)
+    if target_q_rad is None and target_pose is not None:
+        target_q_rad = pose_q(target_pose)
+    return SessionMeta(
+        session_id=session_id or new_session_id(), source=source, action=action,
+        condition=condition, pose=None if pose is None else pose.upper(),
+        pose_q=None if pose_q_rad is None else [float(v) for v in pose_q_rad],
+        target_pose=None if target_pose is None else target_pose.upper(),
+        target_q=None if target_q_rad is None else [float(v) for v in target_q_rad],
+        speed_rad_s=speed_rad_s, link=link, planned_at_s=planned_at_s,
+        nominal_rate_hz=nominal_rate_hz, operator=operator, notes=notes,
+        created_utc=utc_now(), with_hand=with_hand, urdf_sha256=urdf_sha256(with_hand),
+        tool_version=tool_version(), **source_fields)
+
+
+def session_filename(meta: SessionMeta) -> str:
+    """Return the file name of a session: condition, pose(s), action and short id."""
+    poses = meta.pose or "x"
+    if meta.target_pose:
+        poses += "to" + meta.target_pose
+    return f"{meta.condition}_{poses}_{meta.action}_{meta.session_id[:12]}.parquet"
