@@ -10,6 +10,7 @@ file with python-can's writers.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import can
@@ -25,6 +26,7 @@ from contactkit.recorder.can_map import FrameMap
 from contactkit.recorder.importer import write_imported_session
 from contactkit.recorder.sources.can import BusConfig
 from contactkit.schemas import InputError, Session, SessionMeta
+from contactkit.util.pacing import paced
 
 LOG_SUFFIXES = (".asc", ".blf", ".trc", ".csv", ".log", ".mf4", ".db")
 
@@ -67,10 +69,12 @@ def bridge_session(session: Session, fmap: FrameMap, *, bus: BusConfig | None = 
     they are written as fast as possible unless ``rate`` is given, time-stamped as
     they would be on the bus.
     """
+    if (bus is None) == (log is None):
+        raise InputError("publishing needs either a bus or a log file, not both")
+    if rate is not None and rate <= 0:
+        raise InputError(f"pacing rate must be positive, got {rate}")
     session = session.complete()
     values = session_values(session.q, session.dq, session.tau)
-    if (bus is None) == (log is None):
-        raise InputError("give either a bus (--interface/--channel) or --log")
     if log is not None:
         if log.suffix.lower() not in LOG_SUFFIXES:
             raise InputError(f"unknown log format {log.suffix!r}", log)
@@ -78,7 +82,7 @@ def bridge_session(session: Session, fmap: FrameMap, *, bus: BusConfig | None = 
         writer = can.Logger(log)
         sent = 0
         try:
-            for msg in _paced(session_frames(fmap, session.t, values, start), rate, start):
+            for msg in _paced(session_frames(fmap, session.t, values, start), rate):
                 writer.on_message_received(msg)
                 sent += 1
         finally:
@@ -89,7 +93,7 @@ def bridge_session(session: Session, fmap: FrameMap, *, bus: BusConfig | None = 
     sent = 0
     try:
         start = time.time()
-        for msg in _paced(session_frames(fmap, session.t, values, start), rate or 1.0, start):
+        for msg in _paced(session_frames(fmap, session.t, values, start), rate or 1.0):
             channel.send(msg)
             sent += 1
     finally:
@@ -105,10 +109,6 @@ def _drain(writer: can.Listener) -> None:
         time.sleep(0.02)
 
 
-def _paced(frames, rate: float | None, start: float):
-    for msg in frames:
-        if rate is not None:
-            delay = start + (msg.timestamp - start) / rate - time.time()
-            if delay > 0:
-                time.sleep(delay)
-        yield msg
+def _paced(frames: Iterator[can.Message], rate: float | None) -> Iterator[can.Message]:
+    """Return the frames paced at ``rate`` x real time by their time stamps [s]."""
+    return paced(frames, lambda msg: msg.timestamp, rate)

@@ -28,8 +28,8 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +40,7 @@ from contactkit.recorder.sim import PandaSimulator, SessionSpec, SimConfig, plan
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
 from contactkit.schemas import ACTIONS, InputError, write_session
 from contactkit.schemas.dataset import IndexResult, rebuild_index
+from contactkit.util.parallel import map_ordered
 
 OPERATORS = tuple(f"sim-op-{i}" for i in range(1, 6))
 MAX_BATCH = 32
@@ -173,12 +174,5 @@ def _run_batches(todo: list[SessionSpec], config: SimConfig, out_dir: Path,
                  workers: int) -> Iterator[list[str]]:
     size = max(1, min(MAX_BATCH, -(-len(todo) // max(workers, 1))))
     batches = [todo[i:i + size] for i in range(0, len(todo), size)]
-    if workers <= 1:
-        for batch in batches:
-            yield simulate_specs(batch, config, str(out_dir))
-        return
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(simulate_specs, batch, config, str(out_dir)) for batch in batches]
-        for future in as_completed(futures):
-            yield future.result()
-
+    return map_ordered(partial(simulate_specs, config=config, out_dir=str(out_dir)), batches,
+                       workers=workers)

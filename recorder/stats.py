@@ -23,7 +23,6 @@ from __future__ import annotations
 import hashlib
 import json
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -34,6 +33,7 @@ from contactkit.recorder.noise import SensorNoise
 from contactkit.recorder.stats_deep import session_summary
 from contactkit.schemas import ACTIONS, InputError
 from contactkit.schemas.dataset import INDEX_NAME, rebuild_index, session_files
+from contactkit.util.parallel import map_ordered
 
 SCHEMA_ID = "contactkit.schemas/stats_report/1"
 WINDOW_S = 0.5
@@ -133,20 +133,8 @@ def index_stats(index: pl.LazyFrame) -> dict:
 def deep_stats(paths: list[Path], workers: int,
                progress: Callable[[int, int], None] | None = None) -> dict:
     """Read every session in ``workers`` processes and aggregate the summaries."""
-    summaries: list[dict] = []
-    jobs = [str(p) for p in paths]
-    if workers <= 1:
-        for i, path in enumerate(jobs):
-            summaries.append(session_summary(path))
-            if progress:
-                progress(i + 1, len(jobs))
-    else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            chunk = max(1, len(jobs) // (workers * 16))
-            for i, summary in enumerate(pool.map(session_summary, jobs, chunksize=chunk)):
-                summaries.append(summary)
-                if progress:
-                    progress(i + 1, len(jobs))
+    summaries = list(map_ordered(session_summary, [str(p) for p in paths], workers=workers,
+                                 progress=progress))
     good = [s for s in summaries if "problem" not in s]
     problems = [{"file": s["file"], "problem": s["problem"]} for s in summaries
                 if "problem" in s]

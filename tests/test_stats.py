@@ -77,7 +77,11 @@ def test_deep_report_markdown_and_noise_file(dataset: Path, tmp_path: Path) -> N
 
 def test_deep_json_sections_and_html(dataset: Path, tmp_path: Path) -> None:
     out = tmp_path / "deep.json"
-    run_cli("recorder", "stats", str(dataset), "--deep", "--format", "json", "--out", str(out))
+    result = run_cli("recorder", "stats", str(dataset), "--deep", "--format", "json", "--out",
+                     str(out), "--workers", "2")
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == str(out)
+    assert (tmp_path / "deep_noise.json").is_file()
     report = json.loads(out.read_text())
     _check_required(json.loads(SCHEMA.read_text()), report)
     deep = report["deep"]
@@ -87,11 +91,13 @@ def test_deep_json_sections_and_html(dataset: Path, tmp_path: Path) -> None:
     peaks = {p["action"]: p["peak_residual_norm_nm"]["median"] for p in deep["peaks_by_class"]}
     assert peaks["shove"] > peaks["none"]
     html = tmp_path / "r.html"
-    run_cli("recorder", "stats", str(dataset), "--out", str(html))
+    result = run_cli("recorder", "stats", str(dataset), "--out", str(html))
+    assert result.returncode == 0, result.stderr
     page = html.read_text()
     assert page.startswith("<!doctype html>") and "data:image/png;base64," in page
     bad = run_cli("recorder", "stats", str(dataset), "--format", "pdf")
-    assert bad.returncode == 2 and "unknown format 'pdf'" in bad.stderr
+    assert bad.returncode == 2 and "'pdf' is not one of 'html', 'md', 'json'" in bad.stderr
+    assert len(bad.stderr.strip().splitlines()) == 1
 
 
 def test_under_represented_class_warns() -> None:
