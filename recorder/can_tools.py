@@ -61,6 +61,14 @@ def import_can_log(path: Path, fmap: FrameMap, meta: SessionMeta, out_dir: Path,
     return write_imported_session(columns, meta, out_dir, name)
 
 
+def decoding_summary(stats: dict) -> str:
+    """Return one line on a decoded log: samples, frames and each kind of fault counted."""
+    return (f"{stats['samples']} samples from {stats['frames']} frames; "
+            f"{stats['incomplete_samples']} incomplete, {stats['lost_syncs']} lost SYNCs, "
+            f"{stats['unknown_ids']} unknown ids, {stats['bad_lengths']} bad lengths, "
+            f"{stats['duplicates']} duplicates")
+
+
 def bridge_session(session: Session, fmap: FrameMap, *, bus: BusConfig | None = None,
                    log: Path | None = None, rate: float | None = None) -> int:
     """Send a session's frames onto a bus, or write them to ``log``; return the count.

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from contactkit.recorder.journal import SessionWriter
+from contactkit.recorder.metadata import session_filename
 from contactkit.recorder.sources.base import Source
 from contactkit.schemas import InputError, SessionMeta
 from contactkit.util.pacing import paced
@@ -95,3 +96,14 @@ def capture(source: Source, meta: SessionMeta, out_path: Path, *, realtime: bool
             setattr(writer.meta, key, value)
         path = writer.close()
     return CaptureResult(path=path, samples=writer.samples_written)
+
+
+def record_session(source: Source, out_dir: Path, *, meta: SessionMeta | None = None,
+                   **options) -> CaptureResult:
+    """Record one session from ``source`` into ``out_dir`` (created if needed) under its
+    standard file name; return the result. ``meta`` defaults to the source's
+    :meth:`~contactkit.recorder.sources.Source.session_meta`; ``options`` are those of
+    :func:`capture` (``realtime``, ``cue``, ``on_chunk``, ``overwrite``)."""
+    meta = meta or source.session_meta()
+    return capture(source, meta, output_directory(Path(out_dir)) / session_filename(meta),
+                   **options)

@@ -19,11 +19,16 @@ from typing import Annotated, Any, Literal
 
 import typer
 
-from contactkit.recorder.capture import OperatorCue, capture, output_directory
+from contactkit.recorder.capture import OperatorCue, output_directory, record_session
 from contactkit.recorder.live_view import open_live_view
-from contactkit.recorder.metadata import session_filename
 from contactkit.recorder.protocol import POSES
-from contactkit.recorder.sources import ProtocolChoices, Source, open_source, source_options
+from contactkit.recorder.sources import (
+    ProtocolChoices,
+    Source,
+    load_sources,
+    open_source,
+    source_options,
+)
 from contactkit.schemas import ACTIONS, InputError
 from contactkit.util.progress import err_console
 
@@ -155,6 +160,37 @@ def capture_command(sources: dict[str, type[Source]], options: dict[str, SharedO
     return command
 
 
+def _flags(params: list[inspect.Parameter]) -> set[str]:
+    """Return every flag the protocol parameters take (``--name`` and ``--no-name``)."""
+    names = {"--help"}
+    for p in params:
+        flag = "--" + p.name.replace("_", "-")
+        names |= {flag, "--no-" + flag[2:]}
+    return names
+
+
+def register_capture(app: typer.Typer) -> None:
+    """Add ``capture`` (for every usable source) and ``sources`` to the recorder app."""
+    classes, problems = load_sources()
+    protocol = _protocol_parameters(list(classes))
+    options, clashes = shared_options(classes, _flags(protocol))
+    problems |= clashes
+    usable = {k: v for k, v in classes.items() if k not in clashes}
+    app.command("capture")(capture_command(usable, options))
+
+    @app.command("sources")
+    def sources_command() -> None:
+        """List the data sources (built in or installed by other packages) and their
+        options, for recorder capture --source NAME."""
+        for name, cls in usable.items():
+            print(f"{name}: {(cls.__doc__ or '').strip().splitlines()[0]} "
+                  f"({cls.__module__}.{cls.__qualname__})")
+            for opt in source_options(cls.Config):
+                print(f"  --{opt.name}  {opt.describe()}")
+        for name, problem in problems.items():
+            print(f"{name}: unusable: {problem}")
+
+
 def _record(source: Source, values: dict[str, Any]) -> None:
     meta = source.session_meta()
     out = output_directory(values["out"])
@@ -167,9 +203,9 @@ def _record(source: Source, values: dict[str, Any]) -> None:
                           f"{source.duration_s:.1f} s")
         cue = OperatorCue(source.planned_at_s, meta.action, meta.link,
                           echo=None if live is None else live.cue)
-    result = capture(source, meta, out / session_filename(meta), realtime=values["realtime"],
-                     cue=cue, on_chunk=None if live is None else [live.on_chunk],
-                     overwrite=values["overwrite"])
+    result = record_session(source, out, meta=meta, realtime=values["realtime"], cue=cue,
+                            on_chunk=None if live is None else [live.on_chunk],
+                            overwrite=values["overwrite"])
     if live is not None:
         live.close()
     print(result.path)

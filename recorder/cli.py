@@ -12,26 +12,19 @@ import typer
 from rich.console import Console
 
 from contactkit.recorder.can_map import load_map
-from contactkit.recorder.can_tools import bridge_session, import_can_log
+from contactkit.recorder.can_tools import bridge_session, decoding_summary, import_can_log
 from contactkit.recorder.capture import output_directory
-from contactkit.recorder.capture_cli import (
-    Action,
-    Condition,
-    Pose,
-    capture_command,
-    shared_options,
-)
+from contactkit.recorder.capture_cli import Action, Condition, Pose, register_capture
 from contactkit.recorder.dataset import PRESETS, simulate_dataset
 from contactkit.recorder.importer import import_arrays
 from contactkit.recorder.info import print_info, session_info
 from contactkit.recorder.journal import recover_directory
 from contactkit.recorder.metadata import session_filename, session_meta
 from contactkit.recorder.sim import SimConfig
-from contactkit.recorder.sources import load_sources, source_options
 from contactkit.recorder.sources.can import BusConfig
 from contactkit.recorder.stats import build_report, write_noise_file
 from contactkit.recorder.stats_report import print_summary, write_report
-from contactkit.schemas import read_session
+from contactkit.schemas import InputError, read_session
 from contactkit.schemas.dataset import rebuild_index
 from contactkit.util.cli import new_app, run_app
 from contactkit.util.progress import bar_callback, err_console, progress_bar
@@ -42,27 +35,7 @@ app = new_app("recorder", help="Record Panda joint streams while a person touche
 DEFAULT_WORKERS = max(os.cpu_count() or 1, 1)
 Preset = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
 ReportFormat = Literal["html", "md", "json"]
-SOURCE_CLASSES, SOURCE_PROBLEMS = load_sources()
-_TAKEN = {"--" + p for p in ("pose", "action", "source", "condition", "target-pose", "speed",
-                             "link", "planned-at", "duration", "operator", "hand", "no-hand",
-                             "notes", "out", "overwrite", "realtime", "viewer", "save-rrd",
-                             "help")}
-SOURCE_OPTIONS, _CLASHES = shared_options(SOURCE_CLASSES, _TAKEN)
-SOURCE_PROBLEMS |= _CLASHES
-USABLE_SOURCES = {k: v for k, v in SOURCE_CLASSES.items() if k not in _CLASHES}
-app.command("capture")(capture_command(USABLE_SOURCES, SOURCE_OPTIONS))
-
-
-@app.command("sources")
-def sources_command() -> None:
-    """List the data sources (built in or installed by other packages) and their options."""
-    for name, cls in SOURCE_CLASSES.items():
-        print(f"{name}: {(cls.__doc__ or '').strip().splitlines()[0]} "
-              f"({cls.__module__}.{cls.__qualname__})")
-        for opt in source_options(cls.Config):
-            print(f"  --{opt.name}  {opt.describe()}")
-    for name, problem in SOURCE_PROBLEMS.items():
-        print(f"{name}: unusable: {problem}")
+register_capture(app)
 
 
 @app.command("simulate")
@@ -158,7 +131,7 @@ def stats_command(
     its problems (bad files, duplicates, sessions too short)."""
     out = out or Path(f"report.{fmt}")
     if not out.parent.is_dir():
-        raise typer.BadParameter(f"{out.parent} does not exist", param_hint="--out")
+        raise InputError("output directory does not exist", out.parent)
     with progress_bar("reading", disable=not deep) as bar:
         report = build_report(directory, deep, workers, bar_callback(bar, "sessions"))
     print_summary(report, err_console)
@@ -194,11 +167,7 @@ def import_can_command(
                         operator=operator, with_hand=hand)
     path = import_can_log(log, load_map(can_map), meta, output_directory(out),
                           session_filename(meta))
-    stats = read_session(path).meta.source_info
-    err_console.print(f"{stats['samples']} samples from {stats['frames']} frames; "
-                      f"{stats['incomplete_samples']} incomplete, {stats['lost_syncs']} lost "
-                      f"SYNCs, {stats['unknown_ids']} unknown ids, {stats['bad_lengths']} bad "
-                      f"lengths, {stats['duplicates']} duplicates")
+    err_console.print(decoding_summary(read_session(path).meta.source_info))
     print(path)
 
 
@@ -219,7 +188,7 @@ def can_bridge_command(
     """Publish a recorded or simulated session onto a CAN bus per the frame map (or into
     a CAN log), to test a CAN setup end to end without a robot."""
     if log is None and not channel:
-        raise typer.BadParameter("give --channel (and --interface) for a bus, or --log FILE")
+        raise InputError("give --channel (and --interface) for a bus, or --log FILE")
     recorded = read_session(session)
     bus = None if log is not None else BusConfig(interface, channel)
     sent = bridge_session(recorded, load_map(can_map), bus=bus, log=log, rate=rate)

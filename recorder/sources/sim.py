@@ -30,7 +30,8 @@ def sim_session_id(spec: SessionSpec, config: SimConfig) -> str:
 
 
 class SimSource(Source):
-    """One simulated session, streamed in chunks of ``chunk`` samples."""
+    """The simulated Panda (pinocchio dynamics, the thesis protocol), one session streamed
+    in chunks of ``chunk`` samples."""
 
     name = "sim"
     columns = SIM_COLUMNS
