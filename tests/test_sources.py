@@ -23,6 +23,7 @@ from tests.conftest import BIN
 
 PLUGIN = '''
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
@@ -42,6 +43,9 @@ class StillArm(Source):
     class Config:
         samples: int = field(default=100, metadata={"help": "How many samples."})
         period: float = field(default=0.002, metadata={"help": "Sample period.", "unit": "s"})
+        motion: Literal["still", "drift"] = field(default="still", metadata={
+            "help": "What the arm does."})
+        torque: bool = field(default=False, metadata={"help": "Report a torque of 1 Nm."})
 
     def __init__(self, config, choices):
         self.config, self.choices = config, choices
@@ -57,8 +61,12 @@ class StillArm(Source):
         columns = {"t": np.arange(n) * self.config.period}
         for col, value in zip(joint_columns("q"), pose_q(self.choices.pose), strict=True):
             columns[col] = np.full(n, value)
-        for col in (*joint_columns("dq"), *joint_columns("tau")):
+        for col in joint_columns("dq"):
             columns[col] = np.zeros(n)
+        for col in joint_columns("tau"):
+            columns[col] = np.full(n, float(self.config.torque))
+        if self.config.motion == "drift":
+            columns["q_1"] = columns["q_1"] + 1e-4 * np.arange(n)
         yield columns
 
     def metadata(self):
@@ -113,12 +121,16 @@ def test_plugin_source_from_an_entry_point(tmp_path: Path) -> None:
     assert "--period  Sample period [s]. Default: 0.002." in listing.stdout
     assert "broken: unusable" in listing.stdout
     assert "--period" in run("capture", "--help").stdout
+    helptext = " ".join(run("capture", "--help").stdout.split())
+    assert "--motion <still|drift>" in helptext and "--torque / --no-torque" in helptext
     result = run("capture", "--source", "stillarm", "--samples", "50", "--period", "0.004",
+                 "--motion", "drift", "--torque",
                  "--pose", "C", "--action", "none", "--duration", "0.2", "--planned-at", "0.1",
                  "--out", str(tmp_path / "out"))
     assert result.returncode == 0, result.stderr
     session = validate_session(result.stdout.strip())
     assert session.n_samples == 50 and session.meta.source == "stillarm"
+    assert session.tau[0, 0] == 1.0 and session.q[-1, 0] > session.q[0, 0]
     assert session.meta.nominal_rate_hz == 250.0 and session.meta.source_info == {"samples": 50}
     wrong = run("capture", "--source", "stillarm", "--rate", "100", "--pose", "C", "--action",
                 "none", "--out", str(tmp_path / "out"))

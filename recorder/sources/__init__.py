@@ -8,7 +8,11 @@ where samples come from:
   each field as ``--field-name VALUE`` (``--flag/--no-flag`` for a bool), with the
   help, unit and default taken from the field (``metadata={"help": ..., "unit":
   ...}``, see :mod:`contactkit.recorder.sources.options`); ``recorder sources``
-  lists every source with its options;
+  lists every source with its options. Field names must not repeat a protocol
+  option (pose, action, condition, target_pose, speed, link, planned_at, duration,
+  operator, hand, notes, out, overwrite, realtime, viewer, save_rrd): the protocol
+  choices reach the source through ``choices``. Two sources may share an option of
+  the same type (``--timeout`` of a bus and of a robot);
 * ``from_config(config, choices)``: builds the source from its options and the
   protocol choices (:class:`ProtocolChoices`: pose, action, timing, operator...);
 * ``stream()``: yields chunks of session columns (``t`` in s, then ``q_1..``);
