@@ -1,12 +1,12 @@
 """``recorder capture``: the protocol's options plus every registered source's options.
 
 The command is built when the CLI starts: each source's ``Config`` fields become
-options (``--field-name``) in a help panel of their own, so a source installed from
-another package (entry-point group ``contactkit.sources``) shows up in ``recorder
-capture --help`` without changes here. An option several sources declare with the
-same type is shared; an option that clashes with a protocol option or with another
-source's option of another type makes that source unusable, which ``recorder
-sources`` reports.
+options (``--field-name``), listed after the protocol's, source by source, so a
+source installed from another package (entry-point group ``contactkit.sources``)
+shows up in ``recorder capture --help`` without changes here. An option several
+sources declare with the same type is shared; an option that clashes with a
+protocol option or with another source's option of another type makes that source
+unusable, which ``recorder sources`` reports.
 """
 
 from __future__ import annotations
@@ -117,11 +117,10 @@ def shared_options(sources: dict[str, type[Source]], taken: set[str]
     return options, problems
 
 
-def _source_parameter(opt: SharedOption, first_source: str) -> inspect.Parameter:
+def _source_parameter(opt: SharedOption) -> inspect.Parameter:
     names = ", ".join(opt.fields)
     decl = f"{opt.flag}/--no-{opt.flag[2:]}" if opt.type is bool else opt.flag
-    info = typer.Option(decl, help=f"{opt.help} (source: {names})",
-                        rich_help_panel=f"Options of source {first_source}")
+    info = typer.Option(decl, help=f"{opt.help} (source: {names})")
     return inspect.Parameter(opt.param, inspect.Parameter.KEYWORD_ONLY, default=None,
                              annotation=Annotated[opt.type | None, info])
 
@@ -154,7 +153,7 @@ def capture_command(sources: dict[str, type[Source]], options: dict[str, SharedO
 
     params = _protocol_parameters(list(sources))
     for opt in options.values():
-        params.append(_source_parameter(opt, next(iter(opt.fields))))
+        params.append(_source_parameter(opt))
     command.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
     command.__annotations__ = {p.name: p.annotation for p in params}
     return command
