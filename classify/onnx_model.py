@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from contactkit.classify.kind import ModelFormat
 from contactkit.schemas import InputError
 
 META_KEY = "contactkit"
@@ -24,13 +25,13 @@ def _graph_digest(model) -> str:
     return hashlib.sha256(model.graph.SerializeToString()).hexdigest()
 
 
-def save_onnx_model(path: Path, network, channels: int, steps: int, meta: dict,
+def save_onnx_model(path: Path, network, meta: dict, sample_shape: tuple[int, ...],
                     overwrite: bool = False) -> Path:
-    """Export ``network`` to ONNX with ``meta`` embedded; return the path."""
+    """Export ``network`` (inputs of ``sample_shape`` = (channels, steps)) to ONNX with
+    ``meta`` embedded, replacing ``path`` atomically; return the path."""
     import onnx
 
-    if path.exists() and not overwrite:
-        raise InputError("output file already exists (pass --overwrite to replace it)", path)
+    channels, steps = sample_shape
     tmp = path.with_name(f".{path.name}.tmp")
     network.export_onnx(tmp, channels, steps)
     model = onnx.load(str(tmp))
@@ -84,3 +85,6 @@ def load_onnx_model(path: Path) -> tuple[OnnxClassifier, dict]:
         raise InputError("model file was modified after it was written (digest mismatch); "
                          "refusing to load it", path)
     return OnnxClassifier(path, meta["classes"]), meta
+
+
+ONNX = ModelFormat("onnx", ".onnx", save_onnx_model, load_onnx_model)

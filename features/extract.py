@@ -93,7 +93,7 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
     def get_feature_names_out(self, input_features=None) -> np.ndarray:
         """Return the feature names, for example ``range(tau_3)``."""
         self._check()
-        channels = [c for name in expand(list(self.timeseries)) for c in columns_of(name)]
+        channels = self.channels()
         _, names = scalar_features(np.zeros((4, len(channels))), list(self.scalars), channels,
                                    self.fft_k)
         return np.array(names, dtype=object)
@@ -102,6 +102,19 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
         """Return the (n_sessions, n_features) matrix of scalar features."""
         self._check()
         return np.array([self.session_row(s)[0] for s in X])
+
+    def channels(self) -> list[str]:
+        """Return the per-sample columns the features are computed from, e.g. ``tau_3``."""
+        return [c for name in expand(list(self.timeseries)) for c in columns_of(name)]
+
+    def online_row(self, t: np.ndarray, values: np.ndarray, k: int) -> np.ndarray:
+        """Return the scalar features of the ``window_s`` seconds ending at sample ``k``,
+        from per-sample ``values`` (N, channels, in :meth:`channels` order) at times
+        ``t`` [s]; only samples up to ``k`` are used."""
+        first = int(np.searchsorted(t, t[k] - self.window_s, side="right"))
+        row, _ = scalar_features(values[first:k + 1], list(self.scalars), self.channels(),
+                                 self.fft_k)
+        return row
 
     def session_row(self, session: Session | str | Path) -> tuple[np.ndarray, list[str], Window]:
         """Return (values, names, window) for one session."""

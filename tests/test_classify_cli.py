@@ -49,10 +49,10 @@ def test_train_evaluate_predict(static: Path, tmp_path: Path) -> None:
 
 def test_bad_input(static: Path, tmp_path: Path) -> None:
     cases = [
-        (["evaluate", str(static), "--protocol", "vibes"], "unknown protocol"),
-        (["evaluate", str(static), "--group", "colour"], "unknown grouping"),
+        (["evaluate", str(static), "--protocol", "vibes"], "'vibes' is not one of 'thesis'"),
+        (["evaluate", str(static), "--group", "colour"], "'colour' is not one of 'pose'"),
         (["train", str(static), "--out", str(tmp_path / "m"), "--model", "forest"],
-         "unknown model"),
+         "'forest' is not one of 'svm'"),
         (["evaluate", str(tmp_path / "missing")], "no such dataset"),
         (["predict", str(tmp_path / "nope.skops"), str(static)], "no such model file"),
     ]

@@ -11,7 +11,7 @@ import rerun.chunk as rc
 
 from contactkit.classify.data import load_features
 from contactkit.classify.modelfile import load_model, save_model
-from contactkit.classify.models import make_model
+from contactkit.classify.registry import get_kind, make_estimator
 from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import scalar_features
 from contactkit.features.timeseries import TimeseriesChain, columns_of
@@ -31,10 +31,10 @@ def model_path(tmp_path_factory) -> Path:
     directory = make_dataset(tmp_path_factory.mktemp("train"))
     extractor = SessionFeatures(window="planned")
     data = load_features([directory], extractor)
-    estimator = make_model("svm", data.names, c=10.0).fit(data.X, data.labels())
+    estimator = make_estimator("svm", data.names, c=10.0).fit(data.X, data.labels())
     return save_model(tmp_path_factory.mktemp("model") / "m.skops", estimator,
-                      extractor=extractor, feature_names=data.names,
-                      classes=list(estimator.classes_), kind="svm", scheme="full",
+                      transformer=extractor, feature_names=data.names,
+                      classes=list(estimator.classes_), kind=get_kind("svm"), scheme="full",
                       fingerprint=data.fingerprint(), training={})
 
 
@@ -96,7 +96,7 @@ def test_predictions_sit_at_window_ends_without_look_ahead(replayed, session,
     s = read_session(session)
     model = load_model(model_path)
     t_pred, proba = series(read_rrd(replayed)[layout.PROBABILITY])
-    window = model.extractor().window_s
+    window = model.transformer().window_s
     assert t_pred[0] >= s.t[0] + window - 1e-9
     assert np.all(np.isin(np.round(t_pred, 9), np.round(s.t, 9)))
     assert np.all(np.diff(t_pred) >= 0.02 - 1e-9)
@@ -143,7 +143,7 @@ def test_rerun_viewer_without_display_falls_back_to_save(tmp_path, session, mode
     assert result.returncode == 0, result.stderr
     assert "no display" in result.stderr and (tmp_path / "replay.rrd").exists()
     bad = run_cli("replay", str(session), "--viewer", "vr", "--model", str(model_path))
-    assert bad.returncode == 2 and "unknown viewer 'vr'" in bad.stderr
+    assert bad.returncode == 2 and "'vr' is not one of" in bad.stderr
     bad = run_cli("replay", str(session), "--rate", "fast", "--model", str(model_path))
     assert bad.returncode == 2 and "--rate must be" in bad.stderr
 
