@@ -161,8 +161,6 @@ def write_skops(path: Path, estimator: object, meta: dict, sample_shape: tuple[i
 def read_skops(path: Path) -> tuple[object, dict]:
     """Read a skops model file safely (see the module docstring); return the estimator
     and its metadata, or raise InputError."""
-    from contactkit.classify.registry import get_kind
-
     data = path.read_bytes()
     try:
         with zipfile.ZipFile(io.BytesIO(data)) as archive:
@@ -177,11 +175,7 @@ def read_skops(path: Path) -> tuple[object, dict]:
     if digest != meta.get("members_sha256"):
         raise InputError("model file was modified after it was written (digest mismatch); "
                          "refusing to load it", path)
-    try:
-        kind_types = list(get_kind(str(meta.get("kind"))).trusted_types)
-    except InputError:
-        kind_types = []  # load_model names the unknown kind if the file passes this check
-    trusted = TRUSTED_TYPES + kind_types
+    trusted = TRUSTED_TYPES + list(_kind_of(meta, path).trusted_types)
     try:
         untrusted = [t for t in sio.get_untrusted_types(data=data) if t not in trusted]
     except Exception as err:  # skops raises many kinds on a malformed archive
@@ -189,6 +183,16 @@ def read_skops(path: Path) -> tuple[object, dict]:
     if untrusted:
         raise InputError(f"model file would build untrusted types {untrusted}; refusing", path)
     return sio.loads(data, trusted=trusted), meta
+
+
+def _kind_of(meta: dict, path: Path) -> ModelKind:
+    from contactkit.classify.registry import get_kind
+
+    try:
+        return get_kind(str(meta.get("kind")))
+    except InputError as err:
+        raise InputError(f"{err.problem}; is the package that provides it installed?",
+                         path) from err
 
 
 SKOPS = ModelFormat("skops", ".skops", write_skops, read_skops)
@@ -205,11 +209,7 @@ def load_model(path: str | Path) -> ModelFile:
     formats = {get_kind(n).file_format.suffix: get_kind(n).file_format for n in kind_names()}
     estimator, meta = formats.get(path.suffix.lower(), SKOPS).load(path)
     model = ModelFile(estimator=estimator, meta=meta)
-    try:
-        kind = model.kind
-    except InputError as err:
-        raise InputError(f"{err.problem}; is the package that provides it installed?",
-                         path) from err
+    kind = _kind_of(meta, path)
     if meta.get("input", "features") != kind.input.name:
         raise InputError(f"a {kind.name} model takes {kind.input.name} input, the file says "
                          f"{meta.get('input')!r}", path)

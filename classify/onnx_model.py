@@ -14,6 +14,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+from sklearn.base import BaseEstimator, ClassifierMixin
 
 from contactkit.classify.kind import ModelFormat
 from contactkit.schemas import InputError
@@ -43,22 +44,32 @@ def save_onnx_model(path: Path, network, meta: dict, sample_shape: tuple[int, ..
     return path
 
 
-class OnnxClassifier:
+class OnnxClassifier(ClassifierMixin, BaseEstimator):
     """predict_proba / predict over (sessions, channels, steps) grids with onnxruntime."""
 
     def __init__(self, path: Path, classes: list[str]) -> None:
         import onnxruntime as ort
 
+        self.path = path
+        self.classes = classes
         options = ort.SessionOptions()
         options.intra_op_num_threads = 1
         options.inter_op_num_threads = 1
-        self.session = ort.InferenceSession(str(path), options,
-                                            providers=["CPUExecutionProvider"])
+        self.session_ = ort.InferenceSession(str(path), options,
+                                             providers=["CPUExecutionProvider"])
         self.classes_ = np.array(classes, dtype=object)
+
+    def fit(self, X, y=None) -> OnnxClassifier:
+        """Refuse: an exported network is trained already (scikit-learn looks for fit)."""
+        raise InputError("an ONNX model file holds a trained network; it cannot be refitted")
+
+    def __sklearn_is_fitted__(self) -> bool:
+        """Always fitted, so that it can end a scikit-learn Pipeline."""
+        return True
 
     def predict_proba(self, X: np.ndarray) -> np.ndarray:
         """Return class probabilities."""
-        return self.session.run(None, {"grid": np.asarray(X, dtype=np.float32)})[0]
+        return self.session_.run(None, {"grid": np.asarray(X, dtype=np.float32)})[0]
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         """Return the most probable class."""

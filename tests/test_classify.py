@@ -158,7 +158,8 @@ def test_model_file_refuses_untrusted_types(features, tmp_path: Path) -> None:
     with zipfile.ZipFile(evil, "w") as out:
         for name, data in members.items():
             out.writestr(name, data)
-        out.writestr(META_MEMBER, json.dumps({"format": FORMAT, "members_sha256": digest}))
+        out.writestr(META_MEMBER, json.dumps({"format": FORMAT, "kind": "svm",
+                                               "members_sha256": digest}))
     with pytest.raises(InputError, match="untrusted types"):
         load_model(evil)
 
