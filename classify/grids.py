@@ -32,6 +32,7 @@ from sklearn.base import BaseEstimator, TransformerMixin
 
 from contactkit.classify.data import FeatureSet
 from contactkit.classify.kind import InputKind, ModelKind, ModelOptions
+from contactkit.features.chain_cache import chain_series
 from contactkit.features.observer import DEFAULT_GAIN, ObserverConfig
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
 from contactkit.features.windows import Window, WindowSpec, find_window
@@ -126,9 +127,13 @@ def session_grid_and_window(session: Session, spec: GridSpec,
             augmentation.noise_multiplier
         gain *= augmentation.gain_factor
     names = expand(list(spec.timeseries))
-    chain = TimeseriesChain(ChainConfig(ObserverConfig(gain=gain)), session.meta.with_hand)
+    config = ChainConfig(ObserverConfig(gain=gain))
     needed = list(dict.fromkeys([*names, "tau"]))
-    series = chain.compute(session.t, session.q, session.dq, tau, needed)
+    if augmentation is None:
+        series = chain_series(session, config, needed)
+    else:
+        series = TimeseriesChain(config, session.meta.with_hand).compute(
+            session.t, session.q, session.dq, tau, needed)
     planned = session.meta.planned_at_s
     if planned is None:
         raise InputError("session has no planned interaction time", session.path)
