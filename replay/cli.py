@@ -139,8 +139,10 @@ def replay_command(
         raise typer.Exit(2)
 
 
+app = new_app(no_args_is_help=False)
+app.command(name="replay")(replay_command)
+
+
 def main() -> None:
     """Entry point of the ``replay`` console script."""
-    app = new_app(no_args_is_help=False)
-    app.command(name="replay")(replay_command)
     sys.exit(run_app(app, "replay"))

@@ -15,8 +15,11 @@ from contactkit.classify.registry import get_kind, make_estimator
 from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import scalar_features
 from contactkit.features.timeseries import TimeseriesChain, columns_of
+from contactkit.replay import cli as replay_cli
+from contactkit.replay.session_replay import replay_sessions
 from contactkit.schemas import read_session
 from contactkit.schemas import rerun_layout as layout
+from contactkit.util.cli import run_app
 from tests.conftest import make_dataset, make_session, run_cli
 
 ENTITIES = [layout.Q, layout.DQ, layout.TAU, layout.RESIDUAL, layout.FORCE, layout.MOMENT,
@@ -160,3 +163,24 @@ def test_capture_logs_live_with_the_same_layout(tmp_path) -> None:
         assert sum(b.num_rows for b in data[entity]) == n
     cues = [str(v) for b in data[layout.CUE] for v in b.column("TextLog:text").to_pylist()]
     assert any("NOW" in c for c in cues) and any("planned interaction" in c for c in cues)
+
+
+def test_a_refused_session_leaves_no_file_and_no_saved_message(tmp_path, session, model_path,
+                                                               capsys) -> None:
+    bad = tmp_path / "bad.parquet"
+    bad.write_bytes(b"not parquet")
+    out = tmp_path / "out.rrd"
+    code = run_app(replay_cli.app, "replay", [str(bad), "--viewer", "none", "--save", str(out),
+                                              "--model", str(model_path)])
+    err = capsys.readouterr().err
+    assert code == 2 and "not a readable Parquet file" in err
+    assert "saved" not in err and not out.exists()
+    summaries, problems = replay_sessions([bad, session], load_model(model_path), save=out)
+    assert [p.path for p in problems] == [str(bad)]
+    written = tmp_path / f"out_{session.stem}.rrd"
+    assert [s.saved for s in summaries] == [written] and written.exists()
+    assert not (tmp_path / "out_bad.rrd").exists()
+    summary = summaries[0]
+    assert summary.recorded == "shove" and summary.offline.label in load_model(model_path).classes
+    assert len(summary.pred_t) == len(summary.pred_label) > 10
+    assert summary.line().startswith(f"{session.name}: recorded shove, predicted ")
