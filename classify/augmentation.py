@@ -61,8 +61,8 @@ def noise_baseline(real_dir: Path, noise_file: Path | None = None) -> np.ndarray
         if session.meta.action == "none":
             stds.append(np.nanstd(session.tau, axis=0))
     if not stds:
-        raise InputError("no no-contact session to measure the noise baseline; give "
-                         "--noise-file", real_dir)
+        raise InputError("no no-contact session to measure the noise baseline; give a "
+                         "noise file from the dataset statistics", real_dir)
     return np.mean(stds, axis=0)
 
 
