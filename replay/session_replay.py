@@ -86,8 +86,7 @@ def _whole(stream: ReplayStream) -> Block:
 
 def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
                    connect: str | None = None, spawn: bool = False, rate: float | None = None,
-                   hop_s: float = DEFAULT_HOP_S,
-                   clock: Callable[[], float] | None = None) -> ReplaySummary:
+                   hop_s: float = DEFAULT_HOP_S) -> ReplaySummary:
     """Replay one session into its own recording; return its summary.
 
     The recording goes to the .rrd file ``save``, to the viewer at gRPC URL ``connect``
@@ -111,9 +110,8 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
             rec.spawn(default_blueprint=blueprint)
         tree = log_static(rec, stream)
         times = stream.session.t
-        pacing = {} if clock is None else {"clock": clock}
         for block in paced(stream.blocks(), lambda b: times[b.stop - 1], rate,
-                           origin_s=float(times[0]), **pacing):
+                           origin_s=float(times[0])):
             if rate is not None:
                 log_block(rec, tree, stream, block)
         if rate is None:
