@@ -24,8 +24,7 @@ import onnxruntime as ort
 import torch
 
 from contactkit.classify.fast import fast_predictor
-from contactkit.classify.models import make_model
-from contactkit.classify.nn import make_network
+from contactkit.classify.registry import make_estimator
 from contactkit.features.scalars import scalar_features
 
 torch.set_num_threads(1)
@@ -57,14 +56,14 @@ def main() -> None:
     rows = []
     channels = [f"c{i}" for i in range(21)]
     features = np.array([scalar_features(x.T, ["range"], channels)[0] for x in grids[300]])
-    svm = fast_predictor(make_model("svm", [f"range(tau_{i % 7 + 1})" for i in range(21)])
+    svm = fast_predictor(make_estimator("svm", [f"range(tau_{i % 7 + 1})" for i in range(21)])
                          .fit(features, y))
     base = timed(lambda: svm(scalar_features(window[0].T, ["range"], channels)[0][None, :]))
     rows.append(("SVM online path (baseline)", *base))
     with tempfile.TemporaryDirectory() as tmp:
         for name, kind, params, steps in CASES:
             X, one = grids[steps], grids[steps][:1]
-            net = make_network(kind, epochs=1, **params).fit(X, y)
+            net = make_estimator(kind, [], epochs=1, **params).fit(X, y)
             rows.append((f"{name}, torch", *timed(lambda net=net, one=one:
                                                   net.predict_proba(one))))
             path = Path(tmp) / f"{kind}{steps}.onnx"
@@ -75,7 +74,7 @@ def main() -> None:
             rows.append((f"{name}, ONNX", *timed(lambda s=session, one=one:
                                                  s.run(None, {"grid": one}))))
         for steps in (300, 100):
-            rocket = make_network("minirocket").fit(grids[steps].astype(float), y)
+            rocket = make_estimator("minirocket", []).fit(grids[steps].astype(float), y)
             one = grids[steps][:1]
             rows.append((f"MiniRocket, {steps} steps",
                          *timed(lambda rocket=rocket, one=one: rocket.predict_proba(one))))

@@ -25,7 +25,7 @@ import numpy as np
 
 from contactkit.classify.data import load_features
 from contactkit.classify.fast import fast_predictor
-from contactkit.classify.models import MODEL_KINDS, make_model
+from contactkit.classify.registry import make_estimator
 from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import scalar_features
 from contactkit.features.timeseries import columns_of
@@ -67,8 +67,8 @@ def main() -> None:
     feats = percentiles(lambda: scalar_features(window, ["range"], channels))
     print(f"{'scalar features (range)':<34} {feats[0]:>10.1f} {feats[1]:>9.1f} "
           f"{feats[1] / base[1]:>13.1f}")
-    for kind in MODEL_KINDS:
-        model = make_model(kind, data.names).fit(data.X, data.labels())
+    for kind in ("svm", "per-joint", "three-joint"):
+        model = make_estimator(kind, data.names).fit(data.X, data.labels())
         for label, predict in (("sklearn", model.predict_proba),
                                ("online", fast_predictor(model))):
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from contactkit.classify.data import load_features
 from contactkit.classify.modelfile import load_model, save_model
-from contactkit.classify.models import make_model
+from contactkit.classify.registry import get_kind, make_estimator
 from contactkit.features.extract import SessionFeatures
 from contactkit.recorder.dataset import simulate_specs
 from contactkit.recorder.sim import SimConfig, plan_session
@@ -44,9 +44,10 @@ def setup(tmp: Path) -> tuple[Path, Path]:
     simulate_specs(specs, SimConfig(rate_hz=250.0), tmp / "train")
     extractor = SessionFeatures(window="planned")
     data = load_features([tmp / "train"], extractor, workers=2, cache=False)
-    estimator = make_model("svm", data.names).fit(data.X, data.labels())
-    model = save_model(tmp / "m.skops", estimator, extractor=extractor, feature_names=data.names,
-                       classes=list(estimator.classes_), kind="svm", scheme="full",
+    estimator = make_estimator("svm", data.names).fit(data.X, data.labels())
+    model = save_model(tmp / "m.skops", estimator, transformer=extractor,
+                       feature_names=data.names, classes=list(estimator.classes_),
+                       kind=get_kind("svm"), scheme="full",
                        fingerprint="", training={})
     config = SimConfig(rate_hz=1000.0)
     spec = plan_session(seed=9, condition="static", action="shove", pose="B", link=6,

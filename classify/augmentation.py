@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import matplotlib
@@ -32,8 +32,8 @@ from sklearn.model_selection import train_test_split
 
 from contactkit.classify.data import FeatureSet
 from contactkit.classify.evaluate import confusion, fit_predict_many, metrics_from_confusion
-from contactkit.classify.grids import Augmentation, GridSpec, load_grids
-from contactkit.classify.nn import check_available, make_network
+from contactkit.classify.grids import GRIDS, Augmentation, GridSpec, load_grids
+from contactkit.classify.kind import ModelKind, ModelOptions
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.dataset import session_files
 
@@ -61,8 +61,8 @@ def noise_baseline(real_dir: Path, noise_file: Path | None = None) -> np.ndarray
         if session.meta.action == "none":
             stds.append(np.nanstd(session.tau, axis=0))
     if not stds:
-        raise InputError("no no-contact session to measure the noise baseline; give "
-                         "--noise-file", real_dir)
+        raise InputError("no no-contact session to measure the noise baseline; give a "
+                         "noise file from the dataset statistics", real_dir)
     return np.mean(stds, axis=0)
 
 
@@ -85,12 +85,21 @@ class Cell:
         return mean, mean - half, mean + half
 
 
-def run_augmentation(real_dir: Path, sim_dir: Path, out_dir: Path, *, model: str = "lstm",
-                     spec: GridSpec, repeats: int = 3, epochs: int = 60, seed: int = 0,
-                     workers: int = 1, noise_file: Path | None = None,
+def run_augmentation(real_dir: Path, sim_dir: Path, out_dir: Path, *, kind: ModelKind,
+                     options: ModelOptions, repeats: int = 3, workers: int = 1,
+                     noise_file: Path | None = None,
                      progress: Progress | None = None) -> list[Path]:
-    """Run the experiment; write augmentation.md, .json and .png; return their paths."""
-    check_available(model)
+    """Run the experiment with a kind that takes grids (``options`` size the network and
+    the grid; the seed of repetition r is ``options.seed + r``); write augmentation.md,
+    .json and .png; return their paths."""
+    if kind.input.name != GRIDS.name:
+        raise InputError(f"the augmentation experiment trains networks on grids; a "
+                         f"{kind.name} model takes {kind.input.name}")
+    if repeats < 1:
+        raise InputError(f"repeats must be at least 1, got {repeats}")
+    kind.check_options(options)
+    spec = kind.transformer(options).spec
+    seed = options.seed
     baseline = noise_baseline(real_dir, noise_file)
 
     def grids(source: Path, aug: Augmentation | None, label: str) -> FeatureSet:
@@ -126,7 +135,7 @@ def run_augmentation(real_dir: Path, sim_dir: Path, out_dir: Path, *, model: str
             elif condition.startswith("noise"):
                 X += [part.X for part in sim_sets[condition]]
                 y += [part.labels() for part in sim_sets[condition]]
-            yield (make_network(model, seed + r, epochs), np.concatenate(X),
+            yield (kind.make(replace(options, seed=seed + r), real.names), np.concatenate(X),
                    np.concatenate(y), real.X[test])
 
     report = None if progress is None else (lambda d, t: progress("trainings", d, t))
@@ -135,7 +144,7 @@ def run_augmentation(real_dir: Path, sim_dir: Path, out_dir: Path, *, model: str
     for (_, fraction, condition, _, test), predicted in zip(plan, predictions, strict=True):
         score = metrics_from_confusion(confusion(y_real[test], predicted, classes))
         cells[(fraction, condition)].scores.append(float(score["balanced_accuracy"]))
-    return _write(out_dir, cells, conditions, model, spec, repeats, baseline, real_dir, sim_dir)
+    return _write(out_dir, cells, conditions, kind.name, spec, repeats, baseline, real_dir, sim_dir)
 
 
 def _write(out_dir: Path, cells: dict, conditions: list[str], model: str, spec: GridSpec,

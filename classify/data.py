@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from contactkit.classify.kind import InputKind, ModelKind, ModelOptions
 from contactkit.classify.schemes import limited_mask, relabel
 from contactkit.features.extract import SessionFeatures, feature_rows
 from contactkit.schemas import InputError
@@ -153,3 +154,19 @@ def _load_one(source: Path, extractor: SessionFeatures, workers: int,
         cache_path.parent.mkdir(exist_ok=True)
         atomic_write_parquet(table, cache_path, overwrite=True)
     return _from_table(table, {"config": config, "features": result.names}, result.problems)
+
+
+def features_for(options: ModelOptions, kind: ModelKind) -> SessionFeatures:
+    """Return the scalar-feature input ``options`` describe, with the kind's defaults."""
+    return SessionFeatures(timeseries=list(options.timeseries or kind.default_timeseries),
+                           scalars=list(options.scalars),
+                           window=options.window or kind.default_window,
+                           window_s=options.window_s)
+
+
+def _features_from_config(config: dict) -> SessionFeatures:
+    return SessionFeatures(**config)
+
+
+FEATURES = InputKind(name="features", meta_key="features", build=features_for,
+                     from_config=_features_from_config, load=load_features)

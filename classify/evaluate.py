@@ -16,9 +16,7 @@ feature selection are part of the model, so they are fitted inside each split.
 
 from __future__ import annotations
 
-import multiprocessing
 from collections.abc import Callable, Iterable
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -26,6 +24,7 @@ from sklearn.base import clone
 from sklearn.model_selection import LeaveOneGroupOut, ShuffleSplit, StratifiedGroupKFold
 
 from contactkit.schemas import InputError
+from contactkit.util.parallel import map_ordered
 
 PROTOCOLS = ("thesis", "group")
 THESIS_SPLITS = 25
@@ -147,9 +146,10 @@ def splits(protocol: str, y: np.ndarray, groups: np.ndarray | None, seed: int):
     return list(folds.split(np.zeros(len(y)), y, groups))
 
 
-def _fit_predict(estimator, X_train: np.ndarray, y_train: np.ndarray,
-                 X_test: np.ndarray) -> np.ndarray:
-    """Fit one estimator and return its predictions on the test sessions."""
+def _fit_predict(task: tuple) -> np.ndarray:
+    """Fit one ``(estimator, X_train, y_train, X_test)`` task; return its predictions on
+    the test sessions."""
+    estimator, X_train, y_train, X_test = task
     return estimator.fit(X_train, y_train).predict(X_test)
 
 
@@ -165,34 +165,8 @@ def fit_predict_many(tasks: Iterable[tuple], workers: int = 1,
     As with any spawned pool, a script that calls this with ``workers`` > 1 must do
     so under ``if __name__ == "__main__":``.
     """
-    if workers <= 1:
-        out = []
-        for estimator, X_train, y_train, X_test in tasks:
-            out.append(_fit_predict(estimator, X_train, y_train, X_test))
-            if progress:
-                progress(len(out), total or len(out))
-        return out
-    results: dict[int, np.ndarray] = {}
-    pending: dict = {}
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(workers, mp_context=context) as pool:
-        for i, task in enumerate(tasks):
-            pending[pool.submit(_fit_predict, *task)] = i
-            while len(pending) >= 2 * workers:
-                _collect(pending, results, progress, total)
-        while pending:
-            _collect(pending, results, progress, total)
-    return [results[i] for i in range(len(results))]
-
-
-def _collect(pending: dict, results: dict, progress: Callable[[int, int], None] | None,
-             total: int | None) -> None:
-    """Wait for at least one running task; move the finished ones into ``results``."""
-    done, _ = wait(pending, return_when=FIRST_COMPLETED)
-    for job in done:
-        results[pending.pop(job)] = job.result()
-        if progress:
-            progress(len(results), total or len(results) + len(pending))
+    return list(map_ordered(_fit_predict, tasks, workers=workers, progress=progress,
+                            total=total, spawn=True, in_flight=2))
 
 
 def evaluate(X: np.ndarray, y: np.ndarray, make_estimator: Callable[[], object], *,

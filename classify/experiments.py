@@ -36,7 +36,7 @@ from sklearn.svm import SVC, LinearSVC
 
 from contactkit.classify.data import FeatureSet, load_features
 from contactkit.classify.evaluate import Report, evaluate
-from contactkit.classify.models import make_model
+from contactkit.classify.models import svm_pipeline
 from contactkit.classify.schemes import scheme_classes
 from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import SCALARS
@@ -83,8 +83,8 @@ def _select(data: FeatureSet, timeseries: Sequence[str], scalars: Sequence[str])
 def _evaluate(data: FeatureSet, setting: Setting) -> Report:
     y = data.labels(setting.scheme)
     groups = data.groups(setting.group_by) if setting.protocol == "group" else None
-    return evaluate(data.X, y, lambda: make_model("svm", data.names, setting.seed, setting.c,
-                                                  probability=False),
+    return evaluate(data.X, y, lambda: svm_pipeline(setting.c, seed=setting.seed,
+                                                    probability=False),
                     protocol=setting.protocol, groups=groups, group_by=setting.group_by,
                     scheme=setting.scheme, classes=scheme_classes(setting.scheme),
                     seed=setting.seed)

@@ -11,8 +11,13 @@ calibration) once and evaluates the same formulas with numpy:
 * per class the sigmoid 1 / (1 + exp(a f + b)), normalised over the classes
   (binary: p and 1 - p).
 
-A test holds its output equal to scikit-learn's ``predict_proba`` to 1e-9; models
-it does not know (networks, ONNX) keep their own ``predict_proba``.
+The support vectors' dual coefficients, intercepts and the resolved gamma are
+read from SVC's private ``_dual_coef_``, ``_intercept_``, ``_gamma`` and
+``_n_support`` (libsvm's own order and signs; the public ones are flipped for two
+classes, and ``gamma="scale"`` is resolved only privately), so pyproject.toml bounds
+scikit-learn to the versions tested. A test holds the output equal to scikit-learn's
+``predict_proba`` to 1e-9 for every SVM kind and class scheme; models it does not
+know (networks, ONNX) keep their own ``predict_proba``.
 """
 
 from __future__ import annotations

@@ -24,18 +24,21 @@ from __future__ import annotations
 
 import zlib
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+from sklearn.base import BaseEstimator, TransformerMixin
 
 from contactkit.classify.data import FeatureSet
+from contactkit.classify.kind import InputKind, ModelKind, ModelOptions
+from contactkit.features.chain_cache import chain_series
 from contactkit.features.observer import DEFAULT_GAIN, ObserverConfig
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
-from contactkit.features.windows import WindowSpec, find_window
+from contactkit.features.windows import Window, WindowSpec, find_window
 from contactkit.schemas import InputError, Session, read_session
 from contactkit.schemas.dataset import session_files
+from contactkit.util.parallel import map_ordered, split_problems
 
 CNN_INPUT = ("q", "dq", "tau")
 LSTM_INPUT = ("dq", "tau", "r")
@@ -107,6 +110,13 @@ def window_grid(t: np.ndarray, values: np.ndarray, start_s: float, spec: GridSpe
 def session_grid(session: Session, spec: GridSpec,
                  augmentation: Augmentation | None = None) -> np.ndarray:
     """Return one session's grid (channels x steps)."""
+    return session_grid_and_window(session, spec, augmentation)[0]
+
+
+def session_grid_and_window(session: Session, spec: GridSpec,
+                            augmentation: Augmentation | None = None
+                            ) -> tuple[np.ndarray, Window]:
+    """Return one session's grid (channels x steps) and the window it covers."""
     session = session.complete()
     tau = session.tau
     gain = spec.gain
@@ -117,20 +127,96 @@ def session_grid(session: Session, spec: GridSpec,
             augmentation.noise_multiplier
         gain *= augmentation.gain_factor
     names = expand(list(spec.timeseries))
-    chain = TimeseriesChain(ChainConfig(ObserverConfig(gain=gain)), session.meta.with_hand)
+    config = ChainConfig(ObserverConfig(gain=gain))
     needed = list(dict.fromkeys([*names, "tau"]))
-    series = chain.compute(session.t, session.q, session.dq, tau, needed)
+    if augmentation is None:
+        series = chain_series(session, config, needed)
+    else:
+        series = TimeseriesChain(config, session.meta.with_hand).compute(
+            session.t, session.q, session.dq, tau, needed)
     planned = session.meta.planned_at_s
     if planned is None:
         raise InputError("session has no planned interaction time", session.path)
     window = find_window(session.t, planned, WindowSpec(spec.window, spec.window_s),
                          series["tau"])
     values = np.column_stack([series[n] for n in names])
-    return window_grid(session.t, values, window.start_s, spec)
+    return window_grid(session.t, values, window.start_s, spec), window
 
 
-def _grid_job(path: str, spec: GridSpec, augmentation: Augmentation | None
-              ) -> tuple[np.ndarray | None, dict | None, str | None]:
+class SessionGrids(TransformerMixin, BaseEstimator):
+    """A scikit-learn transformer from sessions (paths or :class:`Session`) to their
+    grids, shape (sessions, channels, steps); the parameters are :class:`GridSpec`'s."""
+
+    def __init__(self, timeseries: Sequence[str] = CNN_INPUT, window: str = "planned",
+                 window_s: float = 0.5, steps: int = 300, gain: float = DEFAULT_GAIN,
+                 baseline_s: float = 0.1) -> None:
+        self.timeseries = timeseries
+        self.window = window
+        self.window_s = window_s
+        self.steps = steps
+        self.gain = gain
+        self.baseline_s = baseline_s
+
+    @property
+    def spec(self) -> GridSpec:
+        """The parameters as a :class:`GridSpec`."""
+        return GridSpec(tuple(self.timeseries), self.window, float(self.window_s),
+                        int(self.steps), float(self.gain), float(self.baseline_s))
+
+    def fit(self, X, y=None) -> SessionGrids:
+        """Nothing to learn; checks the parameters and returns self."""
+        try:
+            self.spec.channels()
+        except KeyError as err:
+            raise InputError(f"unknown timeseries feature {err.args[0]!r}") from err
+        if self.steps < 2:
+            raise InputError(f"a grid needs at least 2 time steps, got {self.steps}")
+        WindowSpec(self.window, self.window_s)
+        self.n_features_in_ = 1
+        return self
+
+    def config(self) -> dict:
+        """Return the parameters as JSON-ready values (stored with models)."""
+        return self.spec.as_dict()
+
+    def get_feature_names_out(self, input_features=None) -> np.ndarray:
+        """Return the channel names, for example ``tau_3``."""
+        return np.array(self.spec.channels(), dtype=object)
+
+    def channels(self) -> list[str]:
+        """Return the per-sample columns of a grid, for example ``tau_3``."""
+        return self.spec.channels()
+
+    def chain_config(self) -> ChainConfig:
+        """The feature-chain settings."""
+        return ChainConfig(ObserverConfig(gain=self.gain))
+
+    def transform(self, X) -> np.ndarray:
+        """Return the (sessions, channels, steps) grids."""
+        return np.stack([self.session_row(s)[0] for s in X])
+
+    def session_row(self, session: Session | str | Path
+                    ) -> tuple[np.ndarray, list[str], Window]:
+        """Return (grid, channel names, window) for one session."""
+        if not isinstance(session, Session):
+            session = read_session(session)
+        grid, window = session_grid_and_window(session, self.spec)
+        return grid, self.spec.channels(), window
+
+    def online_row(self, t: np.ndarray, values: np.ndarray, k: int) -> np.ndarray:
+        """Return the grid of the ``window_s`` seconds ending at sample ``k``, from
+        per-sample ``values`` (N, channels) at times ``t`` [s]; only samples up to ``k``
+        (and the baseline before the window) are used."""
+        spec = self.spec
+        first = int(np.searchsorted(t, t[k] - spec.window_s, side="right"))
+        start = int(np.searchsorted(t, t[k] - spec.window_s - spec.baseline_s, side="left"))
+        start = max(0, min(start, first) - 1)
+        return window_grid(t[start:k + 1], values[start:k + 1], t[k] - spec.window_s, spec)
+
+
+def _grid_job(job: tuple[str, GridSpec, Augmentation | None]
+              ) -> tuple[str, tuple[np.ndarray, dict] | None, str | None]:
+    path, spec, augmentation = job
     try:
         session = read_session(path)
         meta = session.meta
@@ -138,9 +224,9 @@ def _grid_job(path: str, spec: GridSpec, augmentation: Augmentation | None
                 "condition": meta.condition, "pose": meta.pose, "target_pose": meta.target_pose,
                 "operator": meta.operator,
                 "speed_rad_s": np.nan if meta.speed_rad_s is None else meta.speed_rad_s}
-        return session_grid(session, spec, augmentation), info, None
+        return Path(path).name, (session_grid(session, spec, augmentation), info), None
     except InputError as err:
-        return None, None, err.problem
+        return Path(path).name, None, err.problem
 
 
 def load_grids(sources: Sequence[Path], spec: GridSpec, workers: int = 1,
@@ -154,26 +240,14 @@ def load_grids(sources: Sequence[Path], spec: GridSpec, workers: int = 1,
     paths = []
     for source in sources:
         if not Path(source).is_dir():
-            raise InputError("no such dataset directory", source)
+            raise InputError("no such dataset directory (networks read sessions, not "
+                             "feature tables)", source)
         paths += [str(p) for p in session_files(source)]
     if not paths:
         raise InputError("no session files (*.parquet) in these directories")
-    results = []
-    if workers <= 1:
-        for i, p in enumerate(paths):
-            results.append(_grid_job(p, spec, augmentation))
-            if progress:
-                progress(i + 1, len(paths))
-    else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            for i, r in enumerate(pool.map(_grid_job, paths, [spec] * len(paths),
-                                           [augmentation] * len(paths), chunksize=4)):
-                results.append(r)
-                if progress:
-                    progress(i + 1, len(paths))
-    good = [r for r in results if r[2] is None]
-    problems = [(Path(p).name, r[2]) for p, r in zip(paths, results, strict=True)
-                if r[2] is not None]
+    jobs = [(p, spec, augmentation) for p in paths]
+    good, problems = split_problems(map_ordered(_grid_job, jobs, workers=workers,
+                                                progress=progress))
     if not good:
         raise InputError("no session could be processed")
     info = {key: np.array([r[1][key] for r in good],
@@ -181,3 +255,26 @@ def load_grids(sources: Sequence[Path], spec: GridSpec, workers: int = 1,
             for key in good[0][1]}
     return FeatureSet(np.stack([r[0] for r in good]), spec.channels(), info, spec.as_dict(),
                       problems)
+
+
+def grids_for(options: ModelOptions, kind: ModelKind) -> SessionGrids:
+    """Return the grid input ``options`` describe, with the kind's defaults."""
+    return SessionGrids(timeseries=tuple(options.timeseries or kind.default_timeseries),
+                        window=options.window or kind.default_window,
+                        window_s=options.window_s, steps=options.steps)
+
+
+def _grids_from_config(config: dict) -> SessionGrids:
+    config = dict(config)
+    config["timeseries"] = tuple(config["timeseries"])
+    config.setdefault("baseline_s", 0.0)
+    return SessionGrids(**config)
+
+
+def _load_grid_set(sources: Sequence[Path], grids: SessionGrids, workers: int = 1,
+                   progress: Callable[[int, int], None] | None = None) -> FeatureSet:
+    return load_grids(sources, grids.spec, workers, progress=progress)
+
+
+GRIDS = InputKind(name="grid", meta_key="grid", build=grids_for,
+                  from_config=_grids_from_config, load=_load_grid_set)

@@ -8,9 +8,9 @@ training data, package versions, and a SHA-256 over every other member.
 Loading (1) checks the digest, so a file changed after it was written is refused;
 (2) asks skops which types the file would build and refuses any outside
 ``TRUSTED_TYPES`` (skops' own defaults for numpy and scikit-learn, plus the few
-named below), before anything is constructed; (3) builds the model. Feature
-tables or sessions prepared with other features are refused by
-:meth:`ModelFile.check_features`.
+named below) and the model kind's own ``trusted_types``, before anything is
+constructed; (3) builds the model. Feature tables or sessions prepared with other
+features are refused by :meth:`ModelFile.check_features`.
 """
 
 from __future__ import annotations
@@ -21,22 +21,20 @@ import io
 import json
 import platform
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import skops.io as sio
+from sklearn.pipeline import Pipeline
 
-from contactkit.features.extract import SessionFeatures
+from contactkit.classify.kind import ModelFormat, ModelKind
 from contactkit.schemas import InputError
 
 META_MEMBER = "contactkit.json"
 FORMAT = "contactkit-model/1"
 TRUSTED_TYPES = [
-    "aeon.classification.convolution_based._minirocket.MiniRocketClassifier",
-    "aeon.transformations.collection.convolution_based._minirocket.MiniRocket",
-    "contactkit.classify.models.CalibratedSVC",
-    "contactkit.classify.models.JointEnsemble",
-    "contactkit.classify.nn.MiniRocketClassifier",
     "sklearn.model_selection._split.StratifiedKFold",
     "sklearn.calibration._CalibratedClassifier",
     "sklearn.calibration._SigmoidCalibration",
@@ -65,10 +63,17 @@ def _members_digest(archive: zipfile.ZipFile) -> str:
 
 @dataclass
 class ModelFile:
-    """A loaded model: the estimator and what the file says about it."""
+    """A loaded model: the fitted estimator and what the file says about it."""
 
     estimator: object
     meta: dict
+
+    @property
+    def kind(self) -> ModelKind:
+        """The registered kind of this model (raises InputError if it is not installed)."""
+        from contactkit.classify.registry import get_kind
+
+        return get_kind(self.meta["kind"])
 
     @property
     def classes(self) -> list[str]:
@@ -77,28 +82,25 @@ class ModelFile:
 
     @property
     def feature_names(self) -> list[str]:
-        """The feature columns the model expects, in order."""
-        return list(self.meta["feature_names"])
+        """The input columns the model expects, in order (grid channels for a network)."""
+        if "feature_names" in self.meta:
+            return list(self.meta["feature_names"])
+        return list(self.transformer().get_feature_names_out())
 
-    @property
-    def input(self) -> str:
-        """What the model takes: "features" (scalar features) or "grid" (raw windows)."""
-        return self.meta.get("input", "features")
+    def transformer(self):
+        """Return the input transformer (sessions to features or grids) configured as at
+        training time."""
+        input_kind = self.kind.input
+        return input_kind.from_config(dict(self.meta[input_kind.meta_key]))
 
-    def extractor(self) -> SessionFeatures:
-        """Return the feature extractor configured as at training time."""
-        if self.input != "features":
-            raise InputError("this model takes timeseries grids, not scalar features")
-        return SessionFeatures(**self.meta["features"])
+    def pipeline(self) -> Pipeline:
+        """Return the model as a scikit-learn Pipeline over sessions: its first step turns
+        sessions (paths or :class:`contactkit.schemas.Session`) into the model's input."""
+        return Pipeline([("input", self.transformer()), ("model", self.estimator)])
 
-    def grid_spec(self):
-        """Return the grid specification of a network model."""
-        from contactkit.classify.grids import GridSpec
-
-        doc = dict(self.meta["grid"])
-        doc["timeseries"] = tuple(doc["timeseries"])
-        doc.setdefault("baseline_s", 0.0)
-        return GridSpec(**doc)
+    def online_predictor(self) -> Callable[[np.ndarray], np.ndarray]:
+        """Return the kind's fast function from a batch of inputs to class probabilities."""
+        return self.kind.online(self.estimator)
 
     def check_features(self, names: list[str], where: str | Path | None = None) -> None:
         """Raise InputError unless ``names`` are exactly the model's feature columns."""
@@ -109,35 +111,44 @@ class ModelFile:
                              f"unexpected {extra})", where)
 
 
-def model_meta(*, kind: str, scheme: str, classes: list[str], fingerprint: str,
-               training: dict, extractor: SessionFeatures | None = None,
-               feature_names: list[str] | None = None, grid: dict | None = None) -> dict:
+def model_meta(*, kind: ModelKind, transformer, feature_names: list[str], scheme: str,
+               classes: list[str], fingerprint: str, training: dict) -> dict:
     """Return the metadata document every model file carries."""
-    meta = {"format": FORMAT, "kind": kind, "scheme": scheme, "classes": list(classes),
-            "training_fingerprint": fingerprint, "training": training, "versions": _versions()}
-    if grid is not None:
-        meta.update({"input": "grid", "grid": grid})
-    else:
-        meta.update({"input": "features", "features": extractor.config(),
-                     "feature_names": list(feature_names)})
-    return meta
+    return {"format": FORMAT, "kind": kind.name, "scheme": scheme, "classes": list(classes),
+            "training_fingerprint": fingerprint, "training": training,
+            "versions": _versions(), "input": kind.input.name,
+            kind.input.meta_key: transformer.config(), "feature_names": list(feature_names)}
 
 
-def save_model(path: str | Path, estimator: object, *, extractor: SessionFeatures | None = None,
-               feature_names: list[str] | None = None, classes: list[str], kind: str,
-               scheme: str, fingerprint: str, training: dict, overwrite: bool = False,
-               grid: dict | None = None) -> Path:
-    """Write a skops model file atomically; return its path."""
+def save_model(path: str | Path, estimator: object, *, kind: ModelKind, transformer,
+               feature_names: list[str], classes: list[str], scheme: str, fingerprint: str,
+               training: dict, sample_shape: tuple[int, ...] = (), overwrite: bool = False
+               ) -> Path:
+    """Write a fitted model in its kind's file format, atomically; return the path.
+
+    ``sample_shape`` is the shape of one input (for formats that fix it in the file).
+    """
     path = Path(path)
+    suffix = kind.file_format.suffix
+    if path.suffix.lower() != suffix:
+        raise InputError(f"a {kind.name} model is saved as {kind.file_format.name}: the file "
+                         f"name must end in {suffix}", path)
     if path.exists() and not overwrite:
-        raise InputError("output file already exists (pass --overwrite to replace it)", path)
+        raise InputError("output file already exists (it is replaced only with overwrite)", path)
+    meta = model_meta(kind=kind, transformer=transformer, feature_names=feature_names,
+                      scheme=scheme, classes=classes, fingerprint=fingerprint,
+                      training=training)
+    return kind.file_format.save(path, estimator, meta, sample_shape, overwrite)
+
+
+def write_skops(path: Path, estimator: object, meta: dict, sample_shape: tuple[int, ...] = (),
+                overwrite: bool = False) -> Path:
+    """Write ``estimator`` and ``meta`` as a skops model file atomically; return the path."""
     payload = sio.dumps(estimator)
     with zipfile.ZipFile(io.BytesIO(payload)) as archive:
         members = {name: archive.read(name) for name in archive.namelist()}
         digest = _members_digest(archive)
-    meta = model_meta(kind=kind, scheme=scheme, classes=classes, fingerprint=fingerprint,
-                      training=training, extractor=extractor, feature_names=feature_names,
-                      grid=grid) | {"members_sha256": digest}
+    meta = meta | {"members_sha256": digest}
     tmp = path.with_name(f".{path.name}.tmp")
     with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as out:
         for name, data in members.items():
@@ -147,16 +158,9 @@ def save_model(path: str | Path, estimator: object, *, extractor: SessionFeature
     return path
 
 
-def load_model(path: str | Path) -> ModelFile:
-    """Load a model file safely (see the module docstring); raise InputError if refused."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("no such model file", path)
-    if path.suffix.lower() == ".onnx":
-        from contactkit.classify.onnx_model import load_onnx_model
-
-        estimator, meta = load_onnx_model(path)
-        return ModelFile(estimator=estimator, meta=meta)
+def read_skops(path: Path) -> tuple[object, dict]:
+    """Read a skops model file safely (see the module docstring); return the estimator
+    and its metadata, or raise InputError."""
     data = path.read_bytes()
     try:
         with zipfile.ZipFile(io.BytesIO(data)) as archive:
@@ -171,11 +175,42 @@ def load_model(path: str | Path) -> ModelFile:
     if digest != meta.get("members_sha256"):
         raise InputError("model file was modified after it was written (digest mismatch); "
                          "refusing to load it", path)
+    trusted = TRUSTED_TYPES + list(_kind_of(meta, path).trusted_types)
     try:
-        untrusted = [t for t in sio.get_untrusted_types(data=data) if t not in TRUSTED_TYPES]
+        untrusted = [t for t in sio.get_untrusted_types(data=data) if t not in trusted]
     except Exception as err:  # skops raises many kinds on a malformed archive
         raise InputError(f"unreadable model archive ({type(err).__name__})", path) from err
     if untrusted:
         raise InputError(f"model file would build untrusted types {untrusted}; refusing", path)
-    estimator = sio.loads(data, trusted=TRUSTED_TYPES)
-    return ModelFile(estimator=estimator, meta=meta)
+    return sio.loads(data, trusted=trusted), meta
+
+
+def _kind_of(meta: dict, path: Path) -> ModelKind:
+    from contactkit.classify.registry import get_kind
+
+    try:
+        return get_kind(str(meta.get("kind")))
+    except InputError as err:
+        raise InputError(f"{err.problem}; is the package that provides it installed?",
+                         path) from err
+
+
+SKOPS = ModelFormat("skops", ".skops", write_skops, read_skops)
+
+
+def load_model(path: str | Path) -> ModelFile:
+    """Load a model file safely in the format its suffix names (skops unless another
+    installed kind's format claims the suffix); raise InputError if refused."""
+    from contactkit.classify.registry import get_kind, kind_names
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no such model file", path)
+    formats = {get_kind(n).file_format.suffix: get_kind(n).file_format for n in kind_names()}
+    estimator, meta = formats.get(path.suffix.lower(), SKOPS).load(path)
+    model = ModelFile(estimator=estimator, meta=meta)
+    kind = _kind_of(meta, path)
+    if meta.get("input", "features") != kind.input.name:
+        raise InputError(f"a {kind.name} model takes {kind.input.name} input, the file says "
+                         f"{meta.get('input')!r}", path)
+    return model

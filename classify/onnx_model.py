@@ -14,7 +14,9 @@ import json
 from pathlib import Path
 
 import numpy as np
+from sklearn.base import BaseEstimator, ClassifierMixin
 
+from contactkit.classify.kind import ModelFormat
 from contactkit.schemas import InputError
 
 META_KEY = "contactkit"
@@ -24,13 +26,13 @@ def _graph_digest(model) -> str:
     return hashlib.sha256(model.graph.SerializeToString()).hexdigest()
 
 
-def save_onnx_model(path: Path, network, channels: int, steps: int, meta: dict,
+def save_onnx_model(path: Path, network, meta: dict, sample_shape: tuple[int, ...],
                     overwrite: bool = False) -> Path:
-    """Export ``network`` to ONNX with ``meta`` embedded; return the path."""
+    """Export ``network`` (inputs of ``sample_shape`` = (channels, steps)) to ONNX with
+    ``meta`` embedded, replacing ``path`` atomically; return the path."""
     import onnx
 
-    if path.exists() and not overwrite:
-        raise InputError("output file already exists (pass --overwrite to replace it)", path)
+    channels, steps = sample_shape
     tmp = path.with_name(f".{path.name}.tmp")
     network.export_onnx(tmp, channels, steps)
     model = onnx.load(str(tmp))
@@ -42,22 +44,32 @@ def save_onnx_model(path: Path, network, channels: int, steps: int, meta: dict,
     return path
 
 
-class OnnxClassifier:
+class OnnxClassifier(ClassifierMixin, BaseEstimator):
     """predict_proba / predict over (sessions, channels, steps) grids with onnxruntime."""
 
     def __init__(self, path: Path, classes: list[str]) -> None:
         import onnxruntime as ort
 
+        self.path = path
+        self.classes = classes
         options = ort.SessionOptions()
         options.intra_op_num_threads = 1
         options.inter_op_num_threads = 1
-        self.session = ort.InferenceSession(str(path), options,
-                                            providers=["CPUExecutionProvider"])
+        self.session_ = ort.InferenceSession(str(path), options,
+                                             providers=["CPUExecutionProvider"])
         self.classes_ = np.array(classes, dtype=object)
+
+    def fit(self, X, y=None) -> OnnxClassifier:
+        """Refuse: an exported network is trained already (scikit-learn looks for fit)."""
+        raise InputError("an ONNX model file holds a trained network; it cannot be refitted")
+
+    def __sklearn_is_fitted__(self) -> bool:
+        """Always fitted, so that it can end a scikit-learn Pipeline."""
+        return True
 
     def predict_proba(self, X: np.ndarray) -> np.ndarray:
         """Return class probabilities."""
-        return self.session.run(None, {"grid": np.asarray(X, dtype=np.float32)})[0]
+        return self.session_.run(None, {"grid": np.asarray(X, dtype=np.float32)})[0]
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         """Return the most probable class."""
@@ -84,3 +96,6 @@ def load_onnx_model(path: Path) -> tuple[OnnxClassifier, dict]:
         raise InputError("model file was modified after it was written (digest mismatch); "
                          "refusing to load it", path)
     return OnnxClassifier(path, meta["classes"]), meta
+
+
+ONNX = ModelFormat("onnx", ".onnx", save_onnx_model, load_onnx_model)

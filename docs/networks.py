@@ -26,8 +26,7 @@ import numpy as np
 from contactkit.classify.data import FeatureSet, load_features
 from contactkit.classify.evaluate import Report, evaluate
 from contactkit.classify.grids import CNN_INPUT, LSTM_INPUT, GridSpec, load_grids
-from contactkit.classify.models import make_model
-from contactkit.classify.nn import make_network
+from contactkit.classify.registry import make_estimator
 from contactkit.classify.schemes import scheme_classes
 from contactkit.features.extract import SessionFeatures
 
@@ -127,14 +126,15 @@ def main() -> None:
     if list(grids.info["session_id"]) != list(svm_data.info["session_id"]):
         raise SystemExit("feature and grid sets list different sessions")
     runs = [("SVM (C=100)", "range + Hjorth of dq, tau, r", svm_data,
-             lambda: make_model("svm", svm_data.names, 0, 100.0)),
+             lambda: make_estimator("svm", svm_data.names, c=100.0)),
             ("MiniRocket", f"{args.steps}-step grid of q, dq, tau",
-             channels_of(grids, CNN_INPUT), lambda: make_network("minirocket", 0)),
+             channels_of(grids, CNN_INPUT), lambda: make_estimator("minirocket", [])),
             ("LSTM depth 2, width 2 (thesis)", f"{args.steps}-step grid of dq, tau, r",
-             channels_of(grids, LSTM_INPUT), lambda: make_network("lstm", 0, args.epochs)),
+             channels_of(grids, LSTM_INPUT),
+             lambda: make_estimator("lstm", [], epochs=args.epochs)),
             ("CNN depth 1, width 1", f"{args.steps}-step grid of q, dq, tau",
              channels_of(grids, CNN_INPUT),
-             lambda: make_network("cnn", 0, args.epochs, depth=1, width=1.0))]
+             lambda: make_estimator("cnn", [], epochs=args.epochs, depth=1, width=1.0))]
     lines, predictions = [], {}
     for name, detail, data, factory in runs:
         started = time.time()

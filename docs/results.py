@@ -26,7 +26,7 @@ from networks import SECTION, touched_links
 
 from contactkit.classify.data import FeatureSet, load_features
 from contactkit.classify.evaluate import Report, evaluate
-from contactkit.classify.models import make_model
+from contactkit.classify.registry import make_estimator
 from contactkit.classify.schemes import scheme_classes
 from contactkit.features.extract import SessionFeatures
 
@@ -62,7 +62,7 @@ def ensure_dataset(directory: Path, preset: str, workers: int) -> None:
 def run(data: FeatureSet, kind: str, protocol: str, c: float) -> Report:
     """Evaluate one model kind under one protocol (leave-one-pose-out for group)."""
     groups = data.groups("pose") if protocol == "group" else None
-    return evaluate(data.X, data.labels(), lambda: make_model(kind, data.names, 0, c),
+    return evaluate(data.X, data.labels(), lambda: make_estimator(kind, data.names, c=c),
                     protocol=protocol, groups=groups, group_by="pose", model=kind,
                     classes=CLASSES, seed=0)
 

@@ -11,18 +11,19 @@ in parallel processes with a progress callback.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from sklearn.base import BaseEstimator, TransformerMixin
 
+from contactkit.features.chain_cache import chain_series
 from contactkit.features.observer import ObserverConfig
 from contactkit.features.scalars import SCALARS, scalar_features
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
 from contactkit.features.windows import Window, WindowSpec, find_window
 from contactkit.schemas import InputError, Session, read_session
+from contactkit.util.parallel import map_ordered, split_problems
 
 DEFAULT_TIMESERIES = ("dq", "tau", "r")
 DEFAULT_SCALARS = ("range",)
@@ -93,7 +94,7 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
     def get_feature_names_out(self, input_features=None) -> np.ndarray:
         """Return the feature names, for example ``range(tau_3)``."""
         self._check()
-        channels = [c for name in expand(list(self.timeseries)) for c in columns_of(name)]
+        channels = self.channels()
         _, names = scalar_features(np.zeros((4, len(channels))), list(self.scalars), channels,
                                    self.fft_k)
         return np.array(names, dtype=object)
@@ -102,6 +103,19 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
         """Return the (n_sessions, n_features) matrix of scalar features."""
         self._check()
         return np.array([self.session_row(s)[0] for s in X])
+
+    def channels(self) -> list[str]:
+        """Return the per-sample columns the features are computed from, e.g. ``tau_3``."""
+        return [c for name in expand(list(self.timeseries)) for c in columns_of(name)]
+
+    def online_row(self, t: np.ndarray, values: np.ndarray, k: int) -> np.ndarray:
+        """Return the scalar features of the ``window_s`` seconds ending at sample ``k``,
+        from per-sample ``values`` (N, channels, in :meth:`channels` order) at times
+        ``t`` [s]; only samples up to ``k`` are used."""
+        first = int(np.searchsorted(t, t[k] - self.window_s, side="right"))
+        row, _ = scalar_features(values[first:k + 1], list(self.scalars), self.channels(),
+                                 self.fft_k)
+        return row
 
     def session_row(self, session: Session | str | Path) -> tuple[np.ndarray, list[str], Window]:
         """Return (values, names, window) for one session."""
@@ -112,8 +126,7 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
         spec = self.window_spec
         needed = list(dict.fromkeys(names + ([spec.signal] if spec.method in
                                              ("difference", "change") else [])))
-        chain = TimeseriesChain(self.chain_config(), session.meta.with_hand)
-        series = chain.compute(session.t, session.q, session.dq, session.tau, needed)
+        series = chain_series(session, self.chain_config(), needed)
         window = session_window(session, spec, series.get(spec.signal))
         mask = window.mask(session.t)
         if mask.sum() < 2:
@@ -143,13 +156,14 @@ class FeatureRows:
     problems: list[tuple[str, str]]
 
 
-def _session_feature_row(path: str, params: dict) -> tuple[dict | None, list[str], str | None]:
+def _session_feature_row(job: tuple[str, dict]) -> tuple[str, dict | None, str | None]:
+    path, params = job
     extractor = SessionFeatures(**params)
     try:
         session = read_session(path)
         values, names, window = extractor.session_row(session)
     except InputError as err:
-        return None, [], err.problem
+        return Path(path).name, None, err.problem
     meta = session.meta
     row = {"file": Path(path).name, "session_id": meta.session_id, "action": meta.action,
            "condition": meta.condition, "pose": meta.pose, "target_pose": meta.target_pose,
@@ -158,39 +172,22 @@ def _session_feature_row(path: str, params: dict) -> tuple[dict | None, list[str
            "window_method": window.method, "window_found": window.found,
            "planned_at_s": meta.planned_at_s}
     row.update(zip(names, values.tolist(), strict=True))
-    return row, names, None
+    return Path(path).name, row, None
 
 
 def feature_rows(paths: Sequence[str | Path], extractor: SessionFeatures, workers: int = 1,
                  progress: Callable[[int, int], None] | None = None) -> FeatureRows:
-    """Compute the scalar features of many sessions, in ``workers`` processes.
+    """Compute the scalar features of many sessions, in ``workers`` processes; the rows
+    come in the order of ``paths`` whatever the number of workers.
 
     Sessions that fail (bad file, window too short) are listed in ``problems``.
     """
     extractor.fit(None)
     params = extractor.get_params()
     names = list(extractor.get_feature_names_out())
-    rows, problems = [], []
-    jobs = [str(p) for p in paths]
-
-    def collect(path: str, result: tuple) -> None:
-        row, _, problem = result
-        if problem is None:
-            rows.append(row)
-        else:
-            problems.append((Path(path).name, problem))
-        if progress:
-            progress(len(rows) + len(problems), len(jobs))
-
-    if workers <= 1:
-        for path in jobs:
-            collect(path, _session_feature_row(path, params))
-    else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            chunk = max(1, len(jobs) // (workers * 8))
-            results = pool.map(_session_feature_row, jobs, [params] * len(jobs), chunksize=chunk)
-            for path, result in zip(jobs, results, strict=True):
-                collect(path, result)
+    jobs = [(str(p), params) for p in paths]
+    rows, problems = split_problems(map_ordered(_session_feature_row, jobs, workers=workers,
+                                                progress=progress))
     return FeatureRows(rows=rows, names=names, problems=problems)
 
 

@@ -38,13 +38,11 @@ BLOCK_DECAY = np.log(1e-3)
 
 @dataclass(frozen=True)
 class ObserverConfig:
-    """Observer settings: gain K_O [1/s] (scalar or 7 values), friction compensation
-    with the identified model, and whether the model carries the hand (None: take
-    it from the session's metadata)."""
+    """Observer settings: gain K_O [1/s] (scalar or 7 values) and friction compensation
+    with the identified model."""
 
     gain: float | tuple[float, ...] = DEFAULT_GAIN
     friction: bool = True
-    with_hand: bool | None = None
 
     def gain_vector(self) -> np.ndarray:
         """Return K_O as a (7,) array [1/s]."""

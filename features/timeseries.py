@@ -45,7 +45,6 @@ import numpy as np
 import pinocchio as pin
 
 from contactkit.features.dynamics import PandaModel
-from contactkit.features.linalg import solve_spd
 from contactkit.features.observer import (
     ObserverConfig,
     RecurrenceStep,
@@ -90,8 +89,9 @@ def expand(names: tuple[str, ...] | list[str]) -> list[str]:
 
 @dataclass(frozen=True)
 class ChainConfig:
-    """Feature-chain settings: the observer, the wrench frame ("ee" for the end
-    effector, or a link 1..7) and the hand (None: from the session metadata)."""
+    """Feature-chain settings: the observer and the wrench frame ("ee" for the end
+    effector, or a link 1..7). Whether the arm carries the hand comes from each
+    session's metadata."""
 
     observer: ObserverConfig = field(default_factory=ObserverConfig)
     wrench_frame: str | int = "ee"
@@ -168,7 +168,7 @@ class TimeseriesChain:
             out["p_ext"] = r * dq
             if need_wrench:
                 gram = jac @ jac.transpose(0, 2, 1) + DAMPING**2 * np.eye(6)
-                wrench = solve_spd(gram, np.einsum("kij,kj->ki", jac, r))
+                wrench = np.linalg.solve(gram, np.einsum("kij,kj->ki", jac, r)[..., None])[..., 0]
                 out.update(_wrench_features(wrench))
         return {name: out[name] for name in names}
 

@@ -1,62 +1,41 @@
-"""The ``replay`` command: sessions through the feature chain and classifier, into Rerun."""
+"""The ``replay`` command: sessions through the feature chain and classifier, into Rerun.
+
+A thin layer over :mod:`contactkit.replay.session_replay`: options, viewer start-up,
+progress and messages.
+"""
 
 from __future__ import annotations
 
 import sys
-import time
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from contactkit.classify.cli import labelled_progress
-from contactkit.classify.modelfile import ModelFile, load_model
-from contactkit.replay.default_model import build_default_model, default_model_path
-from contactkit.replay.engine import DEFAULT_HOP_S, Block, ReplayStream
-from contactkit.replay.recording import (
-    log_block,
-    log_offline,
-    log_static,
-    new_recording,
-    save_path_for,
+from contactkit.replay.default_model import build_default_model
+from contactkit.replay.engine import DEFAULT_HOP_S
+from contactkit.replay.session_replay import (
+    ReplaySummary,
+    default_model_missing,
+    model_or_default,
+    replay_sessions,
+    session_inputs,
 )
-from contactkit.schemas import InputError, read_session
-from contactkit.schemas import rerun_layout as layout
-from contactkit.schemas.dataset import session_files
-from contactkit.util.cli import run_app
+from contactkit.schemas import InputError
+from contactkit.util.cli import new_app, run_app
+from contactkit.util.progress import err_console, labelled_progress, progress_bar
 from contactkit.util.viewer import has_display, start_web_viewer
 
-err_console = Console(stderr=True)
-VIEWERS = ("rerun", "web", "none")
+DEFAULT_SAVE = Path("replay.rrd")
 
 
-def _progress() -> Progress:
-    return Progress(TextColumn("[bold]{task.description}[/]"), BarColumn(),
-                    MofNCompleteColumn(), TimeRemainingColumn(), console=err_console)
+class Viewer(StrEnum):
+    """Where a replay is shown."""
 
-
-def _model(path: Path | None) -> ModelFile:
-    if path is not None:
-        return load_model(path)
-    if not default_model_path().exists():
-        err_console.print("No --model given: building the default model once (simulated "
-                          "data, then an SVM); it is cached for next time.")
-    with _progress() as bar:
-        return load_model(build_default_model(progress=labelled_progress(bar)))
-
-
-def _sessions(inputs: list[Path]) -> list[Path]:
-    paths: list[Path] = []
-    for source in inputs:
-        if source.is_dir():
-            paths += session_files(source)
-        else:
-            paths.append(source)
-    if not paths:
-        raise InputError("no session files given")
-    return paths
+    rerun = "rerun"
+    web = "web"
+    none = "none"
 
 
 def _parse_rate(rate: str) -> float | None:
@@ -66,61 +45,19 @@ def _parse_rate(rate: str) -> float | None:
         value = float(rate)
     except ValueError as err:
         raise InputError(f"--rate must be 'max' or a positive number, got {rate!r}") from err
-    if value <= 0:
+    if not value > 0:
         raise InputError(f"--rate must be positive, got {value}")
     return value
-
-
-def replay_one(path: Path, model: ModelFile, *, viewer: str, save: Path | None,
-               connect: str | None, rate: float | None, hop_s: float, many: bool) -> str:
-    """Replay one session into its own recording; return a one-line summary."""
-    session = read_session(path)
-    stream = ReplayStream(session, model, hop_s)
-    rec = new_recording(path.stem, session.meta.session_id)
-    blueprint = layout.replay_blueprint()
-    if save is not None:
-        rec.save(save_path_for(save, path, many), default_blueprint=blueprint)
-    if connect is not None:
-        rec.connect_grpc(connect, default_blueprint=blueprint)
-    elif viewer == "rerun":
-        rec.spawn(default_blueprint=blueprint)
-    tree = log_static(rec, stream)
-    started = time.monotonic()
-    for block in stream.blocks():
-        if rate is not None:
-            log_block(rec, tree, stream, block)
-            due = started + (session.t[block.stop - 1] - session.t[0]) / rate
-            delay = due - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-    if rate is None:
-        log_block(rec, tree, stream, _whole(stream))
-    answer = stream.offline()
-    log_offline(rec, stream, answer)
-    rec.flush()
-    rec.disconnect()
-    contact = [(t, label) for t, label in zip(stream.pred_t, stream.pred_label, strict=True)
-               if label != "none"]
-    online = (f"first online contact: {contact[0][1]} at {contact[0][0]:.2f} s" if contact
-              else "online: none throughout")
-    found = "detected" if answer.window.found else "planned"
-    return (f"{path.name}: recorded {session.meta.action}, predicted {answer.label} "
-            f"(offline, {found} window {answer.window.start_s:.2f}-{answer.window.end_s:.2f} s);"
-            f" {online}; {len(stream.pred_t)} online predictions")
-
-
-def _whole(stream: ReplayStream) -> Block:
-    return Block(0, stream.session.n_samples, range(len(stream.pred_t)))
 
 
 def replay_command(
     sessions: Annotated[list[Path] | None, typer.Argument(
         help="Session files, or directories of sessions (each replays as its own "
              "recording).")] = None,
-    viewer: Annotated[str, typer.Option(
+    viewer: Annotated[Viewer, typer.Option(
         help="rerun: spawn the native viewer (falls back to --save without a display); "
              "web: serve the web viewer on 127.0.0.1; none: only save and summarise.")
-                      ] = "rerun",
+                      ] = Viewer.rerun,
     save: Annotated[Path | None, typer.Option(
         help="Write the recording to this .rrd file (several sessions: one file each, "
              "named after the session).")] = None,
@@ -131,7 +68,7 @@ def replay_command(
         help="'max' as fast as possible, or a multiple of wall-clock speed (1 = real "
              "time) with the viewer updating live.")] = "max",
     hop: Annotated[float, typer.Option(
-        help="Seconds between classifier runs on the sliding window.")] = DEFAULT_HOP_S,
+        help="Time between classifier runs on the sliding window [s].")] = DEFAULT_HOP_S,
     connect: Annotated[str | None, typer.Option(
         help="Send to a running viewer at this gRPC URL instead "
              "(e.g. rerun+http://127.0.0.1:9876/proxy).")] = None,
@@ -146,63 +83,66 @@ def replay_command(
     Example: replay session.parquet --viewer rerun
     """
     if build_default_model_:
-        with _progress() as bar:
+        with progress_bar() as bar:
             print(build_default_model(progress=labelled_progress(bar), rebuild=True))
         return
     if not sessions:
         raise InputError("give at least one session file or directory (see replay --help)")
-    if viewer not in VIEWERS:
-        raise InputError(f"unknown viewer {viewer!r} (expected rerun, web or none)")
     speed = _parse_rate(rate)
-    if hop <= 0:
+    if not hop > 0:
         raise InputError(f"--hop must be positive, got {hop} s")
-    paths = _sessions(sessions)
-    if viewer == "rerun" and connect is None and not has_display():
-        save = save or Path("replay.rrd")
+    paths = session_inputs(sessions)
+    viewer = Viewer(viewer)
+    if viewer is Viewer.rerun and connect is None and not has_display():
+        save = save or DEFAULT_SAVE
         err_console.print(f"no display: saving to {save} instead; open it with "
                           f"`rerun {save}` where a display is available")
-        viewer = "none"
-    if viewer == "none" and save is None and connect is None:
-        save = Path("replay.rrd")
-    classifier = _model(model)
+        viewer = Viewer.none
+    if viewer is Viewer.none and save is None and connect is None:
+        save = DEFAULT_SAVE
+    if model is None and default_model_missing():
+        err_console.print("No --model given: building the default model once (simulated "
+                          "data, then an SVM); it is cached for next time.")
+    with progress_bar() as bar:
+        classifier = model_or_default(model, labelled_progress(bar))
     web = None
-    if viewer == "web" and connect is None:
+    if viewer is Viewer.web and connect is None:
         web, connect, page = start_web_viewer()
         err_console.print(f"web viewer: {page}")
-    failures = 0
-    many = len(paths) > 1
-    with _progress() as bar:
+    with progress_bar() as bar:
         task = bar.add_task("replaying", total=len(paths))
-        for path in paths:
-            try:
-                summary = replay_one(path, classifier, viewer=viewer, save=save,
-                                     connect=connect, rate=speed, hop_s=hop, many=many)
-                bar.console.print(summary)
-            except InputError as err:
-                failures += 1
-                print(f"replay: error: {err}", file=sys.stderr)
+
+        def report(result: ReplaySummary | InputError) -> None:
+            if isinstance(result, InputError):
+                print(f"replay: error: {result}", file=sys.stderr)
+            else:
+                bar.console.print(result.line())
             bar.advance(task)
-    if save is not None:
-        where = save_path_for(save, paths[0], many)
-        if many:
-            err_console.print(f"saved one recording per session as {save.parent}/"
-                              f"{save.stem}_<session>.rrd; open them together with "
-                              f"`rerun {save.parent}/{save.stem}_*.rrd`")
-        else:
-            err_console.print(f"saved {where}; open it with `rerun {where}`")
+
+        summaries, problems = replay_sessions(
+            paths, classifier, save=save, connect=connect, spawn=viewer is Viewer.rerun,
+            rate=speed, hop_s=hop, on_done=report)
+    written = [s.saved for s in summaries if s.saved is not None]
+    if len(written) == 1:
+        err_console.print(f"saved {written[0]}; open it with `rerun {written[0]}`")
+    elif written:
+        err_console.print(f"saved {len(written)} recordings as {save.parent}/{save.stem}_"
+                          f"<session>.rrd; open them together with "
+                          f"`rerun {save.parent}/{save.stem}_*.rrd`")
     if web is not None:
         err_console.print("serving the web viewer; press Ctrl-C to stop")
         try:
             web.wait()
         except KeyboardInterrupt:
             web.terminate()
-    if failures:
+    if problems:
         raise typer.Exit(2)
+
+
+app = new_app(no_args_is_help=False)
+app.command(name="replay")(replay_command)
 
 
 def main() -> None:
     """Entry point of the ``replay`` console script."""
-    app = typer.Typer(add_completion=False, pretty_exceptions_enable=False)
-    app.command(name="replay")(replay_command)
     sys.exit(run_app(app, "replay"))
-

@@ -21,10 +21,8 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
-from contactkit.classify.data import load_features
-from contactkit.classify.modelfile import save_model
-from contactkit.classify.models import make_model
-from contactkit.features.extract import SessionFeatures
+from contactkit.classify.kind import ModelOptions
+from contactkit.classify.training import train
 from contactkit.recorder.dataset import simulate_dataset
 from contactkit.util.cache import cache_dir
 
@@ -64,12 +62,9 @@ def build_default_model(workers: int = 2, progress: Progress | None = None,
                          progress=None if progress is None else
                          (lambda d, t, preset=preset: progress(f"simulating {preset}", d, t)))
         sources.append(directory)
-    extractor = SessionFeatures(**RECIPE["features"])
-    data = load_features(sources, extractor, workers,
-                         None if progress is None else (lambda d, t: progress("features", d, t)))
-    estimator = make_model(RECIPE["model"], data.names, RECIPE["seed"], RECIPE["C"])
-    estimator.fit(data.X, data.labels())
-    return save_model(path, estimator, extractor=extractor, feature_names=data.names,
-                      classes=[str(c) for c in estimator.classes_], kind=RECIPE["model"],
-                      scheme="full", fingerprint=data.fingerprint(),
-                      training={"recipe": RECIPE, "sessions": len(data)}, overwrite=True)
+    features = RECIPE["features"]
+    options = ModelOptions(kind=RECIPE["model"], timeseries=tuple(features["timeseries"]),
+                           scalars=tuple(features["scalars"]), window=features["window"],
+                           window_s=features["window_s"], c=RECIPE["C"], seed=RECIPE["seed"])
+    return train(sources, path, options, workers=workers, overwrite=True,
+                 progress=progress).path

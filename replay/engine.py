@@ -19,13 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactkit.classify.fast import fast_predictor
-from contactkit.classify.grids import session_grid, window_grid
 from contactkit.classify.modelfile import ModelFile
-from contactkit.features.observer import ObserverConfig
-from contactkit.features.scalars import scalar_features
 from contactkit.features.timeseries import ChainConfig, OnlineChain, columns_of, expand
-from contactkit.features.windows import Window, WindowSpec, find_window
+from contactkit.features.windows import Window
 from contactkit.schemas import InputError, Session
 
 DEFAULT_HOP_S = 0.02
@@ -61,24 +57,17 @@ class ReplayStream:
 
     def __init__(self, session: Session, model: ModelFile, hop_s: float = DEFAULT_HOP_S) -> None:
         if hop_s <= 0:
-            raise InputError(f"--hop must be positive, got {hop_s} s")
+            raise InputError(f"the prediction hop must be positive, got {hop_s} s")
         self.session = session = session.complete()
         self.model = model
         self.hop_s = hop_s
-        self._predict_proba = fast_predictor(model.estimator)
+        self._predict_proba = model.online_predictor()
         self.classes = model.classes
-        if model.input == "grid":
-            self.grid = model.grid_spec()
-            self.extractor = None
-            timeseries, self.window_s = self.grid.timeseries, float(self.grid.window_s)
-            self.observer = ObserverConfig(gain=self.grid.gain)
-            self.wrench_frame = "ee"
-        else:
-            self.grid = None
-            self.extractor = model.extractor()
-            timeseries, self.window_s = self.extractor.timeseries, float(self.extractor.window_s)
-            self.observer = self.extractor.chain_config().observer
-            self.wrench_frame = self.extractor.wrench_frame
+        self.transformer = model.transformer()
+        model.check_features(list(self.transformer.get_feature_names_out()))
+        timeseries, self.window_s = self.transformer.timeseries, float(self.transformer.window_s)
+        chain = self.transformer.chain_config()
+        self.observer, self.wrench_frame = chain.observer, chain.wrench_frame
         self.names = expand(list(timeseries))
         self.channels = [c for name in self.names for c in columns_of(name)]
         n = session.n_samples
@@ -98,16 +87,7 @@ class ReplayStream:
         self.pred_label: list[str] = []
 
     def _predict(self, k: int) -> None:
-        first = int(np.searchsorted(self.t, self.t[k] - self.window_s, side="right"))
-        if self.grid is not None:
-            start = int(np.searchsorted(self.t, self.t[k] - self.window_s - self.grid.baseline_s,
-                                        side="left"))
-            start = max(0, min(start, first) - 1)
-            row = window_grid(self.t[start:k + 1], self._values[start:k + 1],
-                              self.t[k] - self.window_s, self.grid)
-        else:
-            row, _ = scalar_features(self._values[first:k + 1], list(self.extractor.scalars),
-                                     self.channels, self.extractor.fft_k)
+        row = self.transformer.online_row(self.t, self._values, k)
         proba = self._predict_proba(row[None, ...])[0]
         self.pred_t.append(float(self.t[k]))
         self.pred_sample.append(k)
@@ -147,13 +127,7 @@ class ReplayStream:
 
     def offline(self) -> OfflineAnswer:
         """Return the thesis method's window and the model's label for it."""
-        if self.grid is not None:
-            spec = self.grid
-            window = find_window(self.session.t, self.session.meta.planned_at_s or 0.0,
-                                 WindowSpec(spec.window, spec.window_s), self.session.tau)
-            values = session_grid(self.session, spec)
-        else:
-            values, names, window = self.extractor.session_row(self.session)
-            self.model.check_features(names, self.session.path)
+        values, names, window = self.transformer.session_row(self.session)
+        self.model.check_features(names, self.session.path)
         proba = self.model.estimator.predict_proba(values[None, ...])[0]
         return OfflineAnswer(window, self.classes[int(np.argmax(proba))], proba)

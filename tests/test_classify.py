@@ -14,7 +14,8 @@ from sklearn.metrics import balanced_accuracy_score, f1_score, recall_score
 from contactkit.classify.data import load_features
 from contactkit.classify.evaluate import confusion, evaluate, metrics_from_confusion, splits
 from contactkit.classify.modelfile import META_MEMBER, load_model, save_model
-from contactkit.classify.models import JointEnsemble, feature_joint, make_model
+from contactkit.classify.models import JointEnsemble, feature_joint
+from contactkit.classify.registry import get_kind, make_estimator
 from contactkit.classify.schemes import limited_mask, relabel, scheme_classes
 from contactkit.features.extract import SessionFeatures
 from contactkit.schemas import InputError
@@ -79,15 +80,32 @@ def test_metrics_match_scikit_learn() -> None:
 @pytest.mark.parametrize("kind", ["svm", "per-joint", "three-joint"])
 def test_evaluate_reports_everything(features, kind) -> None:
     y = features.labels()
-    report = evaluate(features.X, y, lambda: make_model(kind, features.names), protocol="group",
+    report = evaluate(features.X, y, lambda: make_estimator(kind, features.names), protocol="group",
                       groups=features.groups("pose"), group_by="pose", model=kind,
                       classes=scheme_classes("full"))
     assert report.n_splits == 4 and report.n_sessions == 32
     for interval in (report.accuracy, report.balanced_accuracy, report.macro_f1):
         assert interval.low <= interval.value <= interval.high
-    assert set(report.recall) == {"none", "bump", "adjust", "shove"}
+    # every figure is the pooled out-of-fold predictions' own, as scikit-learn computes it
+    predicted = report.out_of_fold
+    classes = scheme_classes("full")
+    assert report.accuracy.value == pytest.approx(np.mean(predicted == y))
+    assert report.balanced_accuracy.value == pytest.approx(
+        balanced_accuracy_score(y, predicted))
+    assert report.macro_f1.value == pytest.approx(
+        f1_score(y, predicted, average="macro", labels=classes))
+    recall = recall_score(y, predicted, average=None, labels=classes)
+    assert [report.recall[c].value for c in classes] == pytest.approx(list(recall))
+    assert report.confusion_counts == confusion(y, predicted, classes).tolist()
+    groups = features.groups("pose")
+    per_split = [np.mean(predicted[groups == g] == y[groups == g]) for g in "ABCD"]
+    assert report.split_accuracies == pytest.approx(per_split)
+    assert report.split_accuracy_mean == pytest.approx(np.mean(per_split))
     assert np.allclose(np.sum(report.confusion_normalised, axis=1), 1.0)
-    assert sum(map(sum, report.confusion_counts)) == 32
+    again = evaluate(features.X, y, lambda: make_estimator(kind, features.names),
+                     protocol="group", groups=groups, group_by="pose", model=kind,
+                     classes=classes)
+    assert again.as_dict() == report.as_dict()
 
 
 def test_schemes_and_limited_context() -> None:
@@ -104,10 +122,10 @@ def test_schemes_and_limited_context() -> None:
 
 def test_model_file_round_trip_and_refusals(features, tmp_path: Path) -> None:
     y = features.labels()
-    model = make_model("per-joint", features.names).fit(features.X, y)
-    path = save_model(tmp_path / "m.skops", model, extractor=SessionFeatures(),
+    model = make_estimator("per-joint", features.names).fit(features.X, y)
+    path = save_model(tmp_path / "m.skops", model, transformer=SessionFeatures(),
                       feature_names=features.names, classes=list(model.classes_),
-                      kind="per-joint", scheme="full", fingerprint=features.fingerprint(),
+                      kind=get_kind("per-joint"), scheme="full", fingerprint=features.fingerprint(),
                       training={})
     loaded = load_model(path)
     assert np.array_equal(loaded.estimator.predict(features.X), model.predict(features.X))
@@ -115,8 +133,8 @@ def test_model_file_round_trip_and_refusals(features, tmp_path: Path) -> None:
     with pytest.raises(InputError, match="other features"):
         loaded.check_features(features.names[::-1])
     with pytest.raises(InputError, match="already exists"):
-        save_model(path, model, extractor=SessionFeatures(), feature_names=features.names,
-                   classes=[], kind="svm", scheme="full", fingerprint="", training={})
+        save_model(path, model, transformer=SessionFeatures(), feature_names=features.names,
+                   classes=[], kind=get_kind("svm"), scheme="full", fingerprint="", training={})
 
     def rewrite(target: Path, change) -> Path:
         with zipfile.ZipFile(path) as src, zipfile.ZipFile(target, "w") as dst:
@@ -157,7 +175,8 @@ def test_model_file_refuses_untrusted_types(features, tmp_path: Path) -> None:
     with zipfile.ZipFile(evil, "w") as out:
         for name, data in members.items():
             out.writestr(name, data)
-        out.writestr(META_MEMBER, json.dumps({"format": FORMAT, "members_sha256": digest}))
+        out.writestr(META_MEMBER, json.dumps({"format": FORMAT, "kind": "svm",
+                                               "members_sha256": digest}))
     with pytest.raises(InputError, match="untrusted types"):
         load_model(evil)
 
@@ -168,7 +187,7 @@ def test_fast_online_predictor_equals_scikit_learn(features, kind, scheme) -> No
     from contactkit.classify.fast import fast_predictor
 
     y = features.labels(scheme)
-    model = make_model(kind, features.names, c=10.0).fit(features.X, y)
+    model = make_estimator(kind, features.names, c=10.0).fit(features.X, y)
     rng = np.random.default_rng(1)
     X = features.X + rng.normal(size=features.X.shape) * features.X.std(axis=0)
     assert np.abs(fast_predictor(model)(X) - model.predict_proba(X)).max() <= 1e-9

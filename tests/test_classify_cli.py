@@ -7,6 +7,11 @@ from pathlib import Path
 
 import pytest
 
+from contactkit.classify.data import load_features
+from contactkit.classify.evaluate import evaluate
+from contactkit.classify.models import svm_pipeline
+from contactkit.classify.schemes import scheme_classes
+from contactkit.features.extract import SessionFeatures
 from tests.conftest import make_dataset, run_cli
 
 
@@ -42,17 +47,19 @@ def test_train_evaluate_predict(static: Path, tmp_path: Path) -> None:
     assert line["predicted"] in {"none", "bump", "adjust", "shove"}
     assert sum(line["probabilities"].values()) == pytest.approx(1.0, abs=1e-3)
     features = tmp_path / "wide.parquet"
-    run_cli("classify", "features", str(static), "--out", str(features), "--scalars", "mean")
+    made = run_cli("classify", "features", str(static), "--out", str(features), "--scalars",
+                   "mean")
+    assert made.returncode == 0, made.stderr
     refused = run_cli("classify", "predict", str(model), str(features))
     assert refused.returncode == 2 and "other features" in refused.stderr
 
 
 def test_bad_input(static: Path, tmp_path: Path) -> None:
     cases = [
-        (["evaluate", str(static), "--protocol", "vibes"], "unknown protocol"),
-        (["evaluate", str(static), "--group", "colour"], "unknown grouping"),
+        (["evaluate", str(static), "--protocol", "vibes"], "'vibes' is not one of 'thesis'"),
+        (["evaluate", str(static), "--group", "colour"], "'colour' is not one of 'pose'"),
         (["train", str(static), "--out", str(tmp_path / "m"), "--model", "forest"],
-         "unknown model"),
+         "'forest' is not one of 'svm'"),
         (["evaluate", str(tmp_path / "missing")], "no such dataset"),
         (["predict", str(tmp_path / "nope.skops"), str(static)], "no such model file"),
     ]
@@ -68,10 +75,41 @@ def test_experiments_write_table_json_and_plot(static: Path, tmp_path: Path, nam
     result = run_cli("classify", "experiment", name, str(static), "--out", str(tmp_path),
                      "--workers", "2")
     assert result.returncode == 0, result.stderr
-    for ext in ("md", "json", "png"):
-        assert (tmp_path / f"{name}.{ext}").stat().st_size > 100
+    assert result.stdout.split() == [str(tmp_path / f"{name}.{ext}")
+                                     for ext in ("md", "json", "png")]
     doc = json.loads((tmp_path / f"{name}.json").read_text())
-    assert doc["rows"] and "balanced_accuracy" in doc["rows"][0]["report"]
+    assert doc["experiment"] == name and doc["setting"]["c"] == 10.0
+    table = (tmp_path / f"{name}.md").read_text()
+    rows = doc["rows"]
+    assert rows and len([line for line in table.splitlines() if line.startswith("| ")]) == \
+        len(rows) + 1
+    for row in rows:
+        report = row["report"]
+        assert report["n_sessions"] == 32 and report["n_splits"] == 4
+        assert report["group_by"] == "pose" and report["classes"] == ["none", "bump",
+                                                                      "adjust", "shove"]
+        for key in ("accuracy", "balanced_accuracy", "macro_f1"):
+            value = report[key]
+            assert 0.0 <= value["low"] <= value["value"] <= value["high"] <= 1.0
+        ba = report["balanced_accuracy"]
+        assert (f"| {row['label']} | {row['detail']} | 32 | " in table
+                and f"{100 * ba['value']:.1f} % [{100 * ba['low']:.1f}, "
+                    f"{100 * ba['high']:.1f}]" in table)
+        assert sum(map(sum, report["confusion_counts"])) == 32
+    png = (tmp_path / f"{name}.png").read_bytes()
+    assert png.startswith(b"\x89PNG") and len(png) > 10_000
+    if name == "window":
+        assert [r["label"] for r in rows] == ["0.1 s", "0.2 s", "0.3 s", "0.5 s"]
+        data = load_features([static], SessionFeatures(window="difference", window_s=0.5))
+        expected = evaluate(data.X, data.labels(), lambda: svm_pipeline(10.0,
+                                                                         probability=False),
+                            protocol="group", groups=data.groups("pose"), group_by="pose",
+                            classes=scheme_classes("full"))
+        assert rows[-1]["report"]["balanced_accuracy"]["value"] == \
+            pytest.approx(expected.balanced_accuracy.value, abs=1e-12)
+        assert rows[-1]["report"]["confusion_counts"] == expected.confusion_counts
+    if name == "rfe":
+        assert doc["chosen"] and all("(" in feature for feature in doc["chosen"])
 
 
 def test_speed_experiment(static: Path, dynamic: Path, tmp_path: Path) -> None:

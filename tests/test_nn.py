@@ -67,11 +67,11 @@ def test_onnx_model_file_round_trip_and_refusal(dataset: Path, tmp_path: Path) -
                       "--steps", "40", "--out", str(model), "--workers", "1", "--depth", "1",
                       "--width", "0.5")
     assert trained.returncode == 0, trained.stderr
-    network = load_model(model).meta["training"]["network"]
-    assert network["depth"] == 1 and network["width"] == 0.5
+    options = load_model(model).meta["training"]["options"]
+    assert options["depth"] == 1 and options["width"] == 0.5
     bad = run_cli("classify", "train", str(dataset), "--model", "cnn", "--depth", "0",
                   "--out", str(tmp_path / "bad.onnx"))
-    assert bad.returncode == 2 and "--depth must be at least 1" in bad.stderr
+    assert bad.returncode == 2 and "depth must be at least 1" in bad.stderr
     assert len(bad.stderr.strip().splitlines()) == 1
     session = sorted(dataset.glob("static_*.parquet"))[0]
     predicted = run_cli("classify", "predict", str(model), str(session), "--json")
@@ -165,7 +165,7 @@ def test_replay_with_an_onnx_network(dataset: Path, tmp_path: Path) -> None:
     order = np.argsort(t_pred, kind="stable")
     t_pred, proba = t_pred[order], proba[order]
     s = read_session(session)
-    spec = load_model(model).grid_spec()
+    spec = load_model(model).transformer().spec
     net = load_model(model).estimator
     for k in (0, len(t_pred) // 2, len(t_pred) - 1):
         past = slice(0, int(np.searchsorted(s.t, t_pred[k] + 1e-9)))

@@ -11,12 +11,15 @@ import rerun.chunk as rc
 
 from contactkit.classify.data import load_features
 from contactkit.classify.modelfile import load_model, save_model
-from contactkit.classify.models import make_model
+from contactkit.classify.registry import get_kind, make_estimator
 from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import scalar_features
 from contactkit.features.timeseries import TimeseriesChain, columns_of
+from contactkit.replay import cli as replay_cli
+from contactkit.replay.session_replay import replay_sessions
 from contactkit.schemas import read_session
 from contactkit.schemas import rerun_layout as layout
+from contactkit.util.cli import run_app
 from tests.conftest import make_dataset, make_session, run_cli
 
 ENTITIES = [layout.Q, layout.DQ, layout.TAU, layout.RESIDUAL, layout.FORCE, layout.MOMENT,
@@ -31,10 +34,10 @@ def model_path(tmp_path_factory) -> Path:
     directory = make_dataset(tmp_path_factory.mktemp("train"))
     extractor = SessionFeatures(window="planned")
     data = load_features([directory], extractor)
-    estimator = make_model("svm", data.names, c=10.0).fit(data.X, data.labels())
+    estimator = make_estimator("svm", data.names, c=10.0).fit(data.X, data.labels())
     return save_model(tmp_path_factory.mktemp("model") / "m.skops", estimator,
-                      extractor=extractor, feature_names=data.names,
-                      classes=list(estimator.classes_), kind="svm", scheme="full",
+                      transformer=extractor, feature_names=data.names,
+                      classes=list(estimator.classes_), kind=get_kind("svm"), scheme="full",
                       fingerprint=data.fingerprint(), training={})
 
 
@@ -96,7 +99,7 @@ def test_predictions_sit_at_window_ends_without_look_ahead(replayed, session,
     s = read_session(session)
     model = load_model(model_path)
     t_pred, proba = series(read_rrd(replayed)[layout.PROBABILITY])
-    window = model.extractor().window_s
+    window = model.transformer().window_s
     assert t_pred[0] >= s.t[0] + window - 1e-9
     assert np.all(np.isin(np.round(t_pred, 9), np.round(s.t, 9)))
     assert np.all(np.diff(t_pred) >= 0.02 - 1e-9)
@@ -143,7 +146,7 @@ def test_rerun_viewer_without_display_falls_back_to_save(tmp_path, session, mode
     assert result.returncode == 0, result.stderr
     assert "no display" in result.stderr and (tmp_path / "replay.rrd").exists()
     bad = run_cli("replay", str(session), "--viewer", "vr", "--model", str(model_path))
-    assert bad.returncode == 2 and "unknown viewer 'vr'" in bad.stderr
+    assert bad.returncode == 2 and "'vr' is not one of" in bad.stderr
     bad = run_cli("replay", str(session), "--rate", "fast", "--model", str(model_path))
     assert bad.returncode == 2 and "--rate must be" in bad.stderr
 
@@ -160,3 +163,24 @@ def test_capture_logs_live_with_the_same_layout(tmp_path) -> None:
         assert sum(b.num_rows for b in data[entity]) == n
     cues = [str(v) for b in data[layout.CUE] for v in b.column("TextLog:text").to_pylist()]
     assert any("NOW" in c for c in cues) and any("planned interaction" in c for c in cues)
+
+
+def test_a_refused_session_leaves_no_file_and_no_saved_message(tmp_path, session, model_path,
+                                                               capsys) -> None:
+    bad = tmp_path / "bad.parquet"
+    bad.write_bytes(b"not parquet")
+    out = tmp_path / "out.rrd"
+    code = run_app(replay_cli.app, "replay", [str(bad), "--viewer", "none", "--save", str(out),
+                                              "--model", str(model_path)])
+    err = capsys.readouterr().err
+    assert code == 2 and "not a readable Parquet file" in err
+    assert "saved" not in err and not out.exists()
+    summaries, problems = replay_sessions([bad, session], load_model(model_path), save=out)
+    assert [p.path for p in problems] == [str(bad)]
+    written = tmp_path / f"out_{session.stem}.rrd"
+    assert [s.saved for s in summaries] == [written] and written.exists()
+    assert not (tmp_path / "out_bad.rrd").exists()
+    summary = summaries[0]
+    assert summary.recorded == "shove" and summary.offline.label in load_model(model_path).classes
+    assert len(summary.pred_t) == len(summary.pred_label) > 10
+    assert summary.line().startswith(f"{session.name}: recorded shove, predicted ")

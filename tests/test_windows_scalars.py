@@ -1,13 +1,11 @@
-"""Windows (Appendix A), scalar features (Table 3.4) and filters (Appendix B.4)."""
+"""Windows (Appendix A) and scalar features (Table 3.4)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-import scipy.signal
 import scipy.stats
 
-from contactkit.features.filters import StreamingFilter, design, filter_batch
 from contactkit.features.scalars import (
     fft_magnitudes,
     hjorth_complexity,
@@ -73,21 +71,3 @@ def test_scalars_on_known_signals() -> None:
     assert np.allclose(mags, np.abs(np.fft.fft(x, axis=0))[:3].T)
     _, fft_names = scalar_features(x, ["fft"], ["a", "b", "c"])
     assert fft_names[:4] == ["fft0(a)", "fft0(b)", "fft0(c)", "fft1(a)"]
-
-
-def test_zero_phase_batch_filter_has_no_lag_and_streaming_is_causal_sosfilt() -> None:
-    rate = 1000.0
-    t = np.arange(2000) / rate
-    x = np.column_stack([np.sin(2 * np.pi * 1.0 * t), np.random.default_rng(1).normal(size=2000)])
-    smooth = filter_batch(x, "low", 20.0, rate)
-    assert np.abs(smooth[200:-200, 0] - x[200:-200, 0]).max() < 0.01
-    stream = StreamingFilter("low", 20.0, rate, channels=2)
-    online = np.array([stream.update(sample) for sample in x])
-    sos = design("low", 20.0, rate)
-    zi = scipy.signal.sosfilt_zi(sos)[:, :, None] * x[0][None, None, :]
-    expected, _ = scipy.signal.sosfilt(sos, x, axis=0, zi=zi)
-    assert np.allclose(online, expected, atol=1e-12)
-    high = StreamingFilter("high", 5.0, rate, channels=2)
-    assert np.allclose(high.update(x[0]), 0.0 * x[0] + high.sos[0, 0] * x[0])
-    with pytest.raises(ValueError, match="Nyquist"):
-        design("low", 600.0, rate)

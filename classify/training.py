@@ -1,0 +1,112 @@
+"""Training and evaluating any registered model kind on datasets: the library behind
+``classify train`` and ``classify evaluate``, callable from a notebook.
+
+Nothing here knows a kind by name: the kind (:mod:`contactkit.classify.registry`)
+says which input it takes, how to build the estimator and how to save it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from contactkit.classify.data import GROUP_KEYS, FeatureSet
+from contactkit.classify.evaluate import PROTOCOLS, Report, evaluate
+from contactkit.classify.kind import ModelKind, ModelOptions
+from contactkit.classify.modelfile import save_model
+from contactkit.classify.registry import get_kind
+from contactkit.classify.schemes import check_scheme, scheme_classes
+from contactkit.schemas import InputError
+from contactkit.util.progress import LabelledProgress
+
+
+@dataclass
+class TrainingSet:
+    """A kind, its configured input transformer and the data it turned the datasets into."""
+
+    kind: ModelKind
+    transformer: object
+    data: FeatureSet
+
+
+def training_set(datasets: Sequence[Path], options: ModelOptions, *, workers: int = 1,
+                 limited: bool = False, progress: LabelledProgress | None = None
+                 ) -> TrainingSet:
+    """Check ``options`` for their kind, then compute (or read from the dataset cache)
+    the kind's input for every session of ``datasets``; sessions that fail are listed
+    in ``data.problems``. ``limited`` keeps the limited context only."""
+    kind = get_kind(options.kind)
+    kind.check_options(options)
+    transformer = kind.transformer(options)
+    report = None if progress is None else (
+        lambda done, total: progress(f"{kind.input.name} of sessions", done, total))
+    data = kind.input.load([Path(d) for d in datasets], transformer, workers, report)
+    return TrainingSet(kind, transformer, data.limited() if limited else data)
+
+
+@dataclass
+class TrainedModel:
+    """What :func:`train` wrote: the file, the kind, sessions used, classes, skipped files."""
+
+    path: Path
+    kind: str
+    sessions: int
+    classes: list[str]
+    problems: list[tuple[str, str]]
+
+
+def train(datasets: Sequence[Path], out: Path, options: ModelOptions, *, scheme: str = "full",
+          limited: bool = False, workers: int = 1, overwrite: bool = False,
+          progress: LabelledProgress | None = None) -> TrainedModel:
+    """Train a model of ``options.kind`` on every session of ``datasets`` and save it to
+    ``out`` in the kind's file format; return what was written."""
+    check_scheme(scheme)
+    out = Path(out)
+    if out.exists() and not overwrite:
+        raise InputError("output file already exists (it is replaced only with overwrite)", out)
+    kind = get_kind(options.kind)
+    if out.suffix.lower() != kind.file_format.suffix:
+        raise InputError(f"a {kind.name} model is saved as {kind.file_format.name}: the file "
+                         f"name must end in {kind.file_format.suffix}", out)
+    found = training_set(datasets, options, workers=workers, limited=limited,
+                         progress=progress)
+    data = found.data
+    estimator = kind.make(options, list(data.names))
+    estimator.fit(data.X, data.labels(scheme))
+    classes = [str(c) for c in estimator.classes_]
+    training = {"datasets": [str(d) for d in datasets], "limited": limited,
+                "sessions": len(data), "options": asdict(options),
+                "epochs": getattr(estimator, "n_epochs_", None)}
+    path = save_model(out, estimator, kind=kind, transformer=found.transformer,
+                      feature_names=list(data.names), classes=classes, scheme=scheme,
+                      fingerprint=data.fingerprint(), training=training,
+                      sample_shape=tuple(data.X.shape[1:]), overwrite=overwrite)
+    return TrainedModel(path, kind.name, len(data), classes, list(data.problems))
+
+
+def evaluate_kind(datasets: Sequence[Path], options: ModelOptions, *, protocol: str = "group",
+                  group: str = "pose", scheme: str = "full", limited: bool = False,
+                  workers: int = 1, progress: LabelledProgress | None = None
+                  ) -> tuple[Report, list[tuple[str, str]]]:
+    """Evaluate ``options.kind`` on ``datasets`` under a protocol (see
+    :mod:`contactkit.classify.evaluate`); return the report and the skipped files."""
+    check_scheme(scheme)
+    if protocol not in PROTOCOLS:
+        raise InputError(f"unknown protocol {protocol!r} (expected one of "
+                         f"{', '.join(PROTOCOLS)})")
+    if group not in GROUP_KEYS:
+        raise InputError(f"unknown grouping {group!r} (expected one of "
+                         f"{', '.join(GROUP_KEYS)})")
+    found = training_set(datasets, options, workers=workers, limited=limited,
+                         progress=progress)
+    data, kind = found.data, found.kind
+    template = kind.make(options, list(data.names))
+    report = None if progress is None else (
+        lambda done, total: progress(f"{protocol} protocol splits", done, total))
+    result = evaluate(data.X, data.labels(scheme), lambda: template, protocol=protocol,
+                      groups=data.groups(group) if protocol == "group" else None,
+                      group_by=group, model=kind.name, scheme=scheme,
+                      classes=scheme_classes(scheme), seed=options.seed,
+                      workers=workers if kind.parallel_fits else 1, progress=report)
+    return result, list(data.problems)
