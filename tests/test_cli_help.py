@@ -58,13 +58,7 @@ def _commands(app: typer.Typer) -> dict[str, object]:
     return dict(getattr(command, "commands", {"": command}))
 
 
-# classify and replay get plain help and enum choices on the arch-classify branch; the
-# marks go when it is merged (strict: a pass then fails the suite as a reminder).
-PENDING = pytest.mark.xfail(strict=True, reason="classify/replay --help fixed on arch-classify")
-
-
-@pytest.mark.parametrize("name", ["recorder", pytest.param("classify", marks=PENDING),
-                                  pytest.param("replay", marks=PENDING)])
+@pytest.mark.parametrize("name", ["recorder", "classify", "replay"])
 def test_help_keeps_units_and_lists_choices(name: str, monkeypatch: pytest.MonkeyPatch
                                             ) -> None:
     app = _app(name, monkeypatch)
