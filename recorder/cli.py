@@ -33,6 +33,7 @@ from contactkit.recorder.noise import SensorNoise, default_noise
 from contactkit.recorder.sim import SimConfig, plan_session
 from contactkit.recorder.sources import SOURCES, source_class
 from contactkit.recorder.sources.can import BusConfig, CanSource, Cue
+from contactkit.recorder.sources.franka import FrankaConfig, FrankaSource
 from contactkit.recorder.stats import build_report, write_noise_file
 from contactkit.recorder.stats_report import FORMATS, print_summary, write_report
 from contactkit.schemas import ACTIONS, InputError, SessionMeta, read_session, validate_session
@@ -98,7 +99,7 @@ def capture_command(
         "sessions"),
     source: Annotated[str, typer.Option(
         help=f"Data source: {', '.join(SOURCES)} (sim: the simulated Panda; can: a CAN bus "
-             "decoded with --map).")] = "sim",
+             "decoded with --map; franka: a Franka robot at --host, read only).")] = "sim",
     realtime: Annotated[bool, typer.Option(
         help="Pace the capture at wall-clock speed and show the operator cue "
              "(countdown, then a bell at the planned time).")] = False,
@@ -133,13 +134,33 @@ def capture_command(
         help="--source can: send a cue frame with this id (e.g. 0x700) at the planned "
              "time, for a lamp or buzzer; its bus time goes into the metadata.")] = None,
     cue_data: Annotated[str, typer.Option(help="Cue frame payload, hex.")] = "01",
+    host: Annotated[str, typer.Option(
+        help="--source franka: the robot's FCI address.")] = "172.16.0.2",
+    backend: Annotated[str, typer.Option(
+        help="--source franka: auto, pylibfranka (FR3, system 5.9+) or panda-python "
+             "(Panda).")] = "auto",
+    realtime_kernel: Annotated[bool, typer.Option(
+        help="--source franka: enforce libfranka's real-time check (default: ignored; "
+             "the recorder only reads).")] = False,
 ) -> None:
     """Record one session and print the written file's path.
 
     Example: recorder capture --pose B --action adjust
     """
     source_class(source)
-    if source == "can":
+    if source == "franka":
+        planned = 5.0 if planned_at is None else planned_at
+        total = 12.0 if duration is None else duration
+        if total <= 0 or not 0 <= planned < total:
+            raise InputError(f"planned interaction time {planned} s must lie within the "
+                             f"session (0 to {total} s)")
+        chosen = FrankaSource(FrankaConfig(host, backend, realtime_kernel), total)
+        meta = protocol_meta(source="franka", action=action, condition=condition, pose=pose,
+                             target_pose=target_pose, speed_rad_s=speed, link=link,
+                             planned_at_s=planned, operator=operator, with_hand=hand,
+                             notes=notes)
+        meta.nominal_rate_hz = rate_hz = 1000.0
+    elif source == "can":
         planned = 5.0 if planned_at is None else planned_at
         total = 12.0 if duration is None else duration
         if total <= 0 or not 0 <= planned < total:

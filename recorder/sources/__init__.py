@@ -14,6 +14,7 @@ from contactkit.schemas import InputError
 SOURCES: dict[str, str] = {
     "sim": "contactkit.recorder.sources.sim:SimSource",
     "can": "contactkit.recorder.sources.can:CanSource",
+    "franka": "contactkit.recorder.sources.franka:FrankaSource",
 }
 
 
