@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from contactkit.schemas import Session, validate_session
-from contactkit.schemas.timing import sampling_stats
+from contactkit.schemas.timing import rate_warning, sampling_stats
 
 
 def contact_interval(session: Session) -> tuple[float, float] | None:
@@ -30,7 +30,8 @@ def peak_force_n(session: Session) -> float | None:
 
 
 def session_info(path: str | Path) -> dict:
-    """Return metadata, sampling statistics and ground truth of a session file."""
+    """Return metadata, sampling statistics (with a warning when the rate is too slow for
+    the feature chain) and ground truth of a session file."""
     session = validate_session(path)
     stats = sampling_stats(session.t)
     return {
@@ -38,6 +39,7 @@ def session_info(path: str | Path) -> dict:
         "metadata": {k: v for k, v in vars(session.meta).items() if k != "simulator"},
         "columns": session.table.column_names,
         "sampling": stats.as_dict(),
+        "rate_warning": rate_warning(stats.rate_hz),
         "contact_interval_s": contact_interval(session),
         "peak_force_n": peak_force_n(session),
     }
