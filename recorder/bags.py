@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from contactkit.recorder.bag_salvage import SalvageReader
 from contactkit.recorder.capture import protocol_meta
 from contactkit.recorder.importer import write_imported_session
 from contactkit.schemas import InputError, SessionMeta, joint_columns
@@ -146,15 +147,29 @@ ROWS = {FRANKA_STATE: _franka_state_rows, FRANKA_ROBOT_STATE: _franka_robot_stat
 
 
 def _open_reader(path: Path) -> Any:
+    """Open a bag with rosbags, or, when its end (and index) is missing, scan what is left
+    of a ROS 1 or MCAP file (:class:`contactkit.recorder.bag_salvage.SalvageReader`)."""
     from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
 
     ros1 = path.suffix == ".bag"
     try:
         reader = AnyReader([path], default_typestore=default_typestore(ros1))
         reader.open()
+        return reader
     except Exception as err:  # rosbags raises several error types for unreadable bags
-        raise InputError(f"cannot read bag ({_first_line(err)})", path) from err
-    return reader
+        problem = _first_line(err)
+    mcaps = sorted(path.glob("*.mcap")) if path.is_dir() else [path]
+    if len(mcaps) == 1 and mcaps[0].suffix in (".bag", ".mcap"):
+        store = get_typestore(Stores.EMPTY)
+        store.register(default_typestore(ros1).fielddefs)
+        try:
+            salvage = SalvageReader(mcaps[0], store)
+        except (OSError, ValueError):
+            salvage = None
+        if salvage is not None and salvage.connections:
+            return salvage
+    raise InputError(f"cannot read bag ({problem})", path)
 
 
 def _first_line(err: BaseException) -> str:
@@ -243,6 +258,9 @@ def _read_messages(reader: Any, path: Path, chosen: str, label_topic: str | None
     out.info = {"bag": str(path), "topic": chosen, "msgtype": topics[chosen],
                 "messages": len(out.recorded_ns), "messages_in_index": expected,
                 "lost_messages": max(expected - len(out.recorded_ns), 0)}
+    if isinstance(reader, SalvageReader):
+        out.info["salvaged"] = True
+        error = error or reader.lost()
     if error is not None:
         out.info["read_error"] = error
     out.info["_labels"] = labels
