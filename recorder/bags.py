@@ -84,12 +84,15 @@ def bundled_msgdef(msgtype: str, ros1: bool) -> str:
 
 @dataclass
 class BagColumns:
-    """What the importer read from a bag: session columns, the bag's recording time of each
-    sample [ns], header stamps [ns] (0 where absent), label events and statistics."""
+    """What the importer read from a bag: per-sample values by kind, the bag's recording
+    time of each sample [ns], header stamps [ns] (0 where absent), label messages
+    (recording time [ns], data), messages of the export-mcap topics, and statistics."""
 
     columns: dict[str, list] = field(default_factory=dict)
     recorded_ns: list[int] = field(default_factory=list)
     header_ns: list[int] = field(default_factory=list)
+    labels: list[tuple[int, Any]] = field(default_factory=list)
+    extras: dict[str, list] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
 
 
@@ -232,8 +235,6 @@ def _read_messages(reader: Any, path: Path, chosen: str, label_topic: str | None
     rows_of = ROWS[topics[chosen]]
     out = BagColumns()
     rows: dict[str, list] = {}
-    extras: dict[str, list] = {}
-    labels: list[tuple[int, Any]] = []
     connections = [c for c in reader.connections if c.topic in wanted]
     expected = sum(c.msgcount for c in connections if c.topic == chosen)
     error = None
@@ -247,9 +248,9 @@ def _read_messages(reader: Any, path: Path, chosen: str, label_topic: str | None
                 header = getattr(msg, "header", None)
                 out.header_ns.append(0 if header is None else _stamp_ns(header))
             elif connection.topic == label_topic:
-                labels.append((timestamp, msg.data))
+                out.labels.append((timestamp, msg.data))
             else:
-                extras.setdefault(connection.topic, []).append(msg)
+                out.extras.setdefault(connection.topic, []).append(msg)
     except InputError:
         raise
     except Exception as err:  # a truncated or corrupt bag: keep what came before
@@ -263,8 +264,6 @@ def _read_messages(reader: Any, path: Path, chosen: str, label_topic: str | None
         error = error or reader.lost()
     if error is not None:
         out.info["read_error"] = error
-    out.info["_labels"] = labels
-    out.info["_extras"] = extras
     return out
 
 
@@ -299,9 +298,9 @@ def bag_session_columns(bag: BagColumns, path: Path) -> tuple[dict[str, np.ndarr
         if array.shape[1] == len(names) and np.isfinite(array).all():
             columns.update({n: array[:, i].astype(np.float64) for i, n in enumerate(names)})
     recorded = np.asarray(bag.recorded_ns, dtype=np.int64)[keep]
-    _add_export_topics(columns, bag.info.pop("_extras"), recorded)
+    _add_export_topics(columns, bag.extras)
     events = [{"t": float(_session_time(stamp, recorded, columns["t"])), "text": str(data)}
-              for stamp, data in bag.info.pop("_labels")]
+              for stamp, data in bag.labels]
     info = {**bag.info, "time_source": time_source, "dropped_out_of_order": int((~keep).sum()),
             "rate_hz": sampling_stats(columns["t"]).rate_hz}
     if events:
@@ -327,8 +326,7 @@ def _hold(flags: list[dict], t: np.ndarray) -> np.ndarray:
     return values
 
 
-def _add_export_topics(columns: dict[str, np.ndarray], extras: dict[str, list],
-                       recorded: np.ndarray) -> None:
+def _add_export_topics(columns: dict[str, np.ndarray], extras: dict[str, list]) -> None:
     """Add the columns export-mcap writes on its own topics, where they line up one
     message per sample."""
     n = columns["t"].size
@@ -360,7 +358,7 @@ def _joint_block(prefix: str, rows: list) -> dict[str, np.ndarray]:
 
 def exported_meta(bag: BagColumns) -> dict | None:
     """Return the session metadata export-mcap stored in the bag, or None."""
-    messages = bag.info.get("_extras", {}).get(EXPORT_TOPICS["session"])
+    messages = bag.extras.get(EXPORT_TOPICS["session"])
     return json.loads(messages[0].data) if messages else None
 
 
