@@ -8,6 +8,11 @@ when it can; on a loaded machine its clock runs slower than the wall clock), and
 recorder's CPU share (this process: the read loop, the journal and the session write).
 
     .venv/bin/python benchmarks/bench_franka.py [seconds of robot time, default 60]
+
+Measured (2 cores shared with about 8 other jobs, load average 15): 60 s of robot
+time, 59,573 states recorded, 428 lost (0.71 %) in 188 gaps, the longest 45 ms;
+franky-sim's clock ran at 0.16x real time (378 s wall); recorder CPU 9.6 s, 3 % of
+one core, 161 us per state.
 """
 
 from __future__ import annotations
