@@ -11,6 +11,7 @@ from typing import Annotated, Literal
 import typer
 from rich.console import Console
 
+from contactkit.recorder.bags import BagJob, find_bags, import_bag_job, import_bags
 from contactkit.recorder.can_map import load_map
 from contactkit.recorder.can_tools import bridge_session, decoding_summary, import_can_log
 from contactkit.recorder.capture import output_directory
@@ -19,6 +20,7 @@ from contactkit.recorder.dataset import PRESETS, simulate_dataset
 from contactkit.recorder.importer import import_arrays
 from contactkit.recorder.info import print_info, session_info
 from contactkit.recorder.journal import recover_directory
+from contactkit.recorder.mcap_export import export_mcap
 from contactkit.recorder.metadata import session_filename, session_meta
 from contactkit.recorder.sim import SimConfig
 from contactkit.recorder.sources.can import BusConfig
@@ -169,6 +171,80 @@ def import_can_command(
                           session_filename(meta))
     err_console.print(decoding_summary(read_session(path).meta.source_info))
     print(path)
+
+
+@app.command("import-bag")
+def import_bag_command(
+    bag: Annotated[Path, typer.Argument(help="ROS 1 .bag, ROS 2 bag directory, .mcap or .db3 "
+                                             "file, or a directory of bags.")],
+    pose: Annotated[Pose, typer.Option(help="Pose of the session(s) (thesis Table 3.1).")],
+    action: Annotated[Action, typer.Option(help="What the person did.")],
+    topic: Annotated[str | None, typer.Option(
+        help="Joint-state topic (FrankaState, FrankaRobotState or JointState; default: the "
+             "usual franka_ros/franka_ros2 topics).")] = None,
+    label_topic: Annotated[str | None, typer.Option(
+        help="std_msgs/String or Bool topic of labels or cue events: String events are "
+             "stored with their times (the first is the planned time), Bool is the "
+             "ground-truth contact.")] = None,
+    planned_at: Annotated[float | None, typer.Option(
+        help="Planned interaction time [s from the first sample].")] = None,
+    condition: Annotated[Condition, typer.Option(help="Protocol condition.")] = "static",
+    target_pose: Annotated[Pose | None, typer.Option(help="Dynamic: target pose.")] = None,
+    link: Annotated[int | None, typer.Option(help="Touched link 1-7.")] = None,
+    operator: Annotated[str, typer.Option(help="Who touched the robot.")] = "",
+    hand: Annotated[bool, typer.Option(help="The robot carried its hand.")] = True,
+    out: Annotated[Path, typer.Option(help="Output directory.")] = Path("sessions"),
+    workers: Annotated[int, typer.Option(help="Parallel processes for a directory.")
+                       ] = DEFAULT_WORKERS,
+) -> None:
+    """Convert ROS bags (franka_ros, franka_ros2, JointState) into validated sessions and
+    print their paths; a directory imports in parallel and reports the bags that failed."""
+    protocol = {"action": action, "condition": condition, "pose": pose,
+                "target_pose": target_pose, "link": link, "planned_at_s": planned_at,
+                "operator": operator, "with_hand": hand}
+    session_meta(source="ros-bag", **protocol)
+    directory = output_directory(out)
+    single = not bag.is_dir() or (bag / "metadata.yaml").exists()
+    paths = [bag] if single else find_bags(bag)
+    if not paths:
+        raise InputError("no bags found (.bag, .mcap, .db3 or ROS 2 bag directories)", bag)
+    jobs = [BagJob(p, directory, protocol, topic, label_topic) for p in paths]
+    if single:
+        _, session, problem = import_bag_job(jobs[0])
+        if problem is not None:
+            raise InputError(problem)
+        _report_bag(session)
+        return
+    with progress_bar("importing") as bar:
+        sessions, problems = import_bags(jobs, workers, bar_callback(bar, "bags"))
+    for session in sessions:
+        _report_bag(session)
+    err_console.print(f"{len(sessions)} of {len(paths)} bags imported")
+    _print_problems(problems)
+
+
+def _report_bag(session: Path) -> None:
+    info = read_session(session).meta.source_info
+    info = info.get("imported_from_bag", info)
+    lost = f", {info['lost_messages']} lost" if info["lost_messages"] else ""
+    err_console.print(f"{info['messages']} messages from {info['topic']} ({info['msgtype']}"
+                      f"{lost}), {info['rate_hz']:.1f} Hz, time from the "
+                      f"{info['time_source']} stamps")
+    if "read_error" in info:
+        err_console.print(f"[yellow]bag ends early[/]: {info['read_error']}; what was "
+                          "readable is kept")
+    print(session)
+
+
+@app.command("export-mcap")
+def export_mcap_command(
+    session: Annotated[Path, typer.Argument(help="Session file (.parquet).")],
+    out: Annotated[Path | None, typer.Option(
+        help="ROS 2 bag directory to write (default: the session's name beside it).")] = None,
+) -> None:
+    """Write a session as a ROS 2 MCAP bag (JointState, WrenchStamped) for Foxglove or
+    the Rerun viewer; print the .mcap file's path. `import-bag` reads it back."""
+    print(export_mcap(session, out or session.with_suffix("")))
 
 
 @app.command("can-bridge")

@@ -9,7 +9,7 @@ from rich.console import Console
 from rich.table import Table
 
 from contactkit.schemas import Session, validate_session
-from contactkit.schemas.timing import sampling_stats
+from contactkit.schemas.timing import rate_warning, sampling_stats
 
 
 def contact_interval(session: Session) -> tuple[float, float] | None:
@@ -32,7 +32,8 @@ def peak_force_n(session: Session) -> float | None:
 
 
 def session_info(path: str | Path) -> dict:
-    """Return metadata, sampling statistics and ground truth of a session file."""
+    """Return metadata, sampling statistics (with a warning when the rate is too slow for
+    the feature chain) and ground truth of a session file."""
     session = validate_session(path)
     stats = sampling_stats(session.t)
     return {
@@ -40,6 +41,7 @@ def session_info(path: str | Path) -> dict:
         "metadata": {k: v for k, v in vars(session.meta).items() if k != "simulator"},
         "columns": session.table.column_names,
         "sampling": stats.as_dict(),
+        "rate_warning": rate_warning(stats.rate_hz),
         "contact_interval_s": contact_interval(session),
         "peak_force_n": peak_force_n(session),
     }
@@ -60,6 +62,8 @@ def print_info(info: dict, console: Console) -> None:
                           f"ms, min {s['min_step_s'] * 1e3:.3f}, max {s['max_step_s'] * 1e3:.3f})")
     table.add_row("gaps", f"{s['gaps']} longer than 3x median (~{s['dropped_estimate']} "
                           "samples missing)")
+    if info["rate_warning"]:
+        table.add_row("[yellow]warning[/]", info["rate_warning"])
     if info["contact_interval_s"]:
         lo, hi = info["contact_interval_s"]
         table.add_row("contact", f"{lo:.3f} s to {hi:.3f} s, peak {info['peak_force_n']:.1f} N")

@@ -33,6 +33,7 @@ from contactkit.recorder.noise import SensorNoise
 from contactkit.recorder.stats_deep import session_summary
 from contactkit.schemas import ACTIONS, InputError
 from contactkit.schemas.dataset import INDEX_NAME, rebuild_index, session_files
+from contactkit.schemas.timing import rate_warning
 from contactkit.util.parallel import map_ordered
 
 SCHEMA_ID = "contactkit.schemas/stats_report/1"
@@ -92,6 +93,11 @@ def index_stats(index: pl.LazyFrame) -> dict:
                          | (pl.col("planned_at_s") + WINDOW_S > pl.col("t_end_s")))
     problems += [{"file": f, "problem": f"session too short for a {WINDOW_S} s window at its "
                                         "planned time"} for f in short["file"]]
+    rates = frame.select("file", ((pl.col("n_samples") - 1) / pl.col("duration_s"))
+                         .alias("rate_hz"))
+    problems += [{"file": f, "problem": rate_warning(rate)}
+                 for f, rate in zip(rates["file"], rates["rate_hz"], strict=True)
+                 if rate is not None and rate_warning(rate)]
     durations = frame["duration_s"]
     return {
         "sessions": total,

@@ -18,6 +18,13 @@ column                 unit       meaning
                                   opposite to the momentum-observer residual)
 ``f_ext_x/y/z``        N          optional: ground-truth applied force, world frame
 ``contact``            bool       optional: ground truth, a person is touching the arm
+``f_ext_hat_x/y/z``    N          optional: the robot's own estimate of the external
+``m_ext_hat_x/y/z``    Nm         wrench at the stiffness frame, base frame (libfranka
+                                  ``O_F_ext_hat_K``)
+``robot_mode``         int8       optional: libfranka ``RobotMode`` (0 other, 1 idle,
+                                  2 move, 3 guiding, 4 reflex, 5 user stopped, 6
+                                  automatic error recovery)
+``command_success_rate`` 1        optional: libfranka ``control_command_success_rate``
 =====================  =========  =====================================================
 
 The Parquet key-value metadata holds one JSON document under the key
@@ -57,19 +64,26 @@ def joint_columns(prefix: str, n: int = N_JOINTS) -> list[str]:
 REQUIRED_JOINT_PREFIXES = ("q", "dq", "tau")
 OPTIONAL_JOINT_PREFIXES = ("q_d", "dq_d", "tau_ext_hat")
 FORCE_COLUMNS = ("f_ext_x", "f_ext_y", "f_ext_z")
+WRENCH_HAT_COLUMNS = ("f_ext_hat_x", "f_ext_hat_y", "f_ext_hat_z", "m_ext_hat_x", "m_ext_hat_y",
+                      "m_ext_hat_z")
 REQUIRED_COLUMNS = ["t", *[c for p in REQUIRED_JOINT_PREFIXES for c in joint_columns(p)]]
 OPTIONAL_FLOAT_COLUMNS = [
     *[c for p in OPTIONAL_JOINT_PREFIXES for c in joint_columns(p)],
     *FORCE_COLUMNS,
+    *WRENCH_HAT_COLUMNS,
+    "command_success_rate",
 ]
-OPTIONAL_COLUMNS = [*OPTIONAL_FLOAT_COLUMNS, "contact"]
+OPTIONAL_COLUMNS = [*OPTIONAL_FLOAT_COLUMNS, "contact", "robot_mode"]
 COLUMN_ORDER = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
 ALL_JOINT_PREFIXES = REQUIRED_JOINT_PREFIXES + OPTIONAL_JOINT_PREFIXES
 
 
 def column_type(name: str) -> pa.DataType:
-    """Return the Arrow type of a session column (``contact`` is bool, the rest float64)."""
-    return pa.bool_() if name == "contact" else pa.float64()
+    """Return the Arrow type of a session column (``contact`` is bool, ``robot_mode`` int8,
+    the rest float64)."""
+    if name == "contact":
+        return pa.bool_()
+    return pa.int8() if name == "robot_mode" else pa.float64()
 
 
 def session_schema(columns: Iterable[str], meta: SessionMeta | None = None) -> pa.Schema:

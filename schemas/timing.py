@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -52,3 +53,20 @@ def sampling_stats(t: np.ndarray) -> SamplingStats:
         gaps=int(is_gap.sum()),
         dropped_estimate=int(np.round(steps[is_gap] / median - 1).sum()),
     )
+
+
+MIN_FEATURE_RATE_HZ = 200.0
+"""Below this sample rate [Hz] the feature chain's features mean little: the observer
+(gain 50 1/s) and the backward-difference accelerations need steps well under its time
+constant, and a 0.5 s interaction window needs enough samples. The thesis recorded at
+about 600 Hz; the real contact recordings beside the project are at 200 Hz; franka_ros
+publishes at 30 Hz by default."""
+
+
+def rate_warning(rate_hz: float) -> str | None:
+    """Return a one-line warning when a measured sample rate [Hz] is too slow for the
+    feature chain (below :data:`MIN_FEATURE_RATE_HZ`), else None."""
+    if math.isnan(rate_hz) or rate_hz >= MIN_FEATURE_RATE_HZ:
+        return None
+    return (f"sampled at {rate_hz:.1f} Hz, too slow for the feature chain (needs "
+            f"{MIN_FEATURE_RATE_HZ:.0f} Hz or more; the thesis used about 600 Hz)")

@@ -83,7 +83,7 @@ def test_recorder_help_shows_units_and_every_source_option() -> None:
     module = importlib.import_module("contactkit.recorder.cli")
     text = " ".join(runner.invoke(module.app, ["capture", "--help"], terminal_width=240,
                                   env={"COLUMNS": "240"}).output.split())
-    for piece in ("[rad/s]", "[s from start]", "[Hz]", "[ms]", "[s]", "<sim|can>",
+    for piece in ("[rad/s]", "[s from start]", "[Hz]", "[ms]", "[s]", "<sim|can|franka>",
                   "<none|bump|adjust|shove>", "--channel", "--map", "--noise-scale"):
         assert piece in text
     arrays = runner.invoke(module.app, ["import-arrays", "--help"], terminal_width=240)

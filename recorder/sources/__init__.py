@@ -45,6 +45,7 @@ ENTRY_POINT_GROUP = "contactkit.sources"
 SOURCES: dict[str, str] = {
     "sim": "contactkit.recorder.sources.sim:SimSource",
     "can": "contactkit.recorder.sources.can:CanSource",
+    "franka": "contactkit.recorder.sources.franka:FrankaSource",
 }
 
 

@@ -1,0 +1,108 @@
+"""A session as a ROS 2 MCAP bag (``recorder export-mcap``), for Foxglove and Rerun.
+
+Each sample becomes a ``sensor_msgs/JointState`` on ``/joint_states`` (q, dq, tau as
+position, velocity, effort; joints ``fr3_joint1..7``), stamped with the sample's
+time. Optional columns go on their own topics, one message per sample:
+``/joint_states_desired`` (q_d, dq_d), ``/tau_ext_hat_filtered`` (JointState effort),
+``geometry_msgs/WrenchStamped`` on
+``/franka_robot_state_broadcaster/external_wrench_in_base_frame`` (the robot's
+estimate) and ``/contactkit/applied_force`` (ground truth), and ``std_msgs/Bool`` on
+``/contactkit/contact``. The session metadata is one ``std_msgs/String`` (JSON) on
+``/contactkit/session``. ``recorder import-bag`` reads all of it back.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from contactkit.recorder.bags import BOOL, EXPORT_TOPICS, JOINT_STATE, STRING, WRENCH_STAMPED
+from contactkit.schemas import InputError, Session, joint_columns, read_session
+from contactkit.schemas.session import FORCE_COLUMNS, WRENCH_HAT_COLUMNS
+
+JOINT_NAMES = [f"fr3_joint{i}" for i in range(1, 8)]
+
+
+def _stamps_ns(t: np.ndarray, start_ns: int) -> np.ndarray:
+    return start_ns + np.round(np.asarray(t) * 1e9).astype(np.int64)
+
+
+def export_mcap(session_path: Path, out: Path, *, start_ns: int = 0) -> Path:
+    """Write the session at ``session_path`` as a ROS 2 bag directory ``out`` with one
+    MCAP file; return the MCAP file's path. Time stamps are ``start_ns`` plus the
+    session time [ns]. Raises InputError when ``out`` exists."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    session = read_session(session_path)
+    if out.exists():
+        raise InputError("output exists already (choose another --out)", out)
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    stamps = _stamps_ns(session.t, start_ns)
+    with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        streams = _message_streams(session, store)
+        connections = {topic: writer.add_connection(topic, msgtype, typestore=store)
+                       for topic, (msgtype, _) in streams.items()}
+        meta_conn = writer.add_connection(EXPORT_TOPICS["session"], STRING, typestore=store)
+        writer.write(meta_conn, int(stamps[0]), store.serialize_cdr(
+            store.types[STRING](data=session.meta.to_json()), STRING))
+        for i, stamp in enumerate(stamps):
+            header = _header(store, int(stamp))
+            for topic, (msgtype, make) in streams.items():
+                writer.write(connections[topic], int(stamp),
+                             store.serialize_cdr(make(i, header), msgtype))
+    return next(out.glob("*.mcap"))
+
+
+def _header(store: Any, stamp_ns: int) -> Any:
+    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+    return store.types["std_msgs/msg/Header"](
+        stamp=store.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id="")
+
+
+def _block(session: Session, prefix: str) -> np.ndarray | None:
+    names = joint_columns(prefix)
+    return session.joints(prefix) if all(session.has(n) for n in names) else None
+
+
+def _message_streams(session: Session, store: Any) -> dict[str, tuple[str, Any]]:
+    """Return ``{topic: (msgtype, make(i, header))}`` for the columns the session has."""
+    joint_state = store.types[JOINT_STATE]
+    empty = np.zeros(0)
+    q, dq, tau = session.q, session.dq, session.tau
+    streams = {"/joint_states": (JOINT_STATE, lambda i, h: joint_state(
+        header=h, name=JOINT_NAMES, position=q[i], velocity=dq[i], effort=tau[i]))}
+    q_d, dq_d = _block(session, "q_d"), _block(session, "dq_d")
+    if q_d is not None and dq_d is not None:
+        streams[EXPORT_TOPICS["desired"]] = (JOINT_STATE, lambda i, h: joint_state(
+            header=h, name=JOINT_NAMES, position=q_d[i], velocity=dq_d[i], effort=empty))
+    hat = _block(session, "tau_ext_hat")
+    if hat is not None:
+        streams[EXPORT_TOPICS["tau_ext_hat"]] = (JOINT_STATE, lambda i, h: joint_state(
+            header=h, name=JOINT_NAMES, position=empty, velocity=empty, effort=hat[i]))
+    for key, names in (("wrench_hat", WRENCH_HAT_COLUMNS), ("applied", FORCE_COLUMNS)):
+        if all(session.has(n) for n in names):
+            values = np.column_stack([session.column(n) for n in names])
+            if values.shape[1] == 3:
+                values = np.column_stack([values, np.zeros((len(values), 3))])
+            streams[EXPORT_TOPICS[key]] = (WRENCH_STAMPED, _wrench_maker(store, values))
+    if session.has("contact"):
+        contact = session.column("contact")
+        streams[EXPORT_TOPICS["contact"]] = (BOOL, lambda i, h: store.types[BOOL](
+            data=bool(contact[i])))
+    return streams
+
+
+def _wrench_maker(store: Any, values: np.ndarray) -> Any:
+    vector, wrench = store.types["geometry_msgs/msg/Vector3"], store.types[
+        "geometry_msgs/msg/Wrench"]
+    stamped = store.types[WRENCH_STAMPED]
+
+    def make(i: int, header: Any) -> Any:
+        f = values[i]
+        return stamped(header=header, wrench=wrench(force=vector(x=f[0], y=f[1], z=f[2]),
+                                                    torque=vector(x=f[3], y=f[4], z=f[5])))
+
+    return make

@@ -1,0 +1,146 @@
+"""ROS bags in and out: import-bag on real bags written by rosbags, export-mcap round trip."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from bag_writers import ROS2_TOPIC, write_bag
+from conftest import make_session, run_cli
+
+from contactkit.recorder.bags import BagJob, import_bag, import_bags
+from contactkit.recorder.mcap_export import export_mcap
+from contactkit.recorder.metadata import session_meta
+from contactkit.schemas import InputError, read_session, validate_session
+from contactkit.schemas.timing import rate_warning
+
+COMPARED = ["q", "dq", "tau", "q_d", "dq_d"]
+PROTOCOL = {"action": "shove", "condition": "static", "pose": "B", "target_pose": None,
+            "speed_rad_s": None, "link": 7, "planned_at_s": None, "operator": "",
+            "with_hand": True}
+
+
+def meta():
+    return session_meta(source="ros-bag", **PROTOCOL)
+
+
+@pytest.fixture(scope="module")
+def source(tmp_path_factory) -> Path:
+    """A 3 s simulated shove at 500 Hz."""
+    return make_session(tmp_path_factory.mktemp("source"))
+
+
+def assert_same_joints(a, b) -> None:
+    np.testing.assert_allclose(b.t, a.t, rtol=0, atol=1e-9)
+    for prefix in COMPARED:
+        assert np.array_equal(a.joints(prefix), b.joints(prefix)), prefix
+
+
+@pytest.mark.parametrize("kind", ["ros1", "sqlite3", "mcap"])
+def test_franka_bags_import_bit_equal(source, tmp_path, kind):
+    session = read_session(source)
+    bag = write_bag(session, tmp_path / ("bag.bag" if kind == "ros1" else "bag"), kind)
+    out = import_bag(bag, meta(), tmp_path)
+    imported = validate_session(out)
+    assert_same_joints(session, imported)
+    assert (imported.column("robot_mode") == 2).all()
+    info = imported.meta.source_info
+    assert info["time_source"] == "header"
+    assert info["lost_messages"] == 0 and "read_error" not in info
+    assert info["rate_hz"] == pytest.approx(500.0)
+    assert imported.meta.nominal_rate_hz == pytest.approx(500.0)
+
+
+def test_bag_without_definitions_uses_bundled_ones(source, tmp_path):
+    bag = write_bag(read_session(source), tmp_path / "bag", "sqlite3", strip_definitions=True)
+    imported = validate_session(import_bag(bag, meta(), tmp_path))
+    assert_same_joints(read_session(source), imported)
+
+
+def test_wrong_topic_lists_the_topics(source, tmp_path):
+    bag = write_bag(read_session(source), tmp_path / "bag", "mcap")
+    with pytest.raises(InputError) as err:
+        import_bag(bag, meta(), tmp_path, topic="/joint_states")
+    message = str(err.value)
+    assert "\n" not in message and ROS2_TOPIC in message and "FrankaRobotState" in message
+
+
+def test_label_topics_give_planned_time_and_contact(source, tmp_path):
+    session = read_session(source)
+    bag = write_bag(session, tmp_path / "s", "mcap", labels=[(1.5, "cue shove"),
+                                                             (2.0, "done")])
+    imported = validate_session(import_bag(bag, meta(), tmp_path, label_topic="/labels"))
+    assert imported.meta.planned_at_s == pytest.approx(1.5, abs=2e-3)
+    assert [e["text"] for e in imported.meta.source_info["label_events"]] == ["cue shove",
+                                                                               "done"]
+    bag = write_bag(session, tmp_path / "b", "mcap", labels=[(1.0, True), (2.0, False)])
+    contact = validate_session(import_bag(bag, meta(), tmp_path / "b",
+                                          label_topic="/labels", name="b.parquet"))
+    touching = contact.t[contact.column("contact")]
+    assert touching[0] == pytest.approx(1.0, abs=2e-3)
+    assert touching[-1] == pytest.approx(2.0, abs=2e-3)
+
+
+@pytest.mark.parametrize("kind", ["ros1", "mcap"])
+def test_truncated_bag_keeps_what_is_readable(source, tmp_path, kind):
+    session = read_session(source)
+    bag = write_bag(session, tmp_path / ("bag.bag" if kind == "ros1" else "bag"), kind)
+    file = bag if kind == "ros1" else next(bag.glob("*.mcap"))
+    data = file.read_bytes()
+    broken = tmp_path / f"broken{file.suffix}"
+    broken.write_bytes(data[:len(data) // 2])
+    imported = validate_session(import_bag(broken, meta(), tmp_path))
+    info = imported.meta.source_info
+    assert 0 < imported.n_samples < session.n_samples
+    assert info["salvaged"] and "lost" in info["read_error"]
+    assert np.array_equal(imported.q, session.q[:imported.n_samples])
+
+
+def test_directory_with_one_bad_bag(source, tmp_path):
+    bags = tmp_path / "bags"
+    bags.mkdir()
+    session = read_session(source)
+    write_bag(session, bags / "one.bag", "ros1")
+    write_bag(session, bags / "two", "mcap")
+    (bags / "bad.bag").write_bytes(b"#ROSBAG V2.0\nnot a bag")
+    out = tmp_path / "sessions"
+    out.mkdir()
+    jobs = [BagJob(p, out, PROTOCOL) for p in (bags / "bad.bag", bags / "one.bag", bags / "two")]
+    sessions, problems = import_bags(jobs, workers=2)
+    assert len(sessions) == 2
+    assert [name for name, _ in problems] == [str(bags / "bad.bag")]
+
+
+def test_export_mcap_round_trip(source, tmp_path):
+    mcap = export_mcap(source, tmp_path / "exported")
+    assert mcap.suffix == ".mcap"
+    back = validate_session(import_bag(mcap, meta(), tmp_path))
+    original = read_session(source)
+    assert back.table.column_names == original.table.column_names
+    np.testing.assert_allclose(back.t, original.t, rtol=0, atol=1e-9)
+    for name in original.table.column_names[1:]:
+        assert np.array_equal(back.column(name), original.column(name)), name
+    assert back.meta.session_id == original.meta.session_id
+    assert back.meta.simulator == original.meta.simulator
+
+
+def test_rate_warning_flags_franka_ros_default_rate():
+    assert rate_warning(30.0) and "30.0 Hz" in rate_warning(30.0)
+    assert rate_warning(600.0) is None
+
+
+def test_cli_import_export_and_slow_rate(source, tmp_path):
+    out = tmp_path / "sessions"
+    result = run_cli("recorder", "export-mcap", str(source), "--out", str(tmp_path / "x"))
+    assert result.returncode == 0, result.stderr
+    result = run_cli("recorder", "import-bag", str(tmp_path / "x"), "--pose", "B", "--action",
+                     "shove", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    assert "500.0 Hz" in result.stderr
+    slow = make_session(tmp_path, rate_hz=30.0, seed=4)
+    result = run_cli("recorder", "info", str(slow))
+    assert "too slow for the feature chain" in result.stdout
+    result = run_cli("recorder", "import-bag", str(tmp_path / "missing"), "--pose", "B",
+                     "--action", "shove", "--out", str(out))
+    assert result.returncode == 2 and "Traceback" not in result.stderr
