@@ -140,7 +140,7 @@ def read_journal(path: str | Path) -> JournalContents:
     schema = reader.schema
     try:
         meta = SessionMeta.from_dict(json.loads(schema.metadata[METADATA_KEY]), path)
-    except (KeyError, TypeError, json.JSONDecodeError) as err:
+    except (KeyError, TypeError, ValueError, RecursionError) as err:
         raise InputError("journal has no session metadata", path) from err
     batches, torn = [], False
     while True:
