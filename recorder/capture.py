@@ -20,6 +20,7 @@ from contactkit.recorder.protocol import check_action, check_condition, pose_q
 from contactkit.recorder.sim import SessionSpec, SimConfig
 from contactkit.recorder.sources.base import Source
 from contactkit.schemas import InputError, SessionMeta, new_session_id
+from contactkit.util.paths import safe_name
 
 ChunkCallback = Callable[[dict[str, np.ndarray]], None]
 
@@ -88,11 +89,17 @@ def protocol_meta(*, source: str, action: str, condition: str, pose: str | None,
 
 
 def session_filename(meta: SessionMeta) -> str:
-    """Return the file name of a session: condition, pose(s), action and short id."""
+    """Return the file name of a session: condition, pose(s), action and short id.
+
+    The metadata is checked first, so every part is within its domain; the name is a
+    safe file-name component (raises :class:`InputError` otherwise).
+    """
+    meta.check()
     poses = meta.pose or "x"
     if meta.target_pose:
         poses += "to" + meta.target_pose
-    return f"{meta.condition}_{poses}_{meta.action}_{meta.session_id[:12]}.parquet"
+    return safe_name(f"{meta.condition}_{poses}_{meta.action}_{meta.session_id[:12]}.parquet",
+                     "session file name")
 
 
 class OperatorCue:

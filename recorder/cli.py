@@ -6,6 +6,7 @@ import json
 import os
 import secrets
 import sys
+import tempfile
 from pathlib import Path
 from typing import Annotated
 
@@ -51,12 +52,19 @@ DEFAULT_WORKERS = max(os.cpu_count() or 1, 1)
 
 
 def _out_dir(path: Path) -> Path:
+    """Create the output directory and prove it writable (a read-only mount, missing
+    permission, a full disk) before any source, robot or bus is started."""
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise InputError(f"cannot create output directory ({err.strerror})", path) from err
-    if not os.access(path, os.W_OK):
-        raise InputError("cannot write here (permission denied)", path)
+    try:
+        with tempfile.TemporaryFile(dir=path) as probe:
+            probe.write(b"\0")
+            probe.flush()
+            os.fsync(probe.fileno())
+    except OSError as err:
+        raise InputError(f"cannot write here ({err.strerror or err})", path) from err
     return path
 
 
@@ -227,7 +235,10 @@ def simulate_command(
         help="Spread of strength and tempo between simulated people (default: the "
              "preset's, 1 for most).")] = None,
 ) -> None:
-    """Write many simulated sessions in parallel (existing ones are skipped) and index them."""
+    """Write many simulated sessions in parallel (existing ones are skipped) and index them.
+
+    A session that fails is reported and the others are still written (exit code 2).
+    """
     if preset not in PRESETS:
         raise InputError(f"unknown preset {preset!r} (available: {', '.join(PRESETS)})")
     chosen_robot = PRESETS[preset].robot_seed if robot_seed is None else robot_seed
@@ -240,10 +251,15 @@ def simulate_command(
                                   lambda done, total: bar.update(task, completed=done,
                                                                  total=total),
                                   variability)
-    err_console.print(f"{result.written} written, {result.skipped} already there; index has "
-                      f"{result.index.table.num_rows} sessions")
+    err_console.print(f"{result.written} written, {result.skipped} already there"
+                      + (f", {len(result.failed)} failed" if result.failed else "")
+                      + f"; index has {result.index.table.num_rows} sessions")
+    for name, problem in result.failed:
+        err_console.print(f"[red]failed[/] {name}: {problem}")
     _print_problems(result.index.problems)
     print(out_dir / "index.parquet")
+    if result.failed:
+        raise typer.Exit(2)
 
 
 @app.command("index")

@@ -29,7 +29,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -105,31 +105,90 @@ def preset_specs(preset: Preset, n: int, seed: int, with_hand: bool = True,
 
 def simulate_specs(specs: list[SessionSpec], config: SimConfig, out_dir: str | Path
                    ) -> list[str]:
+    """Simulate ``specs`` and write each session into ``out_dir`` unless its file exists;
+    return the session paths. Raises :class:`InputError` naming the first session that
+    failed, after writing all the others (see :func:`simulate_batch`)."""
+    paths, problems = simulate_batch(specs, config, out_dir)
+    if problems:
+        name, problem = problems[0]
+        raise InputError(f"{len(problems)} of {len(specs)} sessions failed; first: {problem}",
+                         Path(out_dir) / name)
+    return paths
+
+
+def simulate_batch(specs: list[SessionSpec], config: SimConfig, out_dir: str | Path
+                   ) -> tuple[list[str], list[tuple[str, str]]]:
     """Simulate ``specs`` together (one batch) and write each session into ``out_dir``
-    unless its file exists; return the session paths. Runs in worker processes."""
+    unless its file exists. Runs in worker processes.
+
+    Returns the session paths and the ``(name, problem)`` pairs of the sessions that
+    failed. One failing session never costs the others: a session that fails its
+    validation is reported and the batch goes on; a batch whose simulation fails is
+    re-run one session at a time, so only the failing one is lost.
+    """
+    paths: list[str] = []
+    problems: list[tuple[str, str]] = []
+    try:
+        for index, data in _simulated(specs, config):
+            name, path, problem = _write_simulated(specs[index], config, data, Path(out_dir))
+            if problem is None:
+                paths.append(path)
+            else:
+                problems.append((name, problem))
+    except (InputError, ArithmeticError, ValueError) as err:
+        if len(specs) == 1:
+            return paths, [(_spec_name(specs[0], config), f"simulation failed: {err}")]
+        paths, problems = [], []
+        for spec in specs:
+            one_path, one_problem = simulate_batch([spec], config, out_dir)
+            paths += one_path
+            problems += one_problem
+    return paths, problems
+
+
+def _simulated(specs: list[SessionSpec], config: SimConfig
+               ) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+    """Yield ``(spec index, columns)`` of every session of a batch as it finishes."""
     parts: dict[int, list[dict[str, np.ndarray]]] = {}
-    written = []
     for index, columns, finished in PandaSimulator(config).run(specs):
         parts.setdefault(index, []).append(columns)
         if finished:
             chunks = parts.pop(index)
-            data = {name: np.concatenate([c[name] for c in chunks]) for name in SIM_COLUMNS}
-            source = SimSource(specs[index], config)
-            meta = sim_session_meta(specs[index], config, source.metadata())
-            path = Path(out_dir) / session_filename(meta)
-            if not path.exists():
-                write_session(path, data, meta)
-            written.append(str(path))
-    return written
+            yield index, {name: np.concatenate([c[name] for c in chunks])
+                          for name in SIM_COLUMNS}
+
+
+def _spec_name(spec: SessionSpec, config: SimConfig) -> str:
+    try:
+        return session_filename(sim_session_meta(spec, config, SimSource(spec, config)
+                                                 .metadata()))
+    except InputError:
+        return f"session with seed {spec.seed}"
+
+
+def _write_simulated(spec: SessionSpec, config: SimConfig, data: dict[str, np.ndarray],
+                     out_dir: Path) -> tuple[str, str, str | None]:
+    """Write one simulated session unless its file exists; return (name, path, problem)."""
+    try:
+        meta = sim_session_meta(spec, config, SimSource(spec, config).metadata())
+        name = session_filename(meta)
+        path = out_dir / name
+        if not path.exists():
+            write_session(path, data, meta)
+    except InputError as err:
+        return _spec_name(spec, config), "", err.problem
+    return name, str(path), None
 
 
 @dataclass
 class SimulateResult:
-    """What ``simulate`` did: sessions written and skipped, and the rebuilt index."""
+    """What ``simulate`` did: sessions written and skipped, the ``(name, problem)`` pairs
+    of the sessions that failed, and the rebuilt index."""
 
     written: int
     skipped: int
     index: IndexResult
+    failed: list[tuple[str, str]] = field(default_factory=list)
 
 
 def simulate_dataset(out_dir: str | Path, preset_name: str, sessions: int | None, seed: int,
@@ -162,24 +221,26 @@ def simulate_dataset(out_dir: str | Path, preset_name: str, sessions: int | None
     done = len(specs) - len(todo)
     if progress:
         progress(done, len(specs))
-    for paths in _run_batches(todo, config, out_dir, workers):
-        done += len(paths)
+    failed: list[tuple[str, str]] = []
+    for paths, problems in _run_batches(todo, config, out_dir, workers):
+        done += len(paths) + len(problems)
+        failed += problems
         if progress:
             progress(done, len(specs))
-    return SimulateResult(written=len(todo), skipped=len(specs) - len(todo),
-                          index=rebuild_index(out_dir))
+    return SimulateResult(written=len(todo) - len(failed), skipped=len(specs) - len(todo),
+                          index=rebuild_index(out_dir), failed=failed)
 
 
 def _run_batches(todo: list[SessionSpec], config: SimConfig, out_dir: Path,
-                 workers: int) -> Iterator[list[str]]:
+                 workers: int) -> Iterator[tuple[list[str], list[tuple[str, str]]]]:
     size = max(1, min(MAX_BATCH, -(-len(todo) // max(workers, 1))))
     batches = [todo[i:i + size] for i in range(0, len(todo), size)]
     if workers <= 1:
         for batch in batches:
-            yield simulate_specs(batch, config, str(out_dir))
+            yield simulate_batch(batch, config, str(out_dir))
         return
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(simulate_specs, batch, config, str(out_dir)) for batch in batches]
+        futures = [pool.submit(simulate_batch, batch, config, str(out_dir)) for batch in batches]
         for future in as_completed(futures):
             yield future.result()
 

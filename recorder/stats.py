@@ -34,6 +34,7 @@ from contactkit.recorder.noise import SensorNoise
 from contactkit.recorder.stats_deep import session_summary
 from contactkit.schemas import ACTIONS, InputError
 from contactkit.schemas.dataset import INDEX_NAME, rebuild_index, session_files
+from contactkit.util.paths import atomic_write_text
 
 SCHEMA_ID = "contactkit.schemas/stats_report/1"
 WINDOW_S = 0.5
@@ -222,8 +223,7 @@ def write_noise_file(path: Path, noise: dict, dataset: Path) -> Path:
                          source=f"recorder stats --deep {dataset} ({noise['sessions']} "
                                 "no-contact sessions)")
     doc = json.loads(sensor.to_json()) | {"thesis_tau_std_nm": noise["tau_std_nm"]}
-    path.write_text(json.dumps(doc, indent=2))
-    return path
+    return atomic_write_text(path, json.dumps(doc, indent=2))
 
 
 def build_report(directory: Path, deep: bool, workers: int,

@@ -342,6 +342,8 @@ def atomic_write_parquet(table: pa.Table, path: Path, *, overwrite: bool) -> Non
                                  path) from err
     except PermissionError as err:
         raise InputError("cannot write here (permission denied)", path.parent) from err
+    except OSError as err:
+        raise InputError(f"cannot write the file ({err.strerror or err})", path) from err
     finally:
         tmp.unlink(missing_ok=True)
     _fsync_dir(path.parent)
