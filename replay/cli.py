@@ -109,6 +109,15 @@ def replay_one(path: Path, model: ModelFile, *, viewer: str, save: Path | None,
             f" {online}; {len(stream.pred_t)} online predictions")
 
 
+def _stamp(path: Path | None) -> tuple[int, int] | None:
+    """Return (size, modification time) of a file, or None when there is none: tells
+    whether a failed replay had started writing its recording."""
+    if path is None or not path.exists():
+        return None
+    stat = path.stat()
+    return stat.st_size, stat.st_mtime_ns
+
+
 def _whole(stream: ReplayStream) -> Block:
     return Block(0, stream.session.n_samples, range(len(stream.pred_t)))
 
@@ -170,20 +179,26 @@ def replay_command(
         web, connect, page = start_web_viewer()
         err_console.print(f"web viewer: {page}")
     failures = 0
+    saved: list[Path] = []
     many = len(paths) > 1
     with _progress() as bar:
         task = bar.add_task("replaying", total=len(paths))
         for path in paths:
+            target = None if save is None else save_path_for(save, path, many)
+            before = _stamp(target)
             try:
                 summary = replay_one(path, classifier, viewer=viewer, save=save,
                                      connect=connect, rate=speed, hop_s=hop, many=many)
                 bar.console.print(summary)
+                saved += [] if target is None else [target]
             except InputError as err:
                 failures += 1
                 print(f"replay: error: {err}", file=sys.stderr)
+                if target is not None and _stamp(target) != before:
+                    target.unlink(missing_ok=True)
             bar.advance(task)
-    if save is not None:
-        where = save_path_for(save, paths[0], many)
+    if saved:
+        where = saved[0]
         if many:
             err_console.print(f"saved one recording per session as {save.parent}/"
                               f"{save.stem}_<session>.rrd; open them together with "

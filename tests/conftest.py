@@ -22,7 +22,8 @@ from contactkit.schemas import write_session
 settings.register_profile("ci", max_examples=30, deadline=None, derandomize=True,
                           suppress_health_check=[HealthCheck.too_slow,
                                                  HealthCheck.data_too_large])
-settings.register_profile("long", max_examples=2000, deadline=None,
+settings.register_profile("long", deadline=None,
+                          max_examples=int(os.environ.get("CONTACTKIT_FUZZ_EXAMPLES", "2000")),
                           suppress_health_check=[HealthCheck.too_slow,
                                                  HealthCheck.data_too_large])
 settings.load_profile(os.environ.get("CONTACTKIT_FUZZ_PROFILE", "ci"))

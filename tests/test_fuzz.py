@@ -18,7 +18,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from hypothesis import assume, given
+from hypothesis import assume, event, given
 from hypothesis import strategies as st
 
 from contactkit.classify.modelfile import load_model
@@ -44,10 +44,13 @@ from tests.conftest import make_session
 def refused_or(fn, *args, **kwargs):
     """Call ``fn``; return its result, or None when it refused with a one-line InputError."""
     try:
-        return fn(*args, **kwargs)
+        result = fn(*args, **kwargs)
     except InputError as err:
         assert "\n" not in str(err) and err.problem
+        event(f"{fn.__name__}: refused")
         return None
+    event(f"{fn.__name__}: accepted")
+    return result
 
 
 def nothing_outside(root: Path, allowed: Path) -> None:

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import json
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 import rerun.chunk as rc
 
@@ -17,6 +19,7 @@ from contactkit.features.scalars import scalar_features
 from contactkit.features.timeseries import TimeseriesChain, columns_of
 from contactkit.schemas import read_session
 from contactkit.schemas import rerun_layout as layout
+from contactkit.schemas.session import METADATA_KEY
 from tests.conftest import make_dataset, make_session, run_cli
 
 ENTITIES = [layout.Q, layout.DQ, layout.TAU, layout.RESIDUAL, layout.FORCE, layout.MOMENT,
@@ -160,3 +163,20 @@ def test_capture_logs_live_with_the_same_layout(tmp_path) -> None:
         assert sum(b.num_rows for b in data[entity]) == n
     cues = [str(v) for b in data[layout.CUE] for v in b.column("TextLog:text").to_pylist()]
     assert any("NOW" in c for c in cues) and any("planned interaction" in c for c in cues)
+
+
+def test_refused_input_gives_no_saved_message_and_no_file(tmp_path, session, model_path
+                                                          ) -> None:
+    table = pq.read_table(session)
+    doc = json.loads(table.schema.metadata[METADATA_KEY])
+    for name, changes in (("overflow", {"planned_at_s": 1e12}),
+                          ("late", {"planned_at_s": 60.0})):
+        bad = tmp_path / f"{name}.parquet"
+        pq.write_table(table.replace_schema_metadata(
+            {METADATA_KEY: json.dumps(doc | changes).encode()}), bad)
+        out = tmp_path / f"{name}.rrd"
+        result = run_cli("replay", str(bad), "--viewer", "none", "--save", str(out),
+                         "--model", str(model_path))
+        assert result.returncode == 2, result.stderr
+        assert "Traceback" not in result.stderr and "saved" not in result.stderr
+        assert not out.exists(), name
