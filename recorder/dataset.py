@@ -40,6 +40,7 @@ from contactkit.recorder.sim import PandaSimulator, SessionSpec, SimConfig, plan
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
 from contactkit.schemas import ACTIONS, InputError, write_session
 from contactkit.schemas.dataset import IndexResult, rebuild_index
+from contactkit.util.paths import remove_stale_temporaries
 
 OPERATORS = tuple(f"sim-op-{i}" for i in range(1, 6))
 MAX_BATCH = 32
@@ -197,7 +198,8 @@ def simulate_dataset(out_dir: str | Path, preset_name: str, sessions: int | None
                      variability: float | None = None) -> SimulateResult:
     """Write a preset's sessions into ``out_dir`` with ``workers`` processes.
 
-    Sessions whose file exists are skipped. ``progress(done, total)`` is called as
+    Sessions whose file exists are skipped, and temporary files left by a killed run
+    are removed. ``progress(done, total)`` is called as
     sessions finish. The index is rebuilt at the end. ``config`` defaults to the
     preset's rate with default physics.
     """
@@ -208,6 +210,7 @@ def simulate_dataset(out_dir: str | Path, preset_name: str, sessions: int | None
     out_dir.mkdir(parents=True, exist_ok=True)
     if not os.access(out_dir, os.W_OK):
         raise InputError("cannot write here (permission denied)", out_dir)
+    remove_stale_temporaries(out_dir)
     config = config or SimConfig(rate_hz=preset.rate_hz, robot_seed=preset.robot_seed)
     count = preset.sessions if sessions is None else sessions
     if count < 1:

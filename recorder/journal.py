@@ -31,7 +31,7 @@ import pyarrow as pa
 
 from contactkit.schemas import InputError, SessionMeta, write_session
 from contactkit.schemas.session import METADATA_KEY, session_schema
-from contactkit.util.paths import inside
+from contactkit.util.paths import inside, remove_stale_temporaries
 
 JOURNAL_SUFFIX = ".journal"
 
@@ -275,8 +275,10 @@ def _recover_locked(journal: Path, out_path: Path) -> Recovery:
 
 
 def recover_directory(directory: str | Path) -> list[Recovery]:
-    """Recover every journal in ``directory``; return one :class:`Recovery` per journal."""
+    """Recover every journal in ``directory``; return one :class:`Recovery` per journal.
+    Temporary files of writers that were killed are removed."""
     directory = Path(directory)
     if not directory.is_dir():
         raise InputError("not a directory", directory)
+    remove_stale_temporaries(directory)
     return [recover_journal(p) for p in sorted(directory.glob("*" + JOURNAL_SUFFIX))]

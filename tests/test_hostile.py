@@ -225,6 +225,30 @@ def test_disk_full_stops_the_capture_and_flushed_samples_recover(tmp_path, monke
     assert session.n_samples == safe and session.meta.recovered
 
 
+@pytest.mark.slow
+def test_disk_full_on_a_real_small_filesystem(tmp_path: Path) -> None:
+    target = tmp_path / "small"
+    target.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(target)],
+                             capture_output=True)
+    if mounted.returncode != 0:
+        pytest.skip("cannot mount a small tmpfs here (needs root)")
+    try:
+        result = run_cli("recorder", "capture", "--pose", "A", "--action", "bump", "--seed",
+                         "4", "--duration", "30", "--planned-at", "3", "--rate", "1000",
+                         "--out", str(target))
+        one_line_error(result.returncode, result.stderr, "No space left on device")
+        safe = int(result.stderr.split("its ")[1].split(" samples")[0])
+        rescue = tmp_path / "rescue"
+        rescue.mkdir()
+        (journal_file,) = target.glob("*.journal")
+        (rescue / journal_file.name).write_bytes(journal_file.read_bytes())
+    finally:
+        subprocess.run(["umount", str(target)], check=False)
+    (recovery,) = recover_directory(rescue)
+    assert validate_session(recovery.session).n_samples == safe > 0
+
+
 def _read_only_dir(tmp_path: Path) -> Path:
     """A directory this process cannot write into (a read-only mount for root)."""
     target = tmp_path / "ro"
@@ -342,7 +366,8 @@ def _interrupt_when(command: list[str], ready, sig: int, timeout_s: float = 240)
     return code
 
 
-@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
+@pytest.mark.parametrize("sig", [signal.SIGKILL,
+                                 pytest.param(signal.SIGINT, marks=pytest.mark.slow)])
 def test_interrupted_simulate_leaves_whole_sessions_and_a_rerun_completes(tmp_path: Path,
                                                                            sig: int) -> None:
     command = [str(BIN / "recorder"), "simulate", str(tmp_path), "--sessions", "6",
@@ -357,6 +382,7 @@ def test_interrupted_simulate_leaves_whole_sessions_and_a_rerun_completes(tmp_pa
                     "1", "--rate", "200")
     assert again.returncode == 0, again.stderr
     assert pq.read_table(tmp_path / "index.parquet").num_rows == 6
+    assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
 def test_interrupted_stats_leaves_no_half_written_report(tmp_path: Path) -> None:

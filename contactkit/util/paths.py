@@ -19,6 +19,7 @@ from contactkit.errors import InputError
 
 MAX_NAME_CHARS = 200
 _SAFE = re.compile(r"[A-Za-z0-9_+][A-Za-z0-9._+-]*")
+_TEMPORARY = re.compile(r"\..+\.(\d+)\.tmp")
 
 
 def safe_name(part: str, what: str = "file name") -> str:
@@ -69,6 +70,28 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
     finally:
         tmp.unlink(missing_ok=True)
     return path
+
+
+def remove_stale_temporaries(directory: str | Path) -> list[Path]:
+    """Remove the temporary files (``.<name>.<pid>.tmp``) that writers killed before
+    their rename left in ``directory``; return them. Files of live processes stay."""
+    removed = []
+    for path in Path(directory).glob(".*.tmp"):
+        match = _TEMPORARY.fullmatch(path.name)
+        if match and not _alive(int(match.group(1))):
+            path.unlink(missing_ok=True)
+            removed.append(path)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def atomic_write_text(path: str | Path, text: str) -> Path:
