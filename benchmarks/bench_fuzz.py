@@ -34,11 +34,12 @@ def main() -> int:
     print(f"{'reader':30s} {'examples':>8s} {'failing':>8s}  accepted / refused")
     for name, block in re.findall(r"tests/test_fuzz.py::(test_fuzz_\w+):\n(.*?)(?=\n\S|\Z)",
                                   report, flags=re.S):
-        counts = re.findall(r"(\d+) passing examples, (\d+) failing examples", block)
+        counts = re.findall(r"(\d+) passing, (\d+) failing", block)
         passing = sum(int(p) for p, _ in counts)
         failing = sum(int(f) for _, f in counts)
         events = "; ".join(f"{what} {share}" for share, what in
-                           re.findall(r"\* ([\d.]+%), (\w+: \w+)", block))
+                           re.findall(r"\* ([\d.]+%), (\w+: \w+|recovered|left in place)",
+                                      block))
         print(f"{name:30s} {passing + failing:8d} {failing:8d}  {events}")
     summary = report.strip().splitlines()[-1] if report.strip() else run.stderr[-500:]
     print(f"\n{summary}\nwall time {seconds:.0f} s; exit code {run.returncode}")

@@ -220,14 +220,7 @@ def test_fuzz_map_text(work: Path, text: str) -> None:
 def test_fuzz_map_documents(work: Path, data) -> None:
     doc = json.loads(json.dumps(DEFAULT_MAP))
     for _ in range(data.draw(st.integers(1, 3))):
-        where = data.draw(st.sampled_from(["top", "pdo", "signal", "joint"]))
-        if where == "top":
-            parent = doc
-        elif where == "joint":
-            parent = doc["joint"][data.draw(st.integers(0, len(doc["joint"]) - 1))]
-        else:
-            pdo = doc["pdo"][data.draw(st.integers(0, len(doc["pdo"]) - 1))]
-            parent = pdo if where == "pdo" else pdo["signals"][0]
+        parent = data.draw(st.sampled_from(_tables(doc)))
         key = data.draw(st.sampled_from([*sorted(parent), "extra"]))
         parent[key] = data.draw(JSON_VALUES | st.sampled_from([-4, 0, 1e308, "big", "int8"]))
     path = work / "doc.toml"
@@ -236,6 +229,15 @@ def test_fuzz_map_documents(work: Path, data) -> None:
     if fmap is not None:
         assert all(math.isfinite(s.scale) and s.start >= 0 for layout in fmap.frames.values()
                    for s in layout.signals)
+
+
+def _tables(value) -> list[dict]:
+    """Return every table (dict) inside a parsed TOML document, the document first."""
+    if isinstance(value, dict):
+        return [value, *[t for v in value.values() for t in _tables(v)]]
+    if isinstance(value, list):
+        return [t for v in value for t in _tables(v)]
+    return []
 
 
 def _toml(doc: dict) -> str:
@@ -345,5 +347,6 @@ def test_fuzz_journals(work: Path, cut: int, flips) -> None:
         data[at % len(data)] ^= mask
     journal_path(out).write_bytes(bytes(data[:cut]))
     (recovery,) = recover_directory(directory)
+    event("recovered" if recovery.session is not None else "left in place")
     if recovery.session is not None:
         assert validate_session(recovery.session).n_samples == recovery.samples
