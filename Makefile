@@ -20,7 +20,7 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
 test: $(STAMP) lint
-	$(PY) -m pytest -q -n 2
+	$(PY) -m pytest -q -n 2 -m "not slow"
 
 # Record a simulated adjust on link 5, show it, replay it through the default model
 # (built and cached on first use) into demo.rrd, and open the viewer when there is a display.

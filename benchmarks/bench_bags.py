@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from bag_writers import ROS2_TOPIC, write_bag
 
 from contactkit.recorder.bags import default_typestore, import_bag
-from contactkit.recorder.capture import protocol_meta
+from contactkit.recorder.metadata import session_meta
 from contactkit.schemas import joint_columns, read_session, write_session
 
 
@@ -43,7 +43,7 @@ def synthetic_session(path: Path, minutes: float) -> Path:
 
 
 def _meta():
-    return protocol_meta(source="ros-bag", action="none", condition="static", pose="A",
+    return session_meta(source="ros-bag", action="none", condition="static", pose="A",
                          target_pose=None, speed_rad_s=None, link=None, planned_at_s=None,
                          operator="bench", with_hand=True)
 

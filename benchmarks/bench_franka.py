@@ -24,7 +24,8 @@ import threading
 import time
 from pathlib import Path
 
-from contactkit.recorder.capture import capture, protocol_meta
+from contactkit.recorder.capture import capture
+from contactkit.recorder.metadata import session_meta
 from contactkit.recorder.sources.franka import FrankaConfig, FrankaSource
 from contactkit.schemas import validate_session
 
@@ -38,7 +39,7 @@ def main(seconds: float) -> None:
     try:
         host = next(line.split("'")[1] for line in server.stdout if "using '" in line)
         threading.Thread(target=server.stdout.read, daemon=True).start()
-        meta = protocol_meta(source="franka", action="none", condition="static", pose="A",
+        meta = session_meta(source="franka", action="none", condition="static", pose="A",
                              target_pose=None, speed_rad_s=None, link=None,
                              planned_at_s=1.0, operator="bench", with_hand=True)
         source = FrankaSource(FrankaConfig(host=host, backend="pylibfranka"), seconds)

@@ -168,8 +168,12 @@ def read_skops(path: Path) -> tuple[object, dict]:
                 raise InputError("not a contactkit model file (no contactkit.json)", path)
             meta = json.loads(archive.read(META_MEMBER))
             digest = _members_digest(archive)
-    except (zipfile.BadZipFile, json.JSONDecodeError) as err:
-        raise InputError(f"not a contactkit model file ({err})", path) from err
+    except (zipfile.BadZipFile, ValueError, RecursionError, OSError, EOFError) as err:
+        raise InputError(f"not a contactkit model file ({type(err).__name__}: "
+                         f"{str(err)[:80]})", path) from err
+    if not isinstance(meta, dict):
+        raise InputError("not a contactkit model file (contactkit.json is not an object)",
+                         path)
     if meta.get("format") != FORMAT:
         raise InputError(f"unknown model format {meta.get('format')!r}", path)
     if digest != meta.get("members_sha256"):

@@ -35,9 +35,12 @@ def load_array(path: str | Path, width: int) -> np.ndarray:
                 raise InputError(f"lines have different numbers of values {sorted(lengths)}",
                                  path)
             raw = np.array(rows, dtype=float)
-    except ValueError as err:
-        raise InputError(f"not a numeric array ({err})", path) from err
-    raw = np.asarray(raw, dtype=float)
+        raw = np.asarray(raw, dtype=float)
+    except (ValueError, TypeError, OSError, EOFError) as err:
+        raise InputError(f"not a numeric array ({type(err).__name__}: {str(err)[:80]})",
+                         path) from err
+    if raw.ndim not in (1, 2):
+        raise InputError(f"expected a table of numbers, found {raw.ndim} dimensions", path)
     if raw.ndim == 2 and raw.shape[1] == 1:
         raw = raw[:, 0]
     if width == 1:

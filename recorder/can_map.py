@@ -11,6 +11,7 @@ documents CANopen CiA 402 and its quantisation; another arm needs only another m
 
 from __future__ import annotations
 
+import math
 import struct
 import tomllib
 from dataclasses import dataclass
@@ -74,11 +75,15 @@ def load_map(path: str | Path | None = None) -> FrameMap:
         doc = tomllib.loads(path.read_text())
     except FileNotFoundError as err:
         raise InputError("no such frame map", path) from err
-    except tomllib.TOMLDecodeError as err:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
         raise InputError(f"not a valid TOML frame map ({err})", path) from err
+    except OSError as err:
+        raise InputError(f"cannot read the frame map ({err.strerror or err})", path) from err
     try:
         return _parse(doc, str(path))
-    except (KeyError, TypeError, ValueError) as err:
+    except KeyError as err:
+        raise InputError(f"bad frame map: missing key {err}", path) from err
+    except (TypeError, ValueError, AttributeError, ArithmeticError) as err:
         raise InputError(f"bad frame map: {err}", path) from err
 
 
@@ -103,13 +108,15 @@ def _parse(doc: dict, source: str) -> FrameMap:
                 order = {"little": "<", "big": ">"}[sig.get("byte_order", "little")]
                 codec = struct.Struct(order + TYPES[sig["type"]])
                 start = int(sig["start"])
-                if start + codec.size > length:
+                if start < 0 or start + codec.size > length:
                     raise ValueError(f"signal {quantity} does not fit in {length} bytes")
                 scale = float(sig.get("factor", 1.0))
                 if "multiply_by" in sig:
                     scale *= float(params[sig["multiply_by"]])
                 if "divide_by" in sig:
                     scale /= float(params[sig["divide_by"]])
+                if not (math.isfinite(scale) and scale != 0):
+                    raise ValueError(f"signal {quantity} of joint {joint} has scale {scale}")
                 signals.append(Signal(quantity, joint, codec, start, scale,
                                       sig["type"] != "float32"))
                 covered.add((quantity, joint))

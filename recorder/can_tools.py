@@ -40,17 +40,36 @@ def read_log(path: Path, fmap: FrameMap) -> tuple[dict[str, np.ndarray], SampleA
                          f"{', '.join(LOG_SUFFIXES)})", path)
     assembler = SampleAssembler(fmap)
     rows = []
-    try:
-        for msg in can.LogReader(path):
-            rows += assembler.feed(msg)
-    except ImportError as err:
-        raise InputError(f"reading this format needs an extra package ({err})", path) from err
-    except (ValueError, OSError, EOFError, IndexError, UnicodeDecodeError) as err:
-        raise InputError(f"cannot read this log ({type(err).__name__}: {err})", path) from err
+    for msg in _messages(path):
+        rows += assembler.feed(msg)
     rows += assembler.finish()
     if not rows:
         raise InputError("no complete sample in this log (no SYNC frame of the map?)", path)
     return rows_to_columns(rows), assembler
+
+
+def _messages(path: Path) -> Iterator[can.Message]:
+    """Yield the frames of a log file; a malformed file is an InputError.
+
+    python-can's readers raise many kinds of error on a damaged file (its own parse
+    errors, zlib, struct, sqlite3, ...), so any error while parsing counts as a bad file.
+    """
+    try:
+        reader = iter(can.LogReader(path))
+    except ImportError as err:
+        raise InputError(f"reading this format needs an extra package ({err})", path) from err
+    except Exception as err:  # a third-party parser of untrusted bytes
+        raise InputError(f"cannot read this log ({type(err).__name__}: {str(err)[:80]})",
+                         path) from err
+    while True:
+        try:
+            msg = next(reader)
+        except StopIteration:
+            return
+        except Exception as err:  # a third-party parser of untrusted bytes
+            raise InputError(f"cannot read this log ({type(err).__name__}: "
+                             f"{str(err)[:80]})", path) from err
+        yield msg
 
 
 def import_can_log(path: Path, fmap: FrameMap, meta: SessionMeta, out_dir: Path,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import sys
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,14 +21,20 @@ ChunkCallback = Callable[[dict[str, np.ndarray]], None]
 
 
 def output_directory(path: Path) -> Path:
-    """Return ``path`` after creating it if needed; raise InputError when it cannot be
-    created or written to."""
+    """Return ``path`` after creating it if needed and proving it writable (a read-only
+    mount, missing permission, a full disk), before any source, robot or bus is started;
+    raise InputError when it cannot be created or written to."""
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise InputError(f"cannot create output directory ({err.strerror})", path) from err
-    if not os.access(path, os.W_OK):
-        raise InputError("cannot write here (permission denied)", path)
+    try:
+        with tempfile.TemporaryFile(dir=path) as probe:
+            probe.write(b"\0")
+            probe.flush()
+            os.fsync(probe.fileno())
+    except OSError as err:
+        raise InputError(f"cannot write here ({err.strerror or err})", path) from err
     return path
 
 

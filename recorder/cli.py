@@ -57,17 +57,25 @@ def simulate_command(
         help="Spread of strength and tempo between simulated people (default: the "
              "preset's, 1 for most).")] = None,
 ) -> None:
-    """Write many simulated sessions in parallel (existing ones are skipped) and index them."""
+    """Write many simulated sessions in parallel (existing ones are skipped) and index them.
+
+    A session that fails is reported and the others are still written (exit code 2).
+    """
     chosen = PRESETS[preset]
     config = SimConfig(rate_hz=rate or chosen.rate_hz, noise_scale=noise_scale,
                        robot_seed=chosen.robot_seed if robot_seed is None else robot_seed)
     with progress_bar("simulating") as bar:
         result = simulate_dataset(output_directory(out_dir), preset, sessions, seed, workers,
                                   config, bar_callback(bar, "sessions"), variability)
-    err_console.print(f"{result.written} written, {result.skipped} already there; index has "
-                      f"{result.index.table.num_rows} sessions")
+    err_console.print(f"{result.written} written, {result.skipped} already there"
+                      + (f", {len(result.failed)} failed" if result.failed else "")
+                      + f"; index has {result.index.table.num_rows} sessions")
+    for name, problem in result.failed:
+        err_console.print(f"[red]failed[/] {name}: {problem}")
     _print_problems(result.index.problems)
     print(out_dir / "index.parquet")
+    if result.failed:
+        raise typer.Exit(2)
 
 
 @app.command("index")

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
@@ -41,6 +41,7 @@ from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
 from contactkit.schemas import ACTIONS, InputError, write_session
 from contactkit.schemas.dataset import IndexResult, rebuild_index
 from contactkit.util.parallel import map_ordered
+from contactkit.util.paths import remove_stale_temporaries
 
 OPERATORS = tuple(f"sim-op-{i}" for i in range(1, 6))
 MAX_BATCH = 32
@@ -106,30 +107,89 @@ def preset_specs(preset: Preset, n: int, seed: int, with_hand: bool = True,
 
 def simulate_specs(specs: list[SessionSpec], config: SimConfig, out_dir: str | Path
                    ) -> list[str]:
+    """Simulate ``specs`` and write each session into ``out_dir`` unless its file exists;
+    return the session paths. Raises :class:`InputError` naming the first session that
+    failed, after writing all the others (see :func:`simulate_batch`)."""
+    paths, problems = simulate_batch(specs, config, out_dir)
+    if problems:
+        name, problem = problems[0]
+        raise InputError(f"{len(problems)} of {len(specs)} sessions failed; first: {problem}",
+                         Path(out_dir) / name)
+    return paths
+
+
+def simulate_batch(specs: list[SessionSpec], config: SimConfig, out_dir: str | Path
+                   ) -> tuple[list[str], list[tuple[str, str]]]:
     """Simulate ``specs`` together (one batch) and write each session into ``out_dir``
-    unless its file exists; return the session paths. Runs in worker processes."""
+    unless its file exists. Runs in worker processes.
+
+    Returns the session paths and the ``(name, problem)`` pairs of the sessions that
+    failed. One failing session never costs the others: a session that fails its
+    validation is reported and the batch goes on; a batch whose simulation fails is
+    re-run one session at a time, so only the failing one is lost.
+    """
+    paths: list[str] = []
+    problems: list[tuple[str, str]] = []
+    try:
+        for index, data in _simulated(specs, config):
+            name, path, problem = _write_simulated(specs[index], config, data, Path(out_dir))
+            if problem is None:
+                paths.append(path)
+            else:
+                problems.append((name, problem))
+    except (InputError, ArithmeticError, ValueError) as err:
+        if len(specs) == 1:
+            return paths, [(_spec_name(specs[0], config), f"simulation failed: {err}")]
+        paths, problems = [], []
+        for spec in specs:
+            one_path, one_problem = simulate_batch([spec], config, out_dir)
+            paths += one_path
+            problems += one_problem
+    return paths, problems
+
+
+def _simulated(specs: list[SessionSpec], config: SimConfig
+               ) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+    """Yield ``(spec index, columns)`` of every session of a batch as it finishes."""
     parts: dict[int, list[dict[str, np.ndarray]]] = {}
-    written = []
     for index, columns, finished in PandaSimulator(config).run(specs):
         parts.setdefault(index, []).append(columns)
         if finished:
             chunks = parts.pop(index)
-            data = {name: np.concatenate([c[name] for c in chunks]) for name in SIM_COLUMNS}
-            meta = SimSource(specs[index], config).session_meta()
-            path = Path(out_dir) / session_filename(meta)
-            if not path.exists():
-                write_session(path, data, meta)
-            written.append(str(path))
-    return written
+            yield index, {name: np.concatenate([c[name] for c in chunks])
+                          for name in SIM_COLUMNS}
+
+
+def _spec_name(spec: SessionSpec, config: SimConfig) -> str:
+    try:
+        return session_filename(SimSource(spec, config).session_meta())
+    except InputError:
+        return f"session with seed {spec.seed}"
+
+
+def _write_simulated(spec: SessionSpec, config: SimConfig, data: dict[str, np.ndarray],
+                     out_dir: Path) -> tuple[str, str, str | None]:
+    """Write one simulated session unless its file exists; return (name, path, problem)."""
+    try:
+        meta = SimSource(spec, config).session_meta()
+        name = session_filename(meta)
+        path = out_dir / name
+        if not path.exists():
+            write_session(path, data, meta)
+    except InputError as err:
+        return _spec_name(spec, config), "", err.problem
+    return name, str(path), None
 
 
 @dataclass
 class SimulateResult:
-    """What ``simulate`` did: sessions written and skipped, and the rebuilt index."""
+    """What ``simulate`` did: sessions written and skipped, the ``(name, problem)`` pairs
+    of the sessions that failed, and the rebuilt index."""
 
     written: int
     skipped: int
     index: IndexResult
+    failed: list[tuple[str, str]] = field(default_factory=list)
 
 
 def simulate_dataset(out_dir: str | Path, preset_name: str, sessions: int | None, seed: int,
@@ -138,7 +198,8 @@ def simulate_dataset(out_dir: str | Path, preset_name: str, sessions: int | None
                      variability: float | None = None) -> SimulateResult:
     """Write a preset's sessions into ``out_dir`` with ``workers`` processes.
 
-    Sessions whose file exists are skipped. ``progress(done, total)`` is called as
+    Sessions whose file exists are skipped, and temporary files left by a killed run
+    are removed. ``progress(done, total)`` is called as
     sessions finish. The index is rebuilt at the end. ``config`` defaults to the
     preset's rate with default physics.
     """
@@ -149,6 +210,7 @@ def simulate_dataset(out_dir: str | Path, preset_name: str, sessions: int | None
     out_dir.mkdir(parents=True, exist_ok=True)
     if not os.access(out_dir, os.W_OK):
         raise InputError("cannot write here (permission denied)", out_dir)
+    remove_stale_temporaries(out_dir)
     config = config or SimConfig(rate_hz=preset.rate_hz, robot_seed=preset.robot_seed)
     count = preset.sessions if sessions is None else sessions
     if count < 1:
@@ -162,17 +224,19 @@ def simulate_dataset(out_dir: str | Path, preset_name: str, sessions: int | None
     done = len(specs) - len(todo)
     if progress:
         progress(done, len(specs))
-    for paths in _run_batches(todo, config, out_dir, workers):
-        done += len(paths)
+    failed: list[tuple[str, str]] = []
+    for paths, problems in _run_batches(todo, config, out_dir, workers):
+        done += len(paths) + len(problems)
+        failed += problems
         if progress:
             progress(done, len(specs))
-    return SimulateResult(written=len(todo), skipped=len(specs) - len(todo),
-                          index=rebuild_index(out_dir))
+    return SimulateResult(written=len(todo) - len(failed), skipped=len(specs) - len(todo),
+                          index=rebuild_index(out_dir), failed=failed)
 
 
 def _run_batches(todo: list[SessionSpec], config: SimConfig, out_dir: Path,
-                 workers: int) -> Iterator[list[str]]:
+                 workers: int) -> Iterator[tuple[list[str], list[tuple[str, str]]]]:
     size = max(1, min(MAX_BATCH, -(-len(todo) // max(workers, 1))))
     batches = [todo[i:i + size] for i in range(0, len(todo), size)]
-    return map_ordered(partial(simulate_specs, config=config, out_dir=str(out_dir)), batches,
+    return map_ordered(partial(simulate_batch, config=config, out_dir=str(out_dir)), batches,
                        workers=workers)

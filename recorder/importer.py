@@ -11,6 +11,7 @@ import numpy as np
 from contactkit.recorder.arrays import load_joint_arrays
 from contactkit.recorder.metadata import session_filename, session_meta
 from contactkit.schemas import InputError, SessionMeta, joint_columns, write_session
+from contactkit.util.paths import inside, safe_name
 
 _FIELDS = {f.name: f for f in fields(SessionMeta)}
 _NOT_SETTABLE = {"schema_version", "recovered", "recovered_samples", "simulator", "source_info",
@@ -46,8 +47,9 @@ def write_imported_session(columns: dict[str, np.ndarray], meta: SessionMeta, ou
     The one path from arrays to a session file that every importer (plain arrays, CAN
     logs, CSV, bags) takes: time [s] is shifted to start at 0, the nominal rate [Hz] is
     measured from the median time step where the metadata has none, and the file name
-    comes from the metadata unless ``name`` is given. The write is atomic and the file is
-    validated (an InputError names the problem).
+    comes from the metadata unless ``name`` is given (a safe file name that stays inside
+    ``out_dir``). The write is atomic and the file is validated (an InputError names the
+    problem).
     """
     columns = dict(columns)
     t = np.asarray(columns["t"], dtype=float)
@@ -56,7 +58,8 @@ def write_imported_session(columns: dict[str, np.ndarray], meta: SessionMeta, ou
     steps = np.diff(t)
     if meta.nominal_rate_hz is None and steps.size and (steps > 0).all():
         meta.nominal_rate_hz = float(round(1.0 / np.median(steps), 3))
-    return write_session(out_dir / (name or session_filename(meta)), columns, meta)
+    filename = session_filename(meta) if name is None else safe_name(name, "output name")
+    return write_session(inside(out_dir, filename), columns, meta)
 
 
 def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out_dir: Path,

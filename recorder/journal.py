@@ -10,10 +10,17 @@ through a temporary file and a link, and only then is the journal removed.
 ``recover`` turns every leftover journal in a directory into a valid session whose
 metadata says it was recovered and how many samples it holds. A torn final record
 batch (the process died mid-write) is dropped; every complete batch is kept.
+
+A live capture holds an exclusive lock on its journal (``flock``), so ``recover``
+leaves the journal of a capture that is still running alone, and two recovers never
+write the same session. When the disk fills up (or any write fails), the capture
+stops with an :class:`InputError` that says how many samples are safe in the journal.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
 from dataclasses import dataclass
@@ -24,6 +31,7 @@ import pyarrow as pa
 
 from contactkit.schemas import InputError, SessionMeta, write_session
 from contactkit.schemas.session import METADATA_KEY, session_schema
+from contactkit.util.paths import inside, remove_stale_temporaries
 
 JOURNAL_SUFFIX = ".journal"
 
@@ -31,6 +39,19 @@ JOURNAL_SUFFIX = ".journal"
 def journal_path(out_path: Path) -> Path:
     """Return the journal path of a session output path."""
     return out_path.with_name(out_path.name + JOURNAL_SUFFIX)
+
+
+def journal_in_use(path: Path) -> bool:
+    """Return whether a live capture (or a running recover) holds the journal's lock."""
+    try:
+        with open(path, "rb") as handle:
+            try:
+                fcntl.flock(handle, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return True
+    except FileNotFoundError:
+        return False
+    return False
 
 
 class SessionWriter:
@@ -50,6 +71,8 @@ class SessionWriter:
         if self.out_path.exists():
             raise InputError("output file already exists (nothing was written)", self.out_path)
         if self.journal.exists():
+            if journal_in_use(self.journal):
+                raise InputError("another capture is writing this session", self.journal)
             raise InputError("an unrecovered journal of this session exists; run "
                              "`recorder recover` first", self.journal)
         self.schema = session_schema(columns, meta)
@@ -57,14 +80,19 @@ class SessionWriter:
             self._file = open(self.journal, "xb")  # noqa: SIM115 (closed in close/abort)
         except FileNotFoundError as err:
             raise InputError("output directory does not exist", self.out_path.parent) from err
-        except PermissionError as err:
-            raise InputError("cannot write here (permission denied)",
-                             self.out_path.parent) from err
-        self._stream = pa.ipc.new_stream(self._file, self.schema)
+        except FileExistsError as err:
+            raise InputError("another capture is writing this session", self.journal) from err
+        except OSError as err:
+            raise InputError(f"cannot write here ({err.strerror})", self.out_path.parent
+                             ) from err
+        fcntl.flock(self._file, fcntl.LOCK_EX | fcntl.LOCK_NB)
         self._pending: list[dict[str, np.ndarray]] = []
         self._pending_t0: float | None = None
         self.samples_written = 0
-        self._sync()
+        self._failed = False
+        with self._writing():
+            self._stream = pa.ipc.new_stream(self._file, self.schema)
+            self._sync()
 
     def append(self, columns: dict[str, np.ndarray]) -> None:
         """Add rows (arrays of equal length, ``t`` in s); flush when enough are pending."""
@@ -83,34 +111,65 @@ class SessionWriter:
         arrays = [pa.array(np.concatenate([c[f.name] for c in self._pending]), type=f.type)
                   for f in self.schema]
         batch = pa.RecordBatch.from_arrays(arrays, schema=self.schema)
-        self._stream.write_batch(batch)
+        with self._writing():
+            self._stream.write_batch(batch)
+            self._sync()
         self.samples_written += batch.num_rows
         self._pending.clear()
         self._pending_t0 = None
-        self._sync()
+
+    @contextlib.contextmanager
+    def _writing(self):
+        """Turn a failed journal write (disk full, I/O error) into an InputError that
+        says what is safe; later flushes are refused."""
+        if self._failed:
+            raise InputError("the journal is no longer writable", self.journal)
+        try:
+            yield
+        except OSError as err:
+            self._failed = True
+            raise InputError(f"cannot write the journal ({err.strerror or err}); the capture "
+                             f"stopped and its {self.samples_written} samples already flushed "
+                             "are kept for `recorder recover`", self.journal) from err
 
     def _sync(self) -> None:
         self._file.flush()
         os.fsync(self._file.fileno())
 
     def close(self) -> Path:
-        """Flush, write the Parquet session atomically, remove the journal; return the path."""
-        self.flush()
-        self._stream.close()
-        self._file.close()
-        if self.samples_written == 0:
+        """Flush, write the Parquet session atomically, remove the journal; return the path.
+
+        The journal stays locked until it is removed, so a concurrent ``recover`` never
+        races the finishing capture. If writing the session fails, the journal is kept.
+        """
+        try:
+            self.flush()
+            with self._writing():
+                self._stream.close()
+                self._sync()
+            if self.samples_written == 0:
+                self.journal.unlink()
+                raise InputError("no samples were recorded; nothing written", self.out_path)
+            table = read_journal(self.journal).table
+            path = write_session(self.out_path, table, self.meta)
             self.journal.unlink()
-            raise InputError("no samples were recorded; nothing written", self.out_path)
-        table = read_journal(self.journal).table
-        path = write_session(self.out_path, table, self.meta)
-        self.journal.unlink()
-        return path
+            return path
+        finally:
+            with contextlib.suppress(OSError):
+                self._file.close()
 
     def abort(self) -> None:
-        """Flush what is pending and close the journal, keeping it for recovery."""
-        self.flush()
-        self._stream.close()
-        self._file.close()
+        """Flush what is pending and close the journal, keeping it for recovery (after a
+        failed write, only close it: the samples flushed before are what counts)."""
+        try:
+            if not self._failed:
+                self.flush()
+                self._stream.close()
+        except InputError:
+            pass
+        finally:
+            with contextlib.suppress(OSError):
+                self._file.close()
 
     def __enter__(self) -> SessionWriter:
         return self
@@ -140,7 +199,7 @@ def read_journal(path: str | Path) -> JournalContents:
     schema = reader.schema
     try:
         meta = SessionMeta.from_dict(json.loads(schema.metadata[METADATA_KEY]), path)
-    except (KeyError, TypeError, json.JSONDecodeError) as err:
+    except (KeyError, TypeError, ValueError, RecursionError) as err:
         raise InputError("journal has no session metadata", path) from err
     batches, torn = [], False
     while True:
@@ -171,7 +230,24 @@ def recover_journal(journal: Path) -> Recovery:
     If the session file already exists (the capture died after writing it but before
     removing its journal), the journal is removed and the file left as it is.
     """
-    out_path = journal.with_name(journal.name[: -len(JOURNAL_SUFFIX)])
+    out_path = inside(journal.parent, journal.name[: -len(JOURNAL_SUFFIX)])
+    try:
+        handle = open(journal, "rb")  # noqa: SIM115 (the lock lives as long as the handle)
+    except FileNotFoundError:
+        return Recovery(journal, None, 0, "journal already gone (recovered by another run)")
+    with handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return Recovery(journal, None, 0, "left in place: a live capture (or another "
+                                              "recover) is writing it")
+        if not journal.exists():
+            return Recovery(journal, None, 0, "journal already gone (recovered by another run)")
+        return _recover_locked(journal, out_path)
+
+
+def _recover_locked(journal: Path, out_path: Path) -> Recovery:
+    """Recover a journal whose lock this process holds."""
     if out_path.exists():
         journal.unlink()
         return Recovery(journal, out_path, 0, "session already complete; stale journal removed")
@@ -199,8 +275,10 @@ def recover_journal(journal: Path) -> Recovery:
 
 
 def recover_directory(directory: str | Path) -> list[Recovery]:
-    """Recover every journal in ``directory``; return one :class:`Recovery` per journal."""
+    """Recover every journal in ``directory``; return one :class:`Recovery` per journal.
+    Temporary files of writers that were killed are removed."""
     directory = Path(directory)
     if not directory.is_dir():
         raise InputError("not a directory", directory)
+    remove_stale_temporaries(directory)
     return [recover_journal(p) for p in sorted(directory.glob("*" + JOURNAL_SUFFIX))]

@@ -16,6 +16,7 @@ from typing import Any
 from contactkit.features.dynamics import urdf_sha256
 from contactkit.recorder.protocol import check_action, check_condition, pose_q
 from contactkit.schemas import InputError, SessionMeta, new_session_id
+from contactkit.util.paths import safe_name
 
 N_LINKS = 7
 
@@ -71,8 +72,14 @@ def session_meta(*, source: str, action: str, condition: str = "static",
 
 
 def session_filename(meta: SessionMeta) -> str:
-    """Return the file name of a session: condition, pose(s), action and short id."""
+    """Return the file name of a session: condition, pose(s), action and short id.
+
+    The metadata is checked first, so every part is within its domain; the name is a
+    safe file-name component (raises :class:`InputError` otherwise).
+    """
+    meta.check()
     poses = meta.pose or "x"
     if meta.target_pose:
         poses += "to" + meta.target_pose
-    return f"{meta.condition}_{poses}_{meta.action}_{meta.session_id[:12]}.parquet"
+    return safe_name(f"{meta.condition}_{poses}_{meta.action}_{meta.session_id[:12]}.parquet",
+                     "session file name")

@@ -28,13 +28,16 @@ from pathlib import Path
 
 import numpy as np
 import polars as pl
+import pyarrow as pa
+import pyarrow.parquet as pq
 
 from contactkit.recorder.noise import SensorNoise
 from contactkit.recorder.stats_deep import session_summary
 from contactkit.schemas import ACTIONS, InputError
-from contactkit.schemas.dataset import INDEX_NAME, rebuild_index, session_files
+from contactkit.schemas.dataset import INDEX_NAME, INDEX_SCHEMA, rebuild_index, session_files
 from contactkit.schemas.timing import rate_warning
 from contactkit.util.parallel import map_ordered
+from contactkit.util.paths import atomic_write_text
 
 SCHEMA_ID = "contactkit.schemas/stats_report/1"
 WINDOW_S = 0.5
@@ -49,13 +52,23 @@ def load_index(directory: Path) -> tuple[pl.LazyFrame, list[dict]]:
         raise InputError("not a directory", directory)
     index_path = directory / INDEX_NAME
     files = {p.name for p in session_files(directory)}
-    if index_path.exists():
-        indexed = set(pl.read_parquet(index_path, columns=["file"])["file"].to_list())
-        if indexed == files:
-            return pl.scan_parquet(index_path), []
+    if _indexed_files(index_path) == files:
+        return pl.scan_parquet(index_path), []
     result = rebuild_index(directory)
     problems = [{"file": name, "problem": problem} for name, problem in result.problems]
     return pl.scan_parquet(index_path), problems
+
+
+def _indexed_files(index_path: Path) -> set[str] | None:
+    """Return the file names an index lists, or None when it is missing, unreadable or
+    not an index of this schema version (then it is rebuilt)."""
+    try:
+        schema = pq.read_schema(index_path)
+        if schema.remove_metadata() != INDEX_SCHEMA.remove_metadata():
+            return None
+        return set(pq.read_table(index_path, columns=["file"]).column("file").to_pylist())
+    except (OSError, pa.ArrowException):
+        return None
 
 
 def _records(frame: pl.DataFrame) -> list[dict]:
@@ -216,8 +229,7 @@ def write_noise_file(path: Path, noise: dict, dataset: Path) -> Path:
                          source=f"recorder stats --deep {dataset} ({noise['sessions']} "
                                 "no-contact sessions)")
     doc = json.loads(sensor.to_json()) | {"thesis_tau_std_nm": noise["tau_std_nm"]}
-    path.write_text(json.dumps(doc, indent=2))
-    return path
+    return atomic_write_text(path, json.dumps(doc, indent=2))
 
 
 def build_report(directory: Path, deep: bool, workers: int,

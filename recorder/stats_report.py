@@ -25,6 +25,7 @@ from rich.table import Table
 from contactkit.recorder.stats_deep import PROFILE_T
 from contactkit.schemas import ACTIONS
 from contactkit.schemas.rerun_layout import CLASS_COLORS
+from contactkit.util.paths import atomic_write_bytes, atomic_write_text
 
 FORMATS = ("html", "md", "json")
 
@@ -245,8 +246,7 @@ def _markdown_table(frame: pl.DataFrame) -> str:
 def write_report(report: dict, out: Path, fmt: str) -> Path:
     """Write the report in ``fmt`` (html, md or json) to ``out``; return the path."""
     if fmt == "json":
-        out.write_text(json.dumps(public(report), indent=2, default=float))
-        return out
+        return atomic_write_text(out, json.dumps(public(report), indent=2, default=float))
     plots = make_plots(report)
     intro = _summary_lines(report)
     problems = report["problems"]
@@ -261,10 +261,9 @@ def write_report(report: dict, out: Path, fmt: str) -> Path:
             parts += ["", f"## {title}", "", _markdown_table(table)]
         for i, (title, caption, png) in enumerate(plots):
             name = f"{out.stem}_plot{i + 1}.png"
-            (out.parent / name).write_bytes(png)
+            atomic_write_bytes(out.parent / name, png)
             parts += ["", f"## {title}", "", caption, "", f"![{title}]({name})"]
-        out.write_text("\n".join(parts) + "\n")
-        return out
+        return atomic_write_text(out, "\n".join(parts) + "\n")
     body = [f"<h1>Dataset report: {html.escape(report['dataset'])}</h1>", "<ul>"]
     body += [f"<li>{html.escape(x)}</li>" for x in intro] + ["</ul>", "<h2>Warnings</h2><ul>"]
     body += [f"<li>{html.escape(w)}</li>" for w in report["class_balance_warnings"] or ["none"]]
@@ -281,5 +280,4 @@ def write_report(report: dict, out: Path, fmt: str) -> Path:
     page = ("<!doctype html><html><head><meta charset='utf-8'><title>contactkit dataset "
             "report</title><style>body{font-family:sans-serif;max-width:1100px;margin:auto}"
             "img{max-width:100%}</style></head><body>" + "\n".join(body) + "</body></html>")
-    out.write_text(page)
-    return out
+    return atomic_write_text(out, page)

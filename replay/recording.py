@@ -18,6 +18,7 @@ import rerun as rr
 from contactkit.features.dynamics import viewer_urdf_file
 from contactkit.replay.engine import Block, OfflineAnswer, ReplayStream
 from contactkit.schemas import rerun_layout as layout
+from contactkit.util.paths import inside
 
 
 def new_recording(session_name: str, recording_id: str) -> rr.RecordingStream:
@@ -112,4 +113,4 @@ def save_path_for(save: Path, session_path: Path, many: bool) -> Path:
     ``<save stem>_<session stem>.rrd``."""
     if not many:
         return save
-    return save.with_name(f"{save.stem}_{session_path.stem}.rrd")
+    return inside(save.parent, f"{save.stem}_{session_path.stem}.rrd")

@@ -37,6 +37,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import uuid
 from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field, fields
@@ -156,20 +157,89 @@ class SessionMeta:
         return meta
 
     def check(self, path: str | Path | None = None) -> None:
-        """Raise :class:`InputError` when a field holds a value outside its domain."""
+        """Raise :class:`InputError` when a field holds a value outside its domain.
+
+        Domains: action and condition from their lists; pose names A-H or a safe name
+        (they become file-name parts); links 1..7; joint vectors of 7 finite numbers;
+        times [s] finite and within :data:`MAX_SESSION_S`; rates and speeds finite and
+        positive; text fields strings; flags booleans.
+        """
+        for name, kinds in _FIELD_TYPES.items():
+            value = getattr(self, name)
+            if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):
+                raise InputError(f"metadata {name} has the wrong type "
+                                 f"({type(value).__name__}: {_short(value)})", path)
         if self.action not in ACTIONS:
-            raise InputError(f"unknown action {self.action!r} (expected one of "
+            raise InputError(f"unknown action {_short(self.action)} (expected one of "
                              f"{', '.join(ACTIONS)})", path)
         if self.condition not in CONDITIONS:
-            raise InputError(f"unknown condition {self.condition!r} (expected static or "
+            raise InputError(f"unknown condition {_short(self.condition)} (expected static or "
                              "dynamic)", path)
+        if not SESSION_ID.fullmatch(self.session_id):
+            raise InputError(f"metadata session_id {_short(self.session_id)} is not 1-64 "
+                             "letters, digits, '_' or '-'", path)
+        for name in ("pose", "target_pose"):
+            value = getattr(self, name)
+            if value is not None and not POSE_NAME.fullmatch(value):
+                raise InputError(f"metadata {name} {_short(value)} is not a pose name (A-H, or "
+                                 "1-32 letters, digits, '_' or '-')", path)
         for name in ("pose_q", "target_q"):
             value = getattr(self, name)
-            if value is not None and len(value) != N_JOINTS:
-                raise InputError(f"metadata {name} has {len(value)} joints, expected "
-                                 f"{N_JOINTS}", path)
-        if self.link is not None and not 1 <= int(self.link) <= N_JOINTS:
+            if value is not None and (len(value) != N_JOINTS or not all(map(_finite, value))):
+                raise InputError(f"metadata {name} is not {N_JOINTS} finite joint angles "
+                                 "[rad]", path)
+        if self.link is not None and not 1 <= self.link <= N_JOINTS:
             raise InputError(f"metadata link {self.link} is not a link 1..{N_JOINTS}", path)
+        for name, low, high in _BOUNDS:
+            value = getattr(self, name)
+            if value is not None and not (_finite(value) and low <= value <= high):
+                raise InputError(f"metadata {name} {value!r} is outside {low:g}..{high:g}",
+                                 path)
+        if self.recovered_samples is not None and self.recovered_samples < 0:
+            raise InputError(f"metadata recovered_samples {self.recovered_samples} is "
+                             "negative", path)
+        incomplete = self.source_info.get("incomplete_samples", 0)
+        if not (_finite(incomplete) and float(incomplete).is_integer() and incomplete >= 0):
+            raise InputError(f"metadata source_info.incomplete_samples {_short(incomplete)} "
+                             "is not a count", path)
+
+
+MAX_SESSION_S = 86_400.0
+"""Longest session [s] the metadata may describe (one day): bounds planned times."""
+SESSION_ID = re.compile(r"[A-Za-z0-9_-]{1,64}")
+POSE_NAME = re.compile(r"[A-Za-z0-9_-]{1,32}")
+_NUMBER = (int, float)
+_OPTIONAL_NUMBER = (int, float, type(None))
+_FIELD_TYPES: dict[str, tuple[type, ...]] = {
+    "session_id": (str,), "source": (str,), "action": (str,), "condition": (str,),
+    "pose": (str, type(None)), "target_pose": (str, type(None)),
+    "pose_q": (list, type(None)), "target_q": (list, type(None)),
+    "speed_rad_s": _OPTIONAL_NUMBER, "link": (int, type(None)),
+    "planned_at_s": _OPTIONAL_NUMBER, "nominal_rate_hz": _OPTIONAL_NUMBER,
+    "operator": (str,), "notes": (str,), "created_utc": (str,), "robot": (str,),
+    "with_hand": (bool,), "urdf_sha256": (str,), "simulator": (dict, type(None)),
+    "source_info": (dict,), "recovered": (bool,), "recovered_samples": (int, type(None)),
+    "tool_version": (str,), "schema_version": (int,),
+}
+_BOUNDS = (("planned_at_s", 0.0, MAX_SESSION_S), ("speed_rad_s", 1e-6, 100.0),
+           ("nominal_rate_hz", 1e-3, 1e6))
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, _NUMBER) and not isinstance(value, bool)
+
+
+def _finite(value: object) -> bool:
+    """Return whether ``value`` is a finite number (a huge int counts as infinite)."""
+    try:
+        return _is_number(value) and math.isfinite(value)
+    except OverflowError:
+        return False
+
+
+def _short(value: object) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 @dataclass
@@ -286,6 +356,8 @@ def atomic_write_parquet(table: pa.Table, path: Path, *, overwrite: bool) -> Non
                                  path) from err
     except PermissionError as err:
         raise InputError("cannot write here (permission denied)", path.parent) from err
+    except OSError as err:
+        raise InputError(f"cannot write the file ({err.strerror or err})", path) from err
     finally:
         tmp.unlink(missing_ok=True)
     _fsync_dir(path.parent)
@@ -317,8 +389,9 @@ def read_session_meta(path: str | Path) -> tuple[SessionMeta, pq.FileMetaData]:
         raise InputError("no contactkit session metadata (not a contactkit session file)", path)
     try:
         doc = json.loads(kv[METADATA_KEY])
-    except json.JSONDecodeError as err:
-        raise InputError(f"session metadata is not valid JSON ({err.msg})", path) from err
+    except (ValueError, RecursionError) as err:
+        raise InputError(f"session metadata is not valid JSON ({_first_line(err)})",
+                         path) from err
     return SessionMeta.from_dict(doc, path), footer
 
 

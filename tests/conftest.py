@@ -11,10 +11,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, settings
 
 from contactkit.recorder.sim import SimConfig, plan_session
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
 from contactkit.schemas import write_session
+
+# Fuzzing: a bounded run in `make test`, a long one in benchmarks/bench_fuzz.py.
+settings.register_profile("ci", max_examples=30, deadline=None, derandomize=True,
+                          suppress_health_check=[HealthCheck.too_slow,
+                                                 HealthCheck.data_too_large])
+settings.register_profile("long", deadline=None,
+                          max_examples=int(os.environ.get("CONTACTKIT_FUZZ_EXAMPLES", "2000")),
+                          suppress_health_check=[HealthCheck.too_slow,
+                                                 HealthCheck.data_too_large])
+settings.load_profile(os.environ.get("CONTACTKIT_FUZZ_PROFILE", "ci"))
 
 REFERENCE = Path(__file__).resolve().parents[2] / "shared" / "reference" / "gaz2019-exciting-traj"
 BIN = Path(sys.executable).parent

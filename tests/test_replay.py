@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import json
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 import rerun.chunk as rc
 
@@ -19,6 +21,7 @@ from contactkit.replay import cli as replay_cli
 from contactkit.replay.session_replay import replay_sessions
 from contactkit.schemas import read_session
 from contactkit.schemas import rerun_layout as layout
+from contactkit.schemas.session import METADATA_KEY
 from contactkit.util.cli import run_app
 from tests.conftest import make_dataset, make_session, run_cli
 
@@ -184,3 +187,20 @@ def test_a_refused_session_leaves_no_file_and_no_saved_message(tmp_path, session
     assert summary.recorded == "shove" and summary.offline.label in load_model(model_path).classes
     assert len(summary.pred_t) == len(summary.pred_label) > 10
     assert summary.line().startswith(f"{session.name}: recorded shove, predicted ")
+
+
+def test_refused_input_gives_no_saved_message_and_no_file(tmp_path, session, model_path
+                                                          ) -> None:
+    table = pq.read_table(session)
+    doc = json.loads(table.schema.metadata[METADATA_KEY])
+    for name, changes in (("overflow", {"planned_at_s": 1e12}),
+                          ("late", {"planned_at_s": 60.0})):
+        bad = tmp_path / f"{name}.parquet"
+        pq.write_table(table.replace_schema_metadata(
+            {METADATA_KEY: json.dumps(doc | changes).encode()}), bad)
+        out = tmp_path / f"{name}.rrd"
+        result = run_cli("replay", str(bad), "--viewer", "none", "--save", str(out),
+                         "--model", str(model_path))
+        assert result.returncode == 2, result.stderr
+        assert "Traceback" not in result.stderr and "saved" not in result.stderr
+        assert not out.exists(), name

@@ -139,7 +139,7 @@ def test_metadata_model_round_trip() -> None:
                        pose_q=[0.0] * 7)
     again = SessionMeta.from_dict(json.loads(meta.to_json()))
     assert again == meta
-    with pytest.raises(InputError, match="pose_q has 3 joints"):
+    with pytest.raises(InputError, match="pose_q is not 7 finite joint angles"):
         SessionMeta(session_id="x", source="sim", action="none", pose_q=[0, 0, 0]).check()
 
 
