@@ -106,4 +106,4 @@ def test_import_arrays_round_trip(reference_dir: Path, tmp_path: Path) -> None:
     bad = run_cli(*args[:-2], "--out", str(tmp_path / "o"), "--tau", str(npy))
     assert bad.returncode == 2 and "wrong joint count" in bad.stderr
     bad_meta = run_cli(*args[:-2], "--out", str(tmp_path / "o"), "--meta", "colour=red")
-    assert bad_meta.returncode == 2 and "bad --meta 'colour=red'" in bad_meta.stderr
+    assert bad_meta.returncode == 2 and "bad metadata pair 'colour=red'" in bad_meta.stderr
