@@ -67,12 +67,16 @@ def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out
     """Write a validated session from array files; return its path."""
     arrays = load_joint_arrays(t_path, q_path, dq_path, tau_path)
     doc = {"action": "none", "source": "arrays", **parse_meta(meta_pairs)}
-    for key, name in (("pose_q", "pose_q_rad"), ("target_q", "target_q_rad")):
+    for key, argument in (("pose_q", "pose_q_rad"), ("target_q", "target_q_rad")):
         if key in doc:
-            doc[name] = doc.pop(key)
+            doc[argument] = doc.pop(key)
     doc["with_hand"] = bool(doc.get("with_hand", True))
-    meta = session_meta(**doc, source_info={
-        "imported_from": [str(p) for p in (t_path, q_path, dq_path, tau_path)]})
+    try:
+        meta = session_meta(**doc, source_info={
+            "imported_from": [str(p) for p in (t_path, q_path, dq_path, tau_path)]})
+        meta.check()
+    except (InputError, TypeError) as err:
+        raise InputError(f"bad metadata: {err}") from err
     columns = {"t": arrays["t"]}
     for prefix in ("q", "dq", "tau"):
         for col, values in zip(joint_columns(prefix), arrays[prefix].T, strict=True):

@@ -14,7 +14,7 @@ from datetime import UTC, datetime
 from typing import Any
 
 from contactkit.features.dynamics import urdf_sha256
-from contactkit.recorder.protocol import check_action, check_condition, pose_q
+from contactkit.recorder.protocol import POSES, check_action, check_condition, pose_q
 from contactkit.schemas import InputError, SessionMeta, new_session_id
 from contactkit.util.paths import safe_name
 
@@ -45,9 +45,9 @@ def session_meta(*, source: str, action: str, condition: str = "static",
     """Return checked session metadata with its provenance filled in.
 
     ``action``, ``condition`` and ``link`` (1-7) are checked (InputError otherwise).
-    Pose names are upper-cased; their joint values [rad] come from thesis Table 3.1
-    unless ``pose_q_rad``/``target_q_rad`` give the values actually used (a simulated
-    session's jittered pose). ``session_id`` defaults to a fresh random id.
+    Thesis pose names (A-H) are upper-cased and their joint values [rad] come from
+    thesis Table 3.1 unless ``pose_q_rad``/``target_q_rad`` give the values actually
+    used (a simulated session's jittered pose). ``session_id`` defaults to a fresh random id.
     ``source_fields`` are the fields a source contributes (``simulator``,
     ``source_info``, ``recovered``...), passed to :class:`SessionMeta` as they are.
     """
@@ -55,20 +55,29 @@ def session_meta(*, source: str, action: str, condition: str = "static",
     check_condition(condition)
     if link is not None and not 1 <= link <= N_LINKS:
         raise InputError(f"unknown link {link} (expected 1..{N_LINKS})")
-    if pose_q_rad is None and pose is not None:
+    pose, target_pose = _pose_name(pose), _pose_name(target_pose)
+    if pose_q_rad is None and pose in POSES:
         pose_q_rad = pose_q(pose)
-    if target_q_rad is None and target_pose is not None:
+    if target_q_rad is None and target_pose in POSES:
         target_q_rad = pose_q(target_pose)
     return SessionMeta(
         session_id=session_id or new_session_id(), source=source, action=action,
-        condition=condition, pose=None if pose is None else pose.upper(),
+        condition=condition, pose=pose,
         pose_q=None if pose_q_rad is None else [float(v) for v in pose_q_rad],
-        target_pose=None if target_pose is None else target_pose.upper(),
+        target_pose=target_pose,
         target_q=None if target_q_rad is None else [float(v) for v in target_q_rad],
         speed_rad_s=speed_rad_s, link=link, planned_at_s=planned_at_s,
         nominal_rate_hz=nominal_rate_hz, operator=operator, notes=notes,
         created_utc=utc_now(), with_hand=with_hand, urdf_sha256=urdf_sha256(with_hand),
         tool_version=tool_version(), **source_fields)
+
+
+def _pose_name(name: str | None) -> str | None:
+    """Return a thesis pose name (A-H, any case) upper-cased; any other name (a lab's own
+    pose, checked as a safe name with the rest of the metadata) as it is."""
+    if name is None or not isinstance(name, str):
+        return name
+    return name.upper() if name.upper() in POSES else name
 
 
 def session_filename(meta: SessionMeta) -> str:

@@ -16,11 +16,10 @@ import pyarrow.parquet as pq
 import pytest
 
 from contactkit.recorder import dataset, journal
-from contactkit.recorder.capture import sim_session_id
 from contactkit.recorder.cli import app
 from contactkit.recorder.journal import SessionWriter, journal_path, recover_directory
 from contactkit.recorder.sim import SimConfig, plan_session
-from contactkit.recorder.sources.sim import SimSource
+from contactkit.recorder.sources.sim import SimSource, sim_session_id
 from contactkit.schemas import InputError, SessionMeta, validate_session
 from contactkit.schemas.session import METADATA_KEY
 from contactkit.util.cli import run_app
