@@ -24,8 +24,9 @@ Physics (thesis section 5.3.1, extended):
   ``tests/test_features_real.py`` holds it to a factor of 3). With the thesis-like
   +-5 % the simulated residuals were 2-2.5x too small on joints 1-4.
 * Sensors: white noise on q, dq and tau at the levels measured on the real Panda
-  recording (:mod:`contactkit.recorder.noise`), a per-session torque bias, optional time-stamp
-  jitter and dropped samples.
+  recordings (:mod:`contactkit.recorder.noise`; the velocity noise grows with speed, from
+  its level on the real arm holding a pose), a per-session torque bias, optional
+  time-stamp jitter and dropped samples.
 * Contacts: :mod:`contactkit.recorder.forces` (any link, any direction, person-dependent).
 
 Sessions are stepped in lockstep in batches, with ``pin.abaInParallel`` over the
@@ -231,8 +232,10 @@ class PandaSimulator:
         self._nominal_pool = pin.ModelPool(self.nominal.model, 1)
         noise = config.noise
         scale = config.noise_scale
-        self.sigma = np.concatenate([np.array(noise.q_sigma_rad), np.array(noise.dq_sigma_rad_s),
+        self.sigma = np.concatenate([np.array(noise.q_sigma_rad), np.ones(N_JOINTS),
                                      np.array(noise.tau_sigma_nm)])[:, None] * scale
+        self.noise = noise
+        self.noise_scale = scale
         self.bias_scale = np.array(noise.tau_bias_nm) * scale
         self.kp, self.kd, self.ki = (np.array(g)[:, None] for g in (KP, KD, KI))
 
@@ -319,7 +322,7 @@ class PandaSimulator:
         q, dq = batch.q, batch.dq
         q_d, dq_d = self.reference(batch, t)
         q_m = q + noise[:N_JOINTS]
-        dq_m = dq + noise[N_JOINTS:2 * N_JOINTS]
+        dq_m = dq + noise[N_JOINTS:2 * N_JOINTS] * self.noise.dq_sigma(dq) * self.noise_scale
         error = q_d - q_m
         batch.ei[:] = batch.ei + error * dt
         tau_c = (self._gravity(self._nominal_pool, np.asfortranarray(q_m))
