@@ -45,6 +45,7 @@ import pinocchio as pin
 
 from contactkit.features.dynamics import GAZ_FRICTION, N_JOINTS, PandaModel
 from contactkit.recorder.forces import Contact, Persona, link_surface, sample_contact
+from contactkit.recorder.motion import MotionPlan, free_motion_plan
 from contactkit.recorder.noise import SensorNoise, default_noise
 from contactkit.recorder.protocol import (
     check_action,
@@ -124,11 +125,13 @@ class SessionSpec:
     speed_rad_s: float | None = None
     link: int | None = None
     contact: Contact | None = None
+    motion: MotionPlan | None = None
 
     def as_dict(self) -> dict:
         """Return the spec as JSON-ready values."""
         doc = asdict(self)
         doc["contact"] = None if self.contact is None else self.contact.as_dict()
+        doc["motion"] = None if self.motion is None else self.motion.as_dict()
         return doc
 
 
@@ -198,6 +201,64 @@ def plan_session(*, seed: int, condition: str, action: str, pose: str,
         target_pose=None if target_pose is None else target_pose.upper(),
         q_target=None if q_target is None else tuple(float(x) for x in q_target),
         speed_rad_s=speed_rad_s, link=link, contact=contact)
+
+
+CONTACT_TIMING = ("moving", "after-stop", "any")
+
+
+def plan_free_session(*, seed: int, action: str, pose: str, duration_s: float,
+                      link: int | None = None, operator: str = "sim",
+                      pose_jitter_rad: float = 0.0, with_hand: bool = True,
+                      operator_variability: float = 1.0,
+                      contact_timing: str = "any") -> SessionSpec:
+    """Plan a free-motion session (:mod:`contactkit.recorder.motion`) from pose ``pose``.
+
+    The arm holds for 1 s, then moves freely (moves, multi-sine stretches, holds) for
+    the rest of ``duration_s`` [s]. A contact (any action but none) is planned while
+    the arm moves (``contact_timing`` "moving"), within 0.3 s after a move or sine
+    stretch ends ("after-stop"), or either ("any"); its direction is drawn in the
+    touched link's frame at the planned time. The condition is ``dynamic``; random
+    choices come from ``seed``.
+    """
+    check_action(action)
+    if contact_timing not in CONTACT_TIMING:
+        raise InputError(f"unknown contact timing {contact_timing!r} (expected "
+                         f"{', '.join(CONTACT_TIMING)})")
+    if duration_s < 3.0:
+        raise InputError(f"a free-motion session needs at least 3 s, got {duration_s} s")
+    rng = np.random.default_rng(seed)
+    model = PandaModel(with_hand)
+    lo, hi = model.limits.q_min + 0.02, model.limits.q_max - 0.02
+    q_start = np.clip(pose_q(pose) + rng.normal(0.0, pose_jitter_rad, N_JOINTS), lo, hi)
+    plan = free_motion_plan(rng, q_start, duration_s, model.limits)
+    q_start = np.array(plan.segments[0].q_from)
+    moving = [(a, min(b, duration_s - 1.5)) for a, b in plan.moving_intervals()
+              if a < duration_s - 1.5]
+    timing = contact_timing
+    if timing == "any":
+        timing = ("moving", "after-stop")[int(rng.integers(2))]
+    if not moving:
+        planned = float(rng.uniform(1.0, duration_s - 1.5))
+    elif timing == "moving":
+        start, end = moving[int(rng.integers(len(moving)))]
+        planned = float(rng.uniform(start, max(start, end - 0.2)))
+    else:
+        stops = [b for _, b in moving if b < duration_s - 1.5] or [moving[0][0]]
+        planned = float(stops[int(rng.integers(len(stops)))] + rng.uniform(0.0, 0.3))
+    contact = None
+    if action != "none":
+        link = int(rng.integers(1, N_JOINTS + 1)) if link is None else link
+        q_at = plan.sample(np.array([planned]))[0][0]
+        rotation = model.frame_placement(q_at, link).rotation
+        persona = Persona.from_name(operator, operator_variability)
+        contact = sample_contact(rng, action, planned, link, link_surface(link, with_hand),
+                                 rotation, persona)
+    return SessionSpec(
+        seed=seed, condition="dynamic", action=action, pose=pose.upper(),
+        q_start=tuple(float(x) for x in q_start), duration_s=float(duration_s),
+        planned_at_s=planned, motion_start_s=plan.segments[0].duration_s,
+        motion_duration_s=float(duration_s - plan.segments[0].duration_s),
+        operator=operator, link=link, contact=contact, motion=plan)
 
 
 class _Batch:
@@ -272,6 +333,8 @@ class PandaSimulator:
             q0=q0, dq01=np.asfortranarray(q1 - q0), t_move=t_move, t_len=t_len,
             ei=np.asfortranarray(gap / self.ki), tau_prev=self._gravity(self._plant_pool, q0),
             bias=bias, length=lengths)
+        if any(s.motion is not None for s in specs):
+            self._plan_references(batch, specs, int(lengths.max()) * ticks, dt)
         contacts = [s.contact for s in specs]
         k0 = 0
         while batch.index.size:
@@ -304,10 +367,30 @@ class PandaSimulator:
                 self._tick(batch, active, noise[j, tick], t, dt, h, record)
         return out
 
+    def _plan_references(self, batch: _Batch, specs: list[SessionSpec], ticks: int,
+                         dt: float) -> None:
+        """Tabulate every session's commanded trajectory on the control grid (free-motion
+        plans, and the protocol's for sessions without one)."""
+        grid = np.arange(ticks) * dt
+        ref_q, ref_dq = (np.array(a) for a in self._protocol_reference(batch, grid[:, None, None]))
+        for col, spec in enumerate(specs):
+            if spec.motion is not None:
+                ref_q[:, :, col], ref_dq[:, :, col] = spec.motion.sample(grid)
+        batch.arrays.update(ref_q=ref_q, ref_dq=ref_dq)
+        self._ref_dt = dt
+
     def reference(self, batch: _Batch, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Return the commanded (q_d [rad], dq_d [rad/s]) at time ``t`` [s], each (7, B):
-        the start pose, then a quintic move to the target (zero velocity and
-        acceleration at both ends), then the target."""
+        the session's free-motion plan where it has one, else the protocol's: the start
+        pose, then a quintic move to the target (zero velocity and acceleration at both
+        ends), then the target."""
+        if "ref_q" in batch.arrays:
+            k = min(round(t / self._ref_dt), batch.ref_q.shape[0] - 1)
+            return batch.ref_q[k], batch.ref_dq[k]
+        return self._protocol_reference(batch, t)
+
+    def _protocol_reference(self, batch: _Batch, t: float | np.ndarray
+                            ) -> tuple[np.ndarray, np.ndarray]:
         s = np.clip((t - batch.t_move) / batch.t_len, 0.0, 1.0)
         blend = s**3 * (10.0 + s * (-15.0 + 6.0 * s))
         rate = 30.0 * s**2 * (1.0 - s) ** 2 / batch.t_len
