@@ -2,7 +2,8 @@
 
 Held pose: the real hand-mounted Panda in the MindLab recordings, no touch (at least
 0.5 s from a labelled touch), against simulated ``none`` sessions of the thesis
-poses. Free motion: the Gaz et al. exciting-trajectory log against the simulator.
+poses. Free motion: the Gaz et al. exciting-trajectory log (no hand) against the
+``free-motion`` preset's kind of motion on the simulated Panda without its hand.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from contactkit.recorder.csv_import import read_csv_columns
 from contactkit.recorder.csv_map import load_csv_map, mindlab_map_path
 from contactkit.recorder.dataset import PRESETS, preset_specs
 from contactkit.recorder.noise import away_from_contact
-from contactkit.recorder.sim import PandaSimulator, SimConfig
+from contactkit.recorder.sim import PandaSimulator, SimConfig, plan_free_session
 from tests.conftest import MINDLAB_FILES
 
 
@@ -63,3 +64,28 @@ def test_held_pose_residual_noise_matches_the_real_panda(real_held_std: np.ndarr
     checked = [0, 1, 2, 3, 5, 6]
     assert ((ratio[checked] > 0.5) & (ratio[checked] < 1.5)).all(), (sim_std, real_held_std)
     assert (real_held_std[:4] > 0.03).all() and (real_held_std[:4] < 0.15).all()
+
+
+def _moving_rms(columns: dict[str, np.ndarray]) -> np.ndarray:
+    """RMS [Nm] of the residual (no hand) over the samples where a joint moves > 0.1 rad/s."""
+    r = _residual(columns, with_hand=False)
+    moving = (columns["t"] > 1.0) & (np.abs(_joints(columns, "dq")).max(axis=1) > 0.1)
+    return np.sqrt((r[moving] ** 2).mean(axis=0))
+
+
+def test_free_motion_residual_matches_the_real_log(reference_dir: Path) -> None:
+    real = {"t": np.loadtxt(reference_dir / "time.txt")}
+    for prefix, name in (("q", "positions"), ("dq", "velocity"), ("tau", "torques")):
+        values = np.loadtxt(reference_dir / f"{name}.txt").reshape(-1, 7)
+        real.update({f"{prefix}_{j}": values[:, j - 1] for j in range(1, 8)})
+    real_rms = _moving_rms(real)
+    specs = [plan_free_session(seed=100 + k, action="none", pose="ABCDEFGH"[k],
+                               duration_s=8.0, pose_jitter_rad=0.1, with_hand=False)
+             for k in range(8)]
+    # Two robot instances (each has its own true inertia and friction), four sessions each.
+    sims = [c for robot in (0, 1) for c in simulate(
+        specs[4 * robot:4 * robot + 4], SimConfig(rate_hz=1000.0, with_hand=False,
+                                                  robot_seed=robot))]
+    ratio = np.median([_moving_rms(c) for c in sims], axis=0) / real_rms
+    assert ((ratio > 0.5) & (ratio < 1.5)).all(), ratio
+    assert np.median([np.abs(_joints(c, "dq")).max() for c in sims]) > 1.0
