@@ -234,19 +234,19 @@ def plan_free_session(*, seed: int, action: str, pose: str, duration_s: float,
     q_start = np.clip(pose_q(pose) + rng.normal(0.0, pose_jitter_rad, N_JOINTS), lo, hi)
     plan = free_motion_plan(rng, q_start, duration_s, model.limits)
     q_start = np.array(plan.segments[0].q_from)
-    moving = [(a, min(b, duration_s - 1.5)) for a, b in plan.moving_intervals()
-              if a < duration_s - 1.5]
+    latest = duration_s - 1.5
+    moving = [(a, min(b, latest)) for a, b in plan.moving_intervals() if a < latest]
+    stops = [b for _, b in plan.moving_intervals() if b < latest]
     timing = contact_timing
     if timing == "any":
         timing = ("moving", "after-stop")[int(rng.integers(2))]
-    if not moving:
-        planned = float(rng.uniform(1.0, duration_s - 1.5))
-    elif timing == "moving":
+    if timing == "after-stop" and stops:
+        planned = float(stops[int(rng.integers(len(stops)))] + rng.uniform(0.0, 0.3))
+    elif moving:
         start, end = moving[int(rng.integers(len(moving)))]
         planned = float(rng.uniform(start, max(start, end - 0.2)))
     else:
-        stops = [b for _, b in moving if b < duration_s - 1.5] or [moving[0][0]]
-        planned = float(stops[int(rng.integers(len(stops)))] + rng.uniform(0.0, 0.3))
+        planned = float(rng.uniform(1.0, latest))
     contact = None
     if action != "none":
         link = int(rng.integers(1, N_JOINTS + 1)) if link is None else link
@@ -371,15 +371,14 @@ class PandaSimulator:
 
     def _plan_references(self, batch: _Batch, specs: list[SessionSpec], ticks: int,
                          dt: float) -> None:
-        """Tabulate every session's commanded trajectory on the control grid (free-motion
-        plans, and the protocol's for sessions without one)."""
+        """Tabulate every session's commanded trajectory on the control grid of step
+        ``dt`` [s] (free-motion plans, and the protocol's for sessions without one)."""
         grid = np.arange(ticks) * dt
         ref_q, ref_dq = (np.array(a) for a in self._protocol_reference(batch, grid[:, None, None]))
         for col, spec in enumerate(specs):
             if spec.motion is not None:
                 ref_q[:, :, col], ref_dq[:, :, col] = spec.motion.sample(grid)
         batch.arrays.update(ref_q=ref_q, ref_dq=ref_dq)
-        self._ref_dt = dt
 
     def reference(self, batch: _Batch, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Return the commanded (q_d [rad], dq_d [rad/s]) at time ``t`` [s], each (7, B):
@@ -387,7 +386,8 @@ class PandaSimulator:
         pose, then a quintic move to the target (zero velocity and acceleration at both
         ends), then the target."""
         if "ref_q" in batch.arrays:
-            k = min(round(t / self._ref_dt), batch.ref_q.shape[0] - 1)
+            dt = 1.0 / (self.config.rate_hz * control_ticks(self.config.rate_hz))
+            k = min(round(t / dt), batch.ref_q.shape[0] - 1)
             return batch.ref_q[k], batch.ref_dq[k]
         return self._protocol_reference(batch, t)
 

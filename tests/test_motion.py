@@ -58,6 +58,10 @@ def test_contact_timing_is_honoured() -> None:
         spec = plan_free_session(seed=seed, action="bump", pose="B", duration_s=8.0,
                                  contact_timing="moving")
         assert any(a <= spec.planned_at_s <= b for a, b in spec.motion.moving_intervals())
+        spec = plan_free_session(seed=seed, action="shove", pose="C", duration_s=8.0,
+                                 contact_timing="after-stop")
+        assert any(b <= spec.planned_at_s <= b + 0.3
+                   for _, b in spec.motion.moving_intervals())
     with pytest.raises(InputError, match="contact timing"):
         plan_free_session(seed=0, action="bump", pose="B", duration_s=8.0,
                           contact_timing="later")
