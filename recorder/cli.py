@@ -16,6 +16,8 @@ from contactkit.recorder.can_map import load_map
 from contactkit.recorder.can_tools import bridge_session, decoding_summary, import_can_log
 from contactkit.recorder.capture import output_directory
 from contactkit.recorder.capture_cli import Action, Condition, Pose, register_capture
+from contactkit.recorder.csv_import import import_csv
+from contactkit.recorder.csv_map import load_csv_map
 from contactkit.recorder.dataset import PRESETS, simulate_dataset
 from contactkit.recorder.importer import import_arrays
 from contactkit.recorder.info import print_info, session_info
@@ -120,6 +122,45 @@ def import_arrays_command(
     file one value per line. Time is shifted to start at 0 s.
     """
     print(import_arrays(t, q, dq, tau, output_directory(out), meta or [], name))
+
+
+@app.command("import-csv")
+def import_csv_command(
+    csv_files: Annotated[list[Path], typer.Argument(help="CSV exports, one session each.")],
+    column_map: Annotated[Path, typer.Option(
+        "--map", help="Column map TOML (example for the MindLab ZHAW files: "
+                      "recorder/data/mindlab_csv_map.toml).")],
+    pose: Annotated[Pose | None, typer.Option(
+        help="Pose (thesis Table 3.1), if the robot held one.")] = None,
+    action: Annotated[Action, typer.Option(
+        help="What the person did (a log with several touches keeps them in its contact "
+             "column).")] = "none",
+    condition: Annotated[Condition, typer.Option(help="Protocol condition.")] = "static",
+    planned_at: Annotated[float | None, typer.Option(
+        help="Planned interaction time [s from the first sample].")] = None,
+    link: Annotated[int | None, typer.Option(help="Touched link 1-7.")] = None,
+    operator: Annotated[str, typer.Option(help="Who touched the robot.")] = "",
+    hand: Annotated[bool, typer.Option(help="The robot carried its hand.")] = True,
+    notes: Annotated[str, typer.Option(help="Free text stored in the metadata.")] = "",
+    out: Annotated[Path, typer.Option(help="Output directory.")] = Path("sessions"),
+) -> None:
+    """Turn CSV exports into validated sessions, one per file, and print their paths.
+
+    The map names the time, q, dq, tau (and optional q_d, dq_d, tau_ext_hat, contact
+    label) columns and their units; rows repeating the previous row are dropped and
+    counted.
+    """
+    cmap = load_csv_map(column_map)
+    directory = output_directory(out)
+    for csv_file in csv_files:
+        meta = session_meta(source="csv", action=action, condition=condition, pose=pose,
+                            link=link, planned_at_s=planned_at, operator=operator,
+                            with_hand=hand, notes=notes)
+        path = import_csv(csv_file, cmap, meta, directory)
+        info = read_session(path).meta.source_info
+        err_console.print(f"{csv_file}: {info['samples']} samples from {info['rows']} rows, "
+                          f"{info['repeated_rows']} repeated rows dropped")
+        print(path)
 
 
 @app.command("stats")

@@ -17,6 +17,15 @@ choices of section 5.3.3 and what it listed as future work):
   against 0, so other true inertias and friction: model mismatch between the two),
   people 1.5 times as variable in strength and tempo, and contacts on every link
   where the simulation, like the thesis's, only touches the distal links 5-7.
+* ``free-motion`` (96, no contact) and ``mixed-motion`` (128, the four actions
+  balanced), 8 s at 500 Hz: what a real arm does when nobody touches it (issue 13).
+  After a 1 s hold each session moves freely from a jittered pose A-H: quintic
+  point-to-point moves to random poses, multi-sine stretches like the exciting
+  trajectories of robot identification, stops and holds, with joints at up to 85 %
+  of their velocity limits (the real Gaz log reaches 1.8 rad/s, 83 %) and within
+  70 % of their acceleration limits (:mod:`contactkit.recorder.motion`). In
+  ``mixed-motion`` the contact comes while the arm moves or within 0.3 s after it
+  stops, with free motion around it. Both simulate in a few minutes on 2 cores.
 
 Every session's choices come from ``(seed, session number)``, so re-running a
 preset produces the same files, and sessions already on disk are skipped. Five
@@ -36,7 +45,13 @@ import numpy as np
 
 from contactkit.recorder.metadata import session_filename
 from contactkit.recorder.protocol import POSES, START_POSE
-from contactkit.recorder.sim import PandaSimulator, SessionSpec, SimConfig, plan_session
+from contactkit.recorder.sim import (
+    PandaSimulator,
+    SessionSpec,
+    SimConfig,
+    plan_free_session,
+    plan_session,
+)
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
 from contactkit.schemas import ACTIONS, InputError, write_session
 from contactkit.schemas.dataset import IndexResult, rebuild_index
@@ -62,6 +77,8 @@ class Preset:
     robot_seed: int = 0
     variability: float = 1.0
     links: tuple[int, ...] | None = None
+    free_motion: bool = False
+    actions: tuple[str, ...] = ACTIONS
 
 
 PRESETS: dict[str, Preset] = {
@@ -77,6 +94,10 @@ PRESETS: dict[str, Preset] = {
                        robot_seed=7, variability=1.5),
     "aug-sim": Preset("aug-sim", 512, "static", tuple(POSES), 0.1, rate_hz=500.0,
                       robot_seed=0, variability=1.0, links=(5, 6, 7)),
+    "free-motion": Preset("free-motion", 96, "dynamic", tuple(POSES), 0.1, rate_hz=500.0,
+                          duration_s=8.0, free_motion=True, actions=("none",)),
+    "mixed-motion": Preset("mixed-motion", 128, "dynamic", tuple(POSES), 0.1, rate_hz=500.0,
+                           duration_s=8.0, free_motion=True),
 }
 
 
@@ -87,7 +108,7 @@ def preset_specs(preset: Preset, n: int, seed: int, with_hand: bool = True,
     for k in range(n):
         rng = np.random.default_rng([seed, k])
         pose = preset.poses[k % len(preset.poses)]
-        action = ACTIONS[(k // len(preset.poses)) % len(ACTIONS)]
+        action = preset.actions[(k // len(preset.poses)) % len(preset.actions)]
         session_seed = int(rng.integers(2**63))
         link = None if preset.links is None or action == "none" else \
             int(preset.links[int(rng.integers(len(preset.links)))])
@@ -96,7 +117,9 @@ def preset_specs(preset: Preset, n: int, seed: int, with_hand: bool = True,
                       duration_s=preset.duration_s, link=link,
                       operator_variability=preset.variability if variability is None
                       else variability)
-        if preset.condition == "dynamic":
+        if preset.free_motion:
+            specs.append(plan_free_session(pose=pose, **common))
+        elif preset.condition == "dynamic":
             speed = float(rng.uniform(*preset.speed_range))
             specs.append(plan_session(condition="dynamic", pose=START_POSE, target_pose=pose,
                                       speed_rad_s=round(speed, 4), **common))

@@ -66,7 +66,9 @@ def print_info(info: dict, console: Console) -> None:
         table.add_row("[yellow]warning[/]", info["rate_warning"])
     if info["contact_interval_s"]:
         lo, hi = info["contact_interval_s"]
-        table.add_row("contact", f"{lo:.3f} s to {hi:.3f} s, peak {info['peak_force_n']:.1f} N")
+        peak = info["peak_force_n"]
+        table.add_row("contact", f"{lo:.3f} s to {hi:.3f} s"
+                      + ("" if peak is None else f", peak {peak:.1f} N"))
     elif info["peak_force_n"] is not None:
         table.add_row("contact", "none")
     console.print(table)

@@ -28,6 +28,8 @@ settings.register_profile("long", deadline=None,
 settings.load_profile(os.environ.get("CONTACTKIT_FUZZ_PROFILE", "ci"))
 
 REFERENCE = Path(__file__).resolve().parents[2] / "shared" / "reference" / "gaz2019-exciting-traj"
+MINDLAB = REFERENCE.parent / "mindlab-contact"
+MINDLAB_FILES = ("a4", "b8", "c2", "d3", "f2")
 BIN = Path(sys.executable).parent
 
 
@@ -64,6 +66,16 @@ def reference_dir() -> Path:
             pytest.fail(f"reference recording missing at {REFERENCE} (CI must have ../shared)")
         pytest.skip(f"reference recording not found at {REFERENCE}")
     return REFERENCE
+
+
+@pytest.fixture(scope="session")
+def mindlab_dir() -> Path:
+    """The five real Panda CSV recordings with labelled touches (MindLab ZHAW)."""
+    if not MINDLAB.is_dir():
+        if os.environ.get("CI"):
+            pytest.fail(f"MindLab recordings missing at {MINDLAB} (CI must have ../shared)")
+        pytest.skip(f"MindLab recordings not found at {MINDLAB}")
+    return MINDLAB
 
 
 def run_cli(*args: str, cwd: Path | None = None, timeout: float = 300

@@ -1,0 +1,146 @@
+"""CSV column maps: which columns of a lab's CSV export hold one sample (a small TOML file).
+
+A map names the ``time`` column and its unit, the seven columns of each joint
+quantity (``q``, ``dq``, ``tau`` required; ``q_d``, ``dq_d``, ``tau_ext_hat``
+optional) either as a template with ``{j}`` for the joint index (counted from
+``index_base``, 0 or 1) or as a list of seven names, their unit, a ``sign`` for
+``tau_ext_hat`` (+1 when the column is libfranka's ``tau_ext_hat_filtered``, whose
+sign is opposite to the momentum-observer residual; -1 when it is not), an optional
+per-sample ``contact`` label column, and whether rows that repeat the previous row's
+measured values are dropped. ``recorder/data/mindlab_csv_map.toml`` is the example.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+from contactkit.schemas import N_JOINTS, InputError
+
+# Unit name -> factor to the session's unit (s, rad, rad/s, Nm).
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+ANGLE_UNITS = {"rad": 1.0, "deg": 0.017453292519943295}
+JOINT_UNITS = {
+    "q": ANGLE_UNITS,
+    "q_d": ANGLE_UNITS,
+    "dq": {"rad/s": 1.0, "deg/s": ANGLE_UNITS["deg"]},
+    "dq_d": {"rad/s": 1.0, "deg/s": ANGLE_UNITS["deg"]},
+    "tau": {"Nm": 1.0, "mNm": 1e-3},
+    "tau_ext_hat": {"Nm": 1.0, "mNm": 1e-3},
+}
+REQUIRED = ("q", "dq", "tau")
+OPTIONAL = ("q_d", "dq_d", "tau_ext_hat")
+KNOWN_KEYS = {"name", "delimiter", "index_base", "time", "contact", "repeated_rows",
+              *REQUIRED, *OPTIONAL}
+
+
+@dataclass(frozen=True)
+class JointColumns:
+    """The seven CSV columns of one joint quantity and the factor to session units."""
+
+    names: tuple[str, ...]
+    factor: float
+
+
+@dataclass(frozen=True)
+class CsvMap:
+    """A parsed CSV column map.
+
+    ``joints`` maps a session prefix (q, dq, tau, ...) to its CSV columns; ``time_factor``
+    converts the time column to s; ``contact`` is the label column (None without one),
+    whose nonzero values mean the person touches the arm.
+    """
+
+    name: str
+    delimiter: str
+    time_column: str
+    time_factor: float
+    joints: dict[str, JointColumns]
+    contact: str | None
+    drop_repeated_rows: bool
+    source: str
+
+    def measured_columns(self) -> list[str]:
+        """Return the CSV columns whose values define a repeated row (q, dq, tau)."""
+        return [name for prefix in REQUIRED for name in self.joints[prefix].names]
+
+    def describe(self) -> dict:
+        """Return a JSON-ready description for session metadata."""
+        return {"name": self.name, "source": self.source, "time": self.time_column,
+                "columns": {p: list(c.names) for p, c in self.joints.items()},
+                "contact": self.contact, "drop_repeated_rows": self.drop_repeated_rows}
+
+
+def mindlab_map_path() -> Path:
+    """Return the path of the shipped map for the MindLab ZHAW labelled CSV files."""
+    return Path(str(resources.files("contactkit.recorder").joinpath(
+        "data/mindlab_csv_map.toml")))
+
+
+def load_csv_map(path: str | Path) -> CsvMap:
+    """Parse and check a CSV column map; raise InputError naming the file and the problem."""
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text())
+    except FileNotFoundError as err:
+        raise InputError("no such column map", path) from err
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise InputError(f"not a valid TOML column map ({err})", path) from err
+    try:
+        return _parse(doc, str(path))
+    except (KeyError, TypeError, ValueError) as err:
+        problem = f"missing key {err}" if isinstance(err, KeyError) else str(err)
+        raise InputError(f"bad column map: {problem}", path) from err
+
+
+def _parse(doc: dict, source: str) -> CsvMap:
+    unknown = set(doc) - KNOWN_KEYS
+    if unknown:
+        raise ValueError(f"unknown key {sorted(unknown)[0]!r}")
+    base = doc.get("index_base", 1)
+    if base not in (0, 1):
+        raise ValueError(f"index_base must be 0 or 1, got {base!r}")
+    time = doc["time"]
+    time_unit = time.get("unit", "s")
+    if time_unit not in TIME_UNITS:
+        raise ValueError(f"time unit {time_unit!r} is not one of {', '.join(TIME_UNITS)}")
+    joints = {}
+    for prefix in (*REQUIRED, *OPTIONAL):
+        if prefix in doc:
+            joints[prefix] = _joint_columns(prefix, doc[prefix], base)
+        elif prefix in REQUIRED:
+            raise ValueError(f"no columns for {prefix}")
+    contact = doc.get("contact")
+    if contact is not None:
+        contact = str(contact["column"])
+    delimiter = str(doc.get("delimiter", ","))
+    if len(delimiter) != 1:
+        raise ValueError(f"delimiter must be one character, got {delimiter!r}")
+    repeated = doc.get("repeated_rows", "drop")
+    if repeated not in ("drop", "keep"):
+        raise ValueError(f"repeated_rows must be 'drop' or 'keep', got {repeated!r}")
+    return CsvMap(str(doc.get("name", Path(source).stem)), delimiter, str(time["column"]),
+                  TIME_UNITS[time_unit], joints, contact, repeated == "drop", source)
+
+
+def _joint_columns(prefix: str, spec: dict, base: int) -> JointColumns:
+    columns = spec["columns"]
+    if isinstance(columns, str):
+        if "{j}" not in columns:
+            raise ValueError(f"{prefix} columns template {columns!r} lacks {{j}}")
+        names = tuple(columns.replace("{j}", str(j + base)) for j in range(N_JOINTS))
+    else:
+        names = tuple(str(c) for c in columns)
+        if len(names) != N_JOINTS:
+            raise ValueError(f"{prefix} needs {N_JOINTS} columns, found {len(names)}")
+    units = JOINT_UNITS[prefix]
+    unit = spec.get("unit", next(iter(units)))
+    if unit not in units:
+        raise ValueError(f"{prefix} unit {unit!r} is not one of {', '.join(units)}")
+    sign = spec.get("sign", 1)
+    if sign not in (1, -1) or (sign == -1 and prefix != "tau_ext_hat"):
+        raise ValueError(f"{prefix} sign must be 1" + (" or -1" if prefix == "tau_ext_hat"
+                                                        else ""))
+    return JointColumns(names, units[unit] * sign)
