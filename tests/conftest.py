@@ -18,6 +18,8 @@ from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
 from contactkit.schemas import write_session
 
 REFERENCE = Path(__file__).resolve().parents[2] / "shared" / "reference" / "gaz2019-exciting-traj"
+MINDLAB = REFERENCE.parent / "mindlab-contact"
+MINDLAB_FILES = ("a4", "b8", "c2", "d3", "f2")
 BIN = Path(sys.executable).parent
 
 
@@ -54,6 +56,35 @@ def reference_dir() -> Path:
             pytest.fail(f"reference recording missing at {REFERENCE} (CI must have ../shared)")
         pytest.skip(f"reference recording not found at {REFERENCE}")
     return REFERENCE
+
+
+@pytest.fixture(scope="session")
+def mindlab_dir() -> Path:
+    """The real Panda recordings with labelled human touches (always present in CI)."""
+    if not MINDLAB.is_dir():
+        if os.environ.get("CI"):
+            pytest.fail(f"reference recordings missing at {MINDLAB} (CI must have ../shared)")
+        pytest.skip(f"reference recordings not found at {MINDLAB}")
+    return MINDLAB
+
+
+def load_mindlab(path: Path) -> dict[str, np.ndarray]:
+    """Read one MindLab CSV: ``t`` [s], ``q``, ``dq``, ``tau``, ``tau_ext`` (N, 7) and
+    ``contact`` (N,) bool, with the rows that repeat the previous state dropped."""
+    import polars as pl
+
+    frame = pl.read_csv(path)
+
+    def joints(prefix: str) -> np.ndarray:
+        return np.column_stack([frame[f"{prefix}{i}"].to_numpy() for i in range(7)])
+
+    out = {"t": frame["time"].to_numpy(), "q": joints("q"), "dq": joints("dq"),
+           "tau": joints("tau_J"), "tau_ext": joints("tau_ext"),
+           "contact": frame["label"].to_numpy().astype(bool)}
+    state = np.hstack([out["q"], out["dq"], out["tau"]])
+    keep = np.ones(len(state), bool)
+    keep[1:] = (np.diff(state, axis=0) != 0).any(axis=1)
+    return {name: values[keep] for name, values in out.items()}
 
 
 def run_cli(*args: str, cwd: Path | None = None, timeout: float = 300
