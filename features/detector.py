@@ -223,13 +223,15 @@ class Detector:
 @dataclass
 class Detection:
     """Batch detector output: per-sample ``contact`` (N,) bool, ``score`` (N,),
-    ``e`` and ``threshold`` (N, 7) [Nm], ``speed`` [rad/s] and ``accel`` [rad/s^2] (N,),
-    and the contact intervals as sample indices (onset, release or None)."""
+    ``e``, ``threshold`` and ``baseline`` (N, 7) [Nm], ``speed`` [rad/s] and
+    ``accel`` [rad/s^2] (N,), and the contact intervals as sample indices
+    (onset, release or None)."""
 
     contact: np.ndarray
     score: np.ndarray
     e: np.ndarray
     threshold: np.ndarray
+    baseline: np.ndarray
     speed: np.ndarray
     accel: np.ndarray
     intervals: list[tuple[int, int | None]]
@@ -242,11 +244,13 @@ def detect(t: np.ndarray, r: np.ndarray, dq: np.ndarray,
     detector = Detector(config)
     n = len(t)
     out = Detection(np.zeros(n, bool), np.zeros(n), np.zeros((n, N_JOINTS)),
-                    np.zeros((n, N_JOINTS)), np.zeros(n), np.zeros(n), [])
+                    np.zeros((n, N_JOINTS)), np.zeros((n, N_JOINTS)), np.zeros(n), np.zeros(n),
+                    [])
     for k in range(n):
         state = detector.update(float(t[k]), r[k], dq[k])
         out.contact[k], out.score[k] = state.contact, state.score
         out.e[k], out.threshold[k] = state.e, state.threshold
+        out.baseline[k] = detector.baseline
         out.speed[k], out.accel[k] = detector.speed, detector.accel
         if state.onset:
             out.intervals.append((k, None))
