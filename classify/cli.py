@@ -16,8 +16,10 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from contactkit.classify.augmentation import run_augmentation
+from contactkit.classify.calibrate import calibrate_sessions
 from contactkit.classify.data import GROUP_KEYS, FeatureSet, load_features
 from contactkit.classify.evaluate import PROTOCOLS, evaluate, report_markdown
+from contactkit.classify.events import session_events
 from contactkit.classify.experiments import EXPERIMENTS, Setting, run_experiment
 from contactkit.classify.grids import CNN_INPUT, LSTM_INPUT, GridSpec, load_grids, session_grid
 from contactkit.classify.modelfile import load_model, model_meta, save_model
@@ -25,6 +27,7 @@ from contactkit.classify.models import MODEL_KINDS, make_model
 from contactkit.classify.nn import NN_KINDS, check_available, make_network
 from contactkit.classify.onnx_model import save_onnx_model
 from contactkit.classify.schemes import SCHEMES, check_scheme, scheme_classes
+from contactkit.features.detector import load_calibration, save_calibration
 from contactkit.features.extract import SessionFeatures, feature_rows, timeseries_columns
 from contactkit.features.scalars import SCALARS
 from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS
@@ -359,15 +362,71 @@ def evaluate_command(
         json_out.write_text(json.dumps(report.as_dict(), indent=2))
 
 
+@app.command("calibrate")
+def calibrate_command(
+    sessions: Annotated[list[Path], typer.Argument(
+        help="No-contact sessions (action none, or with a contact column), files or "
+             "directories.")],
+    out: Annotated[Path, typer.Option(help="Calibration file to write (JSON).")],
+    margin: Annotated[float, typer.Option(
+        help="Factor on the fitted thresholds.")] = 1.5,
+    workers: Annotated[int, typer.Option(help="Parallel worker processes.")] = 1,
+) -> None:
+    """Calibrate the contact detector on a robot's no-contact sessions: record a minute
+    of free motion and holds, calibrate, then pass --calibration robot.json to replay
+    and predict."""
+    if margin < 1:
+        raise InputError(f"--margin must be at least 1, got {margin}")
+    paths = [p for source in sessions for p in _inputs(source)]
+    with progress_bar("calibrating") as bar:
+        task = bar.add_task("sessions", total=len(paths))
+        config = calibrate_sessions(paths, margin=margin, workers=workers,
+                                    progress=lambda done, total: bar.update(task,
+                                                                            completed=done))
+    save_calibration(out, config)
+    print(f"{out}: thresholds at rest {[round(v, 2) for v in config.noise]} Nm, "
+          f"per rad/s {[round(v, 2) for v in config.speed]}, "
+          f"per rad/s^2 {[round(v, 3) for v in config.accel]}")
+
+
+def _print_events(model, source: Path, detector, decide_after: float | None,
+                  as_json: bool) -> None:
+    events_model = model.event_model()
+    for path in _inputs(source):
+        session = read_session(path)
+        for event in session_events(session, detector, events_model, decide_after):
+            if as_json:
+                print(json.dumps({"session": str(path), "event": event.to_dict()}))
+            else:
+                release = "open" if event.release_s is None else f"{event.release_s:.2f} s"
+                print(f"{path}: contact {event.label} onset {event.onset_s:.2f} s, "
+                      f"release {release}")
+
+
 @app.command("predict")
 def predict_command(
     model_path: Annotated[Path, typer.Argument(metavar="MODEL", help="Model file.")],
     sessions: Annotated[list[Path], typer.Argument(
         help="Session files or directories, or a feature table.")],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON lines.")] = False,
+    events: Annotated[bool, typer.Option(
+        "--events", help="Report contact events (detect, decide, hold) instead of one "
+                         "label per session.")] = False,
+    calibration: Annotated[Path | None, typer.Option(
+        help="Contact detector calibration (overrides the model's detector).")] = None,
+    decide_after: Annotated[float | None, typer.Option(
+        help="Seconds after onset at which an event's intent is decided.")] = None,
 ) -> None:
     """Predict the contact class of sessions with a trained model."""
     model = load_model(model_path)
+    if events or calibration is not None:
+        detector = (load_calibration(calibration) if calibration is not None
+                    else model.detector_config())
+        if detector is None:
+            raise InputError("model carries no contact detector; give --calibration", model_path)
+        for source in sessions:
+            _print_events(model, source, detector, decide_after, as_json)
+        return
     rows = []
     for source in sessions:
         if model.input == "grid":

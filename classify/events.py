@@ -31,7 +31,15 @@ import numpy as np
 
 from contactkit.classify.fast import fast_predictor
 from contactkit.errors import InputError
-from contactkit.features.detector import N_JOINTS, Detection, Detector, DetectorConfig
+from contactkit.features.detector import (
+    N_JOINTS,
+    Detection,
+    Detector,
+    DetectorConfig,
+    detect,
+)
+from contactkit.features.timeseries import TimeseriesChain
+from contactkit.schemas import Session
 
 PRE_S = 0.05  # s of samples before the onset in the decision window
 DEFAULT_DECIDE_AFTER_S = 0.15
@@ -193,7 +201,7 @@ class EventPipeline:
 
 def batch_events(t: np.ndarray, r: np.ndarray, detection: Detection,
                  model: EventModel | None = None,
-                 decide_after_s: float = DEFAULT_DECIDE_AFTER_S) -> list[ContactEvent]:
+                 decide_after_s: float | None = None) -> list[ContactEvent]:
     """Return the events of a whole stream from its detector output (one detector run
     serves any decision delay), the same events :class:`EventPipeline` gives."""
     pipeline = EventPipeline(None, model, decide_after_s)
@@ -223,3 +231,13 @@ def stream_events(t: np.ndarray, r: np.ndarray, dq: np.ndarray,
     pipeline = EventPipeline(detector, model, decide_after_s)
     labels = [pipeline.update(float(t[k]), r[k], dq[k]).label for k in range(len(t))]
     return pipeline.finish(), labels
+
+
+def session_events(session: Session, detector: DetectorConfig, model: EventModel | None = None,
+                   decide_after_s: float | None = None) -> list[ContactEvent]:
+    """Return the contact events of a whole session (observer, detector, pipeline)."""
+    session = session.complete()
+    t, dq = session.t, session.dq
+    chain = TimeseriesChain(with_hand=session.meta.with_hand)
+    r = chain.compute(t, session.q, dq, session.tau, ["r"])["r"]
+    return batch_events(t, r, detect(t, r, dq, detector), model, decide_after_s)

@@ -3,7 +3,10 @@
 A model file is a skops archive (a zip of JSON and .npy members, never pickle)
 with one extra member, ``contactkit.json``: the feature configuration and feature
 names, the class names and scheme, the model kind, a SHA-256 fingerprint of the
-training data, package versions, and a SHA-256 over every other member.
+training data, package versions, and a SHA-256 over every other member. A model
+that also decides per contact event carries the contact detector's settings and
+the event classifier's settings there, and the event classifier itself as a
+nested skops archive ``events.skops`` (checked the same way).
 
 Loading (1) checks the digest, so a file changed after it was written is refused;
 (2) asks skops which types the file would build and refuses any outside
@@ -30,6 +33,7 @@ from contactkit.features.extract import SessionFeatures
 from contactkit.schemas import InputError
 
 META_MEMBER = "contactkit.json"
+EVENTS_MEMBER = "events.skops"
 FORMAT = "contactkit-model/1"
 TRUSTED_TYPES = [
     "aeon.classification.convolution_based._minirocket.MiniRocketClassifier",
@@ -55,11 +59,15 @@ def _versions() -> dict[str, str]:
 
 
 def _members_digest(archive: zipfile.ZipFile) -> str:
+    return _digest({name: archive.read(name) for name in archive.namelist()})
+
+
+def _digest(members: dict[str, bytes]) -> str:
     digest = hashlib.sha256()
-    for name in sorted(archive.namelist()):
+    for name in sorted(members):
         if name == META_MEMBER:
             continue
-        digest.update(name.encode() + b"\0" + archive.read(name) + b"\0")
+        digest.update(name.encode() + b"\0" + members[name] + b"\0")
     return digest.hexdigest()
 
 
@@ -69,6 +77,22 @@ class ModelFile:
 
     estimator: object
     meta: dict
+    event_estimator: object | None = None
+
+    def detector_config(self):
+        """Return the contact detector's settings the model carries, or None."""
+        from contactkit.features.detector import DetectorConfig
+
+        doc = self.meta.get("detector")
+        return None if doc is None else DetectorConfig.from_dict(doc)
+
+    def event_model(self):
+        """Return the per-event intent classifier the model carries, or None."""
+        from contactkit.classify.events import EventModel
+
+        if self.event_estimator is None:
+            return None
+        return EventModel.from_meta(self.event_estimator, self.meta["events"])
 
     @property
     def classes(self) -> list[str]:
@@ -126,18 +150,26 @@ def model_meta(*, kind: str, scheme: str, classes: list[str], fingerprint: str,
 def save_model(path: str | Path, estimator: object, *, extractor: SessionFeatures | None = None,
                feature_names: list[str] | None = None, classes: list[str], kind: str,
                scheme: str, fingerprint: str, training: dict, overwrite: bool = False,
-               grid: dict | None = None) -> Path:
-    """Write a skops model file atomically; return its path."""
+               grid: dict | None = None, detector: dict | None = None,
+               events: tuple[object, dict] | None = None) -> Path:
+    """Write a skops model file atomically; return its path. ``detector`` is the
+    contact detector's settings document, ``events`` the event classifier and its
+    settings document."""
     path = Path(path)
     if path.exists() and not overwrite:
         raise InputError("output file already exists (pass --overwrite to replace it)", path)
     payload = sio.dumps(estimator)
     with zipfile.ZipFile(io.BytesIO(payload)) as archive:
         members = {name: archive.read(name) for name in archive.namelist()}
-        digest = _members_digest(archive)
     meta = model_meta(kind=kind, scheme=scheme, classes=classes, fingerprint=fingerprint,
                       training=training, extractor=extractor, feature_names=feature_names,
-                      grid=grid) | {"members_sha256": digest}
+                      grid=grid)
+    if detector is not None:
+        meta["detector"] = detector
+    if events is not None:
+        members[EVENTS_MEMBER] = sio.dumps(events[0])
+        meta["events"] = events[1]
+    meta["members_sha256"] = _digest(members)
     tmp = path.with_name(f".{path.name}.tmp")
     with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as out:
         for name, data in members.items():
@@ -171,11 +203,28 @@ def load_model(path: str | Path) -> ModelFile:
     if digest != meta.get("members_sha256"):
         raise InputError("model file was modified after it was written (digest mismatch); "
                          "refusing to load it", path)
+    estimator = _load_trusted(data, path)
+    event_estimator = None
+    if "events" in meta:
+        with zipfile.ZipFile(io.BytesIO(data)) as archive:
+            if EVENTS_MEMBER not in archive.namelist():
+                raise InputError(f"model file lacks its event classifier ({EVENTS_MEMBER})",
+                                 path)
+            event_estimator = _load_trusted(archive.read(EVENTS_MEMBER), path)
+    model = ModelFile(estimator=estimator, meta=meta, event_estimator=event_estimator)
+    try:
+        model.detector_config()
+    except InputError as err:
+        raise InputError(f"model file carries invalid detector settings ({err})", path) from err
+    return model
+
+
+def _load_trusted(data: bytes, path: Path) -> object:
+    """Build a skops archive's object after refusing any type outside TRUSTED_TYPES."""
     try:
         untrusted = [t for t in sio.get_untrusted_types(data=data) if t not in TRUSTED_TYPES]
     except Exception as err:  # skops raises many kinds on a malformed archive
         raise InputError(f"unreadable model archive ({type(err).__name__})", path) from err
     if untrusted:
         raise InputError(f"model file would build untrusted types {untrusted}; refusing", path)
-    estimator = sio.loads(data, trusted=TRUSTED_TYPES)
-    return ModelFile(estimator=estimator, meta=meta)
+    return sio.loads(data, trusted=TRUSTED_TYPES)

@@ -13,6 +13,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from contactkit.classify.cli import labelled_progress
 from contactkit.classify.modelfile import ModelFile, load_model
+from contactkit.features.detector import DetectorConfig, load_calibration
 from contactkit.replay.default_model import build_default_model, default_model_path
 from contactkit.replay.engine import DEFAULT_HOP_S, Block, ReplayStream
 from contactkit.replay.recording import (
@@ -72,10 +73,12 @@ def _parse_rate(rate: str) -> float | None:
 
 
 def replay_one(path: Path, model: ModelFile, *, viewer: str, save: Path | None,
-               connect: str | None, rate: float | None, hop_s: float, many: bool) -> str:
+               connect: str | None, rate: float | None, hop_s: float, many: bool,
+               detector: DetectorConfig | None = None,
+               decide_after_s: float | None = None) -> str:
     """Replay one session into its own recording; return a one-line summary."""
     session = read_session(path)
-    stream = ReplayStream(session, model, hop_s)
+    stream = ReplayStream(session, model, hop_s, detector, decide_after_s)
     rec = new_recording(path.stem, session.meta.session_id)
     blueprint = layout.replay_blueprint()
     if save is not None:
@@ -96,17 +99,25 @@ def replay_one(path: Path, model: ModelFile, *, viewer: str, save: Path | None,
     if rate is None:
         log_block(rec, tree, stream, _whole(stream))
     answer = stream.offline()
-    log_offline(rec, stream, answer)
+    if answer is not None:
+        log_offline(rec, stream, answer)
     rec.flush()
     rec.disconnect()
     contact = [(t, label) for t, label in zip(stream.pred_t, stream.pred_label, strict=True)
                if label != "none"]
     online = (f"first online contact: {contact[0][1]} at {contact[0][0]:.2f} s" if contact
               else "online: none throughout")
-    found = "detected" if answer.window.found else "planned"
-    return (f"{path.name}: recorded {session.meta.action}, predicted {answer.label} "
-            f"(offline, {found} window {answer.window.start_s:.2f}-{answer.window.end_s:.2f} s);"
-            f" {online}; {len(stream.pred_t)} online predictions")
+    events = ("" if stream.pipeline is None else
+              f"; {len(stream.events)} contact events"
+              + "".join(f", {e.label} at {e.onset_s:.2f} s" for e in stream.events[:5]))
+    if answer is None:
+        offline = "no planned time (no offline answer)"
+    else:
+        found = "detected" if answer.window.found else "planned"
+        offline = (f"predicted {answer.label} (offline, {found} window "
+                   f"{answer.window.start_s:.2f}-{answer.window.end_s:.2f} s)")
+    return (f"{path.name}: recorded {session.meta.action}, {offline}; {online}; "
+            f"{len(stream.pred_t)} online predictions{events}")
 
 
 def _whole(stream: ReplayStream) -> Block:
@@ -135,6 +146,12 @@ def replay_command(
     connect: Annotated[str | None, typer.Option(
         help="Send to a running viewer at this gRPC URL instead "
              "(e.g. rerun+http://127.0.0.1:9876/proxy).")] = None,
+    calibration: Annotated[Path | None, typer.Option(
+        help="Contact detector calibration from `classify calibrate` (overrides the "
+             "model's detector settings).")] = None,
+    decide_after: Annotated[float | None, typer.Option(
+        help="Seconds after a contact's onset at which its intent is decided (default: "
+             "the model's).")] = None,
     build_default_model_: Annotated[bool, typer.Option(
         "--build-default-model", help="(Re)build the default model from its recipe "
                                       "(see replay/default_model.py) and exit.")] = False,
@@ -164,6 +181,7 @@ def replay_command(
         viewer = "none"
     if viewer == "none" and save is None and connect is None:
         save = Path("replay.rrd")
+    detector = None if calibration is None else load_calibration(calibration)
     classifier = _model(model)
     web = None
     if viewer == "web" and connect is None:
@@ -176,7 +194,8 @@ def replay_command(
         for path in paths:
             try:
                 summary = replay_one(path, classifier, viewer=viewer, save=save,
-                                     connect=connect, rate=speed, hop_s=hop, many=many)
+                                     connect=connect, rate=speed, hop_s=hop, many=many,
+                                     detector=detector, decide_after_s=decide_after)
                 bar.console.print(summary)
             except InputError as err:
                 failures += 1
