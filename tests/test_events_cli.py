@@ -106,5 +106,6 @@ def test_replay_runs_without_planned_time_and_reports_events(tmp_path, model_pat
     result = run_cli("replay", str(sessions["unplanned"]), "--model", str(model_path),
                      "--viewer", "none", "--save", str(tmp_path / "u.rrd"))
     assert result.returncode == 0, result.stderr
-    assert "no planned time" in result.stdout
-    assert "1 contact events" in result.stdout
+    summary = result.stdout + result.stderr
+    assert "no planned time" in summary
+    assert "1 contact events" in summary
