@@ -48,7 +48,7 @@ from contactkit.errors import InputError
 N_JOINTS = 7
 FORMAT = "contactkit-detector/1"
 FILTER_GAIN = 50.0  # 1/s, the observer's default K_O: a 20 ms low-pass on ddq
-MIN_NOISE = 0.1  # Nm, floor of a calibrated at-rest threshold
+MIN_NOISE = 0.3  # Nm, floor of a calibrated at-rest threshold
 REST_SPEED = 0.05  # rad/s, below this a sample counts as at rest
 CALIBRATION_POINTS = 20000  # samples per fit (evenly thinned)
 
@@ -301,7 +301,10 @@ def calibrate(parts: list[CalibrationData], template: DetectorConfig | None = No
     """Fit the detector's per-joint threshold coefficients to no-contact data.
 
     Two steps per joint: ``noise`` is the largest |e| among samples at rest (speed
-    below 0.05 rad/s; ``template``'s value when there are none), at least 0.1 Nm;
+    below 0.05 rad/s; ``template``'s value when there are none), so that the final
+    threshold at rest is at least 0.3 Nm (the static-friction offsets a real wrist
+    joint keeps after being moved: up to 0.5 Nm on the MindLab Panda; the
+    free-motion log's joint 7 model error is 0.2 Nm);
     then ``speed`` and ``accel`` are the smallest (by mean) envelope
     speed s + accel a >= |e| - noise over every sample. All three are multiplied by
     ``margin``. Calibration data without motion leave speed and accel at 0, and

@@ -35,6 +35,7 @@ from contactkit.classify.event_training import fit_event_model, load_session_eve
 from contactkit.classify.events import DEFAULT_DECIDE_AFTER_S
 from contactkit.classify.modelfile import save_model
 from contactkit.classify.models import make_model
+from contactkit.features.detector import MIN_NOISE
 from contactkit.features.extract import SessionFeatures
 from contactkit.recorder.dataset import PRESETS, simulate_dataset
 from contactkit.schemas.dataset import session_files
@@ -50,7 +51,7 @@ RECIPE = {
     "features": {"timeseries": ["dq", "tau", "r"],
                  "scalars": ["range", "hjorth_mob", "hjorth_comp"],
                  "window": "planned", "window_s": 0.5},
-    "detector": {"margin": 1.5},
+    "detector": {"margin": 1.5, "min_noise": MIN_NOISE},
     "events": {"decide_after_s": DEFAULT_DECIDE_AFTER_S, "C": 10.0},
 }
 Progress = Callable[[str, int, int], None]

@@ -69,7 +69,7 @@ def test_calibration_round_trip(tmp_path: Path) -> None:
     loaded = load_calibration(path)
     assert loaded == config
     assert loaded.source == config.source
-    assert min(loaded.noise) >= 0.1 and max(loaded.noise) < 0.5
+    assert min(loaded.noise) >= 0.3 and max(loaded.noise) < 0.6
 
 
 @pytest.mark.parametrize("content, problem", [
