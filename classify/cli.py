@@ -17,8 +17,10 @@ from typing import Annotated
 import typer
 
 from contactkit.classify.augmentation import run_augmentation
+from contactkit.classify.calibrate import calibrate_sessions
 from contactkit.classify.data import GROUP_KEYS
 from contactkit.classify.evaluate import PROTOCOLS, report_markdown
+from contactkit.classify.events import session_events
 from contactkit.classify.experiments import EXPERIMENTS, Setting, run_experiment
 from contactkit.classify.kind import ModelOptions
 from contactkit.classify.modelfile import load_model
@@ -26,12 +28,13 @@ from contactkit.classify.prediction import predict_sources, session_paths
 from contactkit.classify.registry import get_kind, kind_names
 from contactkit.classify.schemes import SCHEMES
 from contactkit.classify.training import evaluate_kind, train
+from contactkit.features.detector import DetectorConfig, load_calibration, save_calibration
 from contactkit.features.extract import SessionFeatures, feature_rows
 from contactkit.features.per_sample import write_per_sample_table
 from contactkit.features.scalars import SCALARS
 from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS
 from contactkit.features.windows import METHODS
-from contactkit.schemas import InputError
+from contactkit.schemas import InputError, read_session
 from contactkit.schemas.features import write_feature_table
 from contactkit.util.cli import new_app, run_app
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar
@@ -213,9 +216,27 @@ def predict_command(
     sessions: Annotated[list[Path], typer.Argument(
         help="Session files or directories, or a feature table.")],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON lines.")] = False,
+    events: Annotated[bool, typer.Option(
+        "--events", help="Report contact events (detect, decide, hold) instead of one "
+                         "label per session.")] = False,
+    calibration: Annotated[Path | None, typer.Option(
+        help="Contact detector calibration (overrides the model's detector).")] = None,
+    decide_after: Annotated[float | None, typer.Option(
+        help="Time after onset at which an event's intent is decided [s].")] = None,
 ) -> None:
-    """Predict the contact class of sessions with a trained model."""
-    predictions, problems = predict_sources(load_model(model_path), sessions)
+    """Predict the contact class of sessions with a trained model, or (--events) the
+    contact events the model's detector finds and the intent decided for each."""
+    model = load_model(model_path)
+    if events or calibration is not None:
+        detector = (load_calibration(calibration) if calibration is not None
+                    else model.detector_config())
+        if detector is None:
+            raise InputError("model carries no contact detector; give --calibration",
+                             model_path)
+        for source in sessions:
+            _print_events(model, source, detector, decide_after, as_json)
+        return
+    predictions, problems = predict_sources(model, sessions)
     _skipped(problems)
     if not predictions:
         raise InputError("nothing to predict")
@@ -227,6 +248,45 @@ def predict_command(
         else:
             probs = " ".join(f"{c}={v:.2f}" for c, v in p.probabilities.items())
             print(f"{p.source}: {p.predicted} ({probs}; recorded action {p.recorded})")
+
+
+def _print_events(model, source: Path, detector: DetectorConfig, decide_after: float | None,
+                  as_json: bool) -> None:
+    events_model = model.event_model()
+    for path in session_paths(source):
+        session = read_session(path)
+        for event in session_events(session, detector, events_model, decide_after):
+            if as_json:
+                print(json.dumps({"session": str(path), "event": event.to_dict()}))
+            else:
+                release = "open" if event.release_s is None else f"{event.release_s:.2f} s"
+                print(f"{path}: contact {event.label} onset {event.onset_s:.2f} s, "
+                      f"release {release}")
+
+
+@app.command("calibrate")
+def calibrate_command(
+    sessions: Annotated[list[Path], typer.Argument(
+        help="No-contact sessions (action none, or with a contact column), files or "
+             "directories.")],
+    out: Annotated[Path, typer.Option(help="Calibration file to write (JSON).")],
+    margin: Annotated[float, typer.Option(
+        help="Factor on the fitted thresholds.")] = 1.5,
+    workers: Annotated[int, typer.Option(help="Parallel worker processes.")] = 1,
+) -> None:
+    """Calibrate the contact detector on a robot's no-contact sessions: record a minute
+    of free motion and holds, calibrate, then pass --calibration robot.json to replay
+    and predict."""
+    if margin < 1:
+        raise InputError(f"--margin must be at least 1, got {margin}")
+    paths = [p for source in sessions for p in session_paths(source)]
+    with progress_bar("calibrating") as bar:
+        config = calibrate_sessions(paths, margin=margin, workers=workers,
+                                    progress=bar_callback(bar, "sessions"))
+    save_calibration(out, config)
+    print(f"{out}: thresholds at rest {[round(v, 2) for v in config.noise]} Nm, "
+          f"per rad/s {[round(v, 2) for v in config.speed]}, "
+          f"per rad/s^2 {[round(v, 3) for v in config.accel]}")
 
 
 @app.command("experiment")

@@ -3,7 +3,10 @@
 A model file is a skops archive (a zip of JSON and .npy members, never pickle)
 with one extra member, ``contactkit.json``: the feature configuration and feature
 names, the class names and scheme, the model kind, a SHA-256 fingerprint of the
-training data, package versions, and a SHA-256 over every other member.
+training data, package versions, and a SHA-256 over every other member. A model
+that also decides per contact event carries the contact detector's settings and
+the event classifier's settings there, and the event classifier itself as a
+nested skops archive ``events.skops`` (checked the same way).
 
 Loading (1) checks the digest, so a file changed after it was written is refused;
 (2) asks skops which types the file would build and refuses any outside
@@ -33,6 +36,7 @@ from contactkit.classify.kind import ModelFormat, ModelKind
 from contactkit.schemas import InputError
 
 META_MEMBER = "contactkit.json"
+EVENTS_MEMBER = "events.skops"
 FORMAT = "contactkit-model/1"
 TRUSTED_TYPES = [
     "sklearn.model_selection._split.StratifiedKFold",
@@ -53,11 +57,15 @@ def _versions() -> dict[str, str]:
 
 
 def _members_digest(archive: zipfile.ZipFile) -> str:
+    return _digest({name: archive.read(name) for name in archive.namelist()})
+
+
+def _digest(members: dict[str, bytes]) -> str:
     digest = hashlib.sha256()
-    for name in sorted(archive.namelist()):
+    for name in sorted(members):
         if name == META_MEMBER:
             continue
-        digest.update(name.encode() + b"\0" + archive.read(name) + b"\0")
+        digest.update(name.encode() + b"\0" + members[name] + b"\0")
     return digest.hexdigest()
 
 
@@ -67,6 +75,22 @@ class ModelFile:
 
     estimator: object
     meta: dict
+    event_estimator: object | None = None
+
+    def detector_config(self):
+        """Return the contact detector's settings the model carries, or None."""
+        from contactkit.features.detector import DetectorConfig
+
+        doc = self.meta.get("detector")
+        return None if doc is None else DetectorConfig.from_dict(doc)
+
+    def event_model(self):
+        """Return the per-event intent classifier the model carries, or None."""
+        from contactkit.classify.events import EventModel
+
+        if self.event_estimator is None:
+            return None
+        return EventModel.from_meta(self.event_estimator, self.meta["events"])
 
     @property
     def kind(self) -> ModelKind:
@@ -122,11 +146,14 @@ def model_meta(*, kind: ModelKind, transformer, feature_names: list[str], scheme
 
 def save_model(path: str | Path, estimator: object, *, kind: ModelKind, transformer,
                feature_names: list[str], classes: list[str], scheme: str, fingerprint: str,
-               training: dict, sample_shape: tuple[int, ...] = (), overwrite: bool = False
+               training: dict, sample_shape: tuple[int, ...] = (), overwrite: bool = False,
+               detector: dict | None = None, events: tuple[object, dict] | None = None
                ) -> Path:
     """Write a fitted model in its kind's file format, atomically; return the path.
 
     ``sample_shape`` is the shape of one input (for formats that fix it in the file).
+    ``detector`` is the contact detector's settings document and ``events`` the event
+    classifier with its settings document (skops model files only).
     """
     path = Path(path)
     suffix = kind.file_format.suffix
@@ -138,17 +165,27 @@ def save_model(path: str | Path, estimator: object, *, kind: ModelKind, transfor
     meta = model_meta(kind=kind, transformer=transformer, feature_names=feature_names,
                       scheme=scheme, classes=classes, fingerprint=fingerprint,
                       training=training)
-    return kind.file_format.save(path, estimator, meta, sample_shape, overwrite)
+    if detector is not None:
+        meta["detector"] = detector
+    if events is None:
+        return kind.file_format.save(path, estimator, meta, sample_shape, overwrite)
+    if kind.file_format is not SKOPS:
+        raise InputError(f"an event classifier can only travel in a skops model file, not "
+                         f"{kind.file_format.name}", path)
+    meta["events"] = events[1]
+    return write_skops(path, estimator, meta, sample_shape, overwrite,
+                       extra={EVENTS_MEMBER: sio.dumps(events[0])})
 
 
 def write_skops(path: Path, estimator: object, meta: dict, sample_shape: tuple[int, ...] = (),
-                overwrite: bool = False) -> Path:
-    """Write ``estimator`` and ``meta`` as a skops model file atomically; return the path."""
+                overwrite: bool = False, extra: dict[str, bytes] | None = None) -> Path:
+    """Write ``estimator`` and ``meta`` (and ``extra`` members, covered by the digest) as a
+    skops model file atomically; return the path."""
     payload = sio.dumps(estimator)
     with zipfile.ZipFile(io.BytesIO(payload)) as archive:
         members = {name: archive.read(name) for name in archive.namelist()}
-        digest = _members_digest(archive)
-    meta = meta | {"members_sha256": digest}
+    members |= extra or {}
+    meta = meta | {"members_sha256": _digest(members)}
     tmp = path.with_name(f".{path.name}.tmp")
     with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as out:
         for name, data in members.items():
@@ -189,6 +226,28 @@ def read_skops(path: Path) -> tuple[object, dict]:
     return sio.loads(data, trusted=trusted), meta
 
 
+def _load_event_estimator(path: Path, meta: dict) -> object | None:
+    """Return the nested event classifier of a skops model file (None where the model has
+    none), refusing untrusted types as for the main model."""
+    if "events" not in meta:
+        return None
+    with zipfile.ZipFile(path) as archive:
+        if EVENTS_MEMBER not in archive.namelist():
+            raise InputError(f"model file lacks its event classifier ({EVENTS_MEMBER})", path)
+        data = archive.read(EVENTS_MEMBER)
+    from contactkit.classify.registry import get_kind
+
+    trusted = TRUSTED_TYPES + list(get_kind("svm").trusted_types)
+    try:
+        untrusted = [t for t in sio.get_untrusted_types(data=data) if t not in trusted]
+    except Exception as err:  # skops raises many kinds on a malformed archive
+        raise InputError(f"unreadable event classifier ({type(err).__name__})", path) from err
+    if untrusted:
+        raise InputError(f"event classifier would build untrusted types {untrusted}; "
+                         "refusing", path)
+    return sio.loads(data, trusted=trusted)
+
+
 def _kind_of(meta: dict, path: Path) -> ModelKind:
     from contactkit.classify.registry import get_kind
 
@@ -212,7 +271,12 @@ def load_model(path: str | Path) -> ModelFile:
         raise InputError("no such model file", path)
     formats = {get_kind(n).file_format.suffix: get_kind(n).file_format for n in kind_names()}
     estimator, meta = formats.get(path.suffix.lower(), SKOPS).load(path)
-    model = ModelFile(estimator=estimator, meta=meta)
+    model = ModelFile(estimator=estimator, meta=meta,
+                      event_estimator=_load_event_estimator(path, meta))
+    try:
+        model.detector_config()
+    except InputError as err:
+        raise InputError(f"model file carries invalid detector settings ({err})", path) from err
     kind = _kind_of(meta, path)
     if meta.get("input", "features") != kind.input.name:
         raise InputError(f"a {kind.name} model takes {kind.input.name} input, the file says "

@@ -58,9 +58,12 @@ class TrainedModel:
 
 def train(datasets: Sequence[Path], out: Path, options: ModelOptions, *, scheme: str = "full",
           limited: bool = False, workers: int = 1, overwrite: bool = False,
-          progress: LabelledProgress | None = None) -> TrainedModel:
+          progress: LabelledProgress | None = None, detector: dict | None = None,
+          events: tuple[object, dict] | None = None) -> TrainedModel:
     """Train a model of ``options.kind`` on every session of ``datasets`` and save it to
-    ``out`` in the kind's file format; return what was written."""
+    ``out`` in the kind's file format; return what was written. ``detector`` and
+    ``events`` (a contact detector's settings, an event classifier with its settings)
+    travel in the model file (see :func:`contactkit.classify.modelfile.save_model`)."""
     check_scheme(scheme)
     out = Path(out)
     if out.exists() and not overwrite:
@@ -81,7 +84,8 @@ def train(datasets: Sequence[Path], out: Path, options: ModelOptions, *, scheme:
     path = save_model(out, estimator, kind=kind, transformer=found.transformer,
                       feature_names=list(data.names), classes=classes, scheme=scheme,
                       fingerprint=data.fingerprint(), training=training,
-                      sample_shape=tuple(data.X.shape[1:]), overwrite=overwrite)
+                      sample_shape=tuple(data.X.shape[1:]), overwrite=overwrite,
+                      detector=detector, events=events)
     return TrainedModel(path, kind.name, len(data), classes, list(data.problems))
 
 

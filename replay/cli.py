@@ -13,6 +13,7 @@ from typing import Annotated
 
 import typer
 
+from contactkit.features.detector import load_calibration
 from contactkit.replay.default_model import build_default_model
 from contactkit.replay.engine import DEFAULT_HOP_S
 from contactkit.replay.session_replay import (
@@ -72,6 +73,12 @@ def replay_command(
     connect: Annotated[str | None, typer.Option(
         help="Send to a running viewer at this gRPC URL instead "
              "(e.g. rerun+http://127.0.0.1:9876/proxy).")] = None,
+    calibration: Annotated[Path | None, typer.Option(
+        help="Contact detector calibration from `classify calibrate` (overrides the "
+             "model's detector settings).")] = None,
+    decide_after: Annotated[float | None, typer.Option(
+        help="Time after a contact's onset at which its intent is decided [s] (default: "
+             "the model's).")] = None,
     build_default_model_: Annotated[bool, typer.Option(
         "--build-default-model", help="(Re)build the default model from its recipe "
                                       "(see replay/default_model.py) and exit.")] = False,
@@ -92,6 +99,7 @@ def replay_command(
     if not hop > 0:
         raise InputError(f"--hop must be positive, got {hop} s")
     paths = session_inputs(sessions)
+    detector = None if calibration is None else load_calibration(calibration)
     viewer = Viewer(viewer)
     if viewer is Viewer.rerun and connect is None and not has_display():
         save = save or DEFAULT_SAVE
@@ -121,7 +129,8 @@ def replay_command(
 
         summaries, problems = replay_sessions(
             paths, classifier, save=save, connect=connect, spawn=viewer is Viewer.rerun,
-            rate=speed, hop_s=hop, on_done=report)
+            rate=speed, hop_s=hop, detector=detector, decide_after_s=decide_after,
+            on_done=report)
     written = [s.saved for s in summaries if s.saved is not None]
     if len(written) == 1:
         err_console.print(f"saved {written[0]}; open it with `rerun {written[0]}`")

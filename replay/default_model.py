@@ -3,15 +3,26 @@
 Recipe (one command: ``replay --build-default-model``; it also runs by itself, with
 a progress bar, the first time replay needs the model):
 
-1. ``recorder simulate CACHE/default-model/static --preset default-static --seed 0``
-   and ``... dynamic --preset default-dynamic --seed 0`` (152 sessions at 500 Hz);
-2. ``classify train`` on both: whole-arm SVM (C = 100, Platt-calibrated) on the range
-   and Hjorth mobility and complexity of joint velocity, torque and observer residual
-   in a 0.5 s window at the planned time, seed 0.
+1. ``recorder simulate CACHE/default-model/<key>/PRESET --preset PRESET --seed 0`` for
+   ``default-static`` and ``default-dynamic`` (152 sessions at 500 Hz, the thesis
+   protocol) and ``free-motion`` and ``mixed-motion`` (realistic free motion: holds,
+   point-to-point moves, multi-sine stretches up to the velocity limits; contacts
+   while moving or right after a stop);
+2. the per-hop classifier: ``classify train`` on the thesis-protocol presets, a
+   whole-arm SVM (C = 100, Platt-calibrated) on the range and Hjorth mobility and
+   complexity of joint velocity, torque and observer residual in a 0.5 s window at the
+   planned time, seed 0;
+3. the contact detector: ``classify calibrate`` on the no-contact stretches of the
+   free-motion presets (margin 1.5, at-rest floor ``MIN_NOISE``), so that its
+   thresholds cover the model error of a moving arm;
+4. the per-event intent classifier (:mod:`contactkit.classify.event_training`): SVM
+   (C = 10) on the events the detector finds in the free-motion presets, decided
+   0.15 s after onset, from residual-only event features.
 
-Everything is seeded, so the same package version always builds the same model.
-It is cached under the contactkit cache directory ($CONTACTKIT_CACHE or
-~/.cache/contactkit), keyed by the recipe; nothing is downloaded.
+Simulated data only. Everything is seeded, so the same package version always builds
+the same model. It is cached under the contactkit cache directory
+($CONTACTKIT_CACHE or ~/.cache/contactkit), keyed by the recipe; nothing is
+downloaded.
 """
 
 from __future__ import annotations
@@ -21,19 +32,27 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
+from contactkit.classify.calibrate import calibrate_sessions
+from contactkit.classify.event_training import fit_event_model, load_session_events
+from contactkit.classify.events import DEFAULT_DECIDE_AFTER_S
 from contactkit.classify.kind import ModelOptions
 from contactkit.classify.training import train
+from contactkit.features.detector import MIN_NOISE
 from contactkit.recorder.dataset import simulate_dataset
+from contactkit.schemas.dataset import session_files
 from contactkit.util.cache import cache_dir
 
 RECIPE = {
     "presets": ["default-static", "default-dynamic"],
+    "event_presets": ["free-motion", "mixed-motion"],
     "seed": 0,
     "model": "svm",
     "C": 100.0,
     "features": {"timeseries": ["dq", "tau", "r"],
                  "scalars": ["range", "hjorth_mob", "hjorth_comp"],
                  "window": "planned", "window_s": 0.5},
+    "detector": {"margin": 1.5, "min_noise": MIN_NOISE},
+    "events": {"decide_after_s": DEFAULT_DECIDE_AFTER_S, "C": 10.0},
 }
 Progress = Callable[[str, int, int], None]
 
@@ -49,22 +68,40 @@ def default_model_path() -> Path:
     return recipe_dir() / "model.skops"
 
 
+def _labelled(progress: Progress | None, label: str) -> Callable[[int, int], None] | None:
+    return None if progress is None else (lambda done, total: progress(label, done, total))
+
+
+def _simulated(presets: list[str], workers: int, progress: Progress | None) -> list[Path]:
+    directories = []
+    for preset in presets:
+        directory = recipe_dir() / preset
+        simulate_dataset(directory, preset, None, RECIPE["seed"], workers,
+                         progress=_labelled(progress, f"simulating {preset}"))
+        directories.append(directory)
+    return directories
+
+
 def build_default_model(workers: int = 2, progress: Progress | None = None,
                         rebuild: bool = False) -> Path:
-    """Simulate the recipe's data, train the model, cache it; return its path."""
+    """Simulate the recipe's data, calibrate the detector, train the event and per-hop
+    classifiers, cache the model file; return its path."""
     path = default_model_path()
     if path.exists() and not rebuild:
         return path
-    sources = []
-    for preset in RECIPE["presets"]:
-        directory = recipe_dir() / preset
-        simulate_dataset(directory, preset, None, RECIPE["seed"], workers,
-                         progress=None if progress is None else
-                         (lambda d, t, preset=preset: progress(f"simulating {preset}", d, t)))
-        sources.append(directory)
+    sources = _simulated(RECIPE["presets"], workers, progress)
+    moving = [p for d in _simulated(RECIPE["event_presets"], workers, progress)
+              for p in session_files(d)]
+    detector = calibrate_sessions(moving, margin=RECIPE["detector"]["margin"],
+                                  workers=workers, progress=_labelled(progress, "detector"))
+    delay = RECIPE["events"]["decide_after_s"]
+    events = load_session_events(moving, detector, [delay], workers,
+                                 _labelled(progress, "events"))[delay]
+    event_model = fit_event_model(events, delay, RECIPE["events"]["C"], RECIPE["seed"])
     features = RECIPE["features"]
     options = ModelOptions(kind=RECIPE["model"], timeseries=tuple(features["timeseries"]),
                            scalars=tuple(features["scalars"]), window=features["window"],
                            window_s=features["window_s"], c=RECIPE["C"], seed=RECIPE["seed"])
-    return train(sources, path, options, workers=workers, overwrite=True,
-                 progress=progress).path
+    return train(sources, path, options, workers=workers, overwrite=True, progress=progress,
+                 detector=detector.to_dict(),
+                 events=(event_model.estimator, event_model.meta())).path

@@ -5,8 +5,11 @@ live robot). Every ``hop_s`` seconds, once a full window is available, the scala
 features of the last ``window_s`` seconds (the window length the model was
 trained with), or for a network the resampled window grid, go through the model:
 each prediction is stamped with the time of the last sample it used, so it never
-looks ahead. The engine also computes the offline
-answer: the window found by the thesis method and the model's label for it.
+looks ahead. Where the model carries a contact detector (or one is given), every
+sample also goes through the event pipeline (:mod:`contactkit.classify.events`:
+detect, decide once, hold until release), which needs no planned interaction time.
+For a session with a planned time the engine also computes the offline answer:
+the window found by the thesis method and the model's label for it.
 
 :meth:`ReplayStream.blocks` yields after every hop, so a paced replay can sleep and
 log incrementally; a ``--rate max`` replay consumes the same blocks at once.
@@ -19,7 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from contactkit.classify.events import ContactEvent, EventPipeline
 from contactkit.classify.modelfile import ModelFile
+from contactkit.features.detector import DetectorConfig
 from contactkit.features.timeseries import ChainConfig, OnlineChain, columns_of, expand
 from contactkit.features.windows import Window
 from contactkit.schemas import InputError, Session
@@ -52,10 +57,15 @@ class ReplayStream:
     Per-sample outputs (filled as the stream advances): ``r`` (N, 7) [Nm], ``force``
     and ``moment`` (N, 3) [N, Nm], ``norms`` (N, 2), ``ee_position`` (N, 3) [m].
     Predictions: ``pred_t`` [s], ``pred_sample``, ``pred_proba`` (M, classes),
-    ``pred_label``.
+    ``pred_label``. Events (with a detector): ``event_label`` (N,) the pipeline's
+    label per sample, ``score`` (N,) the detector score, and :attr:`events`.
+    ``detector`` overrides the model's detector settings; ``decide_after_s`` its
+    decision delay [s].
     """
 
-    def __init__(self, session: Session, model: ModelFile, hop_s: float = DEFAULT_HOP_S) -> None:
+    def __init__(self, session: Session, model: ModelFile, hop_s: float = DEFAULT_HOP_S,
+                 detector: DetectorConfig | None = None,
+                 decide_after_s: float | None = None) -> None:
         if hop_s <= 0:
             raise InputError(f"the prediction hop must be positive, got {hop_s} s")
         self.session = session = session.complete()
@@ -85,6 +95,16 @@ class ReplayStream:
         self.pred_sample: list[int] = []
         self.pred_proba: list[np.ndarray] = []
         self.pred_label: list[str] = []
+        detector = detector or model.detector_config()
+        self.pipeline = None if detector is None else EventPipeline(
+            detector, model.event_model(), decide_after_s)
+        self.event_label = np.full(n, "none", dtype=object)
+        self.score = np.zeros(n)
+
+    @property
+    def events(self) -> list[ContactEvent]:
+        """The contact events so far (the last one may still be open)."""
+        return [] if self.pipeline is None else self.pipeline.finish()
 
     def _predict(self, k: int) -> None:
         row = self.transformer.online_row(self.t, self._values, k)
@@ -109,6 +129,9 @@ class ReplayStream:
             self.norms[k] = out["fm_norm"]
             self.ee_position[k] = chain.model.frame_placement(q[k], ee).translation
             self._values[k] = np.concatenate([out[name] for name in self.names])
+            if self.pipeline is not None:
+                state = self.pipeline.update(self.t[k], out["r"], dq[k])
+                self.event_label[k], self.score[k] = state.label, state.score
             if self.t[k] >= next_hop - 1e-12:
                 before = len(self.pred_t)
                 self._predict(k)
@@ -125,8 +148,11 @@ class ReplayStream:
             pass
         return self
 
-    def offline(self) -> OfflineAnswer:
-        """Return the thesis method's window and the model's label for it."""
+    def offline(self) -> OfflineAnswer | None:
+        """Return the thesis method's window and the model's label for it (None for a
+        session without a planned interaction time)."""
+        if self.session.meta.planned_at_s is None:
+            return None
         values, names, window = self.transformer.session_row(self.session)
         self.model.check_features(names, self.session.path)
         proba = self.model.estimator.predict_proba(values[None, ...])[0]

@@ -13,7 +13,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from contactkit.classify.events import ContactEvent
 from contactkit.classify.modelfile import ModelFile, load_model
+from contactkit.features.detector import DetectorConfig
 from contactkit.replay.default_model import build_default_model, default_model_path
 from contactkit.replay.engine import DEFAULT_HOP_S, Block, OfflineAnswer, ReplayStream
 from contactkit.replay.recording import (
@@ -32,15 +34,17 @@ from contactkit.util.progress import LabelledProgress
 
 @dataclass
 class ReplaySummary:
-    """What one replay found: the recorded action, the offline answer, the online
-    predictions (time [s] and label of each), and the .rrd file written (if any)."""
+    """What one replay found: the recorded action, the offline answer (None without a
+    planned interaction time), the online predictions (time [s] and label of each), the
+    contact events (with a detector) and the .rrd file written (if any)."""
 
     path: Path
     recorded: str
-    offline: OfflineAnswer
+    offline: OfflineAnswer | None
     pred_t: list[float]
     pred_label: list[str]
     saved: Path | None
+    events: list[ContactEvent] | None = None
 
     def line(self) -> str:
         """Return a one-line summary for a terminal."""
@@ -48,11 +52,18 @@ class ReplaySummary:
                    if label != "none"]
         online = (f"first online contact: {contact[0][1]} at {contact[0][0]:.2f} s"
                   if contact else "online: none throughout")
-        window = self.offline.window
-        found = "detected" if window.found else "planned"
-        return (f"{self.path.name}: recorded {self.recorded}, predicted {self.offline.label} "
-                f"(offline, {found} window {window.start_s:.2f}-{window.end_s:.2f} s); "
-                f"{online}; {len(self.pred_t)} online predictions")
+        if self.offline is None:
+            offline = "no planned time (no offline answer)"
+        else:
+            window = self.offline.window
+            found = "detected" if window.found else "planned"
+            offline = (f"predicted {self.offline.label} (offline, {found} window "
+                       f"{window.start_s:.2f}-{window.end_s:.2f} s)")
+        events = "" if self.events is None else (
+            f"; {len(self.events)} contact events"
+            + "".join(f", {e.label} at {e.onset_s:.2f} s" for e in self.events[:5]))
+        return (f"{self.path.name}: recorded {self.recorded}, {offline}; {online}; "
+                f"{len(self.pred_t)} online predictions{events}")
 
 
 def session_inputs(inputs: Sequence[Path]) -> list[Path]:
@@ -86,19 +97,21 @@ def _whole(stream: ReplayStream) -> Block:
 
 def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
                    connect: str | None = None, spawn: bool = False, rate: float | None = None,
-                   hop_s: float = DEFAULT_HOP_S) -> ReplaySummary:
+                   hop_s: float = DEFAULT_HOP_S, detector: DetectorConfig | None = None,
+                   decide_after_s: float | None = None) -> ReplaySummary:
     """Replay one session into its own recording; return its summary.
 
     The recording goes to the .rrd file ``save``, to the viewer at gRPC URL ``connect``
     or a spawned native viewer (``spawn``). ``rate`` is the multiple of wall-clock
     speed (None: as fast as possible, logged in one block); ``hop_s`` [s] is the time
-    between online predictions. The session and model are checked before any file is
-    created, and a replay that fails leaves no file.
+    between online predictions. ``detector`` overrides the model's contact detector
+    settings and ``decide_after_s`` [s] its decision delay. The session and model are
+    checked before any file is created, and a replay that fails leaves no file.
     """
     if rate is not None and rate <= 0:
         raise InputError(f"the replay rate must be positive, got {rate}")
     session = read_session(path)
-    stream = ReplayStream(session, model, hop_s)
+    stream = ReplayStream(session, model, hop_s, detector, decide_after_s)
     rec = new_recording(Path(path).stem, session.meta.session_id)
     blueprint = layout.replay_blueprint()
     if save is not None:
@@ -117,7 +130,8 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
         if rate is None:
             log_block(rec, tree, stream, _whole(stream))
         answer = stream.offline()
-        log_offline(rec, stream, answer)
+        if answer is not None:
+            log_offline(rec, stream, answer)
         rec.flush()
     except BaseException:
         rec.disconnect()
@@ -126,17 +140,21 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
         raise
     rec.disconnect()
     return ReplaySummary(Path(path), session.meta.action, answer, list(stream.pred_t),
-                         list(stream.pred_label), save)
+                         list(stream.pred_label), save,
+                         None if stream.pipeline is None else stream.events)
 
 
 def replay_sessions(paths: Sequence[Path], model: ModelFile, *, save: Path | None = None,
                     connect: str | None = None, spawn: bool = False,
                     rate: float | None = None, hop_s: float = DEFAULT_HOP_S,
+                    detector: DetectorConfig | None = None,
+                    decide_after_s: float | None = None,
                     on_done: Callable[[ReplaySummary | InputError], None] | None = None
                     ) -> tuple[list[ReplaySummary], list[InputError]]:
     """Replay each session into its own recording (with several sessions and ``save``,
     one file each, see :func:`contactkit.replay.recording.save_path_for`); return the
-    summaries and the sessions refused, which do not stop the others. ``on_done`` is
+    summaries and the sessions refused, which do not stop the others. ``detector`` and
+    ``decide_after_s`` are as for :func:`replay_session`. ``on_done`` is
     called after each session with its summary or its error."""
     many = len(paths) > 1
     summaries, problems = [], []
@@ -144,7 +162,8 @@ def replay_sessions(paths: Sequence[Path], model: ModelFile, *, save: Path | Non
         target = None if save is None else save_path_for(save, Path(path), many)
         try:
             result = replay_session(path, model, save=target, connect=connect, spawn=spawn,
-                                    rate=rate, hop_s=hop_s)
+                                    rate=rate, hop_s=hop_s, detector=detector,
+                                    decide_after_s=decide_after_s)
             summaries.append(result)
         except InputError as err:
             result = err

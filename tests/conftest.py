@@ -78,6 +78,25 @@ def mindlab_dir() -> Path:
     return MINDLAB
 
 
+def load_mindlab(path: Path) -> dict[str, np.ndarray]:
+    """Read one MindLab CSV: ``t`` [s], ``q``, ``dq``, ``tau``, ``tau_ext`` (N, 7) and
+    ``contact`` (N,) bool, with the rows that repeat the previous state dropped."""
+    import polars as pl
+
+    frame = pl.read_csv(path)
+
+    def joints(prefix: str) -> np.ndarray:
+        return np.column_stack([frame[f"{prefix}{i}"].to_numpy() for i in range(7)])
+
+    out = {"t": frame["time"].to_numpy(), "q": joints("q"), "dq": joints("dq"),
+           "tau": joints("tau_J"), "tau_ext": joints("tau_ext"),
+           "contact": frame["label"].to_numpy().astype(bool)}
+    state = np.hstack([out["q"], out["dq"], out["tau"]])
+    keep = np.ones(len(state), bool)
+    keep[1:] = (np.diff(state, axis=0) != 0).any(axis=1)
+    return {name: values[keep] for name, values in out.items()}
+
+
 def run_cli(*args: str, cwd: Path | None = None, timeout: float = 300
             ) -> subprocess.CompletedProcess:
     """Run one of the project's console scripts and capture its output."""

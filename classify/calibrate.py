@@ -1,0 +1,82 @@
+"""Calibrate the contact detector on a robot's no-contact sessions.
+
+What a lab does with a new robot: record a minute of free motion and holds with
+nobody touching it, then ``classify calibrate SESSIONS... --out robot.json``. The
+no-contact samples of a session are all of it when its action is ``none``; a
+session with a ``contact`` column contributes its stretches at least
+``CLEAR_S`` away from any labelled contact (so simulated contact sessions and
+labelled real recordings can be used too). A session with contact but without a
+``contact`` column is refused: its no-contact samples are unknown.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from contactkit.features.detector import (
+    CalibrationData,
+    DetectorConfig,
+    calibrate,
+    calibration_samples,
+)
+from contactkit.features.timeseries import TimeseriesChain
+from contactkit.schemas import InputError, Session, read_session
+from contactkit.util.parallel import map_ordered
+from contactkit.util.progress import ProgressCallback
+
+CLEAR_S = 0.4  # s kept clear of a labelled contact on either side
+MIN_STRETCH_S = 0.5  # s, shorter no-contact stretches are not used
+
+
+def no_contact_stretches(session: Session) -> list[np.ndarray]:
+    """Return the sample indices of a session's no-contact stretches (see module doc)."""
+    t = session.t
+    if session.has("contact"):
+        touched = session.column("contact").astype(bool)
+        near = np.zeros(len(t), bool)
+        for k in np.flatnonzero(touched):
+            near[np.searchsorted(t, t[k] - CLEAR_S):np.searchsorted(t, t[k] + CLEAR_S,
+                                                                     side="right")] = True
+        idx = np.flatnonzero(~near)
+    elif session.meta.action == "none":
+        idx = np.arange(len(t))
+    else:
+        raise InputError(f"session has a {session.meta.action!r} contact but no contact "
+                         "column, so its no-contact samples are unknown", session.path)
+    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1) if idx.size else []
+    return [run for run in runs if t[run[-1]] - t[run[0]] >= MIN_STRETCH_S]
+
+
+def session_calibration_data(path: str | Path, template: DetectorConfig | None = None
+                             ) -> list[CalibrationData]:
+    """Read one session and return the detector's calibration samples of each of its
+    no-contact stretches (the observer restarts on each stretch)."""
+    session = read_session(path).complete()
+    template = template or DetectorConfig()
+    chain = TimeseriesChain(with_hand=session.meta.with_hand)
+    r = chain.compute(session.t, session.q, session.dq, session.tau, ["r"])["r"]
+    t, dq = session.t, session.dq
+    return [calibration_samples(t[run], r[run], dq[run], template)
+            for run in no_contact_stretches(session)]
+
+
+def calibrate_sessions(paths: Sequence[str | Path], template: DetectorConfig | None = None,
+                       margin: float = 1.5, workers: int = 1,
+                       progress: ProgressCallback | None = None) -> DetectorConfig:
+    """Calibrate the detector on the no-contact samples of ``paths``; return its
+    settings, with the session count and duration in ``source``."""
+    template = template or DetectorConfig()
+    parts = [part for parts in map_ordered(_job, [(str(p), template) for p in paths],
+                                           workers=workers, progress=progress)
+             for part in parts]
+    if not parts:
+        raise InputError("no no-contact stretch of at least "
+                         f"{MIN_STRETCH_S} s in the given sessions")
+    return calibrate(parts, template, margin, source={"sessions": len(paths)})
+
+
+def _job(item: tuple[str, DetectorConfig]) -> list[CalibrationData]:
+    return session_calibration_data(*item)

@@ -1,0 +1,147 @@
+"""Training and evaluating the event classifier on simulated sessions.
+
+Each session goes through the observer, the detector and the event pipeline
+without a classifier (:func:`contactkit.classify.events.batch_events`, which gives
+the streaming pipeline's events), so the classifier learns from exactly what it sees online: windows
+aligned to the detector's onset. An event that overlaps the session's ground-truth
+contact is labelled with the session's action; every other event (in a ``none``
+session, or an after-effect outside the contact) is labelled ``none``.
+
+Event-level scoring of a session (:func:`session_outcome`): a contact session is
+right when its first event overlapping the contact carries the session's action
+(no such event: a *missed* contact, predicted ``none``); a ``none`` session is
+right when every event in it says ``none``. Events outside the contact are
+counted as *false events*.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from contactkit.classify.events import (
+    NONE,
+    ContactEvent,
+    EventModel,
+    batch_events,
+)
+from contactkit.classify.models import svm_pipeline
+from contactkit.features.detector import DetectorConfig, detect
+from contactkit.features.timeseries import TimeseriesChain
+from contactkit.schemas import read_session
+from contactkit.util.parallel import map_ordered
+from contactkit.util.progress import ProgressCallback
+
+MATCH_SLACK_S = 0.1  # s an onset may precede the ground-truth contact
+
+
+@dataclass
+class SessionEvents:
+    """One session's events (with feature vectors) and what is known about it: the
+    action, the pose group (target pose of a move, else the held pose) and the
+    ground-truth contact interval [s] (None without contact)."""
+
+    path: str
+    action: str
+    group: str
+    contact: tuple[float, float] | None
+    events: list[ContactEvent]
+
+    def matched(self) -> ContactEvent | None:
+        """Return the first event overlapping the ground-truth contact, if any."""
+        if self.contact is None:
+            return None
+        start, end = self.contact
+        for event in self.events:
+            release = np.inf if event.release_s is None else event.release_s
+            if event.onset_s <= end and release >= start - MATCH_SLACK_S:
+                return event
+        return None
+
+    def rows(self) -> tuple[list[np.ndarray], list[str]]:
+        """Return the training rows (feature vectors) and labels of the decided events."""
+        match = self.matched()
+        xs, ys = [], []
+        for event in self.events:
+            if event.features is not None:
+                xs.append(event.features)
+                ys.append(self.action if event is match else NONE)
+        return xs, ys
+
+
+def session_events(path: str | Path, detector: DetectorConfig,
+                   decide_after_s: Sequence[float]) -> list[SessionEvents]:
+    """Run one session through the observer and the pipeline once per decision delay;
+    return one :class:`SessionEvents` per delay."""
+    session = read_session(path).complete()
+    meta = session.meta
+    chain = TimeseriesChain(with_hand=meta.with_hand)
+    t, dq = session.t, session.dq
+    r = chain.compute(t, session.q, dq, session.tau, ["r"])["r"]
+    contact = None
+    if session.has("contact") and session.column("contact").any():
+        touched = np.flatnonzero(session.column("contact"))
+        contact = (float(t[touched[0]]), float(t[touched[-1]]))
+    detection = detect(t, r, dq, detector)
+    group = meta.target_pose or meta.pose or ""
+    return [SessionEvents(str(path), meta.action, group, contact,
+                          batch_events(t, r, detection, None, delay))
+            for delay in decide_after_s]
+
+
+def _job(item: tuple[str, DetectorConfig, tuple[float, ...]]) -> list[SessionEvents]:
+    return session_events(*item)
+
+
+def load_session_events(paths: Sequence[str | Path], detector: DetectorConfig,
+                        decide_after_s: Sequence[float], workers: int = 1,
+                        progress: ProgressCallback | None = None
+                        ) -> dict[float, list[SessionEvents]]:
+    """Return, per decision delay, every session's events (in the order of ``paths``)."""
+    delays = tuple(float(d) for d in decide_after_s)
+    per_session = list(map_ordered(_job, [(str(p), detector, delays) for p in paths],
+                                   workers=workers, progress=progress))
+    return {d: [s[i] for s in per_session] for i, d in enumerate(delays)}
+
+
+def fit_event_model(sessions: Sequence[SessionEvents], decide_after_s: float,
+                    c: float = 10.0, seed: int = 0) -> EventModel:
+    """Fit the intent classifier (scaled RBF SVM, Platt probabilities) on the
+    sessions' event rows (a class with a single row is left out); return the
+    :class:`EventModel` with its training range."""
+    xs, ys = [], []
+    for session in sessions:
+        x, y = session.rows()
+        xs += x
+        ys += y
+    X, y = np.asarray(xs), np.asarray(ys)
+    names, counts = np.unique(y, return_counts=True)
+    keep = np.isin(y, names[counts >= 2])  # a class seen once cannot be calibrated
+    X, y = X[keep], y[keep]
+    estimator = svm_pipeline(c, seed=seed).fit(X, y)
+    return EventModel(estimator, [str(c) for c in estimator.classes_], decide_after_s,
+                      X.min(axis=0), X.max(axis=0))
+
+
+def session_outcome(session: SessionEvents, model: EventModel) -> tuple[str, int]:
+    """Return the event-level prediction for a session (see the module docstring) and
+    its number of false events, classifying each event's features with ``model``."""
+
+    def label(event: ContactEvent) -> str:
+        if event.features is None:
+            return NONE
+        if model.out_of_range(event.features):
+            return "unknown"
+        proba = model.estimator.predict_proba(event.features[None, :])[0]
+        return model.classes[int(np.argmax(proba))]
+
+    match = session.matched()
+    false_events = sum(1 for e in session.events if e is not match)
+    if session.contact is None:
+        labels = [label(e) for e in session.events]
+        predicted = next((lab for lab in labels if lab != NONE), NONE)
+        return predicted, false_events
+    return (NONE if match is None else label(match)), false_events

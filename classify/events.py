@@ -1,0 +1,243 @@
+"""Contact events: detect, decide once, hold until release. Batch and streaming.
+
+Per sample, the residual r and joint velocity dq go through the contact detector
+(:mod:`contactkit.features.detector`). When it reports an onset, the pipeline waits
+``decide_after_s`` (or until the release, if that comes first) and classifies the
+intent *once*, from the samples between onset - ``PRE_S`` and the decision, with
+r taken relative to the detector's baseline frozen at onset. That label is held
+until the detector reports the release; then the event is complete. Without a
+detected contact the output is ``none``; between onset and decision it is
+``undecided``; without an intent classifier a decided event is ``contact``. Event
+features far outside the classifier's training range give the label ``unknown``
+and set ``out_of_range``, instead of a confident class.
+
+Nothing looks ahead: every output at sample k uses samples up to k only, and the
+batch entry points (:func:`stream_events`) feed the same streaming object sample by
+sample, so batch and streaming agree exactly.
+
+Event features (all from e = r - baseline, Nm, and seconds; none from dq, tau or
+q, which grow with motion and do not transfer from the simulator to a real robot):
+per joint the peak |e| and |e| at the decision; over the joints the norm |e|: its
+peak, mean, value at the decision, value at the decision over the peak, time from
+onset to the peak, mean absolute rate of change, and the window length.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from contactkit.classify.fast import fast_predictor
+from contactkit.errors import InputError
+from contactkit.features.detector import (
+    N_JOINTS,
+    Detection,
+    Detector,
+    DetectorConfig,
+    detect,
+)
+from contactkit.features.timeseries import TimeseriesChain
+from contactkit.schemas import Session
+
+PRE_S = 0.05  # s of samples before the onset in the decision window
+DEFAULT_DECIDE_AFTER_S = 0.15
+RANGE_SLACK = 0.5  # a feature beyond its training range by this share of the range is out
+NONE, UNDECIDED, UNKNOWN = "none", "undecided", "unknown"
+EVENT_FEATURES = ([f"peak_abs_e_{j}" for j in range(1, N_JOINTS + 1)]
+                  + [f"final_abs_e_{j}" for j in range(1, N_JOINTS + 1)]
+                  + ["peak_norm", "mean_norm", "final_norm", "final_over_peak",
+                     "time_to_peak", "mean_abs_rate", "window_s"])
+
+
+def event_features(t: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """Return the event feature vector (see the module docstring) of a decision window:
+    times ``t`` (n,) [s] starting with the onset, deviations ``e`` (n, 7) [Nm]."""
+    norm = np.linalg.norm(e, axis=1)
+    peak_at = int(np.argmax(norm))
+    peak = float(norm[peak_at])
+    span = float(t[-1] - t[0])
+    rate = float(np.abs(np.diff(norm)).sum() / span) if span > 0 else 0.0
+    return np.concatenate([np.abs(e).max(axis=0), np.abs(e[-1]),
+                           [peak, float(norm.mean()), float(norm[-1]),
+                            float(norm[-1] / peak) if peak > 0 else 0.0,
+                            float(t[peak_at] - t[0]), rate, span]])
+
+
+@dataclass
+class EventModel:
+    """What the pipeline needs besides the detector: the intent classifier (anything
+    with ``predict_proba``), its classes, the decision delay [s] and the per-feature
+    training range (``low``, ``high``) that flags out-of-range events."""
+
+    estimator: object
+    classes: list[str]
+    decide_after_s: float = DEFAULT_DECIDE_AFTER_S
+    low: np.ndarray = field(default_factory=lambda: np.full(len(EVENT_FEATURES), -np.inf))
+    high: np.ndarray = field(default_factory=lambda: np.full(len(EVENT_FEATURES), np.inf))
+
+    def meta(self) -> dict:
+        """Return the JSON-ready settings (everything but the estimator)."""
+        return {"classes": list(self.classes), "decide_after_s": self.decide_after_s,
+                "features": EVENT_FEATURES, "low": self.low.tolist(),
+                "high": self.high.tolist()}
+
+    @classmethod
+    def from_meta(cls, estimator: object, doc: dict) -> EventModel:
+        """Rebuild from :meth:`meta`'s document and the estimator."""
+        if list(doc.get("features", [])) != EVENT_FEATURES:
+            raise InputError("the event classifier was trained on other event features")
+        return cls(estimator, list(doc["classes"]), float(doc["decide_after_s"]),
+                   np.asarray(doc["low"], float), np.asarray(doc["high"], float))
+
+    def out_of_range(self, x: np.ndarray) -> bool:
+        """Return whether a feature vector lies far outside the training range."""
+        slack = RANGE_SLACK * (self.high - self.low)
+        return bool(((x < self.low - slack) | (x > self.high + slack)).any())
+
+
+@dataclass
+class ContactEvent:
+    """One detected contact: onset, decision and release times [s] (release None while
+    it lasts), the held label, the class probabilities at the decision, whether its
+    features were out of the training range, and its peak detector score."""
+
+    onset_s: float
+    decision_s: float | None = None
+    release_s: float | None = None
+    label: str = UNDECIDED
+    probabilities: dict[str, float] = field(default_factory=dict)
+    out_of_range: bool = False
+    peak_score: float = 0.0
+    features: np.ndarray | None = field(default=None, repr=False)
+
+    def to_dict(self) -> dict:
+        """Return the event as a JSON-ready dict (without its feature vector)."""
+        out = asdict(self)
+        del out["features"]
+        return out
+
+
+@dataclass
+class EventOutput:
+    """The pipeline's answer at one sample: the current ``label`` (none, undecided, a
+    class or unknown), the detector ``score``, ``contact``, and the event that was
+    just decided or released at this sample (else None)."""
+
+    label: str
+    score: float
+    contact: bool
+    decided: ContactEvent | None = None
+    released: ContactEvent | None = None
+
+
+class EventPipeline:
+    """Streaming detect -> decide -> hold (see the module docstring)."""
+
+    def __init__(self, detector: DetectorConfig | None = None, model: EventModel | None = None,
+                 decide_after_s: float | None = None) -> None:
+        self.detector = Detector(detector)
+        self.model = model
+        self.decide_after_s = (decide_after_s if decide_after_s is not None else
+                               model.decide_after_s if model is not None else
+                               DEFAULT_DECIDE_AFTER_S)
+        if not 0 <= self.decide_after_s <= 5:
+            raise InputError(f"decision delay must lie in 0..5 s, got {self.decide_after_s}")
+        self._predict = None if model is None else fast_predictor(model.estimator)
+        self.events: list[ContactEvent] = []
+        self._recent: deque[tuple[float, np.ndarray]] = deque()
+        self._window: list[tuple[float, np.ndarray]] = []
+        self._baseline = np.zeros(N_JOINTS)
+        self.current: ContactEvent | None = None
+
+    def _decide(self, t: float) -> ContactEvent:
+        event = self.current
+        times = np.array([s for s, _ in self._window])
+        e = np.array([r for _, r in self._window]) - self._baseline
+        event.decision_s = t
+        event.features = x = event_features(times, e)
+        if self.model is None:
+            event.label = "contact"
+            return event
+        proba = self._predict(x[None, :])[0]
+        event.probabilities = {c: float(p) for c, p in zip(self.model.classes, proba,
+                                                           strict=True)}
+        event.out_of_range = self.model.out_of_range(x)
+        event.label = UNKNOWN if event.out_of_range else self.model.classes[int(np.argmax(proba))]
+        return event
+
+    def update(self, t: float, r: np.ndarray, dq: np.ndarray) -> EventOutput:
+        """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,)."""
+        state = self.detector.update(t, r, dq)
+        sample = (t, np.array(r, dtype=float))
+        out = EventOutput(NONE, state.score, state.contact)
+        if state.onset:
+            self.current = ContactEvent(onset_s=t)
+            self._baseline = self.detector.baseline.copy()
+            self._window = [s for s in self._recent if s[0] >= t - PRE_S]
+        self._recent.append(sample)
+        while self._recent and self._recent[0][0] < t - PRE_S:
+            self._recent.popleft()
+        event = self.current
+        if event is None:
+            return out
+        event.peak_score = max(event.peak_score, state.score)
+        if event.decision_s is None:
+            self._window.append(sample)
+            if t - event.onset_s >= self.decide_after_s - 1e-12 or state.release:
+                out.decided = self._decide(t)
+        out.label = event.label
+        if state.release:
+            event.release_s = t
+            self.events.append(event)
+            out.released, self.current = event, None
+        return out
+
+    def finish(self) -> list[ContactEvent]:
+        """Return every event, including one still open at the end of the stream."""
+        return self.events + ([self.current] if self.current is not None else [])
+
+
+def batch_events(t: np.ndarray, r: np.ndarray, detection: Detection,
+                 model: EventModel | None = None,
+                 decide_after_s: float | None = None) -> list[ContactEvent]:
+    """Return the events of a whole stream from its detector output (one detector run
+    serves any decision delay), the same events :class:`EventPipeline` gives."""
+    pipeline = EventPipeline(None, model, decide_after_s)
+    events = []
+    for onset, release in detection.intervals:
+        last = len(t) - 1 if release is None else release
+        stop = int(np.searchsorted(t, t[onset] + pipeline.decide_after_s - 1e-12))
+        decision = min(stop, last)
+        start = int(np.searchsorted(t, t[onset] - PRE_S))
+        pipeline.current = ContactEvent(onset_s=float(t[onset]))
+        pipeline._baseline = detection.baseline[onset]
+        pipeline._window = list(zip(t[start:decision + 1], r[start:decision + 1], strict=True))
+        if release is not None or stop <= last:
+            pipeline._decide(float(t[decision]))
+        event = pipeline.current
+        event.release_s = None if release is None else float(t[release])
+        event.peak_score = float(detection.score[onset:last + 1].max())
+        events.append(event)
+    return events
+
+
+def stream_events(t: np.ndarray, r: np.ndarray, dq: np.ndarray,
+                  detector: DetectorConfig | None = None, model: EventModel | None = None,
+                  decide_after_s: float | None = None) -> tuple[list[ContactEvent], list[str]]:
+    """Run the pipeline over whole arrays (t (N,) [s], r and dq (N, 7)); return the
+    events and the per-sample label, exactly as the streaming path gives them."""
+    pipeline = EventPipeline(detector, model, decide_after_s)
+    labels = [pipeline.update(float(t[k]), r[k], dq[k]).label for k in range(len(t))]
+    return pipeline.finish(), labels
+
+
+def session_events(session: Session, detector: DetectorConfig, model: EventModel | None = None,
+                   decide_after_s: float | None = None) -> list[ContactEvent]:
+    """Return the contact events of a whole session (observer, detector, pipeline)."""
+    session = session.complete()
+    t, dq = session.t, session.dq
+    chain = TimeseriesChain(with_hand=session.meta.with_hand)
+    r = chain.compute(t, session.q, dq, session.tau, ["r"])["r"]
+    return batch_events(t, r, detect(t, r, dq, detector), model, decide_after_s)

@@ -1,0 +1,171 @@
+"""The contact detector: streaming = batch, calibration files, and real recordings
+(calibrated on other data than it is tested on)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from contactkit.classify.event_metrics import EventScore, score_events
+from contactkit.features.detector import (
+    CalibrationData,
+    Detector,
+    DetectorConfig,
+    calibrate,
+    calibration_samples,
+    detect,
+    load_calibration,
+    save_calibration,
+)
+from contactkit.features.timeseries import TimeseriesChain
+from contactkit.recorder.arrays import load_joint_arrays
+from contactkit.schemas import InputError
+from tests.conftest import MINDLAB_FILES, load_mindlab
+
+
+def _synthetic(n: int = 3000, rate: float = 1000.0, seed: int = 0):
+    """A noisy held pose with one 0.4 s push of 3 Nm on joint 2 at t = 1.5 s."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / rate
+    r = rng.normal(0.0, 0.05, (n, 7)) + 0.4
+    r[(t > 1.5) & (t < 1.9), 1] += 3.0
+    dq = rng.normal(0.0, 0.002, (n, 7))
+    return t, r, dq
+
+
+def test_streaming_equals_batch_and_never_looks_ahead() -> None:
+    t, r, dq = _synthetic()
+    batch = detect(t, r, dq)
+    detector = Detector()
+    states = [detector.update(t[k], r[k], dq[k]) for k in range(len(t))]
+    assert np.array_equal(batch.contact, [s.contact for s in states])
+    assert np.array_equal(batch.score, [s.score for s in states])
+    prefix = detect(t[:1700], r[:1700], dq[:1700])
+    assert np.array_equal(prefix.contact, batch.contact[:1700])
+    assert np.array_equal(prefix.e, batch.e[:1700])
+
+
+def test_one_push_is_one_contact_with_hysteresis() -> None:
+    t, r, dq = _synthetic()
+    found = detect(t, r, dq)
+    assert len(found.intervals) == 1
+    onset, release = found.intervals[0]
+    assert 1.5 <= t[onset] <= 1.53
+    assert 1.9 <= t[release] <= 2.0
+
+
+def _stream(t: np.ndarray, r: np.ndarray, dq: np.ndarray) -> CalibrationData:
+    return calibration_samples(t, r, dq)
+
+
+def test_calibration_round_trip(tmp_path: Path) -> None:
+    t, r, dq = _synthetic()
+    quiet = t < 1.4
+    config = calibrate([_stream(t[quiet], r[quiet], dq[quiet])], source={"files": ["x"]})
+    path = save_calibration(tmp_path / "robot.json", config)
+    loaded = load_calibration(path)
+    assert loaded == config
+    assert loaded.source == config.source
+    assert min(loaded.noise) >= 0.3 and max(loaded.noise) < 0.6
+
+
+@pytest.mark.parametrize("content, problem", [
+    ("{not json", "not JSON"),
+    ('{"format": "other"}', "not a detector calibration"),
+    ('{"format": "contactkit-detector/1", "noise": [1, 2]}', "7 finite"),
+    ('{"format": "contactkit-detector/1", "release": 2}', "release"),
+    ('{"format": "contactkit-detector/1", "colour": 2}', "unknown detector setting"),
+])
+def test_bad_calibration_files_are_one_line_errors(tmp_path: Path, content: str,
+                                                   problem: str) -> None:
+    path = tmp_path / "robot.json"
+    path.write_text(content)
+    with pytest.raises(InputError) as err:
+        load_calibration(path)
+    assert problem in str(err.value) and "robot.json" in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_missing_calibration_file(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="no such calibration file"):
+        load_calibration(tmp_path / "nope.json")
+
+
+def test_defaults_survive_json() -> None:
+    doc = json.loads(json.dumps(DetectorConfig().to_dict()))
+    assert DetectorConfig.from_dict(doc) == DetectorConfig()
+
+
+# --- real recordings ---------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def gaz(reference_dir: Path) -> dict[str, np.ndarray]:
+    data = load_joint_arrays(*(reference_dir / f for f in ("time.txt", "positions.txt",
+                                                           "velocity.txt", "torques.txt")))
+    chain = TimeseriesChain(with_hand=False)
+    data["r"] = chain.compute(data["t"], data["q"], data["dq"], data["tau"], ["r"])["r"]
+    return data
+
+
+@pytest.fixture(scope="module")
+def mindlab(mindlab_dir: Path) -> dict[str, dict[str, np.ndarray]]:
+    chain = TimeseriesChain(with_hand=True)
+    out = {}
+    for name in MINDLAB_FILES:
+        data = load_mindlab(mindlab_dir / f"{name}.csv")
+        data["r"] = chain.compute(data["t"], data["q"], data["dq"], data["tau"], ["r"])["r"]
+        out[name] = data
+    return out
+
+
+def _part(data: dict[str, np.ndarray], keep: np.ndarray) -> dict[str, np.ndarray]:
+    return {name: values[keep] for name, values in data.items()}
+
+
+def _quiet_stretches(data: dict[str, np.ndarray], margin_s: float = 0.4) -> list[CalibrationData]:
+    """No-contact stretches of a labelled recording, ``margin_s`` away from any touch."""
+    t, touched = data["t"], data["contact"]
+    near = np.zeros(len(t), bool)
+    for k in np.flatnonzero(touched):
+        near |= np.abs(t - t[k]) <= margin_s
+    idx = np.flatnonzero(~near)
+    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    template = DetectorConfig(warmup_s=0.1)
+    return [calibration_samples(t[run], data["r"][run], data["dq"][run], template)
+            for run in runs if len(run) > 50]
+
+
+def test_residual_follows_the_robots_own_estimate(mindlab) -> None:
+    r = np.concatenate([d["r"][d["t"] > 0.2] for d in mindlab.values()])
+    ext = np.concatenate([-d["tau_ext"][d["t"] > 0.2] for d in mindlab.values()])
+    corr = [np.corrcoef(r[:, j], ext[:, j])[0, 1] for j in range(4)]
+    assert min(corr) >= 0.95, corr
+
+
+def _events(data: dict[str, np.ndarray], config: DetectorConfig) -> list[tuple[float, float]]:
+    found = detect(data["t"], data["r"], data["dq"], config)
+    t = data["t"]
+    return [(float(t[on]), float(t[-1] if off is None else t[off])) for on, off in found.intervals]
+
+
+def test_calibrated_on_other_data_real_robot(gaz, mindlab) -> None:
+    """Calibrate on the first half of the free-motion log and four MindLab files; test
+    on the second half of the log and the fifth file, for each fifth file."""
+    first = gaz["t"] < gaz["t"][-1] / 2
+    head = _part(gaz, first)
+    motion = calibration_samples(head["t"], head["r"], head["dq"])
+    second = _part(gaz, ~first)
+    total = EventScore()
+    for held_out in MINDLAB_FILES:
+        parts = [motion] + [p for name in MINDLAB_FILES if name != held_out
+                            for p in _quiet_stretches(mindlab[name])]
+        config = calibrate(parts)
+        assert _events(second, config) == [], held_out
+        data = mindlab[held_out]
+        total = total + score_events(data["t"], data["contact"], _events(data, config))
+    assert total.detected == total.touches
+    assert total.false_per_min <= 1.0
+    assert total.delay_ms(50) <= 60.0

@@ -1,0 +1,117 @@
+"""The detect -> decide -> hold pipeline: streaming = batch, no look-ahead, held labels."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from contactkit.classify.events import (
+    EVENT_FEATURES,
+    NONE,
+    UNDECIDED,
+    UNKNOWN,
+    EventModel,
+    EventPipeline,
+    batch_events,
+    stream_events,
+)
+from contactkit.classify.models import svm_pipeline
+from contactkit.features.detector import DetectorConfig, detect
+from contactkit.features.timeseries import OnlineChain, TimeseriesChain
+from contactkit.schemas import InputError, read_session
+from tests.conftest import make_session
+
+DETECTOR = DetectorConfig(noise=(1.0,) * 7, speed=(0.5,) * 7, accel=(0.02,) * 7)
+
+
+@pytest.fixture(scope="module")
+def model() -> EventModel:
+    rng = np.random.default_rng(0)
+    X = np.abs(rng.normal(2.0, 1.0, (60, len(EVENT_FEATURES))))
+    y = np.array(["bump", "adjust", "shove"] * 20)
+    X[y == "shove"] *= 3.0
+    estimator = svm_pipeline(1.0).fit(X, y)
+    return EventModel(estimator, [str(c) for c in estimator.classes_], 0.15,
+                      X.min(axis=0), X.max(axis=0))
+
+
+@pytest.fixture(scope="module")
+def shove(tmp_path_factory) -> dict[str, np.ndarray]:
+    path = make_session(tmp_path_factory.mktemp("events"), action="shove", link=4,
+                        duration_s=4.0, planned_at_s=1.5)
+    session = read_session(path)
+    t, q, dq, tau = session.t, session.q, session.dq, session.tau
+    r = TimeseriesChain(with_hand=True).compute(t, q, dq, tau, ["r"])["r"]
+    return {"t": t, "q": q, "dq": dq, "tau": tau, "r": r, "contact": session.column("contact")}
+
+
+def _streamed(data, model, decide_after_s=None, stop=None):
+    chain = OnlineChain(with_hand=True)
+    pipeline = EventPipeline(DETECTOR, model, decide_after_s)
+    labels = []
+    for k in range(len(data["t"]) if stop is None else stop):
+        out = chain.update(data["t"][k], data["q"][k], data["dq"][k], data["tau"][k])
+        labels.append(pipeline.update(data["t"][k], out["r"], data["dq"][k]).label)
+    return pipeline.finish(), labels
+
+
+def _same(a, b) -> None:
+    assert len(a) == len(b)
+    for x, y in zip(a, b, strict=True):
+        assert (x.onset_s, x.decision_s, x.release_s, x.label) == \
+               (y.onset_s, y.decision_s, y.release_s, y.label)
+        for c in x.probabilities:
+            assert abs(x.probabilities[c] - y.probabilities[c]) < 1e-6
+
+
+def test_streaming_and_batch_give_the_same_events(shove, model) -> None:
+    streamed, labels = _streamed(shove, model)
+    assert len(streamed) >= 1
+    detection = detect(shove["t"], shove["r"], shove["dq"], DETECTOR)
+    _same(batch_events(shove["t"], shove["r"], detection, model, 0.15), streamed)
+    arrays, array_labels = stream_events(shove["t"], shove["r"], shove["dq"], DETECTOR, model)
+    _same(arrays, streamed)
+    assert array_labels == labels
+
+
+def test_one_decision_held_until_release(shove, model) -> None:
+    events, labels = _streamed(shove, model)
+    event = events[0]
+    t = shove["t"]
+    touched = t[shove["contact"]]
+    assert touched[0] - 0.05 <= event.onset_s <= touched[0] + 0.1
+    assert event.decision_s == pytest.approx(event.onset_s + 0.15, abs=0.003)
+    assert event.label in [*model.classes, UNKNOWN]
+    held = [lab for s, lab in zip(t, labels, strict=True)
+            if event.decision_s <= s < event.release_s]
+    assert set(held) == {event.label}
+    pending = [lab for s, lab in zip(t, labels, strict=True)
+               if event.onset_s <= s < event.decision_s]
+    assert set(pending) == {UNDECIDED}
+    assert labels[0] == NONE and labels[-1] == NONE
+
+
+def test_no_look_ahead(shove, model) -> None:
+    full, labels = _streamed(shove, model)
+    cut = int(np.searchsorted(shove["t"], full[0].decision_s)) + 1
+    part, part_labels = _streamed(shove, model, stop=cut)
+    assert part[0].label == full[0].label and part[0].release_s is None
+    assert part_labels == labels[:cut]
+
+
+def test_out_of_range_is_flagged_not_a_confident_class(shove, model) -> None:
+    narrow = EventModel(model.estimator, model.classes, 0.15, model.low * 0, model.low * 0)
+    events, _ = _streamed(shove, narrow)
+    assert events[0].out_of_range and events[0].label == UNKNOWN
+
+
+def test_without_classifier_events_say_contact(shove) -> None:
+    events, _ = _streamed(shove, None)
+    assert events[0].label == "contact" and events[0].features is not None
+
+
+def test_bad_decision_delay(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="decision delay"):
+        EventPipeline(DETECTOR, None, -1.0)

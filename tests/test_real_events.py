@@ -1,0 +1,78 @@
+"""The default model's contact events on the real Panda recordings (no calibration on
+real data). Builds the default model on first use (minutes; cached afterwards)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from contactkit.classify.event_metrics import EventScore, score_events
+from contactkit.classify.events import batch_events
+from contactkit.classify.modelfile import load_model
+from contactkit.features.detector import detect
+from contactkit.features.timeseries import TimeseriesChain
+from contactkit.recorder.arrays import load_joint_arrays
+from contactkit.recorder.dataset import PRESETS
+from contactkit.replay.default_model import build_default_model
+from tests.conftest import MINDLAB_FILES, load_mindlab
+
+pytestmark = pytest.mark.slow
+
+# Measured with the simulator on main before the free-motion presets: its free-motion
+# model error (friction) is several times smaller than the real robot's, so the
+# sim-calibrated detector fires in the Gaz log's fast motion (11 events in 21 s), and
+# its held-pose noise is 2.5-3.4x the real one, so thresholds at rest are too high
+# (61 of 77 touches, median onset delay 110 ms). A calibration on real data passes
+# (tests/test_detector.py).
+REALISTIC_SIM = "free-motion" in PRESETS
+needs_realistic_sim = pytest.mark.xfail(
+    not REALISTIC_SIM, strict=False,
+    reason="the simulator without free-motion presets under-states real model error")
+
+
+@pytest.fixture(scope="module")
+def default_model():
+    return load_model(build_default_model())
+
+
+def _events(model, t, q, dq, tau, with_hand: bool):
+    r = TimeseriesChain(with_hand=with_hand).compute(t, q, dq, tau, ["r"])["r"]
+    detection = detect(t, r, dq, model.detector_config())
+    return batch_events(t, r, detection, model.event_model())
+
+
+@needs_realistic_sim
+def test_free_motion_log_has_no_contact_events(default_model, reference_dir: Path) -> None:
+    gaz = load_joint_arrays(*(reference_dir / f for f in ("time.txt", "positions.txt",
+                                                          "velocity.txt", "torques.txt")))
+    events = _events(default_model, gaz["t"], gaz["q"], gaz["dq"], gaz["tau"], False)
+    assert events == []
+
+
+@needs_realistic_sim
+def test_every_real_touch_detected_quickly_and_few_false_events(default_model,
+                                                                mindlab_dir: Path) -> None:
+    total = EventScore()
+    for name in MINDLAB_FILES:
+        data = load_mindlab(mindlab_dir / f"{name}.csv")
+        events = _events(default_model, data["t"], data["q"], data["dq"], data["tau"], True)
+        spans = [(e.onset_s, data["t"][-1] if e.release_s is None else e.release_s)
+                 for e in events]
+        total = total + score_events(data["t"], data["contact"], spans)
+    assert total.detected == total.touches
+    assert total.false_per_min <= 1.0
+    assert total.delay_ms(50) <= 60.0
+
+
+def test_real_events_are_decided_once_and_never_confident_out_of_range(
+        default_model, mindlab_dir: Path) -> None:
+    data = load_mindlab(mindlab_dir / "a4.csv")
+    events = _events(default_model, data["t"], data["q"], data["dq"], data["tau"], True)
+    assert events
+    for event in events:
+        assert event.decision_s is not None
+        if event.out_of_range:
+            assert event.label == "unknown"
+        assert np.isclose(sum(event.probabilities.values()), 1.0)
