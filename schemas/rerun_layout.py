@@ -81,7 +81,7 @@ THRESHOLD_COLOR = (120, 120, 120)
 CONTACT_COLORS = {"contact": (230, 140, 40), "free": (205, 205, 205)}
 WINDOW_COLOR = (90, 170, 200)
 LEGEND_ROOM = 0.2  # time axes run this fraction of the session past its end: the legends' room
-CAMERA = {"position": (1.7, -1.5, 1.3), "look_target": (0.25, 0.0, 0.45),
+CAMERA = {"position": (1.1, -0.9, 0.8), "look_target": (0.3, 0.0, 0.45),
           "eye_up": (0.0, 0.0, 1.0)}  # [m] in the base frame: frames the whole arm
 
 
@@ -196,23 +196,25 @@ def text_event(rec: rr.RecordingStream, path: str, t: float, sample: int, text: 
 
 
 def time_axis(duration_s: float | None) -> rrb.TimeAxis | None:
-    """Return the shared time axis of the stacked views: 0 to ``duration_s`` [s] plus
-    room on the right for the legends, linked across views (None: fit to the data)."""
+    """Return the time axis of the stacked views: 0 to ``duration_s`` [s] plus room on the
+    right for the legends, the same in every view (None: fit to the data)."""
     if duration_s is None:
         return None
     end = duration_s * (1.0 + LEGEND_ROOM)
-    return rrb.TimeAxis(link="LinkToGlobal", view_range=rr.TimeRange(
+    return rrb.TimeAxis(link="Independent", view_range=rr.TimeRange(
         start=rr.TimeRangeBoundary.absolute(seconds=0.0),
         end=rr.TimeRangeBoundary.absolute(seconds=end)))
 
 
-def series_view(origin: str, name: str, duration_s: float | None, contents: list[str] | None = None,
-                axis_y: rrb.ScalarAxis | None = None) -> rrb.TimeSeriesView:
+def series_view(origin: str, name: str, duration_s: float | None,
+                contents: list[str] | None = None, axis_y: rrb.ScalarAxis | None = None,
+                legend: bool = True) -> rrb.TimeSeriesView:
     """Return one stacked time-series view with the shared time axis and its legend in
     the room right of the data."""
     return rrb.TimeSeriesView(origin=origin, name=name, contents=contents or "$origin/**",
                               axis_x=time_axis(duration_s), axis_y=axis_y,
-                              plot_legend=rrb.PlotLegend(rrb.Corner2D.RightTop))
+                              plot_legend=rrb.PlotLegend(rrb.Corner2D.RightTop,
+                                                         visible=legend))
 
 
 def robot_view(name: str, contents: list[str]) -> rrb.Spatial3DView:
@@ -227,8 +229,8 @@ def replay_blueprint(duration_s: float | None = None) -> rrb.Blueprint:
     on one time axis of ``duration_s`` [s] (None: each fits its data)."""
     right = rrb.Vertical(
         series_view(TAU, "joint torque tau [Nm]", duration_s),
-        series_view("observer", "observer residual r [Nm]", duration_s,
-                    contents=[f"+ {RESIDUAL}", f"+ {THRESHOLD}"]),
+        series_view("observer", "observer residual r [Nm] (joint colours as above)",
+                    duration_s, contents=[f"+ {RESIDUAL}", f"+ {THRESHOLD}"], legend=False),
         series_view("/", "estimated |f| and applied force [N]", duration_s,
                     contents=[f"+ {FORCE_NORM}", f"+ {TRUE_FORCE}"]),
         series_view(PROBABILITY, "class probability", duration_s,
@@ -237,7 +239,7 @@ def replay_blueprint(duration_s: float | None = None) -> rrb.Blueprint:
                                                     f"+ {TRUE_CONTACT}", f"+ {WINDOW}"],
                               name="predicted class, contact events, true contact, window",
                               time_view=time_axis(duration_s)),
-        row_shares=[3, 3, 2.2, 2.2, 2.2],
+        row_shares=[4.8, 2.8, 3.3, 3.3, 3.8],  # room for 7 legend rows and 4 state lanes
     )
     left = rrb.Vertical(
         robot_view("Panda and estimated end-effector force (1 cm per N)",

@@ -82,23 +82,23 @@ def start_web_viewer(grpc_port: int = GRPC_PORT, web_port: int = WEB_PORT,
         if not port_is_free(port):
             raise InputError(f"port {port} on {HOST} is already in use by another program; "
                              "the Rerun web viewer was not started")
-    log = tempfile.TemporaryFile()
-    process = subprocess.Popen([rerun_executable(), "--serve-web", "--bind", HOST, "--port",
-                                str(grpc_port), "--web-viewer-port", str(web_port),
-                                *map(str, files)],
-                               stdout=log, stderr=subprocess.STDOUT)
-    deadline = time.monotonic() + START_TIMEOUT_S
-    while process.poll() is None and time.monotonic() < deadline:
-        if _serves_viewer(web_port):
-            break
-        time.sleep(0.2)
-    if process.poll() is not None or not _serves_viewer(web_port):
-        process.kill()
-        process.wait()
-        log.seek(0)
-        lines = [x for x in log.read().decode(errors="replace").splitlines() if x.strip()]
-        reason = lines[-1].strip() if lines else f"no answer within {START_TIMEOUT_S:.0f} s"
-        raise InputError(f"the Rerun web viewer did not start on {HOST}:{web_port}: {reason}")
-    log.close()
+    with tempfile.TemporaryFile() as log:  # the server's output, for a failed start
+        process = subprocess.Popen([rerun_executable(), "--serve-web", "--bind", HOST,
+                                    "--port", str(grpc_port), "--web-viewer-port",
+                                    str(web_port), *map(str, files)],
+                                   stdout=log, stderr=subprocess.STDOUT)
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while process.poll() is None and time.monotonic() < deadline:
+            if _serves_viewer(web_port):
+                break
+            time.sleep(0.2)
+        if process.poll() is not None or not _serves_viewer(web_port):
+            process.kill()
+            process.wait()
+            log.seek(0)
+            lines = [x for x in log.read().decode(errors="replace").splitlines() if x.strip()]
+            reason = lines[-1].strip() if lines else f"no answer in {START_TIMEOUT_S:.0f} s"
+            raise InputError(f"the Rerun web viewer did not start on {HOST}:{web_port}: "
+                             f"{reason}")
     return process, f"rerun+http://{HOST}:{grpc_port}/proxy", viewer_page_url(grpc_port,
                                                                                web_port)
