@@ -70,6 +70,7 @@ BASE_FRAME = "panda_link0"
 JOINT_TRANSFORMS = "robot/joint_transforms"
 ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
 FORCE_ARROW_M_PER_N = 0.01
+FORCE_ARROW_RADIUS_M = 0.006
 CLASS_COLORS = {"none": (160, 160, 160), "bump": (66, 135, 245), "adjust": (60, 180, 75),
                 "shove": (230, 60, 60), "contact": (230, 140, 40),
                 "intentional": (150, 80, 200)}
@@ -164,7 +165,9 @@ def log_robot_model(rec: rr.RecordingStream, urdf_file: str | Path) -> rr.urdf.U
     joints at zero: the fingers stay there) from a URDF; return its tree."""
     tree = rr.urdf.UrdfTree.from_file_path(urdf_file, entity_path_prefix=ROBOT)
     tree.log_urdf_to_recording(rec)
-    rec.log(EE_FORCE, rr.CoordinateFrame(BASE_FRAME), static=True)
+    rec.log(EE_FORCE, rr.CoordinateFrame(BASE_FRAME),
+            rr.Arrows3D.from_fields(colors=[ESTIMATE_COLOR], radii=[FORCE_ARROW_RADIUS_M]),
+            static=True)
     return tree
 
 

@@ -125,8 +125,10 @@ def _capture(cdp, clip: dict | None = None) -> bytes:
     return base64.b64decode(cdp.send("Page.captureScreenshot", params)["data"])
 
 
-def check_recording(browser, rrd: Path, out: Path, timeout_s: float) -> Finding:
-    """Serve ``rrd``, open it in ``browser`` and return what the viewer showed."""
+def check_recording(browser, rrd: Path, out: Path, timeout_s: float,
+                    at_s: float | None = None) -> Finding:
+    """Serve ``rrd``, open it in ``browser`` (the time cursor at ``at_s`` [s] when given)
+    and return what the viewer showed."""
     grpc_port, web_port = free_port(), free_port()
     server, _, _ = start_web_viewer(grpc_port, web_port, files=[rrd])
     shot = out / f"{rrd.stem}.png"
@@ -138,7 +140,8 @@ def check_recording(browser, rrd: Path, out: Path, timeout_s: float) -> Finding:
     try:
         cdp = page.context.new_cdp_session(page)
         started = time.monotonic()
-        page.goto(viewer_page_url(grpc_port, web_port, renderer="webgl"))
+        url = viewer_page_url(grpc_port, web_port, renderer="webgl")
+        page.goto(url + (f"#when=time@{at_s}s" if at_s is not None else ""))
         shots: list[bytes] = []
         while time.monotonic() - started < timeout_s:
             time.sleep(POLL_S)
@@ -188,7 +191,7 @@ def check_report(browser, report: Path, out: Path) -> Finding:
 
 
 def run(recordings: list[Path], reports: list[Path], out: Path, timeout_s: float,
-        chromium: str) -> list[Finding]:
+        chromium: str, at_s: float | None = None) -> list[Finding]:
     """Check every recording and report in one browser; return the findings."""
     from playwright.sync_api import sync_playwright
 
@@ -198,7 +201,7 @@ def run(recordings: list[Path], reports: list[Path], out: Path, timeout_s: float
         browser = playwright.chromium.launch(executable_path=chromium, args=CHROMIUM_FLAGS)
         try:
             for rrd in recordings:
-                findings.append(check_recording(browser, rrd, out, timeout_s))
+                findings.append(check_recording(browser, rrd, out, timeout_s, at_s))
                 print(_line(findings[-1]), flush=True)
             for report in reports:
                 findings.append(check_report(browser, report, out))
@@ -229,6 +232,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="directory for screenshots and viewer_check.json")
     parser.add_argument("--timeout", type=float, default=240.0,
                         help="seconds to wait for one recording to load")
+    parser.add_argument("--at", type=float, default=None,
+                        help="put the time cursor here [s] (default: the end)")
     args = parser.parse_args(argv)
     missing = [p for p in [*args.recordings, *args.report] if not p.is_file()]
     if missing or not (args.recordings or args.report):
@@ -247,7 +252,8 @@ def main(argv: list[str] | None = None) -> int:
               "'contactkit[browser]')", file=sys.stderr)
         return 2
     try:
-        findings = run(args.recordings, args.report, args.out, args.timeout, chromium)
+        findings = run(args.recordings, args.report, args.out, args.timeout, chromium,
+                       args.at)
     except InputError as err:
         print(f"viewer_check: error: {err}", file=sys.stderr)
         return 2

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import shutil
 import socket
@@ -47,7 +48,18 @@ def free_port(host: str = HOST) -> int:
 
 
 def rerun_executable() -> str:
-    """Return the path of the ``rerun`` command that ships with the installed SDK."""
+    """Return the path of the ``rerun`` viewer binary that ships with the installed SDK.
+
+    The binary itself, not the ``rerun`` script in front of it: the script runs the
+    binary as a child process, which would outlive a terminated script.
+    """
+    if os.environ.get("RERUN_CLI_PATH"):
+        return os.environ["RERUN_CLI_PATH"]
+    spec = importlib.util.find_spec("rerun_cli")
+    if spec is not None and spec.origin is not None:
+        binary = Path(spec.origin).parent / ("rerun.exe" if sys.platform == "win32" else "rerun")
+        if binary.is_file():
+            return str(binary)
     return shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
 
 
