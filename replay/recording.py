@@ -45,6 +45,7 @@ def log_static(rec: rr.RecordingStream, stream: ReplayStream) -> rr.urdf.UrdfTre
     session = stream.session
     layout.log_series_styles(rec, stream.classes)
     tree = layout.log_robot_model(rec, viewer_urdf_file(session.meta.with_hand))
+    layout.log_force_arrow_style(rec)
     log_session_properties(rec, stream)
     planned = session.meta.planned_at_s
     if planned is not None:

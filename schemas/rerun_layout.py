@@ -165,10 +165,14 @@ def log_robot_model(rec: rr.RecordingStream, urdf_file: str | Path) -> rr.urdf.U
     joints at zero: the fingers stay there) from a URDF; return its tree."""
     tree = rr.urdf.UrdfTree.from_file_path(urdf_file, entity_path_prefix=ROBOT)
     tree.log_urdf_to_recording(rec)
+    return tree
+
+
+def log_force_arrow_style(rec: rr.RecordingStream) -> None:
+    """Log that the force arrow lives in the base frame, and its colour and radius."""
     rec.log(EE_FORCE, rr.CoordinateFrame(BASE_FRAME),
             rr.Arrows3D.from_fields(colors=[ESTIMATE_COLOR], radii=[FORCE_ARROW_RADIUS_M]),
             static=True)
-    return tree
 
 
 def log_joint_transforms(rec: rr.RecordingStream, tree: rr.urdf.UrdfTree, t: np.ndarray,

@@ -50,6 +50,7 @@ CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "chrome")
 ERROR_RED = (236, 0, 79)
 TOP_BAR_PX = 32
 POLL_S = 3.0
+TIME_BAR_PX = (267, 1391, 985)  # the time bar at the bottom at 1600x1000: start, end x; y
 STABLE_SHOTS = 3
 RUST_LOG = re.compile(r"^\s*(ERROR|WARN)\s+(\S+?):?\s(.*)", re.S)
 # Messages that come from this headless set-up, not from the recording.
@@ -126,9 +127,9 @@ def _capture(cdp, clip: dict | None = None) -> bytes:
 
 
 def check_recording(browser, rrd: Path, out: Path, timeout_s: float,
-                    at_s: float | None = None) -> Finding:
-    """Serve ``rrd``, open it in ``browser`` (the time cursor at ``at_s`` [s] when given)
-    and return what the viewer showed."""
+                    cursor: float | None = None) -> Finding:
+    """Serve ``rrd``, open it in ``browser`` and return what the viewer showed; with
+    ``cursor`` (0-1), click the time bar there first."""
     grpc_port, web_port = free_port(), free_port()
     server, _, _ = start_web_viewer(grpc_port, web_port, files=[rrd])
     shot = out / f"{rrd.stem}.png"
@@ -140,8 +141,7 @@ def check_recording(browser, rrd: Path, out: Path, timeout_s: float,
     try:
         cdp = page.context.new_cdp_session(page)
         started = time.monotonic()
-        url = viewer_page_url(grpc_port, web_port, renderer="webgl")
-        page.goto(url + (f"#when=time@{at_s}s" if at_s is not None else ""))
+        page.goto(viewer_page_url(grpc_port, web_port, renderer="webgl"))
         shots: list[bytes] = []
         while time.monotonic() - started < timeout_s:
             time.sleep(POLL_S)
@@ -152,6 +152,11 @@ def check_recording(browser, rrd: Path, out: Path, timeout_s: float,
         else:
             finding.errors.append(f"the viewer did not settle within {timeout_s:.0f} s")
         finding.load_s = round(time.monotonic() - started, 1)
+        if cursor is not None:
+            page.mouse.click(TIME_BAR_PX[0] + cursor * (TIME_BAR_PX[1] - TIME_BAR_PX[0]),
+                             TIME_BAR_PX[2])
+            time.sleep(POLL_S)
+            shots.append(_capture(cdp))
         shot.write_bytes(shots[-1])
         errors, warnings = viewer_messages(console)
         finding.errors += errors
@@ -191,7 +196,7 @@ def check_report(browser, report: Path, out: Path) -> Finding:
 
 
 def run(recordings: list[Path], reports: list[Path], out: Path, timeout_s: float,
-        chromium: str, at_s: float | None = None) -> list[Finding]:
+        chromium: str, cursor: float | None = None) -> list[Finding]:
     """Check every recording and report in one browser; return the findings."""
     from playwright.sync_api import sync_playwright
 
@@ -201,7 +206,7 @@ def run(recordings: list[Path], reports: list[Path], out: Path, timeout_s: float
         browser = playwright.chromium.launch(executable_path=chromium, args=CHROMIUM_FLAGS)
         try:
             for rrd in recordings:
-                findings.append(check_recording(browser, rrd, out, timeout_s, at_s))
+                findings.append(check_recording(browser, rrd, out, timeout_s, cursor))
                 print(_line(findings[-1]), flush=True)
             for report in reports:
                 findings.append(check_report(browser, report, out))
@@ -232,8 +237,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="directory for screenshots and viewer_check.json")
     parser.add_argument("--timeout", type=float, default=240.0,
                         help="seconds to wait for one recording to load")
-    parser.add_argument("--at", type=float, default=None,
-                        help="put the time cursor here [s] (default: the end)")
+    parser.add_argument("--cursor", type=float, default=None,
+                        help="move the time cursor to this fraction (0-1) of the recording "
+                             "before the screenshot (default: the end)")
     args = parser.parse_args(argv)
     missing = [p for p in [*args.recordings, *args.report] if not p.is_file()]
     if missing or not (args.recordings or args.report):
@@ -253,7 +259,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         findings = run(args.recordings, args.report, args.out, args.timeout, chromium,
-                       args.at)
+                       args.cursor)
     except InputError as err:
         print(f"viewer_check: error: {err}", file=sys.stderr)
         return 2
