@@ -5,6 +5,8 @@ or block by block (every hop) during a paced replay, where the viewer updates li
 Both send the same values at the same time stamps. Every time series is logged at
 the full sample rate; the 3-D robot and its force arrow are animated at about
 60 Hz (every n-th sample), which is all a 3-D view needs and keeps files small.
+:func:`log_contact_events` is where the contact-event pipeline hands over its events
+(one state-timeline bar each) and detector thresholds (lines on the residual plot).
 """
 
 from __future__ import annotations
