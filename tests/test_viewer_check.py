@@ -18,6 +18,7 @@ TOOL = Path(__file__).resolve().parents[1] / "tools" / "viewer_check.py"
 def _load_tool():
     spec = importlib.util.spec_from_file_location("viewer_check", TOOL)
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up while defining
     spec.loader.exec_module(module)
     return module
 
