@@ -4,12 +4,15 @@ PY      := $(VENV)/bin/python
 STAMP   := $(VENV)/.installed-stamp
 DEMO    := demo
 
-.PHONY: install test lint demo clean
+CHECK   := viewer-check
+GAZ     := ../shared/reference/gaz2019-exciting-traj
+
+.PHONY: install test lint demo viewer-check chromium clean
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[dev,nn]"
+	$(PY) -m pip install --quiet -e ".[dev,nn,browser]"
 	# the franka source's tests need a simulated robot; they skip where it does not install
 	-$(PY) -m pip install --quiet -e ".[sim-robot]" || echo "franky-sim/pylibfranka not installable here: franka source tests will skip"
 	touch $(STAMP)
@@ -19,8 +22,17 @@ install: $(STAMP)
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
-test: $(STAMP) lint
+test: $(STAMP) lint chromium
 	$(PY) -m pytest -q -n 2 -m "not slow"
+
+# The browser check needs a system Chromium: installed here when running as root with
+# apt-get; otherwise (or when that fails) the browser test skips and says why.
+chromium:
+	@command -v chromium >/dev/null || command -v chromium-browser >/dev/null \
+	  || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null \
+	       && (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+	           chromium >/dev/null) ; } \
+	  || echo "chromium not installed: the browser check will be skipped"
 
 # Record a simulated adjust on link 5, show it, replay it through the default model
 # (built and cached on first use) into demo.rrd, and open the viewer when there is a display.
@@ -32,5 +44,17 @@ demo: $(STAMP)
 	  && $(VENV)/bin/recorder info $$session \
 	  && $(VENV)/bin/replay $$session --viewer rerun --save demo.rrd
 
+# Open the demo replay, a replay of the real Gaz et al. log (imported as a session) and a
+# stats report in headless Chromium; fail on any viewer error. Screenshots in $(CHECK)/.
+viewer-check: demo chromium
+	@rm -rf $(CHECK)/real && mkdir -p $(CHECK)
+	@real=$$($(VENV)/bin/recorder import-arrays --t $(GAZ)/time.txt --q $(GAZ)/positions.txt \
+	    --dq $(GAZ)/velocity.txt --tau $(GAZ)/torques.txt --meta with_hand=false \
+	    --meta planned_at_s=10 --out $(CHECK)/real) \
+	  && $(VENV)/bin/replay $$real --viewer none --save $(CHECK)/real.rrd \
+	  && $(VENV)/bin/recorder stats $(DEMO) --out $(CHECK)/report \
+	  && $(PY) tools/viewer_check.py demo.rrd $(CHECK)/real.rrd \
+	       --report $(CHECK)/report.html --out $(CHECK)
+
 clean:
-	rm -rf $(DEMO) demo.rrd .pytest_cache .ruff_cache
+	rm -rf $(DEMO) demo.rrd $(CHECK) .pytest_cache .ruff_cache

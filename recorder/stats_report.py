@@ -1,8 +1,10 @@
 """Rendering a statistics report: plots, terminal summary, HTML, Markdown or JSON.
 
-HTML is one self-contained file (plots embedded as PNG data); Markdown comes with
-its PNGs beside it; JSON (``schemas/stats_report.schema.json``) is for machines.
-Tables are Polars data frames rendered by Polars.
+HTML is one self-contained file (plots embedded as PNG data) with plain styled
+tables; Markdown comes with its PNGs beside it; JSON
+(``schemas/stats_report.schema.json``) is for machines. Tables are built as Polars
+data frames and rendered here, numbers formatted with the unit in the column
+header. Plots use the viewer's class colours (:mod:`contactkit.schemas.rerun_layout`).
 """
 
 from __future__ import annotations
@@ -24,14 +26,42 @@ from rich.table import Table
 
 from contactkit.recorder.stats_deep import PROFILE_T
 from contactkit.schemas import ACTIONS
-from contactkit.schemas.rerun_layout import CLASS_COLORS
+from contactkit.schemas.rerun_layout import CLASS_COLORS, JOINT_COLORS
 from contactkit.util.paths import atomic_write_bytes, atomic_write_text
 
 FORMATS = ("html", "md", "json")
 
 
+NEUTRAL = "#707070"
+PAGE_STYLE = (
+    "body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;color:#222;"
+    "line-height:1.45}h1{font-size:1.6em}h2{font-size:1.2em;margin-top:1.8em;"
+    "border-bottom:1px solid #ddd;padding-bottom:.2em}table{border-collapse:collapse;"
+    "margin:.5em 0;font-size:.92em}th,td{padding:.3em .8em;border-bottom:1px solid #e4e4e4}"
+    "th{background:#f3f3f3;text-align:left;font-weight:600}td.num{text-align:right;"
+    "font-variant-numeric:tabular-nums}tr:hover td{background:#fafafa}img{max-width:100%}"
+    "code{background:#f3f3f3;padding:0 .2em}")
+
+
 def _color(action: str) -> tuple[float, float, float]:
     return tuple(c / 255 for c in CLASS_COLORS.get(action, (0, 0, 0)))
+
+
+def report_path(out: Path, fmt: str) -> Path:
+    """Return ``out`` with the format's extension added when it has none."""
+    return out if out.suffix else out.with_name(f"{out.name}.{fmt}")
+
+
+def format_cell(value, column: str) -> str:
+    """Return a table cell as text: shares in percent, floats to 4 significant digits,
+    nothing for a missing value."""
+    if value is None or (isinstance(value, float) and np.isnan(value)):
+        return "–"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{100 * value:.0f}" if column.endswith("[%]") else f"{value:.4g}"
+    return str(value)
 
 
 def make_plots(report: dict) -> list[tuple[str, str, bytes]]:
@@ -70,7 +100,7 @@ def make_plots(report: dict) -> list[tuple[str, str, bytes]]:
     durations = report["_private"]["durations"]
     if len(durations):
         fig, ax = plt.subplots(figsize=(6, 3))
-        ax.hist(durations, bins=30, color="#4c72b0")
+        ax.hist(durations, bins=30, color=NEUTRAL)
         ax.set_xlabel("session duration [s]")
         ax.set_ylabel("sessions")
         plots.append(("Durations", "How long the sessions are.", _png(fig)))
@@ -117,7 +147,7 @@ def _deep_plots(summaries: list[dict]) -> list[tuple[str, str, bytes]]:
     axes[0].legend(fontsize=8)
     axes[0].set_title("Difference window method")
     if delays:
-        axes[1].hist(delays, bins=30, color="#8172b2")
+        axes[1].hist(delays, bins=30, color=NEUTRAL)
     axes[1].set_xlabel("detected minus planned onset [s]")
     axes[1].set_title("onset delay")
     plots.append(("Windows", "Left: how often the Difference method (Algorithm 4) found the "
@@ -129,7 +159,10 @@ def _deep_plots(summaries: list[dict]) -> list[tuple[str, str, bytes]]:
                            (axes[1], "max_speed_fraction", "max |dq| / limit"),
                            (axes[2], "max_torque_fraction", "max |tau| / limit")):
         values = np.array([s[key] for s in summaries])
-        ax.boxplot([values[:, j] for j in range(7)], tick_labels=joints)
+        parts = ax.boxplot([values[:, j] for j in range(7)], tick_labels=joints,
+                           patch_artist=True)
+        for patch, color in zip(parts["boxes"], JOINT_COLORS, strict=True):
+            patch.set_facecolor(tuple(c / 255 for c in color))
         ax.set_xlabel("joint")
         ax.set_title(label, fontsize=9)
     plots.append(("Joint limits", "Per session and joint: the closest approach to a position "
@@ -138,7 +171,8 @@ def _deep_plots(summaries: list[dict]) -> list[tuple[str, str, bytes]]:
     none = by_action.get("none") or []
     if none:
         fig, ax = plt.subplots(figsize=(6, 3))
-        ax.bar(joints, np.mean([s["tau_std_nm"] for s in none], axis=0), color="#4c72b0")
+        ax.bar(joints, np.mean([s["tau_std_nm"] for s in none], axis=0),
+               color=[tuple(c / 255 for c in color) for color in JOINT_COLORS])
         ax.set_xlabel("joint")
         ax.set_ylabel("std of tau [Nm]")
         plots.append(("Torque noise baseline", "Thesis section 5.3.5: the standard deviation "
@@ -169,7 +203,8 @@ def _tables(report: dict) -> list[tuple[str, pl.DataFrame]]:
                pl.DataFrame(report["counts"]["static_by_link"])),
               ("Dynamic sessions by speed band [rad/s]",
                pl.DataFrame(report["counts"]["dynamic_by_speed"])),
-              ("Class balance", pl.DataFrame(report["counts"]["by_action"])),
+              ("Class balance", pl.DataFrame(report["counts"]["by_action"]).rename(
+                  {"share": "share [%]"}, strict=False)),
               ("Sources", pl.DataFrame(report["sources"])),
               ("Operators", pl.DataFrame(report["operators"]))]
     deep = report["deep"]
@@ -182,14 +217,14 @@ def _tables(report: dict) -> list[tuple[str, pl.DataFrame]]:
         tables.append(("Difference window method", pl.DataFrame(deep["window_detection"])))
         if deep["noise_baseline"]:
             noise = deep["noise_baseline"]
-            tables.append(("Torque noise of no-contact sessions [Nm]", pl.DataFrame({
-                "joint": list(range(1, 8)), "std over session (thesis 5.3.5)":
-                noise["tau_std_nm"], "white-noise sigma": noise["tau_sigma_nm"]})))
+            tables.append(("Torque noise of no-contact sessions", pl.DataFrame({
+                "joint": list(range(1, 8)), "std over session (thesis 5.3.5) [Nm]":
+                noise["tau_std_nm"], "white-noise sigma [Nm]": noise["tau_sigma_nm"]})))
         limits = deep["joint_limits"]
         tables.append(("Joint-limit proximity", pl.DataFrame({
             "joint": list(range(1, 8)), "min margin [rad]": limits["min_margin_rad"],
-            "max |dq|/limit": limits["max_speed_fraction"],
-            "max |tau|/limit": limits["max_torque_fraction"]})))
+            "max |dq| / limit [%]": limits["max_speed_fraction"],
+            "max |tau| / limit [%]": limits["max_torque_fraction"]})))
     return [(title, table) for title, table in tables if table.height]
 
 
@@ -233,18 +268,28 @@ def print_summary(report: dict, console: Console) -> None:
 
 
 def _markdown_table(frame: pl.DataFrame) -> str:
-    def cell(value) -> str:
-        if isinstance(value, float):
-            return f"{value:.4g}"
-        return "" if value is None else str(value)
-
     lines = ["| " + " | ".join(frame.columns) + " |", "|" + "---|" * frame.width]
-    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in frame.iter_rows()]
+    lines += ["| " + " | ".join(format_cell(v, c) for v, c in zip(row, frame.columns,
+                                                                  strict=True)) + " |"
+              for row in frame.iter_rows()]
     return "\n".join(lines)
 
 
+def _html_table(frame: pl.DataFrame) -> str:
+    numeric = [dtype.is_numeric() for dtype in frame.dtypes]
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in frame.columns)
+    rows = []
+    for row in frame.iter_rows():
+        cells = "".join(f"<td{' class=num' if n else ''}>{html.escape(format_cell(v, c))}</td>"
+                        for v, c, n in zip(row, frame.columns, numeric, strict=True))
+        rows.append(f"<tr>{cells}</tr>")
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
+
+
 def write_report(report: dict, out: Path, fmt: str) -> Path:
-    """Write the report in ``fmt`` (html, md or json) to ``out``; return the path."""
+    """Write the report in ``fmt`` (html, md or json) to ``out`` (the format's extension
+    added when it has none); return the path written."""
+    out = report_path(out, fmt)
     if fmt == "json":
         return atomic_write_text(out, json.dumps(public(report), indent=2, default=float))
     plots = make_plots(report)
@@ -272,12 +317,12 @@ def write_report(report: dict, out: Path, fmt: str) -> Path:
              for p in problems] or ["<li>none</li>"]
     body.append("</ul>")
     for title, table in _tables(report):
-        body += [f"<h2>{html.escape(title)}</h2>", table._repr_html_()]
+        body += [f"<h2>{html.escape(title)}</h2>", _html_table(table)]
     for title, caption, png in plots:
         data = base64.b64encode(png).decode()
         body += [f"<h2>{html.escape(title)}</h2>", f"<p>{html.escape(caption)}</p>",
                  f'<img alt="{html.escape(title)}" src="data:image/png;base64,{data}">']
     page = ("<!doctype html><html><head><meta charset='utf-8'><title>contactkit dataset "
-            "report</title><style>body{font-family:sans-serif;max-width:1100px;margin:auto}"
-            "img{max-width:100%}</style></head><body>" + "\n".join(body) + "</body></html>")
+            f"report</title><style>{PAGE_STYLE}</style></head><body>" + "\n".join(body)
+            + "</body></html>")
     return atomic_write_text(out, page)

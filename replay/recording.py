@@ -5,11 +5,15 @@ or block by block (every hop) during a paced replay, where the viewer updates li
 Both send the same values at the same time stamps. Every time series is logged at
 the full sample rate; the 3-D robot and its force arrow are animated at about
 60 Hz (every n-th sample), which is all a 3-D view needs and keeps files small.
+:func:`log_contact_events` is where the contact-event pipeline hands over its events
+(one state-timeline bar each) and detector thresholds (lines on the residual plot).
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +47,7 @@ def log_static(rec: rr.RecordingStream, stream: ReplayStream) -> rr.urdf.UrdfTre
     session = stream.session
     layout.log_series_styles(rec, stream.classes)
     tree = layout.log_robot_model(rec, viewer_urdf_file(session.meta.with_hand))
+    layout.log_force_arrow_style(rec)
     log_session_properties(rec, stream)
     planned = session.meta.planned_at_s
     if planned is not None:
@@ -72,7 +77,8 @@ def log_block(rec: rr.RecordingStream, tree: rr.urdf.UrdfTree, stream: ReplayStr
         layout.log_scalar_columns(rec, layout.RESIDUAL, t, sample, stream.r[s])
         layout.log_scalar_columns(rec, layout.FORCE, t, sample, stream.force[s])
         layout.log_scalar_columns(rec, layout.MOMENT, t, sample, stream.moment[s])
-        layout.log_scalar_columns(rec, layout.WRENCH_NORM, t, sample, stream.norms[s])
+        layout.log_scalar_columns(rec, layout.FORCE_NORM, t, sample, stream.norms[s][:, :1])
+        layout.log_scalar_columns(rec, layout.MOMENT_NORM, t, sample, stream.norms[s][:, 1:])
         keep = sample % stream.robot_stride == 0
         if keep.any():
             layout.log_joint_transforms(rec, tree, t[keep], sample[keep], session.q[s][keep])
@@ -95,10 +101,8 @@ def log_offline(rec: rr.RecordingStream, stream: ReplayStream, answer: OfflineAn
     k0 = int(np.searchsorted(t, window.start_s))
     k1 = min(int(np.searchsorted(t, window.end_s)), len(t) - 1)
     how = "detected onset" if window.found else "planned time (nothing detected)"
-    rec.send_columns(layout.WINDOW,
-                     indexes=layout.time_columns(np.array([window.start_s, window.end_s]),
-                                                 np.array([k0, k1])),
-                     columns=rr.StateChange.columns(state=["window", None]))
+    layout.log_state_spans(rec, layout.WINDOW, np.array([window.start_s]),
+                           np.array([window.end_s]), ["window"], np.array([k0]), np.array([k1]))
     layout.text_event(rec, layout.WINDOW, window.start_s, k0,
                       f"{window.method} window {window.start_s:.3f}-{window.end_s:.3f} s "
                       f"from the {how}")
@@ -106,6 +110,47 @@ def log_offline(rec: rr.RecordingStream, stream: ReplayStream, answer: OfflineAn
                                                      strict=True))
     layout.text_event(rec, layout.OFFLINE_LABEL, window.end_s, k1,
                       f"offline label: {answer.label} ({probs})")
+
+
+@dataclass(frozen=True)
+class ContactEvent:
+    """One contact as the event pipeline decides it: onset, decision and release time
+    [s] and the decided label."""
+
+    onset_s: float
+    decision_s: float
+    release_s: float
+    label: str
+
+
+def log_contact_events(rec: rr.RecordingStream, t: np.ndarray,
+                       events: Sequence[ContactEvent],
+                       thresholds: Mapping[str, float] | None = None) -> None:
+    """Log each contact event as one bar (onset to release) labelled with its decision in
+    the state timeline, a text event at its decision time, and each detector threshold
+    [Nm] as a constant line over the session (times ``t`` [s]) on the residual plot."""
+    t = np.asarray(t, dtype=float)
+
+    def sample_at(times: np.ndarray) -> np.ndarray:
+        return np.minimum(np.searchsorted(t, times), len(t) - 1)
+
+    if events:
+        onset = np.array([e.onset_s for e in events])
+        release = np.array([e.release_s for e in events])
+        layout.log_state_spans(rec, layout.CONTACT_EVENTS, onset, release,
+                               [e.label for e in events], sample_at(onset), sample_at(release))
+        for event in events:
+            layout.text_event(rec, layout.CONTACT_EVENTS, event.decision_s,
+                              int(sample_at(np.array([event.decision_s]))[0]),
+                              f"contact {event.onset_s:.2f}-{event.release_s:.2f} s: "
+                              f"{event.label} (decided at {event.decision_s:.2f} s)")
+    if thresholds:
+        names = list(thresholds)
+        rec.log(layout.THRESHOLD, rr.SeriesLines(names=names, colors=[layout.THRESHOLD_COLOR]
+                                                 * len(names)), static=True)
+        ends = np.array([t[0], t[-1]])
+        layout.log_scalar_columns(rec, layout.THRESHOLD, ends, np.array([0, len(t) - 1]),
+                                  np.tile([thresholds[n] for n in names], (2, 1)))
 
 
 def save_path_for(save: Path, session_path: Path, many: bool) -> Path:

@@ -113,7 +113,7 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
     session = read_session(path)
     stream = ReplayStream(session, model, hop_s, detector, decide_after_s)
     rec = new_recording(Path(path).stem, session.meta.session_id)
-    blueprint = layout.replay_blueprint()
+    blueprint = layout.replay_blueprint(float(session.t[-1]))
     if save is not None:
         rec.save(save, default_blueprint=blueprint)
     try:

@@ -10,21 +10,34 @@ entity                                content
 ``joints/tau``
 ``observer/residual``                 momentum-observer residual r, 7 series [Nm]
 ``wrench/force``, ``wrench/moment``   estimated end-effector wrench [N], [Nm]
-``wrench/magnitude``                  |f| [N] and |m| [Nm]
+``wrench/force_magnitude``            estimated |f| [N]
+``wrench/moment_magnitude``           estimated |m| [Nm]
+``observer/threshold``                contact-detector thresholds [Nm] (hook)
 ``classifier/probability``            class probabilities over time
 ``classifier/predicted``              predicted class, a state timeline
 ``events/planned``                    planned interaction time (text event)
 ``events/window``                     the offline window, a state lane
+``events/contact``                    contact events, one bar each with its label
 ``events/offline_label``              the offline label at the window end
 ``ground_truth/force``                applied force [N] (simulated sessions)
 ``ground_truth/contact``              contact on/off, a state lane
 ``ground_truth/action``               the recorded action (text event)
 ``capture/cue``                       operator cue countdown (capture only)
 ``robot/...``                         the Panda from its URDF, joints animated
-``ee_force``                          arrow: estimated end-effector force (1 cm/N)
+``ee_force``                          arrow: estimated end-effector force (1 cm/N),
+                                      in the base frame ``panda_link0``
 ====================================  ==========================================
 
 Session metadata goes into the recording properties (``session``).
+
+Frames: the URDF logger names each link's frame after the link (``panda_link0`` is
+the root) and defines every joint's transform once, statically, on ``/tf_static``;
+the arm joints are animated on ``robot/joint_transforms/<joint>`` (a temporal
+definition of the same child frame, which Rerun allows beside one static one).
+Nothing else defines a link frame. Data in the base frame say so with
+``CoordinateFrame``.
+
+The class colours here are the project's palette: the stats report uses them too.
 """
 
 from __future__ import annotations
@@ -32,6 +45,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import rerun as rr
 import rerun.blueprint as rrb
 import rerun.urdf
@@ -41,22 +55,35 @@ SAMPLE = "sample"
 JOINT_NAMES = [f"joint {i}" for i in range(1, 8)]
 Q, DQ, TAU = "joints/q", "joints/dq", "joints/tau"
 RESIDUAL = "observer/residual"
-FORCE, MOMENT, WRENCH_NORM = "wrench/force", "wrench/moment", "wrench/magnitude"
+FORCE, MOMENT = "wrench/force", "wrench/moment"
+FORCE_NORM, MOMENT_NORM = "wrench/force_magnitude", "wrench/moment_magnitude"
+THRESHOLD = "observer/threshold"
 PROBABILITY, PREDICTED = "classifier/probability", "classifier/predicted"
 PLANNED, WINDOW, OFFLINE_LABEL = "events/planned", "events/window", "events/offline_label"
+CONTACT_EVENTS = "events/contact"
 TRUE_FORCE, TRUE_CONTACT, TRUE_ACTION = ("ground_truth/force", "ground_truth/contact",
                                          "ground_truth/action")
 CUE = "capture/cue"
 ROBOT = "robot"
 EE_FORCE = "ee_force"
+BASE_FRAME = "panda_link0"
 JOINT_TRANSFORMS = "robot/joint_transforms"
 ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
 FORCE_ARROW_M_PER_N = 0.01
+FORCE_ARROW_RADIUS_M = 0.006
 CLASS_COLORS = {"none": (160, 160, 160), "bump": (66, 135, 245), "adjust": (60, 180, 75),
                 "shove": (230, 60, 60), "contact": (230, 140, 40),
                 "intentional": (150, 80, 200)}
 JOINT_COLORS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40),
                 (148, 103, 189), (140, 86, 75), (227, 119, 194)]
+AXIS_COLORS = [(200, 70, 50), (60, 150, 60), (50, 100, 200)]  # x, y, z
+ESTIMATE_COLOR = (20, 20, 20)
+THRESHOLD_COLOR = (120, 120, 120)
+CONTACT_COLORS = {"contact": (230, 140, 40), "free": (205, 205, 205)}
+WINDOW_COLOR = (90, 170, 200)
+LEGEND_ROOM = 0.2  # time axes run this fraction of the session past its end: the legends' room
+CAMERA = {"position": (1.1, -0.9, 0.8), "look_target": (0.3, 0.0, 0.45),
+          "eye_up": (0.0, 0.0, 1.0)}  # [m] in the base frame: frames the whole arm
 
 
 def time_columns(t: np.ndarray, sample: np.ndarray) -> list[rr.TimeColumn]:
@@ -65,26 +92,46 @@ def time_columns(t: np.ndarray, sample: np.ndarray) -> list[rr.TimeColumn]:
             rr.TimeColumn(SAMPLE, sequence=np.asarray(sample, dtype=np.int64))]
 
 
+def _colors(classes: list[str]) -> list[tuple[int, int, int]]:
+    return [CLASS_COLORS.get(c, (0, 0, 0)) for c in classes]
+
+
 def log_series_styles(rec: rr.RecordingStream, classes: list[str] | None = None) -> None:
-    """Log static names and colours of every series (call once per recording)."""
+    """Log static names and colours of every series and state lane (once per recording)."""
     for path in (Q, DQ, TAU, RESIDUAL):
         rec.log(path, rr.SeriesLines(names=JOINT_NAMES, colors=JOINT_COLORS), static=True)
     for path, names in ((FORCE, ["f_x", "f_y", "f_z"]), (MOMENT, ["m_x", "m_y", "m_z"]),
-                        (WRENCH_NORM, ["|f| [N]", "|m| [Nm]"]),
-                        (TRUE_FORCE, ["f_x", "f_y", "f_z"])):
-        rec.log(path, rr.SeriesLines(names=names, colors=JOINT_COLORS[:len(names)]),
-                static=True)
-    if classes:
-        rec.log(PROBABILITY, rr.SeriesLines(names=classes,
-                                            colors=[CLASS_COLORS.get(c, (0, 0, 0))
-                                                    for c in classes]), static=True)
-        state_config = rr.StateConfiguration(values=classes, labels=classes,
-                                             colors=[CLASS_COLORS.get(c, (0, 0, 0))
-                                                     for c in classes])
-        rec.log(PREDICTED, state_config, static=True)
-    rec.log(TRUE_CONTACT, rr.StateConfiguration(values=["contact", "free"],
-                                                colors=[(230, 60, 60), (200, 200, 200)]),
+                        (TRUE_FORCE, ["applied f_x", "applied f_y", "applied f_z"])):
+        rec.log(path, rr.SeriesLines(names=names, colors=AXIS_COLORS), static=True)
+    rec.log(FORCE_NORM, rr.SeriesLines(names=["estimated |f|"], colors=[ESTIMATE_COLOR],
+                                       widths=[2.0]), static=True)
+    rec.log(MOMENT_NORM, rr.SeriesLines(names=["estimated |m|"], colors=[ESTIMATE_COLOR]),
             static=True)
+    if classes:
+        rec.log(PROBABILITY, rr.SeriesLines(names=classes, colors=_colors(classes)),
+                static=True)
+        rec.log(PREDICTED, rr.StateConfiguration(values=classes, labels=classes,
+                                                 colors=_colors(classes)), static=True)
+        rec.log(CONTACT_EVENTS, rr.StateConfiguration(values=classes, labels=classes,
+                                                      colors=_colors(classes)), static=True)
+    rec.log(TRUE_CONTACT, rr.StateConfiguration(values=list(CONTACT_COLORS),
+                                                colors=list(CONTACT_COLORS.values())),
+            static=True)
+    rec.log(WINDOW, rr.StateConfiguration(values=["window"], colors=[WINDOW_COLOR]),
+            static=True)
+
+
+def log_state_spans(rec: rr.RecordingStream, path: str, starts: np.ndarray,
+                    stops: np.ndarray, labels: list[str], starts_sample: np.ndarray,
+                    stops_sample: np.ndarray) -> None:
+    """Send one bar per span: state ``labels[i]`` from ``starts[i]`` to ``stops[i]`` [s],
+    then no state (a gap) until the next span."""
+    t = np.column_stack([starts, stops]).ravel()
+    sample = np.column_stack([starts_sample, stops_sample]).ravel()
+    states = pa.array([x for label in labels for x in (label, None)], type=pa.string())
+    order = np.argsort(t, kind="stable")
+    rec.send_columns(path, indexes=time_columns(t[order], sample[order]),
+                     columns=rr.StateChange.columns(state=states.take(pa.array(order))))
 
 
 def log_joint_columns(rec: rr.RecordingStream, t: np.ndarray, sample: np.ndarray,
@@ -114,14 +161,18 @@ def log_ground_truth(rec: rr.RecordingStream, t: np.ndarray, sample: np.ndarray,
 
 
 def log_robot_model(rec: rr.RecordingStream, urdf_file: str | Path) -> rr.urdf.UrdfTree:
-    """Log the robot's geometry and static transforms from a URDF; return its tree."""
+    """Log the robot's geometry and the static transforms of all its joints (movable
+    joints at zero: the fingers stay there) from a URDF; return its tree."""
     tree = rr.urdf.UrdfTree.from_file_path(urdf_file, entity_path_prefix=ROBOT)
     tree.log_urdf_to_recording(rec)
-    for name in ("panda_finger_joint1", "panda_finger_joint2"):
-        joint = tree.get_joint_by_name(name)
-        if joint is not None:
-            rec.log(f"{JOINT_TRANSFORMS}/{name}", joint.compute_transform(0.02), static=True)
     return tree
+
+
+def log_force_arrow_style(rec: rr.RecordingStream) -> None:
+    """Log that the force arrow lives in the base frame, and its colour and radius."""
+    rec.log(EE_FORCE, rr.CoordinateFrame(BASE_FRAME),
+            rr.Arrows3D.from_fields(colors=[ESTIMATE_COLOR], radii=[FORCE_ARROW_RADIUS_M]),
+            static=True)
 
 
 def log_joint_transforms(rec: rr.RecordingStream, tree: rr.urdf.UrdfTree, t: np.ndarray,
@@ -136,7 +187,8 @@ def log_joint_transforms(rec: rr.RecordingStream, tree: rr.urdf.UrdfTree, t: np.
 
 def log_force_arrows(rec: rr.RecordingStream, t: np.ndarray, sample: np.ndarray,
                      origins: np.ndarray, forces: np.ndarray) -> None:
-    """Send arrows for forces [N] (N, 3) at points [m] (N, 3), 1 cm per N."""
+    """Send arrows for forces [N] (N, 3) at points [m] (N, 3), both in the base frame,
+    1 cm per N."""
     rec.send_columns(EE_FORCE, indexes=time_columns(t, sample),
                      columns=rr.Arrows3D.columns(origins=origins,
                                                  vectors=forces * FORCE_ARROW_M_PER_N))
@@ -150,52 +202,75 @@ def text_event(rec: rr.RecordingStream, path: str, t: float, sample: int, text: 
     rec.log(path, rr.TextLog(text, level=level))
 
 
-def signal_views() -> list[rrb.View]:
-    """Return the stacked time-series views shared by capture and replay."""
-    return [
-        rrb.TimeSeriesView(origin=TAU, name="joint torque tau [Nm]",
-                           plot_legend=rrb.Corner2D.RightTop),
-        rrb.TimeSeriesView(origin=DQ, name="joint velocity dq [rad/s]",
-                           plot_legend=rrb.Corner2D.RightTop),
-    ]
+def time_axis(duration_s: float | None) -> rrb.TimeAxis | None:
+    """Return the time axis of the stacked views: 0 to ``duration_s`` [s] plus room on the
+    right for the legends, the same in every view (None: fit to the data)."""
+    if duration_s is None:
+        return None
+    end = duration_s * (1.0 + LEGEND_ROOM)
+    return rrb.TimeAxis(link="Independent", view_range=rr.TimeRange(
+        start=rr.TimeRangeBoundary.absolute(seconds=0.0),
+        end=rr.TimeRangeBoundary.absolute(seconds=end)))
 
 
-def replay_blueprint() -> rrb.Blueprint:
-    """The replay layout: the robot in 3-D beside stacked time series and state lanes."""
+def series_view(origin: str, name: str, duration_s: float | None,
+                contents: list[str] | None = None, axis_y: rrb.ScalarAxis | None = None,
+                legend: bool = True) -> rrb.TimeSeriesView:
+    """Return one stacked time-series view with the shared time axis and its legend in
+    the room right of the data."""
+    return rrb.TimeSeriesView(origin=origin, name=name, contents=contents or "$origin/**",
+                              axis_x=time_axis(duration_s), axis_y=axis_y,
+                              plot_legend=rrb.PlotLegend(rrb.Corner2D.RightTop,
+                                                         visible=legend))
+
+
+def robot_view(name: str, contents: list[str]) -> rrb.Spatial3DView:
+    """Return the 3-D view of the robot, its camera framing the whole arm."""
+    return rrb.Spatial3DView(origin="/", contents=contents, name=name,
+                             eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital,
+                                                            **CAMERA))
+
+
+def replay_blueprint(duration_s: float | None = None) -> rrb.Blueprint:
+    """The replay layout: the robot in 3-D beside stacked time series and state lanes,
+    on one time axis of ``duration_s`` [s] (None: each fits its data)."""
     right = rrb.Vertical(
-        *signal_views()[:1],
-        rrb.TimeSeriesView(origin=RESIDUAL, name="observer residual r [Nm]",
-                           plot_legend=rrb.Corner2D.RightTop),
-        rrb.TimeSeriesView(origin="wrench", contents=[f"+ {WRENCH_NORM}", f"+ {TRUE_FORCE}"],
-                           name="estimated |f|, |m| and applied force [N]"),
-        rrb.TimeSeriesView(origin=PROBABILITY, name="class probability",
-                           axis_y=rrb.ScalarAxis(range=(0.0, 1.0)),
-                           plot_legend=rrb.Corner2D.RightTop),
-        rrb.StateTimelineView(origin="/", contents=[f"+ {PREDICTED}", f"+ {TRUE_CONTACT}",
-                                                    f"+ {WINDOW}"],
-                              name="predicted class, contact, window"),
-        row_shares=[3, 3, 2, 2, 1.5],
+        series_view(TAU, "joint torque tau [Nm]", duration_s),
+        series_view("observer", "observer residual r [Nm] (joint colours as above)",
+                    duration_s, contents=[f"+ {RESIDUAL}", f"+ {THRESHOLD}"], legend=False),
+        series_view("/", "estimated |f| and applied force [N]", duration_s,
+                    contents=[f"+ {FORCE_NORM}", f"+ {TRUE_FORCE}"]),
+        series_view(PROBABILITY, "class probability", duration_s,
+                    axis_y=rrb.ScalarAxis(range=(-0.05, 1.05), zoom_lock=True)),
+        rrb.StateTimelineView(origin="/", contents=[f"+ {PREDICTED}", f"+ {CONTACT_EVENTS}",
+                                                    f"+ {TRUE_CONTACT}", f"+ {WINDOW}"],
+                              name="predicted class, contact events, true contact, window",
+                              time_view=time_axis(duration_s)),
+        row_shares=[4.8, 2.8, 3.3, 3.3, 3.8],  # room for 7 legend rows and 4 state lanes
     )
     left = rrb.Vertical(
-        rrb.Spatial3DView(origin="/", contents=[f"+ {ROBOT}/**", f"+ {EE_FORCE}",
-                                                f"- {ROBOT}/**/collision_geometries/**"],
-                          name="Panda and estimated end-effector force"),
+        robot_view("Panda and estimated end-effector force (1 cm per N)",
+                   [f"+ {ROBOT}/**", f"+ {EE_FORCE}"]),
         rrb.TextLogView(origin="events", name="events"),
         row_shares=[4, 1],
     )
     return rrb.Blueprint(rrb.Horizontal(left, right, column_shares=[2, 3]),
+                         rrb.BlueprintPanel(state="collapsed"),
                          rrb.SelectionPanel(state="collapsed"),
                          rrb.TimePanel(state="collapsed"))
 
 
-def capture_blueprint() -> rrb.Blueprint:
-    """The capture layout: the same signal views, the robot and the cue."""
-    right = rrb.Vertical(*signal_views(),
-                         rrb.TimeSeriesView(origin=Q, name="joint position q [rad]"),
-                         rrb.TimeSeriesView(origin=TRUE_FORCE, name="applied force [N]"))
-    left = rrb.Vertical(rrb.Spatial3DView(origin="/", contents=[
-                            f"+ {ROBOT}/**", f"- {ROBOT}/**/collision_geometries/**"],
-                                          name="Panda"),
+def capture_blueprint(duration_s: float | None = None) -> rrb.Blueprint:
+    """The capture layout: the robot and the operator cue beside joint torque,
+    velocity, position and the applied force, on one time axis of ``duration_s`` [s]."""
+    right = rrb.Vertical(series_view(TAU, "joint torque tau [Nm]", duration_s),
+                         series_view(DQ, "joint velocity dq [rad/s]", duration_s),
+                         series_view(Q, "joint position q [rad]", duration_s),
+                         series_view(TRUE_FORCE, "applied force [N]", duration_s))
+    left = rrb.Vertical(robot_view("Panda", [f"+ {ROBOT}/**"]),
                         rrb.TextLogView(origin="capture", name="operator cue"),
                         row_shares=[4, 1])
-    return rrb.Blueprint(rrb.Horizontal(left, right, column_shares=[2, 3]))
+    return rrb.Blueprint(rrb.Horizontal(left, right, column_shares=[2, 3]),
+                         rrb.BlueprintPanel(state="collapsed"),
+                         rrb.SelectionPanel(state="collapsed"),
+                         rrb.TimePanel(state="collapsed"))

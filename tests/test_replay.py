@@ -3,32 +3,39 @@
 from __future__ import annotations
 
 import json
+import socket
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+import rerun as rr
 import rerun.chunk as rc
 
 from contactkit.classify.data import load_features
 from contactkit.classify.modelfile import load_model, save_model
 from contactkit.classify.registry import get_kind, make_estimator
+from contactkit.errors import InputError
+from contactkit.features.dynamics import viewer_urdf_file
 from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import scalar_features
 from contactkit.features.timeseries import TimeseriesChain, columns_of
 from contactkit.replay import cli as replay_cli
+from contactkit.replay.recording import ContactEvent, log_contact_events
 from contactkit.replay.session_replay import replay_sessions
 from contactkit.schemas import read_session
 from contactkit.schemas import rerun_layout as layout
 from contactkit.schemas.session import METADATA_KEY
 from contactkit.util.cli import run_app
+from contactkit.util.viewer import WEB_PORT, free_port, start_web_viewer
 from tests.conftest import make_dataset, make_session, run_cli
+from tests.rrd_frames import assert_frames_ok, frame_problems
 
 ENTITIES = [layout.Q, layout.DQ, layout.TAU, layout.RESIDUAL, layout.FORCE, layout.MOMENT,
-            layout.WRENCH_NORM, layout.PROBABILITY, layout.PREDICTED, layout.PLANNED,
-            layout.WINDOW, layout.OFFLINE_LABEL, layout.TRUE_FORCE, layout.TRUE_CONTACT,
-            layout.TRUE_ACTION, layout.EE_FORCE,
+            layout.FORCE_NORM, layout.MOMENT_NORM, layout.PROBABILITY, layout.PREDICTED,
+            layout.PLANNED, layout.WINDOW, layout.OFFLINE_LABEL, layout.TRUE_FORCE,
+            layout.TRUE_CONTACT, layout.TRUE_ACTION, layout.EE_FORCE,
             *[f"{layout.JOINT_TRANSFORMS}/panda_joint{i}" for i in range(1, 8)]]
 
 
@@ -75,6 +82,7 @@ def replayed(tmp_path_factory, session, model_path) -> Path:
     result = run_cli("replay", str(session), "--viewer", "none", "--save", str(out), "--model",
                      str(model_path))
     assert result.returncode == 0, result.stderr
+    assert_frames_ok(out)
     return out
 
 
@@ -85,7 +93,8 @@ def test_every_entity_exists_with_one_row_per_sample(replayed, session) -> None:
     assert any(k.startswith("static:robot/") and "visual_geometries" in k for k in data)
     assert "static:__properties/session" in data
     n = read_session(session).n_samples
-    for entity in (layout.Q, layout.DQ, layout.TAU, layout.RESIDUAL, layout.WRENCH_NORM):
+    for entity in (layout.Q, layout.DQ, layout.TAU, layout.RESIDUAL, layout.FORCE_NORM,
+                   layout.MOMENT_NORM):
         assert sum(b.num_rows for b in data[entity]) == n, entity
 
 
@@ -125,6 +134,7 @@ def test_paced_and_max_rate_log_the_same_values(tmp_path, session, model_path,
     result = run_cli("replay", str(session), "--viewer", "none", "--save", str(paced),
                      "--model", str(model_path), "--rate", "20")
     assert result.returncode == 0, result.stderr
+    assert_frames_ok(paced)
     fast, slow = read_rrd(replayed), read_rrd(paced)
     for entity in (layout.Q, layout.TAU, layout.RESIDUAL, layout.FORCE, layout.PROBABILITY,
                    layout.TRUE_FORCE):
@@ -141,13 +151,14 @@ def test_bad_session_is_reported_and_others_still_replay(tmp_path, session, mode
                      str(tmp_path / "out.rrd"), "--model", str(model_path))
     assert result.returncode == 2
     assert f"replay: error: {bad}: not a readable Parquet file" in result.stderr
-    assert (tmp_path / f"out_{session.stem}.rrd").exists()
+    assert_frames_ok(tmp_path / f"out_{session.stem}.rrd")
 
 
 def test_rerun_viewer_without_display_falls_back_to_save(tmp_path, session, model_path) -> None:
     result = run_cli("replay", str(session), "--model", str(model_path), cwd=tmp_path)
     assert result.returncode == 0, result.stderr
-    assert "no display" in result.stderr and (tmp_path / "replay.rrd").exists()
+    assert "no display" in result.stderr
+    assert_frames_ok(tmp_path / "replay.rrd")
     bad = run_cli("replay", str(session), "--viewer", "vr", "--model", str(model_path))
     assert bad.returncode == 2 and "'vr' is not one of" in bad.stderr
     bad = run_cli("replay", str(session), "--rate", "fast", "--model", str(model_path))
@@ -160,6 +171,7 @@ def test_capture_logs_live_with_the_same_layout(tmp_path) -> None:
                      "--duration", "2", "--planned-at", "1", "--rate", "500", "--out",
                      str(tmp_path), "--save-rrd", str(rrd))
     assert result.returncode == 0, result.stderr
+    assert_frames_ok(rrd)
     data = read_rrd(rrd)
     n = read_session(result.stdout.strip()).n_samples
     for entity in (layout.Q, layout.DQ, layout.TAU, layout.TRUE_FORCE):
@@ -204,3 +216,86 @@ def test_refused_input_gives_no_saved_message_and_no_file(tmp_path, session, mod
         assert result.returncode == 2, result.stderr
         assert "Traceback" not in result.stderr and "saved" not in result.stderr
         assert not out.exists(), name
+
+
+def test_window_lane_ends_in_a_gap_not_a_state(replayed) -> None:
+    states = [v for b in read_rrd(replayed)[layout.WINDOW] if "StateChange:state" in
+              b.schema.names for v in b.column("StateChange:state").to_pylist()]
+    assert states == [["window"], [None]]
+
+
+def test_directory_replay_without_hand_has_sound_frames(tmp_path, model_path) -> None:
+    data = tmp_path / "data"
+    data.mkdir()
+    make_session(data, seed=8, action="bump", duration_s=2.0, planned_at_s=1.0, with_hand=False)
+    make_session(data, seed=9, action="none", duration_s=2.0, planned_at_s=1.0)
+    result = run_cli("replay", str(data), "--viewer", "none", "--save",
+                     str(tmp_path / "dir.rrd"), "--model", str(model_path))
+    assert result.returncode == 0, result.stderr
+    written = sorted(tmp_path.glob("dir_*.rrd"))
+    assert len(written) == 2
+    for path in written:
+        assert_frames_ok(path)
+
+
+def test_frame_check_finds_what_the_viewer_reports(tmp_path) -> None:
+    rec = rr.RecordingStream("frames-test")
+    rec.save(tmp_path / "bad.rrd")
+    tree = layout.log_robot_model(rec, viewer_urdf_file(True))
+    finger = tree.get_joint_by_name("panda_finger_joint1")
+    rec.log(f"{layout.JOINT_TRANSFORMS}/panda_finger_joint1", finger.compute_transform(0.02),
+            static=True)
+    rec.log("loose_arrow", rr.Arrows3D(vectors=[[0, 0, 1]]))
+    rec.flush()
+    rec.disconnect()
+    problems = frame_problems(tmp_path / "bad.rrd")
+    assert len(problems) == 2
+    assert "frame 'panda_leftfinger' is defined statically by 2 entities" in problems[0]
+    assert "/loose_arrow: no transform path from 'tf#/loose_arrow'" in problems[1]
+
+
+def test_contact_events_are_bars_and_thresholds_lines(tmp_path) -> None:
+    rec = rr.RecordingStream("events-test")
+    rec.save(tmp_path / "events.rrd")
+    layout.log_series_styles(rec, ["none", "bump", "adjust", "shove"])
+    t = np.linspace(0.0, 4.0, 401)
+    events = [ContactEvent(1.0, 1.2, 1.5, "bump"), ContactEvent(2.5, 2.8, 3.5, "shove")]
+    log_contact_events(rec, t, events, {"onset": 2.0, "release": 1.0})
+    rec.flush()
+    rec.disconnect()
+    data = read_rrd(tmp_path / "events.rrd")
+    lanes = [b for b in data[layout.CONTACT_EVENTS] if "StateChange:state" in b.schema.names]
+    times, states = series(lanes, "StateChange:state")
+    assert np.allclose(times, [1.0, 1.5, 2.5, 3.5])
+    assert [s[0] for s in states] == ["bump", None, "shove", None]
+    texts = [v for b in data[layout.CONTACT_EVENTS] if "TextLog:text" in b.schema.names
+             for v in b.column("TextLog:text").to_pylist()]
+    assert any("shove (decided at 2.80 s)" in str(x) for x in texts)
+    times, values = series(data[layout.THRESHOLD])
+    assert np.allclose(times, [0.0, 4.0]) and np.allclose(values, [[2.0, 1.0], [2.0, 1.0]])
+
+
+def test_web_viewer_refuses_a_port_another_program_holds(tmp_path, session,
+                                                         model_path) -> None:
+    with socket.socket() as other:
+        other.bind(("127.0.0.1", 0))
+        other.listen()
+        port = other.getsockname()[1]
+        with pytest.raises(InputError, match=f"port {port} on 127.0.0.1 is already in use"):
+            start_web_viewer(free_port(), port)
+        holder = socket.socket()
+        try:
+            holder.bind(("127.0.0.1", WEB_PORT))
+            holder.listen()
+        except OSError:
+            pass  # another program holds it already: the same situation
+        try:
+            result = run_cli("replay", str(session), "--viewer", "web", "--model",
+                             str(model_path), timeout=120)
+        finally:
+            holder.close()
+    assert result.returncode == 2
+    assert "http://" not in result.stderr + result.stdout
+    assert result.stderr.strip().splitlines() == [
+        f"replay: error: port {WEB_PORT} on 127.0.0.1 is already in use by another program; "
+        "the Rerun web viewer was not started"]

@@ -90,11 +90,16 @@ def test_deep_json_sections_and_html(dataset: Path, tmp_path: Path) -> None:
     assert {w["action"] for w in deep["window_detection"]} == {"none", "bump", "adjust", "shove"}
     peaks = {p["action"]: p["peak_residual_norm_nm"]["median"] for p in deep["peaks_by_class"]}
     assert peaks["shove"] > peaks["none"]
+    written = run_cli("recorder", "stats", str(dataset), "--out", str(tmp_path / "r"))
     html = tmp_path / "r.html"
-    result = run_cli("recorder", "stats", str(dataset), "--out", str(html))
-    assert result.returncode == 0, result.stderr
+    assert written.returncode == 0, written.stderr
+    assert written.stdout.strip() == str(html)
     page = html.read_text()
     assert page.startswith("<!doctype html>") and "data:image/png;base64," in page
+    # plain tables: no Polars repr (shape caption, dtype row, quoted strings); units shown
+    assert "shape:" not in page and "<td>str</td>" not in page
+    assert "<td>&quot;" not in page and "<td>\"" not in page
+    assert "<th>share [%]</th>" in page and "<td class=num>25</td>" in page
     bad = run_cli("recorder", "stats", str(dataset), "--format", "pdf")
     assert bad.returncode == 2 and "'pdf' is not one of 'html', 'md', 'json'" in bad.stderr
     assert len(bad.stderr.strip().splitlines()) == 1

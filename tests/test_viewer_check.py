@@ -1,0 +1,78 @@
+"""The browser check: a replay and a stats report opened in headless Chromium."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import make_session, run_cli
+from tests.test_replay import model_path  # noqa: F401  (the fixture)
+
+TOOL = Path(__file__).resolve().parents[1] / "tools" / "viewer_check.py"
+
+
+def _load_tool():
+    spec = importlib.util.spec_from_file_location("viewer_check", TOOL)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up while defining
+    spec.loader.exec_module(module)
+    return module
+
+
+viewer_check = _load_tool()
+
+
+@pytest.fixture(scope="module")
+def browser_ready() -> None:
+    if viewer_check.find_chromium() is None:
+        pytest.skip("Chromium is not installed (apt-get install chromium); the browser "
+                    "check needs it")
+    if importlib.util.find_spec("playwright") is None:
+        pytest.skip("Playwright is not installed (pip install 'contactkit[browser]')")
+
+
+def test_replay_and_report_open_without_viewer_errors(browser_ready, tmp_path,
+                                                      model_path) -> None:  # noqa: F811
+    data = tmp_path / "data"
+    data.mkdir()
+    session = make_session(data, seed=4, action="bump", link=5, duration_s=2.0,
+                           planned_at_s=1.0)
+    rrd = tmp_path / "replay.rrd"
+    result = run_cli("replay", str(session), "--viewer", "none", "--save", str(rrd),
+                     "--model", str(model_path))
+    assert result.returncode == 0, result.stderr
+    report = run_cli("recorder", "stats", str(data), "--out", str(tmp_path / "report"))
+    assert report.returncode == 0, report.stderr
+    out = tmp_path / "check"
+    check = run_cli(sys.executable, str(TOOL), str(rrd), "--report",
+                    str(tmp_path / "report.html"), "--out", str(out), timeout=600)
+    assert check.returncode == 0, check.stdout + check.stderr
+    findings = json.loads((out / "viewer_check.json").read_text())
+    assert [f["ok"] for f in findings] == [True, True]
+    assert (out / "replay.png").stat().st_size > 10_000
+    assert (out / "report.png").stat().st_size > 10_000
+
+
+def test_a_broken_report_image_is_found(browser_ready, tmp_path) -> None:
+    page = tmp_path / "broken.html"
+    page.write_text("<!doctype html><html><body><h1>r</h1>"
+                    "<img alt='plot' src='data:image/png;base64,AAAA'></body></html>")
+    check = run_cli(sys.executable, str(TOOL), "--report", str(page), "--out",
+                    str(tmp_path / "check"), timeout=120)
+    assert check.returncode == 1
+    assert "broken image: plot" in check.stdout
+
+
+def test_viewer_messages_keep_the_viewer_s_own_problems() -> None:
+    console = [("error", " ERROR re_tf::cache: Two entities define the same child frame"),
+               ("warning", " WARN egui_wgpu: Software rasterizer detected"),
+               ("warning", " WARN re_viewer::ui::welcome_screen::x: Failed to load examples"),
+               ("error", "Failed to load resource: net::ERR_NAME_NOT_RESOLVED"),
+               ("warning", " WARN re_data_loader: something odd")]
+    errors, warnings = viewer_check.viewer_messages(console)
+    assert errors == ["re_tf::cache: Two entities define the same child frame"]
+    assert warnings == ["re_data_loader: something odd"]

@@ -1,0 +1,272 @@
+"""Open Rerun recordings and stats reports in headless Chromium, as a user would, and
+report what the viewer complains about.
+
+    python tools/viewer_check.py demo.rrd real.rrd --report report.html --out viewer-check/
+
+For each ``.rrd``: serve it with the SDK's own ``rerun --serve-web`` on 127.0.0.1,
+open the web viewer in Chromium at 1600x1000 (``&renderer=webgl``: software
+rendering has no usable WebGPU), wait until the recording is loaded (the screen stops
+changing), then collect
+
+- the viewer's notifications: its log messages at warning and error level (the
+  notification panel shows the same messages), minus what only this browser set-up
+  causes (software rasteriser, no network for the examples page, viewport commands
+  the web backend ignores);
+- the error markers that views draw in their title bars (the viewer's error red);
+  the tooltip of each is hovered and saved as a screenshot;
+
+and write ``<name>.png`` (the whole window). For each HTML report: open it, fail on
+an image that does not load, and write a full-page screenshot. A summary goes to
+``viewer_check.json``. Exit code 0: no problems; 1: problems found; 2: Chromium or
+Playwright missing, or bad arguments.
+
+Chromium: Debian/Ubuntu ``apt-get install chromium``; Playwright: ``pip install
+'contactkit[browser]'`` (Playwright's own browser download is not needed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import json
+import re
+import shutil
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from io import BytesIO
+from pathlib import Path
+
+import numpy as np
+
+from contactkit.errors import InputError
+from contactkit.util.viewer import free_port, start_web_viewer, viewer_page_url
+
+VIEWPORT = {"width": 1600, "height": 1000}
+CHROMIUM_FLAGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--no-first-run",
+                  "--disable-background-networking", "--disable-component-update",
+                  "--disable-sync"]
+CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "chrome")
+ERROR_RED = (236, 0, 79)
+TOP_BAR_PX = 32
+POLL_S = 3.0
+TIME_BAR_PX = (267, 1391, 985)  # the time bar at the bottom at 1600x1000: start, end x; y
+STABLE_SHOTS = 3
+RUST_LOG = re.compile(r"^\s*(ERROR|WARN)\s+(\S+?):?\s(.*)", re.S)
+# Messages that come from this headless set-up, not from the recording.
+ENVIRONMENT = ("eframe::", "egui_wgpu", "re_renderer::context",
+               "re_viewer::ui::welcome_screen")
+
+
+@dataclass
+class Finding:
+    """What one file looked like in the browser."""
+
+    source: str
+    screenshot: str
+    errors: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    error_markers: list[str] = field(default_factory=list)
+    broken_images: list[str] = field(default_factory=list)
+    load_s: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        """Return whether nothing was found."""
+        return not (self.errors or self.warnings or self.error_markers or self.broken_images)
+
+
+def find_chromium() -> str | None:
+    """Return the path of a system Chromium, or None when there is none."""
+    for name in CHROMIUM_NAMES:
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+def viewer_messages(console: list[tuple[str, str]]) -> tuple[list[str], list[str]]:
+    """Return the viewer's own (errors, warnings) from (type, text) console messages."""
+    errors, warnings = [], []
+    for kind, text in console:
+        if kind == "pageerror":
+            errors.append(f"page error: {text}")
+            continue
+        match = RUST_LOG.match(text)
+        if not match or match.group(2).startswith(ENVIRONMENT):
+            continue
+        line = f"{match.group(2)}: {' '.join(match.group(3).split())}"
+        (errors if match.group(1) == "ERROR" else warnings).append(line)
+    return sorted(set(errors)), sorted(set(warnings))
+
+
+def error_marker_positions(png: bytes) -> list[tuple[int, int]]:
+    """Return (x, y) centres [px] of the viewer's error-red marks below the top bar."""
+    from PIL import Image
+    from scipy import ndimage
+
+    pixels = np.asarray(Image.open(BytesIO(png)).convert("RGB")).astype(int)
+    red = np.abs(pixels - np.array(ERROR_RED)).sum(axis=2) < 40
+    red[:TOP_BAR_PX] = False
+    labels, n = ndimage.label(ndimage.binary_dilation(red, iterations=3))
+    centres = []
+    for index in range(1, n + 1):
+        ys, xs = np.nonzero((labels == index) & red)
+        if len(xs) >= 20:
+            centres.append((int(xs.mean()), int(ys.mean())))
+    return centres
+
+
+def _capture(cdp, clip: dict | None = None) -> bytes:
+    # The CDP call, not page.screenshot: Playwright waits for web fonts, which the
+    # busy viewer page may not report for minutes.
+    params: dict = {"format": "png"}
+    if clip:
+        params["clip"] = {**clip, "scale": 1}
+    return base64.b64decode(cdp.send("Page.captureScreenshot", params)["data"])
+
+
+def check_recording(browser, rrd: Path, out: Path, timeout_s: float,
+                    cursor: float | None = None) -> Finding:
+    """Serve ``rrd``, open it in ``browser`` and return what the viewer showed; with
+    ``cursor`` (0-1), click the time bar there first."""
+    grpc_port, web_port = free_port(), free_port()
+    server, _, _ = start_web_viewer(grpc_port, web_port, files=[rrd])
+    shot = out / f"{rrd.stem}.png"
+    finding = Finding(str(rrd), str(shot))
+    page = browser.new_page(viewport=VIEWPORT)
+    console: list[tuple[str, str]] = []
+    page.on("console", lambda m: console.append((m.type, m.text)))
+    page.on("pageerror", lambda e: console.append(("pageerror", str(e))))
+    try:
+        cdp = page.context.new_cdp_session(page)
+        started = time.monotonic()
+        page.goto(viewer_page_url(grpc_port, web_port, renderer="webgl"))
+        shots: list[bytes] = []
+        while time.monotonic() - started < timeout_s:
+            time.sleep(POLL_S)
+            shots.append(_capture(cdp))
+            streaming = any("Streaming messages" in text for _, text in console)
+            if streaming and len(shots) >= STABLE_SHOTS and len(set(shots[-STABLE_SHOTS:])) == 1:
+                break
+        else:
+            finding.errors.append(f"the viewer did not settle within {timeout_s:.0f} s")
+        finding.load_s = round(time.monotonic() - started, 1)
+        if cursor is not None:
+            page.mouse.click(TIME_BAR_PX[0] + cursor * (TIME_BAR_PX[1] - TIME_BAR_PX[0]),
+                             TIME_BAR_PX[2])
+            time.sleep(POLL_S)
+            shots.append(_capture(cdp))
+        shot.write_bytes(shots[-1])
+        errors, warnings = viewer_messages(console)
+        finding.errors += errors
+        finding.warnings += warnings
+        for i, (x, y) in enumerate(error_marker_positions(shots[-1])):
+            page.mouse.click(x, y)
+            time.sleep(2.0)
+            left, top = max(0, x - 500), max(0, y - 40)
+            tip = out / f"{rrd.stem}_marker{i + 1}.png"
+            tip.write_bytes(_capture(cdp, {"x": left, "y": top, "width": min(1000, 1600 - left),
+                                           "height": min(260, 1000 - top)}))
+            page.keyboard.press("Escape")
+            finding.error_markers.append(f"error marker at ({x}, {y}) px, its report in {tip}")
+    finally:
+        page.close()
+        server.terminate()
+        server.wait()
+    return finding
+
+
+def check_report(browser, report: Path, out: Path) -> Finding:
+    """Open an HTML report and return its broken images; write a full-page screenshot."""
+    shot = out / f"{report.stem}.png"
+    finding = Finding(str(report), str(shot))
+    page = browser.new_page(viewport=VIEWPORT)
+    page.on("pageerror", lambda e: finding.errors.append(f"page error: {e}"))
+    try:
+        page.goto(report.resolve().as_uri())
+        page.wait_for_load_state("load")
+        finding.broken_images = page.evaluate(
+            "Array.from(document.images).filter(i => !(i.complete && i.naturalWidth > 0))"
+            ".map(i => i.alt || i.src.slice(0, 80))")
+        page.screenshot(path=str(shot), full_page=True)
+    finally:
+        page.close()
+    return finding
+
+
+def run(recordings: list[Path], reports: list[Path], out: Path, timeout_s: float,
+        chromium: str, cursor: float | None = None) -> list[Finding]:
+    """Check every recording and report in one browser; return the findings."""
+    from playwright.sync_api import sync_playwright
+
+    out.mkdir(parents=True, exist_ok=True)
+    findings = []
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=chromium, args=CHROMIUM_FLAGS)
+        try:
+            for rrd in recordings:
+                findings.append(check_recording(browser, rrd, out, timeout_s, cursor))
+                print(_line(findings[-1]), flush=True)
+            for report in reports:
+                findings.append(check_report(browser, report, out))
+                print(_line(findings[-1]), flush=True)
+        finally:
+            browser.close()
+    (out / "viewer_check.json").write_text(json.dumps(
+        [asdict(f) | {"ok": f.ok} for f in findings], indent=2))
+    return findings
+
+
+def _line(finding: Finding) -> str:
+    problems = (finding.errors + finding.warnings + finding.error_markers
+                + [f"broken image: {x}" for x in finding.broken_images])
+    head = f"{finding.source}: {'ok' if finding.ok else f'{len(problems)} problems'}"
+    head += f" (loaded in {finding.load_s} s)" if finding.load_s else ""
+    return "\n  ".join([f"{head}; screenshot {finding.screenshot}", *problems])
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the check from the command line; return the exit code (0 clean, 1 problems,
+    2 no browser or bad arguments)."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("recordings", nargs="*", type=Path, help=".rrd files to open")
+    parser.add_argument("--report", action="append", default=[], type=Path,
+                        help="an HTML report to open (repeatable)")
+    parser.add_argument("--out", type=Path, default=Path("viewer-check"),
+                        help="directory for screenshots and viewer_check.json")
+    parser.add_argument("--timeout", type=float, default=240.0,
+                        help="seconds to wait for one recording to load")
+    parser.add_argument("--cursor", type=float, default=None,
+                        help="move the time cursor to this fraction (0-1) of the recording "
+                             "before the screenshot (default: the end)")
+    args = parser.parse_args(argv)
+    missing = [p for p in [*args.recordings, *args.report] if not p.is_file()]
+    if missing or not (args.recordings or args.report):
+        print(f"viewer_check: error: {missing[0] if missing else 'nothing'} to check"
+              + (": no such file" if missing else ""), file=sys.stderr)
+        return 2
+    chromium = find_chromium()
+    if chromium is None:
+        print("viewer_check: error: no Chromium found (Debian/Ubuntu: apt-get install "
+              "chromium)", file=sys.stderr)
+        return 2
+    try:
+        import playwright  # noqa: F401
+    except ImportError:
+        print("viewer_check: error: Playwright is not installed (pip install "
+              "'contactkit[browser]')", file=sys.stderr)
+        return 2
+    try:
+        findings = run(args.recordings, args.report, args.out, args.timeout, chromium,
+                       args.cursor)
+    except InputError as err:
+        print(f"viewer_check: error: {err}", file=sys.stderr)
+        return 2
+    bad = [f for f in findings if not f.ok]
+    print(f"{len(findings) - len(bad)} of {len(findings)} clean; screenshots in {args.out}")
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
