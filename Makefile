@@ -9,7 +9,7 @@ DEMO    := demo
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[dev,nn]"
+	$(PY) -m pip install --quiet -e ".[dev,nn,dask]"
 	# the franka source's tests need a simulated robot; they skip where it does not install
 	-$(PY) -m pip install --quiet -e ".[sim-robot]" || echo "franky-sim/pylibfranka not installable here: franka source tests will skip"
 	touch $(STAMP)
