@@ -5,7 +5,8 @@ output: an Arrow IPC stream whose schema carries the session metadata. Pending
 rows are written as a record batch, flushed and fsync'ed whenever they cover half
 the flush interval (default interval 0.1 s of data), so a capture killed at any
 moment loses at most the last 0.1 s. On a clean finish the Parquet file is written
-through a temporary file and a link, and only then is the journal removed.
+from the journal one row group at a time (memory stays bounded however long the
+capture) through a temporary file and a link, and only then is the journal removed.
 
 ``recover`` turns every leftover journal in a directory into a valid session whose
 metadata says it was recovered and how many samples it holds. A torn final record
@@ -23,14 +24,15 @@ import contextlib
 import fcntl
 import json
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 
-from contactkit.schemas import InputError, SessionMeta, write_session
-from contactkit.schemas.session import METADATA_KEY, session_schema
+from contactkit.schemas import InputError, SessionMeta
+from contactkit.schemas.session import METADATA_KEY, session_schema, write_session_batches
 from contactkit.util.paths import inside, remove_stale_temporaries
 
 JOURNAL_SUFFIX = ".journal"
@@ -150,10 +152,9 @@ class SessionWriter:
             if self.samples_written == 0:
                 self.journal.unlink()
                 raise InputError("no samples were recorded; nothing written", self.out_path)
-            table = read_journal(self.journal).table
-            path = write_session(self.out_path, table, self.meta)
+            write_session_batches(self.out_path, journal_batches(self.journal), self.meta)
             self.journal.unlink()
-            return path
+            return self.out_path
         finally:
             with contextlib.suppress(OSError):
                 self._file.close()
@@ -189,29 +190,44 @@ class JournalContents:
     torn: bool
 
 
-def read_journal(path: str | Path) -> JournalContents:
-    """Read every complete record batch of a journal (a torn last batch is dropped)."""
-    path = Path(path)
+def _open_journal(path: Path) -> tuple[pa.ipc.RecordBatchStreamReader, SessionMeta]:
     try:
         reader = pa.ipc.open_stream(pa.OSFile(str(path)))
     except (pa.ArrowInvalid, OSError) as err:
         raise InputError(f"not a readable journal ({err})", path) from err
-    schema = reader.schema
     try:
-        meta = SessionMeta.from_dict(json.loads(schema.metadata[METADATA_KEY]), path)
+        meta = SessionMeta.from_dict(json.loads(reader.schema.metadata[METADATA_KEY]), path)
     except (KeyError, TypeError, ValueError, RecursionError) as err:
         raise InputError("journal has no session metadata", path) from err
-    batches, torn = [], False
+    return reader, meta
+
+
+def _complete_batches(reader: pa.ipc.RecordBatchStreamReader, torn: list[bool]
+                      ) -> Iterator[pa.RecordBatch]:
+    """Yield the complete batches of an open journal; set ``torn[0]`` if one was cut."""
     while True:
         try:
-            batches.append(reader.read_next_batch())
+            yield reader.read_next_batch()
         except StopIteration:
-            break
+            return
         except (pa.ArrowInvalid, OSError):
-            torn = True
-            break
-    table = pa.Table.from_batches(batches, schema=schema)
-    return JournalContents(meta=meta, table=table, torn=torn)
+            torn[0] = True
+            return
+
+
+def journal_batches(path: str | Path) -> Iterator[pa.RecordBatch]:
+    """Yield every complete record batch of a journal, one at a time (a torn last batch
+    is dropped), so a long journal is never held in memory at once."""
+    reader, _ = _open_journal(Path(path))
+    yield from _complete_batches(reader, [False])
+
+
+def read_journal(path: str | Path) -> JournalContents:
+    """Read every complete record batch of a journal (a torn last batch is dropped)."""
+    reader, meta = _open_journal(Path(path))
+    torn = [False]
+    table = pa.Table.from_batches(list(_complete_batches(reader, torn)), schema=reader.schema)
+    return JournalContents(meta=meta, table=table, torn=torn[0])
 
 
 @dataclass
@@ -252,26 +268,32 @@ def _recover_locked(journal: Path, out_path: Path) -> Recovery:
         journal.unlink()
         return Recovery(journal, out_path, 0, "session already complete; stale journal removed")
     try:
-        contents = read_journal(journal)
+        reader, meta = _open_journal(journal)
     except InputError as err:
         return Recovery(journal, None, 0, f"left in place: {err.problem}")
-    n = contents.table.num_rows
+    n = gaps = 0
+    torn = [False]
+    for batch in _complete_batches(reader, torn):  # first pass: count, one batch at a time
+        n += batch.num_rows
+        gaps += _incomplete_samples(batch)
     if n == 0:
         return Recovery(journal, None, 0, "journal holds no complete sample; left in place")
-    meta = contents.meta
-    measured = np.column_stack([contents.table.column(c).to_numpy() for c in
-                                contents.table.column_names if c.split("_")[0] in
-                                ("q", "dq", "tau") and c[-1].isdigit()])
-    gaps = int((~np.isfinite(measured)).any(axis=1).sum())
     if gaps:
         meta.source_info = {**meta.source_info, "incomplete_samples": gaps}
     meta.recovered = True
     meta.recovered_samples = n
-    note = f"recovered {n} samples" + (" (torn last batch dropped)" if contents.torn else "")
+    note = f"recovered {n} samples" + (" (torn last batch dropped)" if torn[0] else "")
     meta.notes = (meta.notes + "; " if meta.notes else "") + note
-    path = write_session(out_path, contents.table, meta)
+    write_session_batches(out_path, journal_batches(journal), meta)
     journal.unlink()
-    return Recovery(journal, path, n, note)
+    return Recovery(journal, out_path, n, note)
+
+
+def _incomplete_samples(batch: pa.RecordBatch) -> int:
+    """Return how many rows of a batch lack a q, dq or tau value (NaN)."""
+    measured = np.column_stack([batch.column(c).to_numpy() for c in batch.schema.names
+                                if c.split("_")[0] in ("q", "dq", "tau") and c[-1].isdigit()])
+    return int((~np.isfinite(measured)).any(axis=1).sum())
 
 
 def recover_directory(directory: str | Path) -> list[Recovery]:

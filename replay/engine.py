@@ -60,7 +60,7 @@ class ReplayStream:
     ``pred_label``. Events (with a detector): ``event_label`` (N,) the pipeline's
     label per sample, ``score`` (N,) the detector score, and :attr:`events`.
     ``detector`` overrides the model's detector settings; ``decide_after_s`` its
-    decision delay [s].
+    decision delay [s]; ``detector`` holds the settings in use (None without one).
     """
 
     def __init__(self, session: Session, model: ModelFile, hop_s: float = DEFAULT_HOP_S,
@@ -95,7 +95,7 @@ class ReplayStream:
         self.pred_sample: list[int] = []
         self.pred_proba: list[np.ndarray] = []
         self.pred_label: list[str] = []
-        detector = detector or model.detector_config()
+        self.detector = detector = detector or model.detector_config()
         self.pipeline = None if detector is None else EventPipeline(
             detector, model.event_model(), decide_after_s)
         self.event_label = np.full(n, "none", dtype=object)

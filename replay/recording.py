@@ -136,13 +136,16 @@ def log_contact_events(rec: rr.RecordingStream, t: np.ndarray,
 
     if events:
         onset = np.array([e.onset_s for e in events])
-        release = np.array([e.release_s for e in events])
+        # a contact still open at the end of the session lasts to its last sample
+        release = np.array([t[-1] if e.release_s is None else e.release_s for e in events])
         layout.log_state_spans(rec, layout.CONTACT_EVENTS, onset, release,
                                [e.label for e in events], sample_at(onset), sample_at(release))
-        for event in events:
+        for event, end in zip(events, release, strict=True):
+            if event.decision_s is None:
+                continue
             layout.text_event(rec, layout.CONTACT_EVENTS, event.decision_s,
                               int(sample_at(np.array([event.decision_s]))[0]),
-                              f"contact {event.onset_s:.2f}-{event.release_s:.2f} s: "
+                              f"contact {event.onset_s:.2f}-{end:.2f} s: "
                               f"{event.label} (decided at {event.decision_s:.2f} s)")
     if thresholds:
         names = list(thresholds)

@@ -20,6 +20,7 @@ from contactkit.replay.default_model import build_default_model, default_model_p
 from contactkit.replay.engine import DEFAULT_HOP_S, Block, OfflineAnswer, ReplayStream
 from contactkit.replay.recording import (
     log_block,
+    log_contact_events,
     log_offline,
     log_static,
     new_recording,
@@ -129,6 +130,9 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
                 log_block(rec, tree, stream, block)
         if rate is None:
             log_block(rec, tree, stream, _whole(stream))
+        if stream.pipeline is not None:
+            log_contact_events(rec, stream.t, stream.events, {
+                f"joint {j} at rest": v for j, v in enumerate(stream.detector.noise, 1)})
         answer = stream.offline()
         if answer is not None:
             log_offline(rec, stream, answer)

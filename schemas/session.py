@@ -39,7 +39,7 @@ import math
 import os
 import re
 import uuid
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -339,11 +339,18 @@ def write_session(path: str | Path, columns: Mapping[str, np.ndarray] | pa.Table
 
 def atomic_write_parquet(table: pa.Table, path: Path, *, overwrite: bool) -> None:
     """Write ``table`` to ``path`` through a temporary file and a link or rename."""
+    atomic_write(path, lambda tmp: pq.write_table(table, tmp, compression="zstd"),
+                 overwrite=overwrite)
+
+
+def atomic_write(path: Path, write: Callable[[Path], None], *, overwrite: bool) -> None:
+    """Call ``write(tmp)`` to fill a temporary file beside ``path``, force it to disk,
+    then link (or with ``overwrite`` rename) it into place; remove it on any error."""
     if not path.parent.is_dir():
         raise InputError("output directory does not exist", path.parent)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
-        pq.write_table(table, tmp, compression="zstd")
+        write(tmp)
         with open(tmp, "rb") as fh:
             os.fsync(fh.fileno())
         if overwrite:
@@ -474,3 +481,102 @@ def _check_joint_count(names: list[str], path: str | Path | None) -> None:
 def _first_line(err: BaseException) -> str:
     text = str(err).strip().splitlines()
     return text[0] if text else type(err).__name__
+
+
+ROW_GROUP_ROWS = 65_536
+"""Rows per Parquet row group of a session written in chunks (about 65 s at 1 kHz)."""
+
+
+def iter_session_batches(path: str | Path, batch_rows: int = ROW_GROUP_ROWS
+                         ) -> Iterator[pa.RecordBatch]:
+    """Yield a session file's rows as record batches of at most ``batch_rows`` rows,
+    each validated as :func:`validate_session` does, ``t`` increasing across them.
+
+    Memory stays bounded by one batch however long the session is. Raises
+    :class:`InputError` naming the file and the problem, on the batch that has it.
+    """
+    path = Path(path)
+    meta, _ = read_session_meta(path)
+    gaps = allows_gaps(meta)
+    try:
+        batches = pq.ParquetFile(path).iter_batches(batch_size=batch_rows)
+        offset, last_t = 0, -math.inf
+        for batch in batches:
+            _validate_chunk(pa.Table.from_batches([batch]), path, gaps, offset, last_t)
+            offset += batch.num_rows
+            last_t = float(batch.column("t")[-1].as_py())
+            yield batch
+    except (pa.ArrowInvalid, OSError) as err:
+        raise InputError(f"cannot read the Parquet data ({_first_line(err)})", path) from err
+    if offset == 0:
+        raise InputError("session has no samples", path)
+
+
+def _validate_chunk(table: pa.Table, path: Path, gaps_allowed: bool, offset: int,
+                    last_t: float) -> None:
+    """Validate one chunk of a session; rows in messages count from the file's start."""
+    if table.num_rows == 0:
+        return
+    try:
+        validate_table(table, path, gaps_allowed)
+    except InputError as err:
+        if offset == 0:
+            raise
+        raise InputError(f"{err.problem} (counted from row {offset})", path) from err
+    first_t = float(table.column("t")[0].as_py())
+    if first_t <= last_t:
+        raise InputError(f"t is not strictly increasing at row {offset} "
+                         f"(t={first_t:.6f} s after {last_t:.6f} s)", path)
+
+
+def write_session_batches(path: str | Path, batches: Iterable[pa.RecordBatch],
+                          meta: SessionMeta, *, overwrite: bool = False,
+                          row_group_rows: int = ROW_GROUP_ROWS) -> int:
+    """Validate and write a session from record batches, one Parquet row group of about
+    ``row_group_rows`` rows at a time, atomically as :func:`write_session` does.
+
+    Memory stays bounded by one row group however long the session is. Returns the
+    number of rows written; raises :class:`InputError` as :func:`write_session` does.
+    """
+    path = Path(path)
+    meta.check(path)
+    if path.exists() and not overwrite:
+        raise InputError("output file already exists (nothing was written)", path)
+    gaps = allows_gaps(meta)
+    written = 0
+
+    def write(tmp: Path) -> None:
+        nonlocal written
+        writer, last_t = None, -math.inf
+        try:
+            for group in _row_groups(batches, row_group_rows):
+                schema = session_schema(group.column_names, meta)
+                group = group.select(schema.names).cast(schema)
+                _validate_chunk(group, path, gaps, written, last_t)
+                if writer is None:
+                    writer = pq.ParquetWriter(tmp, schema, compression="zstd")
+                writer.write_table(group, row_group_size=row_group_rows)
+                written += group.num_rows
+                last_t = float(group.column("t")[-1].as_py())
+        finally:
+            if writer is not None:
+                writer.close()
+        if written == 0:
+            raise InputError("session has no samples", path)
+
+    atomic_write(path, write, overwrite=overwrite)
+    return written
+
+
+def _row_groups(batches: Iterable[pa.RecordBatch], rows: int) -> Iterator[pa.Table]:
+    """Gather record batches into tables of at least ``rows`` rows (the last may be less)."""
+    pending: list[pa.RecordBatch] = []
+    count = 0
+    for batch in batches:
+        pending.append(batch)
+        count += batch.num_rows
+        if count >= rows:
+            yield pa.Table.from_batches(pending).combine_chunks()
+            pending, count = [], 0
+    if count:
+        yield pa.Table.from_batches(pending).combine_chunks()

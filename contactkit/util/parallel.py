@@ -6,6 +6,11 @@ local executor runs the items in a pool of processes on this machine (or in this
 process with one worker); the results come back in the order of the items, so the
 output never depends on the number of workers.
 
+The executor is chosen by ``scheduler`` (default: the environment variable
+``CONTACTKIT_SCHEDULER``): unset or ``local`` is the local pool; ``local:N`` or
+``tcp://host:8786`` sends the jobs to Dask distributed (the ``dask`` extra, see
+:mod:`contactkit.util.dask_executor`), with the same results in the same order.
+
 Functions and items must be picklable (module-level functions, plain data). A job
 that reports a problem with an input returns it as data rather than raising, so one
 bad session never stops a run; :func:`split_problems` separates them afterwards.
@@ -14,6 +19,7 @@ bad session never stops a run; :func:`split_problems` separates them afterwards.
 from __future__ import annotations
 
 import multiprocessing
+import os
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from typing import Any, TypeVar
@@ -23,10 +29,29 @@ from contactkit.util.progress import ProgressCallback
 T = TypeVar("T")
 R = TypeVar("R")
 
+SCHEDULER_ENV = "CONTACTKIT_SCHEDULER"
+
+
+def resolve_scheduler(scheduler: str | None = None) -> str | None:
+    """Return the scheduler to use: ``scheduler``, else ``$CONTACTKIT_SCHEDULER``;
+    None for the local pool (also for ``local`` or an empty string).
+
+    Raises :class:`~contactkit.errors.InputError` on a malformed address.
+    """
+    chosen = scheduler if scheduler is not None else os.environ.get(SCHEDULER_ENV, "")
+    chosen = chosen.strip()
+    if chosen in ("", "local"):
+        return None
+    from contactkit.util.dask_executor import parse_scheduler
+
+    parse_scheduler(chosen)
+    return chosen
+
 
 def map_ordered(fn: Callable[..., R], items: Iterable[Any], *, workers: int = 1,
                 progress: ProgressCallback | None = None, total: int | None = None,
-                spawn: bool = False, in_flight: int = 4) -> Iterator[R]:
+                spawn: bool = False, in_flight: int = 4,
+                scheduler: str | None = None) -> Iterator[R]:
     """Yield ``fn(item)`` for each item, in the order of ``items``.
 
     ``workers`` <= 1 runs in this process. Otherwise a pool of ``workers`` processes
@@ -35,9 +60,18 @@ def map_ordered(fn: Callable[..., R], items: Iterable[Any], *, workers: int = 1,
     ``in_flight`` jobs per worker, so ``items`` may be a lazy generator of large
     inputs. ``progress(done, total)`` is called as jobs finish; ``total`` defaults to
     ``len(items)`` where it has one. An exception raised by ``fn`` propagates.
+    ``scheduler`` (see :func:`resolve_scheduler`) other than local sends the jobs to
+    a Dask cluster instead; ``workers`` and ``spawn`` then do not apply.
     """
     if total is None and hasattr(items, "__len__"):
         total = len(items)  # type: ignore[arg-type]
+    address = resolve_scheduler(scheduler)
+    if address is not None:
+        from contactkit.util.dask_executor import dask_map_ordered
+
+        yield from dask_map_ordered(fn, items, address, progress=progress, total=total,
+                                    in_flight=in_flight)
+        return
     done = 0
     if workers <= 1:
         for item in items:

@@ -1,0 +1,140 @@
+"""Dask distributed behind :func:`contactkit.util.parallel.map_ordered` (the ``dask`` extra).
+
+A scheduler is named by a string:
+
+* ``local:N`` starts a ``LocalCluster`` of N single-threaded worker processes on
+  127.0.0.1 (for trying the cluster path on one machine);
+* ``tcp://host:8786`` (or ``tls://``) connects to a running scheduler started with
+  ``dask scheduler``, whose workers (``dask worker tcp://host:8786``) have contactkit
+  installed and see the session files under the same paths.
+
+One client per scheduler string is kept for the life of the process, so a command
+that maps several steps starts its ``LocalCluster`` once. A worker that dies mid-run
+loses nothing: the scheduler hands its jobs to the other workers (up to Dask's
+``distributed.scheduler.allowed-failures`` deaths per job). An exception raised by
+the mapped function propagates, as on the local path.
+"""
+
+from __future__ import annotations
+
+import atexit
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any, TypeVar
+
+from contactkit.errors import InputError
+from contactkit.util.progress import ProgressCallback
+
+R = TypeVar("R")
+
+CONNECT_TIMEOUT_S = 10.0
+"""How long to wait for a remote scheduler before giving up [s]."""
+
+_clients: dict[str, Any] = {}
+
+
+def parse_scheduler(address: str) -> tuple[str, int | None]:
+    """Return ``("local", N)`` for ``local:N`` or ``(address, None)`` for a remote one.
+
+    Raises :class:`InputError` on anything else.
+    """
+    if address.startswith("local:"):
+        count = address.removeprefix("local:")
+        if not count.isdigit() or int(count) < 1:
+            raise InputError(f"scheduler {address!r}: local:N needs a worker count N >= 1")
+        return "local", int(count)
+    if address.startswith(("tcp://", "tls://")) and ":" in address.split("://", 1)[1]:
+        return address, None
+    raise InputError(f"scheduler {address!r} is not local, local:N or tcp://host:port")
+
+
+def _require_distributed():
+    try:
+        import distributed
+    except ImportError as err:
+        raise InputError("a Dask scheduler needs Dask distributed: "
+                         "pip install 'contactkit[dask]'") from err
+    return distributed
+
+
+def get_client(address: str):
+    """Return the (cached) ``distributed.Client`` of a scheduler string.
+
+    Raises :class:`InputError` when a remote scheduler does not answer within
+    :data:`CONNECT_TIMEOUT_S`.
+    """
+    if address in _clients:
+        return _clients[address]
+    kind, count = parse_scheduler(address)
+    distributed = _require_distributed()
+    if kind == "local":
+        cluster = distributed.LocalCluster(n_workers=count, threads_per_worker=1,
+                                           processes=True, host="127.0.0.1",
+                                           dashboard_address=None)
+        client = distributed.Client(cluster)
+    else:
+        try:
+            client = distributed.Client(address, timeout=CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError) as err:
+            raise InputError(f"cannot reach the Dask scheduler at {address} within "
+                             f"{CONNECT_TIMEOUT_S:g} s") from err
+    _clients[address] = client
+    return client
+
+
+def close_clients() -> None:
+    """Close every client (and the local clusters) this process started."""
+    while _clients:
+        _, client = _clients.popitem()
+        cluster = client.cluster
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+atexit.register(close_clients)
+
+
+def worker_count(client) -> int:
+    """Return the number of worker threads the client's cluster has now (at least 1)."""
+    return max(1, sum(client.nthreads().values()))
+
+
+def dask_map_ordered(fn: Callable[..., R], items: Iterable[Any], address: str, *,
+                     progress: ProgressCallback | None = None, total: int | None = None,
+                     in_flight: int = 4) -> Iterator[R]:
+    """Yield ``fn(item)`` for each item in order, computed on the Dask cluster.
+
+    At most ``in_flight`` jobs per worker thread are submitted at once, so ``items``
+    may be a lazy generator. ``progress(done, total)`` is called as jobs finish.
+    """
+    distributed = _require_distributed()
+    client = get_client(address)
+    limit = in_flight * worker_count(client)
+    results: dict[int, R] = {}
+    pending: dict[Any, int] = {}
+    next_out = done = 0
+    iterator = iter(enumerate(items))
+    exhausted = False
+    try:
+        while not exhausted or pending:
+            while not exhausted and len(pending) < limit:
+                try:
+                    index, item = next(iterator)
+                except StopIteration:
+                    exhausted = True
+                    break
+                pending[client.submit(fn, item, pure=False)] = index
+            if not pending:
+                break
+            finished = distributed.wait(list(pending), return_when="FIRST_COMPLETED").done
+            for job in finished:
+                results[pending.pop(job)] = job.result()
+                done += 1
+                if progress:
+                    progress(done, total or done + len(pending))
+            while next_out in results:
+                yield results.pop(next_out)
+                next_out += 1
+    finally:
+        for job in pending:
+            job.cancel()

@@ -1,0 +1,138 @@
+"""The executor seam on Dask distributed: a LocalCluster of 2 workers on 127.0.0.1
+gives the same results, in the same order, as the local pool; a killed worker loses
+nothing; an unreachable scheduler is a one-line InputError."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import os
+import signal
+import socket
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from sklearn.svm import SVC
+
+from contactkit.errors import InputError
+from contactkit.features.extract import SessionFeatures, _session_feature_row
+from contactkit.recorder.dataset import PRESETS, preset_specs, simulate_specs
+from contactkit.recorder.sim import SimConfig
+from contactkit.util import dask_executor
+from contactkit.util.parallel import map_ordered, resolve_scheduler
+
+pytest.importorskip("distributed")
+
+CLUSTER = "local:2"
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """A LocalCluster of 2 single-threaded workers on 127.0.0.1, shut down after."""
+    yield dask_executor.get_client(CLUSTER)
+    dask_executor.close_clients()
+
+
+def _slow_square(x: int) -> int:
+    time.sleep(0.05)
+    return x * x
+
+
+def _fit_predict(task: tuple) -> np.ndarray:
+    estimator, X_train, y_train, X_test = task
+    return estimator.fit(X_train, y_train).predict(X_test)
+
+
+def test_scheduler_strings(monkeypatch):
+    monkeypatch.delenv("CONTACTKIT_SCHEDULER", raising=False)
+    assert resolve_scheduler(None) is None
+    assert resolve_scheduler("local") is None
+    assert resolve_scheduler("local:3") == "local:3"
+    assert resolve_scheduler("tcp://10.0.0.1:8786") == "tcp://10.0.0.1:8786"
+    monkeypatch.setenv("CONTACTKIT_SCHEDULER", "local:2")
+    assert resolve_scheduler(None) == "local:2"
+    for bad in ("local:0", "local:x", "http://host:1", "tcp://host"):
+        with pytest.raises(InputError):
+            resolve_scheduler(bad)
+
+
+def test_same_results_order_and_progress(cluster):
+    calls_local, calls_dask = [], []
+    local = list(map_ordered(_slow_square, range(12), workers=1,
+                             progress=lambda d, t: calls_local.append((d, t))))
+    remote = list(map_ordered(_slow_square, range(12), scheduler=CLUSTER,
+                              progress=lambda d, t: calls_dask.append((d, t))))
+    assert remote == local == [x * x for x in range(12)]
+    assert calls_dask == calls_local == [(d, 12) for d in range(1, 13)]
+
+
+def test_simulate_identical(cluster, tmp_path):
+    config = SimConfig(rate_hz=PRESETS["smoke"].rate_hz)
+    specs = [dataclasses.replace(spec, duration_s=1.5, planned_at_s=0.5)
+             for spec in preset_specs(PRESETS["smoke"], 2, seed=5)]
+    batches = [specs[:1], specs[1:]]
+    results = {}
+    for name, scheduler in (("local", "local"), ("dask", CLUSTER)):
+        out = tmp_path / name
+        out.mkdir()
+        job = functools.partial(simulate_specs, config=config, out_dir=str(out))
+        results[name] = [Path(p) for paths in map_ordered(job, batches, scheduler=scheduler)
+                         for p in paths]
+    assert [p.name for p in results["local"]] == [p.name for p in results["dask"]]
+    for a, b in zip(results["local"], results["dask"], strict=True):
+        assert pq.read_table(a).equals(pq.read_table(b))
+
+
+def test_features_and_svm_identical(cluster, tmp_path, session_path):
+    bad = tmp_path / "broken.parquet"
+    bad.write_bytes(b"not parquet")
+    extractor = SessionFeatures()
+    extractor.fit(None)
+    job = functools.partial(_session_feature_row, params=extractor.get_params())
+    paths = [str(session_path), str(bad), str(session_path)]
+    local = list(map_ordered(job, paths, workers=2))
+    remote = list(map_ordered(job, paths, scheduler=CLUSTER))
+    assert [r[2] is None for r in remote] == [True, False, True]  # the bad file is data
+    assert [r[0] for r in remote] == [r[0] for r in local]
+    assert [r[2] for r in remote] == [r[2] for r in local]
+
+    rng = np.random.default_rng(0)
+    X, y = rng.normal(size=(60, 4)), np.repeat(["a", "b", "c"], 20)
+    X[y == "b"] += 1.5
+    folds = [(np.arange(60) % 5 != k, np.arange(60) % 5 == k) for k in range(5)]
+    tasks = [(SVC(), X[tr], y[tr], X[te]) for tr, te in folds]
+    local = list(map_ordered(_fit_predict, tasks))
+    remote = list(map_ordered(_fit_predict, tasks, scheduler=CLUSTER))
+    for a, b in zip(local, remote, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_killed_worker_loses_nothing(cluster):
+    pids = list(cluster.run(os.getpid).values())
+    assert len(pids) == 2
+    killed = []
+
+    def kill_one(done: int, total: int) -> None:
+        if done == 3 and not killed:
+            os.kill(pids[0], signal.SIGKILL)
+            killed.append(pids[0])
+
+    items = list(range(40))
+    results = list(map_ordered(_slow_square, items, scheduler=CLUSTER, progress=kill_one))
+    assert killed
+    assert results == [x * x for x in items]
+
+
+def test_unreachable_scheduler(monkeypatch):
+    monkeypatch.setattr(dask_executor, "CONNECT_TIMEOUT_S", 2.0)
+    with socket.socket() as probe:  # a port that nothing listens on
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    address = f"tcp://127.0.0.1:{port}"
+    with pytest.raises(InputError) as caught:
+        list(map_ordered(_slow_square, [1], scheduler=address))
+    assert "cannot reach the Dask scheduler" in str(caught.value)
+    assert "\n" not in str(caught.value)
