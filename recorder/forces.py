@@ -153,6 +153,9 @@ def link_surface(link: int, with_hand: bool) -> LinkSurface:
                        areas=areas[keep])
 
 
+MAX_DIRECTION_DRAWS = 100
+
+
 def sample_contact(rng: np.random.Generator, action: str, planned_at_s: float, link: int,
                    surface: LinkSurface, link_rotation: np.ndarray,
                    persona: Persona) -> Contact | None:
@@ -168,10 +171,17 @@ def sample_contact(rng: np.random.Generator, action: str, planned_at_s: float, l
         return None
     ranges = PROFILE_RANGES[action]
     draw = {k: float(rng.uniform(*v)) for k, v in ranges.items()}
-    direction = rng.normal(size=3)
-    direction /= np.linalg.norm(direction)
-    facing = surface.normals @ (link_rotation.T @ direction) < -np.sqrt(0.5)
-    weights = surface.areas * facing
+    for _ in range(MAX_DIRECTION_DRAWS):
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        facing = surface.normals @ (link_rotation.T @ direction) < -np.sqrt(0.5)
+        weights = surface.areas * facing
+        if weights.sum() > 0:
+            break
+        # a coarse collision mesh has no face within 45 degrees of some directions:
+        # a hand cannot push into the link that way, so draw another direction
+    else:
+        raise ValueError(f"no face of link {link}'s collision mesh faces any drawn direction")
     tri = surface.vertices[rng.choice(len(weights), p=weights / weights.sum())]
     a, b = rng.random(2)
     if a + b > 1.0:
