@@ -174,15 +174,16 @@ def real_figures(model, gaz, gaz_first, gaz_second, mindlab, workers: int) -> li
         f"{hop_contact} of {len(hop.pred_label)} hops of the free-motion log a contact: "
         "inputs that grow with motion (dq, tau) do not transfer from the simulator; "
         "the event pipeline uses the residual only.", "",
-        "Default detector (calibrated on the recipe's simulated no-contact stretches, "
-        f"margin {RECIPE['detector']['margin']}): thresholds at rest "
+        "Default detector (calibrated on the no-contact stretches of the recipe's "
+        f"simulated free-motion presets ({', '.join(RECIPE['event_presets'])}), margin "
+        f"{RECIPE['detector']['margin']}): thresholds at rest "
         f"{[round(v, 2) for v in d.noise]} Nm, growth per rad/s "
         f"{[round(v, 2) for v in d.speed]}, per rad/s^2 {[round(v, 3) for v in d.accel]}. "
-        "The simulator used for it over-states the real robot's held-pose noise "
-        "(thresholds at rest too high: weak real touches are missed or seen late) and "
-        "under-states its free-motion model error (friction; the 0.3 Nm floor on the "
-        "thresholds at rest covers joint 7's); a lab calibrating on its own robot "
-        "(second row) meets the aims.", ""]
+        "The simulator's held-pose noise and free-motion model error are calibrated "
+        "against these real recordings (tests/test_sim_calibration.py: within +-50 % per "
+        "joint at rest); the 0.3 Nm floor on the thresholds at rest covers what it still "
+        "misses (wrist stiction, joint 7's model error). A lab calibrating on its own "
+        "robot (second row) gets earlier onsets.", ""]
 
 
 def simulated_figures(detector, workers: int) -> list[str]:
