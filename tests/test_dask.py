@@ -91,10 +91,10 @@ def test_features_and_svm_identical(cluster, tmp_path, session_path):
     bad.write_bytes(b"not parquet")
     extractor = SessionFeatures()
     extractor.fit(None)
-    job = functools.partial(_session_feature_row, params=extractor.get_params())
-    paths = [str(session_path), str(bad), str(session_path)]
-    local = list(map_ordered(job, paths, workers=2))
-    remote = list(map_ordered(job, paths, scheduler=CLUSTER))
+    params = extractor.get_params()
+    jobs = [(str(p), params) for p in (session_path, bad, session_path)]
+    local = list(map_ordered(_session_feature_row, jobs, workers=2))
+    remote = list(map_ordered(_session_feature_row, jobs, scheduler=CLUSTER))
     assert [r[2] is None for r in remote] == [True, False, True]  # the bad file is data
     assert [r[0] for r in remote] == [r[0] for r in local]
     assert [r[2] for r in remote] == [r[2] for r in local]

@@ -128,7 +128,7 @@ def test_jitter_and_drops_keep_time_increasing() -> None:
     ({"duration_s": 0.0}, "duration must be positive"),
     ({"planned_at_s": 9.0, "duration_s": 5.0}, "outside the session"),
     ({"condition": "floating"}, "unknown condition"),
-    ({"target_pose": "B"}, "need --condition dynamic"),
+    ({"target_pose": "B"}, "need the dynamic condition"),
 ])
 def test_plan_rejects_bad_choices(kwargs: dict, message: str) -> None:
     args = {"seed": 0, "condition": "static", "action": "bump", "pose": "A", **kwargs}
