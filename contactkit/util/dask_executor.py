@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterable, Iterator
 from typing import Any, TypeVar
 
 from contactkit.errors import InputError
+from contactkit.util.parallel import ordered_results
 from contactkit.util.progress import ProgressCallback
 
 R = TypeVar("R")
@@ -109,32 +110,7 @@ def dask_map_ordered(fn: Callable[..., R], items: Iterable[Any], address: str, *
     """
     distributed = _require_distributed()
     client = get_client(address)
-    limit = in_flight * worker_count(client)
-    results: dict[int, R] = {}
-    pending: dict[Any, int] = {}
-    next_out = done = 0
-    iterator = iter(enumerate(items))
-    exhausted = False
-    try:
-        while not exhausted or pending:
-            while not exhausted and len(pending) < limit:
-                try:
-                    index, item = next(iterator)
-                except StopIteration:
-                    exhausted = True
-                    break
-                pending[client.submit(fn, item, pure=False)] = index
-            if not pending:
-                break
-            finished = distributed.wait(list(pending), return_when="FIRST_COMPLETED").done
-            for job in finished:
-                results[pending.pop(job)] = job.result()
-                done += 1
-                if progress:
-                    progress(done, total or done + len(pending))
-            while next_out in results:
-                yield results.pop(next_out)
-                next_out += 1
-    finally:
-        for job in pending:
-            job.cancel()
+    yield from ordered_results(
+        lambda item: client.submit(fn, item, pure=False),
+        lambda jobs: distributed.wait(jobs, return_when="FIRST_COMPLETED").done,
+        items, in_flight * worker_count(client), progress, total)

@@ -21,7 +21,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Any, TypeVar
 
 from contactkit.util.progress import ProgressCallback
@@ -82,24 +82,41 @@ def map_ordered(fn: Callable[..., R], items: Iterable[Any], *, workers: int = 1,
             yield result
         return
     context = multiprocessing.get_context("spawn") if spawn else None
-    results: dict[int, R] = {}
-    pending: dict[Future, int] = {}
-    next_out = 0
     with ProcessPoolExecutor(workers, mp_context=context) as pool:
-        iterator = iter(enumerate(items))
-        exhausted = False
+        yield from ordered_results(
+            lambda item: pool.submit(fn, item),
+            lambda jobs: wait(jobs, return_when=FIRST_COMPLETED).done,
+            items, in_flight * workers, progress, total)
+
+
+def ordered_results(submit: Callable[[Any], Any], wait_first: Callable[[list], Iterable],
+                    items: Iterable[Any], limit: int, progress: ProgressCallback | None,
+                    total: int | None) -> Iterator[Any]:
+    """Run ``items`` through an executor and yield the results in the order of the items:
+    the windowed collection loop every executor shares.
+
+    ``submit(item)`` returns a future (``result()``, ``cancel()``); ``wait_first(futures)``
+    blocks until at least one is done and returns the finished ones. At most ``limit``
+    futures are pending at once; ``progress(done, total)`` is called as they finish, and
+    the futures still pending when the caller stops (or a job raises) are cancelled.
+    """
+    results: dict[int, Any] = {}
+    pending: dict[Any, int] = {}
+    next_out = done = 0
+    iterator = iter(enumerate(items))
+    exhausted = False
+    try:
         while not exhausted or pending:
-            while not exhausted and len(pending) < in_flight * workers:
+            while not exhausted and len(pending) < limit:
                 try:
                     index, item = next(iterator)
                 except StopIteration:
                     exhausted = True
                     break
-                pending[pool.submit(fn, item)] = index
+                pending[submit(item)] = index
             if not pending:
                 break
-            finished, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for job in finished:
+            for job in wait_first(list(pending)):
                 results[pending.pop(job)] = job.result()
                 done += 1
                 if progress:
@@ -107,6 +124,9 @@ def map_ordered(fn: Callable[..., R], items: Iterable[Any], *, workers: int = 1,
             while next_out in results:
                 yield results.pop(next_out)
                 next_out += 1
+    finally:
+        for job in pending:
+            job.cancel()
 
 
 def split_problems(results: Iterable[tuple[str, T | None, str | None]]
