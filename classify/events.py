@@ -123,11 +123,12 @@ class ContactEvent:
 class EventOutput:
     """The pipeline's answer at one sample: the current ``label`` (none, undecided, a
     class or unknown), the detector ``score``, ``contact``, and the event that was
-    just decided or released at this sample (else None)."""
+    just started, decided or released at this sample (else None)."""
 
     label: str
     score: float
     contact: bool
+    started: ContactEvent | None = None
     decided: ContactEvent | None = None
     released: ContactEvent | None = None
 
@@ -173,7 +174,7 @@ class EventPipeline:
         sample = (t, np.array(r, dtype=float))
         out = EventOutput(NONE, state.score, state.contact)
         if state.onset:
-            self.current = ContactEvent(onset_s=t)
+            self.current = out.started = ContactEvent(onset_s=t)
             self._baseline = self.detector.baseline.copy()
             self._window = [s for s in self._recent if s[0] >= t - PRE_S]
         self._recent.append(sample)

@@ -8,6 +8,7 @@ import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -18,6 +19,17 @@ from contactkit.schemas import InputError, SessionMeta
 from contactkit.util.pacing import paced
 
 ChunkCallback = Callable[[dict[str, np.ndarray]], None]
+
+
+class CaptureListener(Protocol):
+    """Something that follows a capture as it is recorded (a live event pipeline, for
+    example) and leaves results in the session's metadata."""
+
+    def on_chunk(self, chunk: dict[str, np.ndarray]) -> None:
+        """Take one chunk of rows (column name -> array, ``t`` in s) as it is recorded."""
+
+    def session_fields(self) -> dict[str, Any]:
+        """Return the metadata fields to store with the session when the capture closes."""
 
 
 def output_directory(path: Path) -> Path:
@@ -80,27 +92,35 @@ class CaptureResult:
 
 def capture(source: Source, meta: SessionMeta, out_path: Path, *, realtime: bool = False,
             cue: OperatorCue | None = None, on_chunk: list[ChunkCallback] | None = None,
-            overwrite: bool = False, flush_interval_s: float = 0.1) -> CaptureResult:
+            listeners: list[CaptureListener] | None = None, overwrite: bool = False,
+            flush_interval_s: float = 0.1) -> CaptureResult:
     """Record ``source`` into ``out_path`` through the journal; return the result.
 
     With ``realtime`` (or a live source) each chunk is handed on when the wall clock
     reaches its last time stamp, as with a live robot; otherwise as fast as possible.
-    ``on_chunk`` callbacks (for example a Rerun logger) see every chunk. If the
-    capture is interrupted, the journal stays for ``recorder recover``. An existing
-    file at ``out_path`` is replaced only with ``overwrite``.
+    ``on_chunk`` callbacks (for example a Rerun logger) see every chunk, and so do
+    ``listeners``, whose :meth:`CaptureListener.session_fields` go into the session
+    metadata, written with the session (atomically). If the capture is interrupted,
+    the journal stays for ``recorder recover`` (without the listeners' fields). An
+    existing file at ``out_path`` is replaced only with ``overwrite``.
     """
     if overwrite and out_path.exists():
         out_path.unlink()
     rate = 1.0 if realtime and not source.live else None
+    listeners = list(listeners or ())
+    callbacks = list(on_chunk or ()) + [listener.on_chunk for listener in listeners]
     with SessionWriter(out_path, meta, source.columns, flush_interval_s) as writer:
         for chunk in paced(source.stream(), lambda c: c["t"][-1], rate, origin_s=0.0):
             writer.append(chunk)
-            for callback in on_chunk or ():
+            for callback in callbacks:
                 callback(chunk)
             if cue is not None:
                 cue.update(float(chunk["t"][-1]))
         for key, value in source.metadata().items():
             setattr(writer.meta, key, value)
+        for listener in listeners:
+            for key, value in listener.session_fields().items():
+                setattr(writer.meta, key, value)
         path = writer.close()
     return CaptureResult(path=path, samples=writer.samples_written)
 
@@ -110,7 +130,7 @@ def record_session(source: Source, out_dir: Path, *, meta: SessionMeta | None = 
     """Record one session from ``source`` into ``out_dir`` (created if needed) under its
     standard file name; return the result. ``meta`` defaults to the source's
     :meth:`~contactkit.recorder.sources.Source.session_meta`; ``options`` are those of
-    :func:`capture` (``realtime``, ``cue``, ``on_chunk``, ``overwrite``)."""
+    :func:`capture` (``realtime``, ``cue``, ``on_chunk``, ``listeners``, ``overwrite``)."""
     meta = meta or source.session_meta()
     return capture(source, meta, output_directory(Path(out_dir)) / session_filename(meta),
                    **options)

@@ -7,6 +7,10 @@ shows up in ``recorder capture --help`` without changes here. An option several
 sources declare with the same type is shared; an option that clashes with a
 protocol option or with another source's option of another type makes that source
 unusable, which ``recorder sources`` reports.
+
+A :class:`CaptureExtension` adds options and a listener that follows the capture
+(the live contact-event pipeline, wired in by the ``recorder`` composition root),
+without this module knowing what the listener does.
 """
 
 from __future__ import annotations
@@ -19,7 +23,12 @@ from typing import Annotated, Any, Literal
 
 import typer
 
-from contactkit.recorder.capture import OperatorCue, output_directory, record_session
+from contactkit.recorder.capture import (
+    CaptureListener,
+    OperatorCue,
+    output_directory,
+    record_session,
+)
 from contactkit.recorder.live_view import open_live_view
 from contactkit.recorder.protocol import POSES
 from contactkit.recorder.sources import (
@@ -29,7 +38,7 @@ from contactkit.recorder.sources import (
     open_source,
     source_options,
 )
-from contactkit.schemas import ACTIONS, InputError
+from contactkit.schemas import ACTIONS, InputError, SessionMeta
 from contactkit.util.progress import err_console
 
 Viewer = Literal["rerun", "web", "none"]
@@ -48,6 +57,17 @@ class SharedOption:
     help: str
     fields: dict[str, str] = field(default_factory=dict)
     """Source name -> its ``Config`` field behind this option."""
+
+
+@dataclass(frozen=True)
+class CaptureExtension:
+    """Extra ``capture`` options and what to do with them: ``parameters`` become
+    options (keyword-only, annotated like the protocol's), and ``start`` is called
+    with every option's value and the session metadata before recording; it returns
+    a listener that sees every chunk as it is recorded (or None to stay out)."""
+
+    parameters: tuple[inspect.Parameter, ...]
+    start: Callable[[dict[str, Any], SessionMeta], CaptureListener | None]
 
 
 def _protocol_parameters(source_names: list[str]) -> list[inspect.Parameter]:
@@ -125,9 +145,10 @@ def _source_parameter(opt: SharedOption) -> inspect.Parameter:
                              annotation=Annotated[opt.type | None, info])
 
 
-def capture_command(sources: dict[str, type[Source]], options: dict[str, SharedOption]
-                    ) -> Callable[..., None]:
-    """Return the ``capture`` command function for these sources and their options."""
+def capture_command(sources: dict[str, type[Source]], options: dict[str, SharedOption],
+                    extensions: tuple[CaptureExtension, ...] = ()) -> Callable[..., None]:
+    """Return the ``capture`` command function for these sources, their options and the
+    extensions' options."""
 
     def command(**values: Any) -> None:
         """Record one session and print the written file's path.
@@ -149,9 +170,11 @@ def capture_command(sources: dict[str, type[Source]], options: dict[str, SharedO
             link=values["link"], planned_at_s=values["planned_at"],
             duration_s=values["duration"], operator=values["operator"],
             with_hand=values["hand"], notes=values["notes"])
-        _record(open_source(name, chosen, choices), values)
+        _record(open_source(name, chosen, choices), values, extensions)
 
     params = _protocol_parameters(list(sources))
+    for extension in extensions:
+        params += extension.parameters
     for opt in options.values():
         params.append(_source_parameter(opt))
     command.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
@@ -168,14 +191,17 @@ def _flags(params: list[inspect.Parameter]) -> set[str]:
     return names
 
 
-def register_capture(app: typer.Typer) -> None:
-    """Add ``capture`` (for every usable source) and ``sources`` to the recorder app."""
+def register_capture(app: typer.Typer, extensions: tuple[CaptureExtension, ...] = ()
+                     ) -> None:
+    """Add ``capture`` (for every usable source, with the ``extensions``' options) and
+    ``sources`` to the recorder app."""
     classes, problems = load_sources()
     protocol = _protocol_parameters(list(classes))
+    protocol += [p for extension in extensions for p in extension.parameters]
     options, clashes = shared_options(classes, _flags(protocol))
     problems |= clashes
     usable = {k: v for k, v in classes.items() if k not in clashes}
-    app.command("capture")(capture_command(usable, options))
+    app.command("capture")(capture_command(usable, options, extensions))
 
     @app.command("sources")
     def sources_command() -> None:
@@ -190,9 +216,12 @@ def register_capture(app: typer.Typer) -> None:
             print(f"{name}: unusable: {problem}")
 
 
-def _record(source: Source, values: dict[str, Any]) -> None:
+def _record(source: Source, values: dict[str, Any],
+            extensions: tuple[CaptureExtension, ...]) -> None:
     meta = source.session_meta()
     out = output_directory(values["out"])
+    listeners = [listener for extension in extensions
+                 if (listener := extension.start(values, meta)) is not None]
     live = open_live_view(values["viewer"], values["save_rrd"], meta, source.nominal_rate_hz,
                           err_console.print)
     cue = None
@@ -204,7 +233,7 @@ def _record(source: Source, values: dict[str, Any]) -> None:
                           echo=None if live is None else live.cue)
     result = record_session(source, out, meta=meta, realtime=values["realtime"], cue=cue,
                             on_chunk=None if live is None else [live.on_chunk],
-                            overwrite=values["overwrite"])
+                            listeners=listeners, overwrite=values["overwrite"])
     if live is not None:
         live.close()
     print(result.path)

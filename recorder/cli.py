@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import inspect
 import json
 import os
 import sys
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import typer
 from rich.console import Console
@@ -15,7 +16,13 @@ from contactkit.recorder.bags import BagJob, find_bags, import_bag_job, import_b
 from contactkit.recorder.can_map import load_map
 from contactkit.recorder.can_tools import bridge_session, decoding_summary, import_can_log
 from contactkit.recorder.capture import output_directory
-from contactkit.recorder.capture_cli import Action, Condition, Pose, register_capture
+from contactkit.recorder.capture_cli import (
+    Action,
+    CaptureExtension,
+    Condition,
+    Pose,
+    register_capture,
+)
 from contactkit.recorder.csv_import import import_csv
 from contactkit.recorder.csv_map import load_csv_map
 from contactkit.recorder.dataset import PRESETS, simulate_dataset
@@ -28,10 +35,15 @@ from contactkit.recorder.sim import SimConfig
 from contactkit.recorder.sources.can import BusConfig
 from contactkit.recorder.stats import build_report, write_noise_file
 from contactkit.recorder.stats_report import print_summary, write_report
-from contactkit.schemas import InputError, read_session
+from contactkit.schemas import InputError, SessionMeta, read_session
 from contactkit.schemas.dataset import rebuild_index
 from contactkit.util.cli import new_app, run_app
-from contactkit.util.progress import bar_callback, err_console, progress_bar
+from contactkit.util.progress import (
+    bar_callback,
+    err_console,
+    labelled_progress,
+    progress_bar,
+)
 
 app = new_app("recorder", help="Record Panda joint streams while a person touches the arm on "
               "cue, and manage the resulting sessions. Without a robot, sessions come from a "
@@ -39,7 +51,58 @@ app = new_app("recorder", help="Record Panda joint streams while a person touche
 DEFAULT_WORKERS = max(os.cpu_count() or 1, 1)
 Preset = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
 ReportFormat = Literal["html", "md", "json"]
-register_capture(app)
+
+
+def _event_option(name: str, kind: Any, default: Any, help: str) -> inspect.Parameter:
+    return inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=default,
+                             annotation=Annotated[kind, typer.Option(help=help)])
+
+
+def _start_events(values: dict[str, Any], meta: SessionMeta) -> Any:
+    """Return the live event pipeline (a capture listener) for a capture with --events,
+    else None. The classifier side is imported here, when asked for: it takes seconds."""
+    if not values["events"]:
+        given = [flag for flag, key in (("--model", "model"), ("--calibration", "calibration"),
+                                        ("--decide-after", "decide_after"))
+                 if values[key] is not None]
+        if given:
+            raise InputError(f"{given[0]} needs --events")
+        return None
+    from contactkit.classify.event_listener import LiveEvents, describe
+    from contactkit.features.detector import load_calibration
+    from contactkit.replay.session_replay import default_model_missing, model_or_default
+
+    detector = None if values["calibration"] is None else load_calibration(values["calibration"])
+    if values["model"] is None and default_model_missing():
+        err_console.print("No --model given: building the default model once (simulated "
+                          "data, then an SVM); it is cached for next time.")
+    with progress_bar() as bar:
+        model = model_or_default(values["model"], labelled_progress(bar))
+    detector = detector or model.detector_config()
+    if detector is None:
+        raise InputError("model carries no contact detector; give --calibration",
+                         values["model"])
+    chain = model.transformer().chain_config()
+
+    def report(kind: str, event: Any) -> None:
+        err_console.print(f"  [bold]event[/] {describe(kind, event)}")
+
+    return LiveEvents(chain, meta.with_hand, detector, model.event_model(),
+                      values["decide_after"], report)
+
+
+EVENTS = CaptureExtension((
+    _event_option("events", bool, False, "Run the contact-event pipeline on every sample as "
+                  "it arrives: print each onset, decision and release, and store the events "
+                  "in the session metadata (recorder info shows them)."),
+    _event_option("model", Path | None, None, "Events: model file from `classify train` "
+                  "(default: the built-in model, built and cached on first use)."),
+    _event_option("calibration", Path | None, None, "Events: contact detector calibration "
+                  "from `classify calibrate` (overrides the model's detector settings)."),
+    _event_option("decide_after", float | None, None, "Events: time after a contact's onset "
+                  "at which its intent is decided [s] (default: the model's)."),
+), _start_events)
+register_capture(app, (EVENTS,))
 
 
 @app.command("simulate")

@@ -71,4 +71,21 @@ def print_info(info: dict, console: Console) -> None:
                       + ("" if peak is None else f", peak {peak:.1f} N"))
     elif info["peak_force_n"] is not None:
         table.add_row("contact", "none")
+    for number, event in enumerate(meta.get("events") or (), 1):
+        table.add_row(f"event {number}", event_line(event))
     console.print(table)
+
+
+def event_line(event: dict) -> str:
+    """Return one line for a contact event stored in the metadata (times in s)."""
+    def at(key: str) -> str:
+        value = event.get(key)
+        return "-" if not isinstance(value, int | float) else f"{value:.3f} s"
+
+    label = str(event.get("label", "?"))
+    probabilities = event.get("probabilities")
+    p = probabilities.get(label) if isinstance(probabilities, dict) else None
+    return (f"{label}" + ("" if not isinstance(p, int | float) else f" (p = {p:.2f})")
+            + f", onset {at('onset_s')}, decided {at('decision_s')}, "
+              f"released {at('release_s')}"
+            + (", outside the training range" if event.get("out_of_range") else ""))

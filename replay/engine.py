@@ -7,7 +7,11 @@ trained with), or for a network the resampled window grid, go through the model:
 each prediction is stamped with the time of the last sample it used, so it never
 looks ahead. Where the model carries a contact detector (or one is given), every
 sample also goes through the event pipeline (:mod:`contactkit.classify.events`:
-detect, decide once, hold until release), which needs no planned interaction time.
+detect, decide once, hold until release), which needs no planned interaction time,
+and gates the per-hop output: without a detected contact a hop's label is ``none``
+(probability 1), whatever the window classifier says (its own probabilities stay in
+``pred_window_proba``), because the window classifier was trained on contacts at a
+planned time and calls fast free motion a contact.
 For a session with a planned time the engine also computes the offline answer:
 the window found by the thesis method and the model's label for it.
 
@@ -22,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactkit.classify.events import ContactEvent, EventPipeline
+from contactkit.classify.events import NONE, ContactEvent, EventPipeline
 from contactkit.classify.modelfile import ModelFile
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.timeseries import ChainConfig, OnlineChain, columns_of, expand
@@ -56,9 +60,10 @@ class ReplayStream:
 
     Per-sample outputs (filled as the stream advances): ``r`` (N, 7) [Nm], ``force``
     and ``moment`` (N, 3) [N, Nm], ``norms`` (N, 2), ``ee_position`` (N, 3) [m].
-    Predictions: ``pred_t`` [s], ``pred_sample``, ``pred_proba`` (M, classes),
-    ``pred_label``. Events (with a detector): ``event_label`` (N,) the pipeline's
-    label per sample, ``score`` (N,) the detector score, and :attr:`events`.
+    Predictions: ``pred_t`` [s], ``pred_sample``, ``pred_proba`` (M, classes) and
+    ``pred_label``, gated by the detector where there is one, and the window
+    classifier's own ``pred_window_proba``. Events (with a detector): ``event_label``
+    (N,) the pipeline's label per sample, ``score`` (N,) the detector score, and :attr:`events`.
     ``detector`` overrides the model's detector settings; ``decide_after_s`` its
     decision delay [s]; ``detector`` holds the settings in use (None without one).
     """
@@ -94,6 +99,7 @@ class ReplayStream:
         self.pred_t: list[float] = []
         self.pred_sample: list[int] = []
         self.pred_proba: list[np.ndarray] = []
+        self.pred_window_proba: list[np.ndarray] = []
         self.pred_label: list[str] = []
         self.detector = detector = detector or model.detector_config()
         self.pipeline = None if detector is None else EventPipeline(
@@ -108,10 +114,13 @@ class ReplayStream:
 
     def _predict(self, k: int) -> None:
         row = self.transformer.online_row(self.t, self._values, k)
-        proba = self._predict_proba(row[None, ...])[0]
+        window_proba = proba = self._predict_proba(row[None, ...])[0]
+        if self.pipeline is not None and self.event_label[k] == NONE and NONE in self.classes:
+            proba = (np.array(self.classes) == NONE).astype(float)
         self.pred_t.append(float(self.t[k]))
         self.pred_sample.append(k)
         self.pred_proba.append(proba)
+        self.pred_window_proba.append(window_proba)
         self.pred_label.append(self.classes[int(np.argmax(proba))])
 
     def blocks(self) -> Iterator[Block]:

@@ -129,6 +129,8 @@ class SessionMeta:
     source_info: dict[str, Any] = field(default_factory=dict)
     recovered: bool = False
     recovered_samples: int | None = None
+    events: list[dict[str, Any]] | None = None
+    """Contact events found while recording (a live event pipeline), one dict each."""
     tool_version: str = ""
     schema_version: int = SCHEMA_VERSION
 
@@ -219,6 +221,7 @@ _FIELD_TYPES: dict[str, tuple[type, ...]] = {
     "operator": (str,), "notes": (str,), "created_utc": (str,), "robot": (str,),
     "with_hand": (bool,), "urdf_sha256": (str,), "simulator": (dict, type(None)),
     "source_info": (dict,), "recovered": (bool,), "recovered_samples": (int, type(None)),
+    "events": (list, type(None)),
     "tool_version": (str,), "schema_version": (int,),
 }
 _BOUNDS = (("planned_at_s", 0.0, MAX_SESSION_S), ("speed_rad_s", 1e-6, 100.0),

@@ -15,6 +15,8 @@ from contactkit.features.detector import detect
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.recorder.arrays import load_joint_arrays
 from contactkit.replay.default_model import build_default_model
+from contactkit.replay.engine import ReplayStream
+from contactkit.schemas import SessionMeta, joint_columns, read_session, write_session
 from tests.conftest import MINDLAB_FILES, load_mindlab
 
 # The default model is built once (about 5 minutes on 2 cores) and cached: these are
@@ -63,3 +65,19 @@ def test_real_events_are_decided_once_and_never_confident_out_of_range(
         if event.out_of_range:
             assert event.label == "unknown"
         assert np.isclose(sum(event.probabilities.values()), 1.0)
+
+
+def test_per_hop_output_is_none_in_free_motion(default_model, reference_dir: Path,
+                                               tmp_path: Path) -> None:
+    gaz = load_joint_arrays(*(reference_dir / f for f in ("time.txt", "positions.txt",
+                                                          "velocity.txt", "torques.txt")))
+    columns = {"t": gaz["t"] - gaz["t"][0]}
+    for prefix in ("q", "dq", "tau"):
+        columns.update(zip(joint_columns(prefix), gaz[prefix].T, strict=True))
+    path = write_session(tmp_path / "gaz.parquet", columns,
+                         SessionMeta(session_id="gaz", source="real", action="none",
+                                     with_hand=False))
+    stream = ReplayStream(read_session(path), default_model).run()
+    assert len(stream.pred_label) > 1000 and set(stream.pred_label) == {"none"}
+    none = default_model.classes.index("none")
+    assert all(p[none] == 1.0 for p in stream.pred_proba)

@@ -1,0 +1,85 @@
+"""Contact events while recording: a capture listener that runs the event pipeline.
+
+:class:`LiveEvents` takes the capture's chunks of samples (dicts of column arrays, as
+sources yield them) and feeds each sample, in arrival order, through the streaming
+observer (:class:`contactkit.features.timeseries.OnlineChain`) and the event
+pipeline (:class:`contactkit.classify.events.EventPipeline`): the same code, on the
+same samples, as ``replay`` runs on the written session, so both find the same
+events. Samples that lack a joint value (NaN gaps of a CAN source) are skipped, as
+the replay of the session skips them. Each onset, decision and release is handed to
+``report`` as it happens; :meth:`LiveEvents.session_fields` gives the events for the
+session metadata when the capture closes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from contactkit.classify.events import ContactEvent, EventModel, EventPipeline
+from contactkit.features.detector import DetectorConfig
+from contactkit.features.timeseries import ChainConfig, OnlineChain
+from contactkit.schemas import joint_columns
+
+Report = Callable[[str, ContactEvent], None]
+"""Called with ("onset" | "decision" | "release", the event) as each happens."""
+
+
+def describe(kind: str, event: ContactEvent) -> str:
+    """Return a one-line text for an event report: times in s, probability of the label."""
+    if kind == "onset":
+        return f"contact onset at {event.onset_s:.3f} s"
+    if kind == "decision":
+        p = event.probabilities.get(event.label)
+        return (f"contact decided at {event.decision_s:.3f} s: {event.label}"
+                + ("" if p is None else f" (p = {p:.2f})")
+                + (" (outside the training range)" if event.out_of_range else ""))
+    return (f"contact released at {event.release_s:.3f} s: {event.label}, "
+            f"{event.release_s - event.onset_s:.3f} s long")
+
+
+class LiveEvents:
+    """Capture listener: per sample observer -> detector -> decide -> hold.
+
+    ``chain`` is the feature chain configuration of the model (its observer),
+    ``with_hand`` whether the arm carries its hand, ``detector`` and ``model`` the
+    contact detector settings and intent classifier, ``decide_after_s`` [s] the
+    decision delay (None: the model's), ``report`` receives every onset, decision
+    and release as it happens.
+    """
+
+    def __init__(self, chain: ChainConfig, with_hand: bool, detector: DetectorConfig,
+                 model: EventModel | None = None, decide_after_s: float | None = None,
+                 report: Report | None = None) -> None:
+        self.chain = OnlineChain(chain, with_hand)
+        self.pipeline = EventPipeline(detector, model, decide_after_s)
+        self.report = report
+        self.samples = 0
+        self._columns = [joint_columns(prefix) for prefix in ("q", "dq", "tau")]
+
+    def on_chunk(self, chunk: dict[str, np.ndarray]) -> None:
+        """Feed one chunk of recorded rows (``t`` [s] and the joint columns)."""
+        t = np.asarray(chunk["t"], dtype=float)
+        q, dq, tau = (np.column_stack([np.asarray(chunk[c], dtype=float) for c in names])
+                      for names in self._columns)
+        keep = np.isfinite(np.column_stack([q, dq, tau])).all(axis=1)
+        for k in np.flatnonzero(keep):
+            out = self.chain.update(float(t[k]), q[k], dq[k], tau[k])
+            state = self.pipeline.update(float(t[k]), out["r"], dq[k])
+            self.samples += 1
+            if self.report is None:
+                continue
+            for kind, event in (("onset", state.started), ("decision", state.decided),
+                                ("release", state.released)):
+                if event is not None:
+                    self.report(kind, event)
+
+    @property
+    def events(self) -> list[ContactEvent]:
+        """The events so far (the last one may still be open)."""
+        return self.pipeline.finish()
+
+    def session_fields(self) -> dict[str, list[dict]]:
+        """Return the session metadata fields to store: ``events``, one dict per event."""
+        return {"events": [event.to_dict() for event in self.events]}

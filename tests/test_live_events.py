@@ -1,0 +1,117 @@
+"""recorder capture --events: the event pipeline on every sample as it is recorded, the
+same events as replay on the written file, nothing seen from the future."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from contactkit.classify.event_listener import LiveEvents
+from contactkit.classify.modelfile import load_model
+from contactkit.recorder.capture import record_session
+from contactkit.recorder.sources import ProtocolChoices, open_source
+from contactkit.replay.default_model import build_default_model
+from contactkit.replay.engine import ReplayStream
+from contactkit.schemas import joint_columns, read_session
+from tests.conftest import run_cli
+
+CAPTURE = ("--pose", "B", "--action", "adjust", "--link", "4", "--seed", "2", "--rate", "500",
+           "--duration", "4", "--planned-at", "1.5")
+
+
+@pytest.fixture(scope="module")
+def model_path() -> Path:
+    return build_default_model()
+
+
+@pytest.fixture(scope="module")
+def captured(tmp_path_factory, model_path) -> tuple[Path, str]:
+    out = tmp_path_factory.mktemp("live")
+    result = run_cli("recorder", "capture", *CAPTURE, "--events", "--model", str(model_path),
+                     "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    return Path(result.stdout.strip()), result.stderr
+
+
+def _listener(model_path: Path, with_hand: bool = True, report=None) -> LiveEvents:
+    model = load_model(model_path)
+    return LiveEvents(model.transformer().chain_config(), with_hand, model.detector_config(),
+                      model.event_model(), report=report)
+
+
+def test_capture_reports_one_event_as_replay_does(captured, model_path) -> None:
+    path, stderr = captured
+    assert [kind in stderr for kind in ("onset", "decided", "released")] == [True] * 3
+    stored = read_session(path).meta.events
+    assert len(stored) == 1
+    replayed = ReplayStream(read_session(path), load_model(model_path)).run().events
+    assert [e.to_dict() for e in replayed] == stored
+    assert stored[0]["label"] == "adjust"
+    assert stored[0]["decision_s"] - stored[0]["onset_s"] == pytest.approx(0.15, abs=0.003)
+
+
+def test_info_shows_the_stored_events(captured) -> None:
+    path, _ = captured
+    result = run_cli("recorder", "info", str(path), "--json")
+    assert result.returncode == 0, result.stderr
+    events = json.loads(result.stdout)["metadata"]["events"]
+    assert [e["label"] for e in events] == ["adjust"]
+    table = run_cli("recorder", "info", str(path)).stdout
+    assert "event 1" in table and "adjust (p = " in table
+
+
+def _chunks(path: Path, size: int) -> list[dict[str, np.ndarray]]:
+    session = read_session(path)
+    names = ["t", *joint_columns("q"), *joint_columns("dq"), *joint_columns("tau")]
+    columns = {name: session.column(name) for name in names}
+    return [{k: v[i:i + size] for k, v in columns.items()}
+            for i in range(0, session.n_samples, size)]
+
+
+def test_live_pipeline_sees_no_future_samples(captured, model_path) -> None:
+    path, _ = captured
+    chunks = _chunks(path, 7)
+    seen: list[tuple[float, float]] = []  # (time the report speaks of, last sample fed)
+    fed = {"t": -np.inf}
+
+    def report(kind, event) -> None:
+        stamp = {"onset": event.onset_s, "decision": event.decision_s,
+                 "release": event.release_s}[kind]
+        seen.append((stamp, fed["t"]))
+
+    full = _listener(model_path, report=report)
+    for chunk in chunks:
+        fed["t"] = float(chunk["t"][-1])
+        full.on_chunk(chunk)
+    assert len(seen) == 3 and all(stamp <= last for stamp, last in seen)
+    decision = full.events[0].decision_s
+    # Cut the stream just after the decision: the same decision, from the past alone.
+    cut = _listener(model_path)
+    for chunk in chunks:
+        keep = chunk["t"] <= decision
+        cut.on_chunk({k: v[keep] for k, v in chunk.items()})
+    [early] = cut.events
+    assert early.release_s is None
+    assert (early.onset_s, early.decision_s, early.label, early.probabilities) == (
+        full.events[0].onset_s, decision, full.events[0].label, full.events[0].probabilities)
+
+
+def test_listener_through_the_library_and_in_the_metadata(tmp_path, model_path) -> None:
+    source = open_source("sim", {"seed": 2, "rate": 500.0},
+                         ProtocolChoices(action="adjust", pose="B", link=4, duration_s=4.0,
+                                         planned_at_s=1.5))
+    listener = _listener(model_path)
+    result = record_session(source, tmp_path, listeners=[listener])
+    assert read_session(result.path).meta.events == listener.session_fields()["events"]
+    assert listener.samples == result.samples
+
+
+def test_event_options_need_events(tmp_path, model_path) -> None:
+    result = run_cli("recorder", "capture", *CAPTURE, "--model", str(model_path),
+                     "--out", str(tmp_path))
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--events" in lines[0], result.stderr
