@@ -30,7 +30,6 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from contactkit.classify.events import ContactEvent, EventPipeline
@@ -39,7 +38,12 @@ from contactkit.features.detector import DetectorConfig
 from contactkit.features.timeseries import ChainConfig, ChunkedChain, columns_of, expand
 from contactkit.features.windows import Window
 from contactkit.schemas import InputError, Session
-from contactkit.schemas.session import iter_session_batches, joint_columns, read_session_meta
+from contactkit.schemas.session import (
+    complete_table,
+    iter_session_batches,
+    joint_columns,
+    read_session_meta,
+)
 
 DEFAULT_HOP_S = 0.02
 ROBOT_VIEW_HZ = 60.0
@@ -103,18 +107,6 @@ class OfflineAnswer:
     probabilities: np.ndarray
     start_sample: int = 0
     end_sample: int = 0
-
-
-def _complete(table: pa.Table) -> pa.Table:
-    """Drop rows that lack a joint value (NaN gaps left by a CAN source)."""
-    measured = [c for prefix in ("q", "dq", "tau") for c in joint_columns(prefix)]
-    keep = None
-    for name in measured:
-        finite = pc.is_finite(table.column(name))
-        keep = finite if keep is None else pc.and_(keep, finite)
-    if pc.all(keep).as_py():
-        return table
-    return table.filter(keep)
 
 
 def _joints(table: pa.Table, prefix: str) -> np.ndarray:
@@ -195,7 +187,7 @@ class ReplayStream:
         else:
             batches = iter_session_batches(self.path, rows)
         for batch in batches:
-            yield _complete(pa.Table.from_batches([batch]))
+            yield complete_table(pa.Table.from_batches([batch]))
 
     def blocks(self, every_hop: bool = False) -> Iterator[Block]:
         """Stream the session; yield a :class:`Block` per batch read, or with

@@ -285,11 +285,10 @@ class Session:
     def complete(self) -> Session:
         """Return the session without samples that lack a joint value (NaN gaps left by a
         CAN source); the feature chain treats the gap as one longer time step."""
-        measured = np.column_stack([self.q, self.dq, self.tau])
-        keep = np.isfinite(measured).all(axis=1)
-        if keep.all():
+        table = complete_table(self.table)
+        if table is self.table:
             return self
-        return Session(meta=self.meta, table=self.table.filter(pa.array(keep)), path=self.path)
+        return Session(meta=self.meta, table=table, path=self.path)
 
     @property
     def n_samples(self) -> int:
@@ -301,6 +300,18 @@ class Session:
         """Time between the first and last sample [s] (0 for fewer than two samples)."""
         t = self.t
         return float(t[-1] - t[0]) if len(t) > 1 else 0.0
+
+
+def complete_table(table: pa.Table) -> pa.Table:
+    """Return the rows of a session table (or of a chunk of one) that have every joint
+    value (q, dq, tau); the table itself when none is missing."""
+    keep = np.ones(table.num_rows, dtype=bool)
+    for prefix in ("q", "dq", "tau"):
+        for name in joint_columns(prefix):
+            keep &= np.isfinite(table.column(name).to_numpy())
+    if keep.all():
+        return table
+    return table.filter(pa.array(keep))
 
 
 def new_session_id() -> str:

@@ -6,9 +6,18 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 
-from contactkit.features.timeseries import ALL_TIMESERIES, ChunkedChain, TimeseriesChain
+from contactkit.features import chain_cache
+from contactkit.features.extract import timeseries_columns
+from contactkit.features.per_sample import write_per_sample_table
+from contactkit.features.timeseries import (
+    ALL_TIMESERIES,
+    ChainConfig,
+    ChunkedChain,
+    TimeseriesChain,
+)
 from contactkit.schemas import read_session
 from tests.conftest import make_session
 
@@ -40,3 +49,29 @@ def test_an_empty_chunk_changes_nothing(shove) -> None:
     rest = chain.compute(s.t[10:], s.q[10:], s.dq[10:], s.tau[10:])["r"]
     whole = TimeseriesChain(with_hand=True).compute(s.t, s.q, s.dq, s.tau, ["r"])["r"]
     assert np.abs(np.vstack([first, rest]) - whole).max() <= 1e-9
+
+
+def test_chain_cache_written_in_row_groups_equals_the_chain(shove, tmp_path,
+                                                            monkeypatch) -> None:
+    monkeypatch.setenv("CONTACTKIT_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(chain_cache, "BATCH_ROWS", 333)
+    s = read_session(shove)
+    cached = chain_cache.chain_series(s, ChainConfig(), ["tau", "r", "f"])
+    whole = TimeseriesChain(with_hand=True).compute(s.t, s.q, s.dq, s.tau, ["tau", "r", "f"])
+    for name, values in whole.items():
+        assert np.abs(cached[name] - values).max() <= 1e-9, name
+    (stored,) = (tmp_path / "cache" / "chain").glob("*/r.parquet")
+    assert pq.ParquetFile(stored).metadata.num_row_groups == -(-s.n_samples // 333)
+
+
+def test_per_sample_table_streams_and_equals_the_chain(shove, tmp_path, monkeypatch) -> None:
+    monkeypatch.setattr(chain_cache, "BATCH_ROWS", 500)
+    out = tmp_path / "samples.parquet"
+    assert write_per_sample_table([shove], out) == (1, [])
+    table = pq.read_table(out)
+    s = read_session(shove)
+    expected = timeseries_columns(s)
+    assert table.column_names == ["session_id", *expected]
+    assert pq.ParquetFile(out).metadata.num_row_groups == -(-s.n_samples // 500)
+    for name, values in expected.items():
+        assert np.abs(table.column(name).to_numpy() - values).max() <= 1e-9, name
