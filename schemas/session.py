@@ -510,7 +510,7 @@ def iter_session_batches(path: str | Path, batch_rows: int = ROW_GROUP_ROWS
     meta, _ = read_session_meta(path)
     gaps = allows_gaps(meta)
     try:
-        batches = pq.ParquetFile(path).iter_batches(batch_size=batch_rows)
+        batches = _rebatched(_group_batches(pq.ParquetFile(path), batch_rows), batch_rows)
         offset, last_t = 0, -math.inf
         for batch in batches:
             _validate_chunk(pa.Table.from_batches([batch]), path, gaps, offset, last_t)
@@ -521,6 +521,31 @@ def iter_session_batches(path: str | Path, batch_rows: int = ROW_GROUP_ROWS
         raise InputError(f"cannot read the Parquet data ({_first_line(err)})", path) from err
     if offset == 0:
         raise InputError("session has no samples", path)
+
+
+def _group_batches(file: pq.ParquetFile, batch_rows: int) -> Iterator[pa.RecordBatch]:
+    """Read one row group at a time: a single ``iter_batches`` over the whole file keeps
+    buffers of the groups already read (RSS grew by about 30 MB per 65,536 rows)."""
+    for group in range(file.metadata.num_row_groups):
+        yield from file.iter_batches(batch_size=batch_rows, row_groups=[group],
+                                     use_threads=False)
+
+
+def _rebatched(batches: Iterable[pa.RecordBatch], rows: int) -> Iterator[pa.RecordBatch]:
+    """Yield the rows of ``batches`` in batches of exactly ``rows`` rows (the last may
+    hold fewer), whatever the row groups."""
+    pending: list[pa.RecordBatch] = []
+    count = 0
+    for batch in batches:
+        pending.append(batch)
+        count += batch.num_rows
+        while count >= rows:
+            table = pa.Table.from_batches(pending)
+            yield table.slice(0, rows).combine_chunks().to_batches()[0]
+            rest = table.slice(rows)
+            pending, count = rest.to_batches(), rest.num_rows
+    if count:
+        yield pa.Table.from_batches(pending).combine_chunks().to_batches()[0]
 
 
 def _validate_chunk(table: pa.Table, path: Path, gaps_allowed: bool, offset: int,
