@@ -121,12 +121,13 @@ class ReplayStream:
     ``pred_sample`` and ``pred_label`` (lists), and with a detector :attr:`events`.
     ``detector`` overrides the model's detector settings; ``decide_after_s`` its
     decision delay [s]; ``detector`` holds the settings in use (None without one).
-    ``batch_rows`` is the number of samples read and computed at a time.
+    ``batch_rows`` is the number of samples read and computed at a time (default
+    ``BATCH_ROWS``).
     """
 
     def __init__(self, session: Session | str | Path, model: ModelFile,
                  hop_s: float = DEFAULT_HOP_S, detector: DetectorConfig | None = None,
-                 decide_after_s: float | None = None, batch_rows: int = BATCH_ROWS) -> None:
+                 decide_after_s: float | None = None, batch_rows: int | None = None) -> None:
         if hop_s <= 0:
             raise InputError(f"the prediction hop must be positive, got {hop_s} s")
         if isinstance(session, Session):
@@ -138,7 +139,7 @@ class ReplayStream:
             self.meta, _ = read_session_meta(self.path)
         self.model = model
         self.hop_s = hop_s
-        self.batch_rows = batch_rows
+        self.batch_rows = batch_rows or BATCH_ROWS
         self._predict_proba = model.online_predictor()
         self.classes = model.classes
         self.transformer = model.transformer()
