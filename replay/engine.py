@@ -234,8 +234,8 @@ class ReplayStream:
             first, predictions = 0, []
             for k in range(n):
                 if self.pipeline is not None:
-                    self._event_step(float(t[k]), out["r"][k], dq[k], start + k, labels, scores,
-                                     k)
+                    labels[k], scores[k] = self._event_step(float(t[k]), out["r"][k], dq[k],
+                                                            start + k)
                 if t[k] >= next_hop - 1e-12:
                     predictions.append(self._predict(buffer_t, buffer_v, offset + k,
                                                      start + k))
@@ -255,14 +255,15 @@ class ReplayStream:
         if start == 0:
             raise InputError("session has no complete samples", self.path)
 
-    def _event_step(self, t: float, r: np.ndarray, dq: np.ndarray, sample: int,
-                    labels: np.ndarray, scores: np.ndarray, k: int) -> None:
+    def _event_step(self, t: float, r: np.ndarray, dq: np.ndarray, sample: int
+                    ) -> tuple[str, float]:
+        """Feed one sample to the event pipeline; return its label and detector score."""
         before = self.pipeline.current
         state = self.pipeline.update(t, r, dq)
-        labels[k], scores[k] = state.label, state.score
         if (before is None and self.pipeline.current is not None) or state.decided \
                 or state.released:
             self.event_samples[t] = sample
+        return state.label, state.score
 
     def _predict(self, t: np.ndarray, values: np.ndarray, k: int, sample: int
                  ) -> tuple[float, int, np.ndarray, str]:
@@ -299,10 +300,12 @@ class ReplayStream:
                 first = seen + int(np.argmax(inside)) if first is None else first
                 parts.append(table.filter(pa.array(inside)))
             seen += table.num_rows
+            if len(t) and t[-1] > high:
+                break
         if not parts:
             raise InputError(f"no samples near the planned time {planned:.3f} s", self.path)
         table = pa.concat_tables(parts)
-        whole = table.num_rows == seen
+        whole = table.num_rows == seen == self.n_samples
         session = Session(self.meta, table, self.path if whole else None)
         values, names, window = self.transformer.session_row(session)
         self.model.check_features(names, self.path)
