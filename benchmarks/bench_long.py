@@ -8,13 +8,19 @@ would (the simulator itself would dominate the time):
   the final Parquet file, exactly as ``recorder capture`` writes it;
 * ``read``: the whole session read and validated at once (``read_session``);
 * ``chunks``: the same file read and validated row group by row group
-  (``iter_session_batches``).
+  (``iter_session_batches``);
+* ``replay``: ``replay FILE --viewer none --save out.rrd`` with the default model
+  (contact detector, event classifier, hop classifier), streamed batch by batch;
+* ``features``: ``classify features FILE --per-sample --out samples.parquet``, every
+  timeseries feature of every sample, streamed batch by batch.
 
-Prints, per length: seconds, peak RSS [MB] and the process's RSS after imports, and
-the ratios of time and of memory above that baseline to the 1-minute case.
+Prints, per length: seconds, peak RSS [MB] and the process's RSS after imports, the
+ratios of time and of memory above that baseline to the shortest case, and per case
+the slopes between the shortest and the longest run: seconds per minute of session
+and MB of peak RSS per minute (flat memory: about 0).
 
-    .venv/bin/python benchmarks/bench_long.py              # 1 and 10 min
-    .venv/bin/python benchmarks/bench_long.py --minutes 1 10 60
+    .venv/bin/python benchmarks/bench_long.py                       # 1 and 10 min
+    .venv/bin/python benchmarks/bench_long.py --minutes 1 10 60 --cases replay
 """
 
 from __future__ import annotations
@@ -27,6 +33,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+import pyarrow.parquet as pq
 
 RATE_HZ = 1000.0
 CHUNK = 100
@@ -65,25 +73,49 @@ class SyntheticSource:
         return {"source": "sim"}
 
 
-def run_case(case: str, minutes: float, directory: Path) -> dict:
-    """Run one case in this process; return seconds, peak and baseline RSS [MB]."""
+def write_long_session(minutes: float, path: Path) -> int:
+    """Capture a synthetic session of ``minutes`` at 1 kHz to ``path``; return its samples."""
     from contactkit.recorder.capture import capture
-    from contactkit.schemas import SessionMeta, read_session
+    from contactkit.schemas import SessionMeta
+
+    path.unlink(missing_ok=True)
+    meta = SessionMeta(session_id="bench", source="sim", action="none",
+                       nominal_rate_hz=RATE_HZ)
+    return capture(SyntheticSource(minutes), meta, path).samples
+
+
+def run_case(case: str, minutes: float, directory: Path, model: Path | None = None) -> dict:
+    """Run one case in this process on ``directory/long_<minutes>.parquet`` (written by
+    the capture case); return seconds, peak and baseline RSS [MB]
+    (baseline: after the imports and, for replay, the model)."""
+    from contactkit.schemas import read_session
+    from contactkit.schemas.session import iter_session_batches
 
     path = directory / f"long_{minutes:g}.parquet"
+    if case == "replay":
+        from contactkit.classify.modelfile import load_model
+        from contactkit.replay.default_model import build_default_model
+        from contactkit.replay.session_replay import replay_session
+
+        replay_model = load_model(model or build_default_model())
+    elif case == "features":
+        from contactkit.features.per_sample import write_per_sample_table
     baseline = _rss_mb()
     start = time.perf_counter()
     if case == "capture":
-        path.unlink(missing_ok=True)
-        meta = SessionMeta(session_id="bench", source="sim", action="none",
-                           nominal_rate_hz=RATE_HZ)
-        samples = capture(SyntheticSource(minutes), meta, path).samples
+        samples = write_long_session(minutes, path)
     elif case == "read":
         samples = read_session(path).n_samples
-    else:
-        from contactkit.schemas.session import iter_session_batches
-
+    elif case == "chunks":
         samples = sum(batch.num_rows for batch in iter_session_batches(path))
+    elif case == "replay":
+        out = directory / f"long_{minutes:g}.rrd"
+        replay_session(path, replay_model, save=out)
+        samples = pq.ParquetFile(path).metadata.num_rows
+    else:
+        out = directory / f"long_{minutes:g}_samples.parquet"
+        write_per_sample_table([path], out)
+        samples = pq.ParquetFile(out).metadata.num_rows
     return {"case": case, "minutes": minutes, "samples": samples,
             "seconds": time.perf_counter() - start, "peak_mb": _rss_mb(),
             "baseline_mb": baseline}
@@ -92,27 +124,45 @@ def run_case(case: str, minutes: float, directory: Path) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", type=float, nargs="+", default=[1, 10])
-    parser.add_argument("--cases", nargs="+", default=["capture", "read", "chunks"])
+    parser.add_argument("--cases", nargs="+",
+                        default=["capture", "read", "chunks", "replay", "features"])
+    parser.add_argument("--model", type=Path, help="model file for replay (default: the "
+                                                   "default model)")
     parser.add_argument("--one", nargs=3, metavar=("CASE", "MINUTES", "DIR"),
                         help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.one:
-        print(json.dumps(run_case(args.one[0], float(args.one[1]), Path(args.one[2]))))
+        print(json.dumps(run_case(args.one[0], float(args.one[1]), Path(args.one[2]),
+                                  args.model)))
         return
     with tempfile.TemporaryDirectory() as tmp:
-        for case in args.cases:
-            first = None
+        if "capture" not in args.cases:  # the sessions the other cases read
             for minutes in args.minutes:
-                out = subprocess.run([sys.executable, __file__, "--one", case, str(minutes),
-                                      tmp], check=True, capture_output=True, text=True)
+                subprocess.run([sys.executable, __file__, "--one", "capture", str(minutes),
+                                tmp], check=True, capture_output=True)
+        for case in args.cases:
+            rows = []
+            for minutes in args.minutes:
+                command = [sys.executable, __file__, "--one", case, str(minutes), tmp]
+                if args.model:
+                    command += ["--model", str(args.model)]
+                out = subprocess.run(command, check=True, capture_output=True, text=True)
                 row = json.loads(out.stdout)
+                rows.append(row)
                 above = row["peak_mb"] - row["baseline_mb"]
-                first = first or (row["seconds"], max(above, 1.0))
+                first = (rows[0]["seconds"], max(rows[0]["peak_mb"] - rows[0]["baseline_mb"],
+                                                 1.0))
                 print(f"{case:8s} {minutes:5g} min  {row['samples']:>9d} samples  "
                       f"{row['seconds']:7.1f} s  peak {row['peak_mb']:7.0f} MB "
                       f"(imports {row['baseline_mb']:4.0f} MB)  "
                       f"time x{row['seconds'] / first[0]:5.1f}"
                       f"  memory above imports x{above / first[1]:5.1f}", flush=True)
+            if len(rows) > 1:
+                span = rows[-1]["minutes"] - rows[0]["minutes"]
+                print(f"{case:8s} slope: {(rows[-1]['seconds'] - rows[0]['seconds']) / span:.2f}"
+                      f" s per minute of session, "
+                      f"{(rows[-1]['peak_mb'] - rows[0]['peak_mb']) / span:+.2f} MB peak RSS "
+                      f"per minute", flush=True)
 
 
 if __name__ == "__main__":

@@ -29,9 +29,9 @@ from contactkit.recorder.dataset import simulate_specs
 from contactkit.recorder.sim import SimConfig, plan_session
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
 from contactkit.replay.engine import Block, ReplayStream
-from contactkit.replay.recording import log_block, log_offline, log_static, new_recording
-from contactkit.schemas import read_session, write_session
+from contactkit.replay.recording import BlockLogger, log_offline, log_static, new_recording
 from contactkit.schemas import rerun_layout as layout
+from contactkit.schemas import write_session
 
 
 def setup(tmp: Path) -> tuple[Path, Path]:
@@ -60,23 +60,25 @@ def setup(tmp: Path) -> tuple[Path, Path]:
     return session, model
 
 
-def compute(session_path: Path, model_path: Path) -> tuple[ReplayStream, object, float]:
-    """Run one --rate max replay without logging; return it and its wall time [s]."""
+def compute(session_path: Path, model_path: Path
+            ) -> tuple[ReplayStream, list[Block], object, float]:
+    """Run one --rate max replay without logging; return it, its blocks and its wall
+    time [s]."""
     start = time.perf_counter()
-    session = read_session(session_path)
-    stream = ReplayStream(session, load_model(model_path))
-    stream.run()
+    stream = ReplayStream(session_path, load_model(model_path))
+    blocks = list(stream.blocks())
     answer = stream.offline()
-    return stream, answer, time.perf_counter() - start
+    return stream, blocks, answer, time.perf_counter() - start
 
 
-def log_to_file(stream: ReplayStream, answer, rrd: Path) -> float:
+def log_to_file(stream: ReplayStream, blocks: list[Block], answer, rrd: Path) -> float:
     """Log a computed replay to an .rrd file exactly as the CLI does; return wall time [s]."""
     start = time.perf_counter()
     rec = new_recording("bench", "bench")
     rec.save(rrd, default_blueprint=layout.replay_blueprint())
-    tree = log_static(rec, stream)
-    log_block(rec, tree, stream, Block(0, stream.session.n_samples, range(len(stream.pred_t))))
+    logger = BlockLogger(rec, log_static(rec, stream))
+    for block in blocks:
+        logger.log(block)
     log_offline(rec, stream, answer)
     rec.flush()
     rec.disconnect()
@@ -85,16 +87,16 @@ def log_to_file(stream: ReplayStream, answer, rrd: Path) -> float:
 
 def paced_lag(session_path: Path, model_path: Path, rrd: Path) -> np.ndarray:
     """Lag [s] of wall clock behind session time at every hop of a --rate 1 replay."""
-    session = read_session(session_path)
-    stream = ReplayStream(session, load_model(model_path))
+    stream = ReplayStream(session_path, load_model(model_path))
     rec = new_recording("bench-paced", "bench-paced")
     rec.save(rrd)
-    tree = log_static(rec, stream)
+    logger = BlockLogger(rec, log_static(rec, stream))
     lags = []
     started = time.monotonic()
-    for block in stream.blocks():
-        log_block(rec, tree, stream, block)
-        due = started + session.t[block.stop - 1] - session.t[0]
+    t0, _ = stream.time_span()
+    for block in stream.blocks(every_hop=True):
+        logger.log(block)
+        due = started + block.t[-1] - t0
         now = time.monotonic()
         lags.append(max(0.0, now - due))
         if due > now:
@@ -108,9 +110,10 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         session, model = setup(Path(tmp))
         runs = [compute(session, model) for _ in range(3)]
-        bare = min(r[2] for r in runs)
-        stream, answer, _ = runs[-1]
-        logging = min(log_to_file(stream, answer, Path(tmp) / f"r{i}.rrd") for i in range(3))
+        bare = min(r[3] for r in runs)
+        stream, blocks, answer, _ = runs[-1]
+        logging = min(log_to_file(stream, blocks, answer, Path(tmp) / f"r{i}.rrd")
+                      for i in range(3))
         logged = bare + logging
         size = (Path(tmp) / "r0.rrd").stat().st_size
         lags = paced_lag(session, model, Path(tmp) / "paced.rrd")

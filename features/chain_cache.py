@@ -4,11 +4,16 @@ The model-based and workspace timeseries (residual, gravity, inverse dynamics,
 external power, wrench; :mod:`contactkit.features.timeseries`) cost a pinocchio
 pass over every sample; the window, the scalar features and the grid applied after
 them are cheap. :func:`chain_series` keeps those columns of each session in
-``<contactkit cache>/chain/<key>.npz``, keyed by the session file (absolute path,
-size, modification time, samples) and the chain settings (observer gain and
-friction, wrench frame, hand), so features, grids and experiments that differ only
-in their windows compute the chain once. A changed file or setting is another key.
-Sessions not read from a file, or the cache switched off, compute as before.
+``<contactkit cache>/chain/<key>/<feature>.parquet``, keyed by the session file
+(absolute path, size, modification time, samples) and the chain settings (observer
+gain and friction, wrench frame, hand), so features, grids and experiments that
+differ only in their windows compute the chain once. A changed file or setting is
+another key. Sessions not read from a file, or the cache switched off, compute as
+before.
+
+The cache is computed and written batch by batch (:class:`ChunkedChain`, one Parquet
+row group per batch), so filling it holds one batch of the session, however long
+the session is; :func:`iter_chain_batches` reads it back the same way.
 """
 
 from __future__ import annotations
@@ -16,18 +21,32 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from collections.abc import Iterator, Sequence
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 
-from contactkit.features.timeseries import MODEL, WORKSPACE, ChainConfig, TimeseriesChain, expand
+from contactkit.features.timeseries import (
+    MODEL,
+    WORKSPACE,
+    ChainConfig,
+    ChunkedChain,
+    TimeseriesChain,
+    columns_of,
+    expand,
+)
 from contactkit.schemas import Session
+from contactkit.schemas.session import complete_table, joint_columns
 from contactkit.util.cache import cache_dir
 
 CACHED = frozenset(MODEL + WORKSPACE)
 CACHE_ENV = "CONTACTKIT_CHAIN_CACHE"
 """Set to 0 to compute the chain every time."""
+BATCH_ROWS = 16_384
+"""Samples computed (and cached in one row group) at a time (about 16 s at 1 kHz)."""
 
 
 def _key(session: Session, config: ChainConfig) -> str | None:
@@ -44,20 +63,57 @@ def _key(session: Session, config: ChainConfig) -> str | None:
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
 
 
-def _read(path: Path) -> dict[str, np.ndarray]:
+def _read(path: Path, name: str, rows: int) -> np.ndarray | None:
     try:
-        with np.load(path) as stored:
-            return {name: stored[name] for name in stored.files}
-    except (OSError, ValueError, EOFError):
-        return {}
+        table = pq.read_table(path, columns=columns_of(name))
+    except (OSError, pa.ArrowInvalid, KeyError):
+        return None
+    if table.num_rows != rows:
+        return None
+    return np.column_stack([table.column(c).to_numpy() for c in columns_of(name)])
 
 
-def _write(path: Path, series: dict[str, np.ndarray]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as out:
-        np.savez(out, **series)
-    tmp.replace(path)
+def _joints(table: pa.Table, prefix: str) -> np.ndarray:
+    return np.column_stack([table.column(c).to_numpy() for c in joint_columns(prefix)])
+
+
+def write_chain_files(tables: Iterator[pa.Table], with_hand: bool, config: ChainConfig,
+                      targets: dict[str, Path]) -> None:
+    """Stream a session's complete rows (``tables``, consecutive chunks) through the
+    chunked chain and write each feature in ``targets`` (name -> Parquet path; its
+    columns as in :func:`contactkit.features.timeseries.columns_of`) one row group per
+    chunk, each file atomically."""
+    chain = ChunkedChain(config, with_hand, list(targets))
+    writers: dict[str, pq.ParquetWriter] = {}
+    temps = {name: path.with_name(f".{path.name}.{os.getpid()}.tmp")
+             for name, path in targets.items()}
+    try:
+        for table in tables:
+            if table.num_rows == 0:
+                continue
+            out = chain.compute(table.column("t").to_numpy(), _joints(table, "q"),
+                                _joints(table, "dq"), _joints(table, "tau"))
+            for name, values in out.items():
+                group = pa.table({c: np.ascontiguousarray(v) for c, v in
+                                  zip(columns_of(name), values.T, strict=True)})
+                if name not in writers:
+                    writers[name] = pq.ParquetWriter(temps[name], group.schema)
+                writers[name].write_table(group)
+        for writer in writers.values():
+            writer.close()
+        for name, tmp in temps.items():
+            if name in writers:
+                tmp.replace(targets[name])
+    finally:
+        for writer in writers.values():
+            writer.close()
+        for tmp in temps.values():
+            tmp.unlink(missing_ok=True)
+
+
+def _session_tables(session: Session) -> Iterator[pa.Table]:
+    for batch in session.table.to_batches(max_chunksize=BATCH_ROWS):
+        yield complete_table(pa.Table.from_batches([batch]))
 
 
 def chain_series(session: Session, config: ChainConfig | None = None,
@@ -66,22 +122,38 @@ def chain_series(session: Session, config: ChainConfig | None = None,
     """Return the named timeseries features of ``session`` (name -> (N, k) array, units
     as in :mod:`contactkit.features.timeseries`), the expensive ones from the cache
     when this session file and ``config`` were computed before. Equal to
-    ``TimeseriesChain(config, session.meta.with_hand).compute(...)``."""
+    ``TimeseriesChain(config, session.meta.with_hand).compute(...)`` on the complete
+    samples (exactly for sessions up to ``BATCH_ROWS`` samples, to about 1e-12 beyond)."""
     config = config or ChainConfig()
     names = expand(list(names))
+    session = session.complete()
     key = _key(session, config)
     if key is None:
         return TimeseriesChain(config, session.meta.with_hand).compute(
             session.t, session.q, session.dq, session.tau, names)
-    path = cache_dir() / "chain" / f"{key}.npz"
-    stored = _read(path)
-    missing = [n for n in names if n in CACHED and n not in stored]
-    cheap = [n for n in names if n not in CACHED]
-    computed: dict[str, np.ndarray] = {}
-    if missing or cheap:
-        computed = TimeseriesChain(config, session.meta.with_hand).compute(
-            session.t, session.q, session.dq, session.tau, missing + cheap)
+    directory = cache_dir() / "chain" / key
+    rows = session.n_samples
+    stored = {n: _read(directory / f"{n}.parquet", n, rows) for n in names if n in CACHED}
+    missing = {n: directory / f"{n}.parquet" for n, v in stored.items() if v is None}
     if missing:
-        stored.update({n: computed[n] for n in missing})
-        _write(path, stored)
+        directory.mkdir(parents=True, exist_ok=True)
+        write_chain_files(_session_tables(session), session.meta.with_hand, config, missing)
+        stored.update({n: _read(path, n, rows) for n, path in missing.items()})
+    cheap = [n for n in names if n not in CACHED]
+    computed = TimeseriesChain(config, session.meta.with_hand).compute(
+        session.t, session.q, session.dq, session.tau, cheap) if cheap else {}
     return {n: stored[n] if n in CACHED else computed[n] for n in names}
+
+
+def iter_chain_batches(tables: Iterator[pa.Table], with_hand: bool,
+                       config: ChainConfig | None = None,
+                       names: Sequence[str] = ("dq", "tau", "r")
+                       ) -> Iterator[tuple[pa.Table, dict[str, np.ndarray]]]:
+    """Yield each chunk of a session's complete rows (``tables``) with its features
+    (name -> (n, k) array), computed by one :class:`ChunkedChain`: memory is bounded
+    by one chunk."""
+    chain = ChunkedChain(config or ChainConfig(), with_hand, list(names))
+    for table in tables:
+        if table.num_rows:
+            yield table, chain.compute(table.column("t").to_numpy(), _joints(table, "q"),
+                                       _joints(table, "dq"), _joints(table, "tau"))

@@ -65,8 +65,11 @@ def observer_coefficients(t: np.ndarray, p: np.ndarray, u: np.ndarray, gain: np.
     return a, b
 
 
-def solve_recurrence(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Solve r_k = a_k r_{k-1} + b_k (r_{-1} = 0) for (N, 7) arrays, vectorised.
+def solve_recurrence(a: np.ndarray, b: np.ndarray, r_before: np.ndarray | None = None
+                     ) -> np.ndarray:
+    """Solve r_k = a_k r_{k-1} + b_k for (N, 7) arrays, vectorised, from r_{-1} =
+    ``r_before`` (zero when omitted; the last r of the previous chunk when a stream is
+    solved chunk by chunk).
 
     Blocks end where the product of the a's has fallen by 1e-3, so the closed form
     r = P (r_start + cumsum(b / P)) inside a block never divides by a tiny P; the
@@ -77,7 +80,8 @@ def solve_recurrence(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     log_a = np.log(a).min(axis=1)
     decay = np.cumsum(log_a)
     edges = np.flatnonzero(np.diff(np.floor(decay / BLOCK_DECAY))) + 1
-    start, r_prev = 0, np.zeros(b.shape[1])
+    start = 0
+    r_prev = np.zeros(b.shape[1]) if r_before is None else np.asarray(r_before, dtype=float)
     for stop in [*edges.tolist(), n]:
         if stop <= start:
             continue

@@ -1,16 +1,52 @@
-"""Every timeseries feature of every sample of many sessions, in one Parquet table."""
+"""Every timeseries feature of every sample of many sessions, in one Parquet table.
+
+Each session is read, computed and written batch by batch (one row group per batch),
+so a long session never sits in memory whole.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from contactkit.features.extract import timeseries_columns
-from contactkit.schemas import InputError, read_session
+from contactkit.features import chain_cache
+from contactkit.features.chain_cache import iter_chain_batches
+from contactkit.features.timeseries import ALL_TIMESERIES, ChainConfig, columns_of
+from contactkit.schemas import InputError
+from contactkit.schemas.session import (
+    complete_table,
+    iter_session_batches,
+    read_session_meta,
+)
 from contactkit.util.progress import ProgressCallback
+
+
+def _complete_batches(path: Path) -> Iterator[pa.Table]:
+    for batch in iter_session_batches(path, chain_cache.BATCH_ROWS):
+        yield complete_table(pa.Table.from_batches([batch]))
+
+
+def per_sample_tables(path: str | Path, config: ChainConfig | None = None
+                      ) -> Iterator[pa.Table]:
+    """Yield one session's per-sample table batch by batch: ``session_id``, ``t``, then
+    the columns of every timeseries feature (``q_1``.., ``r_1``.., ``f_x``..,
+    ``m_norm``; see :mod:`contactkit.features.timeseries`). The whole file is
+    validated before the first batch (raises :class:`InputError` naming it)."""
+    path = Path(path)
+    meta, _ = read_session_meta(path)
+    for _ in iter_session_batches(path, chain_cache.BATCH_ROWS):
+        pass
+    for table, series in iter_chain_batches(_complete_batches(path), meta.with_hand, config,
+                                            ALL_TIMESERIES):
+        columns = {"session_id": pa.array([meta.session_id] * table.num_rows),
+                   "t": table.column("t")}
+        for name, values in series.items():
+            for label, column in zip(columns_of(name), values.T, strict=True):
+                columns[label] = pa.array(column.copy())
+        yield pa.table(columns)
 
 
 def write_per_sample_table(files: Sequence[Path], out: Path,
@@ -18,7 +54,8 @@ def write_per_sample_table(files: Sequence[Path], out: Path,
                            ) -> tuple[int, list[InputError]]:
     """Write one row per sample of every readable session (``session_id`` and the
     columns of :func:`contactkit.features.extract.timeseries_columns`) to ``out``
-    atomically; return the number of sessions written and the ones refused."""
+    atomically, one row group per batch of a session; return the number of sessions
+    written and the ones refused."""
     out = Path(out)
     tmp = out.with_name(f".{out.name}.tmp")
     writer = None
@@ -26,19 +63,17 @@ def write_per_sample_table(files: Sequence[Path], out: Path,
     try:
         for i, path in enumerate(files):
             try:
-                session = read_session(path)
+                tables = per_sample_tables(path)
+                for table in tables:
+                    if writer is None:
+                        writer = pq.ParquetWriter(tmp, table.schema, compression="zstd")
+                    writer.write_table(table)
+                written += 1
             except InputError as err:
                 problems.append(err)
-                continue
             finally:
                 if progress:
                     progress(i + 1, len(files))
-            table = pa.table({"session_id": [session.meta.session_id] * session.n_samples,
-                              **timeseries_columns(session)})
-            if writer is None:
-                writer = pq.ParquetWriter(tmp, table.schema, compression="zstd")
-            writer.write_table(table)
-            written += 1
         if writer is None:
             raise InputError("no session could be processed", Path(files[0]).parent)
         writer.close()

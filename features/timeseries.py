@@ -112,8 +112,21 @@ def backward_difference(t: np.ndarray, x: np.ndarray) -> np.ndarray:
     return out
 
 
+@dataclass(frozen=True)
+class ChainState:
+    """What the chain carries from one chunk of a stream to the next: the last sample's
+    time ``t`` [s], velocity ``dq`` [rad/s] (for ddq), momentum ``p`` [Nm s] and
+    residual ``r`` [Nm] (for the observer; None when the chain computed no residual)."""
+
+    t: float
+    dq: np.ndarray
+    p: np.ndarray | None = None
+    r: np.ndarray | None = None
+
+
 class TimeseriesChain:
-    """Batch chain: all samples of a session at once."""
+    """Batch chain: all samples of a session at once, or of one chunk of it after the
+    :class:`ChainState` of the chunk before (see :class:`ChunkedChain`)."""
 
     def __init__(self, config: ChainConfig | None = None, with_hand: bool = True) -> None:
         self.config = config or ChainConfig()
@@ -133,6 +146,15 @@ class TimeseriesChain:
 
         ``t`` (N,) [s]; ``q``, ``dq``, ``tau`` (N, 7). Returns name -> (N, k) array.
         """
+        return self.compute_chunk(t, q, dq, tau, names)[0]
+
+    def compute_chunk(self, t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.ndarray,
+                      names: list[str] | tuple[str, ...] = ALL_TIMESERIES,
+                      before: ChainState | None = None
+                      ) -> tuple[dict[str, np.ndarray], ChainState]:
+        """Return the requested features of samples that follow ``before`` (the state
+        after the previous chunk; None: these are the first samples), and the state
+        after them. Arrays as for :meth:`compute`; ``t`` must not be empty."""
         names = expand(names)
         model, data = self.model.model, self.model.data
         n = len(t)
@@ -145,11 +167,12 @@ class TimeseriesChain:
         if "g" in names:
             out["g"] = g
         if "ddq" in names or "tau_inv" in names:
-            out["ddq"] = backward_difference(t, dq)
+            out["ddq"] = _backward_difference_after(t, dq, before)
         if "tau_inv" in names:
             out["tau_inv"] = self._rnea(qf, dqf, np.asfortranarray(out["ddq"].T))
         if "p_int" in names:
             out["p_int"] = dq * tau
+        p = r = None
         if need_r:
             p = self._rnea(qf, zeros, dqf) - g
             coriolis = np.empty((n, 7, 7))
@@ -163,14 +186,53 @@ class TimeseriesChain:
             u = tau + np.einsum("kji,kj->ki", coriolis, dq) - g
             if self._friction is not None:
                 u -= self._friction.torque(dq)
-            r = solve_recurrence(*observer_coefficients(t, p, u, self._gain))
+            if before is None:
+                r = solve_recurrence(*observer_coefficients(t, p, u, self._gain))
+            else:
+                a, b = observer_coefficients(np.r_[before.t, t], np.vstack([before.p, p]),
+                                             np.vstack([u[:1], u]), self._gain)
+                r = solve_recurrence(a[1:], b[1:], before.r)
             out["r"] = r
             out["p_ext"] = r * dq
             if need_wrench:
                 gram = jac @ jac.transpose(0, 2, 1) + DAMPING**2 * np.eye(6)
                 wrench = np.linalg.solve(gram, np.einsum("kij,kj->ki", jac, r)[..., None])[..., 0]
                 out.update(_wrench_features(wrench))
-        return {name: out[name] for name in names}
+        after = ChainState(float(t[-1]), dq[-1].copy(), None if p is None else p[-1].copy(),
+                           None if r is None else r[-1].copy())
+        return {name: out[name] for name in names}, after
+
+
+def _backward_difference_after(t: np.ndarray, dq: np.ndarray, before: ChainState | None
+                               ) -> np.ndarray:
+    if before is None:
+        return backward_difference(t, dq)
+    return backward_difference(np.r_[before.t, t], np.vstack([before.dq, dq]))[1:]
+
+
+class ChunkedChain:
+    """The batch chain over consecutive chunks of one stream (row groups of a long
+    session), its state carried from chunk to chunk: the features of the chunks,
+    concatenated, equal :class:`TimeseriesChain` on the whole stream (to about 1e-12;
+    the observer's closed form splits at other places), with memory bounded by one
+    chunk."""
+
+    def __init__(self, config: ChainConfig | None = None, with_hand: bool = True,
+                 names: list[str] | tuple[str, ...] = ALL_TIMESERIES) -> None:
+        self.chain = TimeseriesChain(config, with_hand)
+        self.names = expand(names)
+        self.model = self.chain.model
+        self._state: ChainState | None = None
+
+    def compute(self, t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.ndarray
+                ) -> dict[str, np.ndarray]:
+        """Return the features (name -> (n, k) array) of the next chunk: ``t`` (n,) [s]
+        after the previous chunk's, ``q``, ``dq``, ``tau`` (n, 7). An empty chunk gives
+        empty arrays."""
+        if len(t) == 0:
+            return {name: np.zeros((0, len(columns_of(name)))) for name in self.names}
+        out, self._state = self.chain.compute_chunk(t, q, dq, tau, self.names, self._state)
+        return out
 
 
 def _wrench_features(wrench: np.ndarray) -> dict[str, np.ndarray]:

@@ -68,6 +68,11 @@ def replay_command(
     rate: Annotated[str, typer.Option(
         help="'max' as fast as possible, or a multiple of wall-clock speed (1 = real "
              "time) with the viewer updating live.")] = "max",
+    log_rate: Annotated[float | None, typer.Option(
+        help="Send at most this many samples per second of session time to Rerun "
+             "(e.g. 200) [Hz]; the feature chain, the events and the predictions still "
+             "run on every sample, and every prediction is logged. Default: every "
+             "sample. Thins the .rrd of a long session.")] = None,
     hop: Annotated[float, typer.Option(
         help="Time between classifier runs on the sliding window [s].")] = DEFAULT_HOP_S,
     connect: Annotated[str | None, typer.Option(
@@ -96,6 +101,8 @@ def replay_command(
     if not sessions:
         raise InputError("give at least one session file or directory (see replay --help)")
     speed = _parse_rate(rate)
+    if log_rate is not None and not log_rate > 0:
+        raise InputError(f"--log-rate must be positive, got {log_rate} Hz")
     if not hop > 0:
         raise InputError(f"--hop must be positive, got {hop} s")
     paths = session_inputs(sessions)
@@ -130,7 +137,7 @@ def replay_command(
         summaries, problems = replay_sessions(
             paths, classifier, save=save, connect=connect, spawn=viewer is Viewer.rerun,
             rate=speed, hop_s=hop, detector=detector, decide_after_s=decide_after,
-            on_done=report)
+            log_rate_hz=log_rate, on_done=report)
     written = [s.saved for s in summaries if s.saved is not None]
     if len(written) == 1:
         err_console.print(f"saved {written[0]}; open it with `rerun {written[0]}`")

@@ -1,101 +1,160 @@
-"""The replay engine: a session fed through the streaming chain and the classifier.
+"""The replay engine: a session streamed through the feature chain and the classifier.
 
-Samples go one at a time through :class:`contactkit.features.timeseries.OnlineChain` (as on a
-live robot). Every ``hop_s`` seconds, once a full window is available, the scalar
-features of the last ``window_s`` seconds (the window length the model was
-trained with), or for a network the resampled window grid, go through the model:
-each prediction is stamped with the time of the last sample it used, so it never
-looks ahead. Where the model carries a contact detector (or one is given), every
-sample also goes through the event pipeline (:mod:`contactkit.classify.events`:
-detect, decide once, hold until release), which needs no planned interaction time,
-and gates the per-hop output: without a detected contact a hop's label is ``none``
-(probability 1), whatever the window classifier says (its own probabilities stay in
-``pred_window_proba``), because the window classifier was trained on contacts at a
-planned time and calls fast free motion a contact.
-For a session with a planned time the engine also computes the offline answer:
-the window found by the thesis method and the model's label for it.
+The session is read in batches (row groups of the file, see
+:func:`contactkit.schemas.session.iter_session_batches`), so memory stays bounded by
+one batch however long the session is. Each batch goes through
+:class:`contactkit.features.timeseries.ChunkedChain`, whose state (observer, last
+velocity) is carried from batch to batch: the numbers equal the whole-session chain.
+Every ``hop_s`` seconds, once a full window is available, the scalar features of the
+last ``window_s`` seconds (the window length the model was trained with), or for a
+network the resampled window grid, go through the model: each prediction is stamped
+with the time of the last sample it used, so it never looks ahead; the engine keeps
+only the last seconds of features that such a window needs. Where the model carries
+a contact detector (or one is given), every sample also goes through the event
+pipeline (:mod:`contactkit.classify.events`: detect, decide once, hold until
+release), which needs no planned interaction time, and gates the per-hop output:
+without a detected contact a hop's label is ``none`` (probability 1), whatever the
+window classifier says (its own probabilities stay in ``pred_window_proba``), because
+the window classifier was trained on contacts at a planned time and calls fast free
+motion a contact. For a session with a planned time
+the engine also computes the offline answer: the window found by the thesis method
+and the model's label for it, from the samples around the planned time (see
+:meth:`ReplayStream.offline`).
 
-:meth:`ReplayStream.blocks` yields after every hop, so a paced replay can sleep and
-log incrementally; a ``--rate max`` replay consumes the same blocks at once.
+:meth:`ReplayStream.blocks` yields each batch's samples with their features and
+predictions as a :class:`Block`; a paced replay asks for a block after every hop, so
+it can sleep and log incrementally.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 
 from contactkit.classify.events import NONE, ContactEvent, EventPipeline
 from contactkit.classify.modelfile import ModelFile
 from contactkit.features.detector import DetectorConfig
-from contactkit.features.timeseries import ChainConfig, OnlineChain, columns_of, expand
+from contactkit.features.timeseries import ChainConfig, ChunkedChain, columns_of, expand
 from contactkit.features.windows import Window
 from contactkit.schemas import InputError, Session
+from contactkit.schemas.session import (
+    complete_table,
+    iter_session_batches,
+    joint_columns,
+    read_session_meta,
+)
 
 DEFAULT_HOP_S = 0.02
 ROBOT_VIEW_HZ = 60.0
+BATCH_ROWS = 16_384
+"""Samples read and computed at a time (about 16 s at 1 kHz)."""
+HISTORY_MARGIN_S = 1.0
+"""Seconds of features kept before a prediction window (a network's baseline)."""
+OFFLINE_SPAN_S = 60.0
+"""The offline answer looks at the samples within this many seconds of the planned time
+(before and after it): the whole of a dataset's session, a minute either side in a long
+one."""
+TRUTH_FORCE = ("f_ext_x", "f_ext_y", "f_ext_z")
 
 
 @dataclass
 class Block:
-    """Samples [start, stop) just processed and the predictions made among them."""
+    """Samples ``[start, stop)`` (indices over the session's complete samples) just
+    processed: times ``t`` [s], ``q`` [rad], ``dq`` [rad/s], ``tau`` [Nm] (n, 7), the
+    residual ``r`` [Nm] (n, 7), ``force`` [N] and ``moment`` [Nm] (n, 3), their
+    ``norms`` (n, 2), the ground truth where the session has it (``true_force`` [N]
+    (n, 3), ``contact`` (n,)), the samples ``robot`` (indices into the block) where the
+    3-D robot is drawn with its end effector at ``ee_position`` [m], the event
+    pipeline's per-sample ``event_label`` and ``score`` (None without a detector),
+    and the predictions made among these samples: ``pred_t`` [s], ``pred_sample``,
+    ``pred_proba`` (m, classes) and ``pred_label``."""
 
     start: int
     stop: int
-    predictions: range
+    t: np.ndarray
+    q: np.ndarray
+    dq: np.ndarray
+    tau: np.ndarray
+    r: np.ndarray
+    force: np.ndarray
+    moment: np.ndarray
+    norms: np.ndarray
+    robot: np.ndarray
+    ee_position: np.ndarray
+    true_force: np.ndarray | None = None
+    contact: np.ndarray | None = None
+    event_label: np.ndarray | None = None
+    score: np.ndarray | None = None
+    pred_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    pred_sample: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    pred_proba: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    pred_label: list[str] = field(default_factory=list)
+
+    @property
+    def sample(self) -> np.ndarray:
+        """The session sample index of each row, (n,)."""
+        return np.arange(self.start, self.stop)
 
 
 @dataclass
 class OfflineAnswer:
-    """The thesis method's window for the whole session and the model's label for it."""
+    """The thesis method's window for the whole session and the model's label for it;
+    ``start_sample`` and ``end_sample`` are the session samples at the window's ends."""
 
     window: Window
     label: str
     probabilities: np.ndarray
+    start_sample: int = 0
+    end_sample: int = 0
+
+
+def _joints(table: pa.Table, prefix: str) -> np.ndarray:
+    return np.column_stack([table.column(c).to_numpy() for c in joint_columns(prefix)])
 
 
 class ReplayStream:
-    """Runs one session through the streaming chain and the classifier.
+    """Streams one session (a file, read batch by batch, or a :class:`Session` in
+    memory) through the chunked chain, the event pipeline and the classifier.
 
-    Per-sample outputs (filled as the stream advances): ``r`` (N, 7) [Nm], ``force``
-    and ``moment`` (N, 3) [N, Nm], ``norms`` (N, 2), ``ee_position`` (N, 3) [m].
-    Predictions: ``pred_t`` [s], ``pred_sample``, ``pred_proba`` (M, classes) and
-    ``pred_label``, gated by the detector where there is one, and the window
-    classifier's own ``pred_window_proba``. Events (with a detector): ``event_label``
-    (N,) the pipeline's label per sample, ``score`` (N,) the detector score, and :attr:`events`.
+    After (or while) iterating :meth:`blocks`: predictions ``pred_t`` [s],
+    ``pred_sample``, ``pred_proba`` and ``pred_label`` (lists), gated by the detector
+    where there is one, the window classifier's own ``pred_window_proba``, and with a
+    detector :attr:`events`.
     ``detector`` overrides the model's detector settings; ``decide_after_s`` its
     decision delay [s]; ``detector`` holds the settings in use (None without one).
+    ``batch_rows`` is the number of samples read and computed at a time (default
+    ``BATCH_ROWS``).
     """
 
-    def __init__(self, session: Session, model: ModelFile, hop_s: float = DEFAULT_HOP_S,
-                 detector: DetectorConfig | None = None,
-                 decide_after_s: float | None = None) -> None:
+    def __init__(self, session: Session | str | Path, model: ModelFile,
+                 hop_s: float = DEFAULT_HOP_S, detector: DetectorConfig | None = None,
+                 decide_after_s: float | None = None, batch_rows: int | None = None) -> None:
         if hop_s <= 0:
             raise InputError(f"the prediction hop must be positive, got {hop_s} s")
-        self.session = session = session.complete()
+        if isinstance(session, Session):
+            self.session: Session | None = session
+            self.meta, self.path = session.meta, session.path
+        else:
+            self.session = None
+            self.path = Path(session)
+            self.meta, _ = read_session_meta(self.path)
         self.model = model
         self.hop_s = hop_s
+        self.batch_rows = batch_rows or BATCH_ROWS
         self._predict_proba = model.online_predictor()
         self.classes = model.classes
         self.transformer = model.transformer()
         model.check_features(list(self.transformer.get_feature_names_out()))
         timeseries, self.window_s = self.transformer.timeseries, float(self.transformer.window_s)
         chain = self.transformer.chain_config()
-        self.observer, self.wrench_frame = chain.observer, chain.wrench_frame
+        self.chain_config = ChainConfig(chain.observer, chain.wrench_frame)
         self.names = expand(list(timeseries))
         self.channels = [c for name in self.names for c in columns_of(name)]
-        n = session.n_samples
-        self.t = session.t
-        steps = np.diff(self.t)
-        rate = 1.0 / float(np.median(steps)) if steps.size else ROBOT_VIEW_HZ
-        self.robot_stride = max(1, round(rate / ROBOT_VIEW_HZ))
-        self.r = np.zeros((n, 7))
-        self.force = np.zeros((n, 3))
-        self.moment = np.zeros((n, 3))
-        self.norms = np.zeros((n, 2))
-        self.ee_position = np.zeros((n, 3))
-        self._values = np.zeros((n, len(self.channels)))
         self.pred_t: list[float] = []
         self.pred_sample: list[int] = []
         self.pred_proba: list[np.ndarray] = []
@@ -104,52 +163,133 @@ class ReplayStream:
         self.detector = detector = detector or model.detector_config()
         self.pipeline = None if detector is None else EventPipeline(
             detector, model.event_model(), decide_after_s)
-        self.event_label = np.full(n, "none", dtype=object)
-        self.score = np.zeros(n)
+        self.event_samples: dict[float, int] = {}
+        """Session time [s] -> sample index of every sample where an event began, was
+        decided or ended, and of the first and last sample."""
+        self.n_samples = 0
+        self.planned_sample: int | None = None
 
     @property
     def events(self) -> list[ContactEvent]:
         """The contact events so far (the last one may still be open)."""
         return [] if self.pipeline is None else self.pipeline.finish()
 
-    def _predict(self, k: int) -> None:
-        row = self.transformer.online_row(self.t, self._values, k)
+    def time_span(self) -> tuple[float, float]:
+        """Return the times [s] of the session's first and last sample (read from the
+        first and last row group only)."""
+        if self.session is not None:
+            t = self.session.t
+            return float(t[0]), float(t[-1])
+        try:
+            file = pq.ParquetFile(self.path)
+            last = file.metadata.num_row_groups - 1
+            first_t = file.read_row_group(0, columns=["t"]).column("t")
+            last_t = file.read_row_group(last, columns=["t"]).column("t")
+            return float(first_t[0].as_py()), float(last_t[-1].as_py())
+        except (pa.ArrowInvalid, OSError, IndexError, KeyError) as err:
+            raise InputError(f"cannot read the sample times ({err})", self.path) from err
+
+    def _tables(self, batch_rows: int | None = None) -> Iterator[pa.Table]:
+        rows = batch_rows or self.batch_rows
+        if self.session is not None:
+            batches = self.session.table.to_batches(max_chunksize=rows)
+        else:
+            batches = iter_session_batches(self.path, rows)
+        for batch in batches:
+            yield complete_table(pa.Table.from_batches([batch]))
+
+    def blocks(self, every_hop: bool = False) -> Iterator[Block]:
+        """Stream the session; yield a :class:`Block` per batch read, or with
+        ``every_hop`` after every prediction (and at the end of each batch)."""
+        chain = ChunkedChain(self.chain_config, self.meta.with_hand,
+                             list(dict.fromkeys([*self.names, "r", "f", "m", "fm_norm"])))
+        model, ee = chain.model, chain.model.end_effector
+        history_t, history_v = np.zeros(0), np.zeros((0, len(self.channels)))
+        next_hop = robot_stride = None
+        start = 0
+        planned = self.meta.planned_at_s
+        for table in self._tables():
+            n = table.num_rows
+            if n == 0:
+                continue
+            t = table.column("t").to_numpy()
+            q, dq, tau = _joints(table, "q"), _joints(table, "dq"), _joints(table, "tau")
+            if next_hop is None:
+                next_hop = t[0] + self.window_s
+                steps = np.diff(t)
+                rate = 1.0 / float(np.median(steps)) if steps.size else ROBOT_VIEW_HZ
+                robot_stride = max(1, round(rate / ROBOT_VIEW_HZ))
+                self.event_samples[float(t[0])] = 0
+            if planned is not None and self.planned_sample is None and t[-1] >= planned:
+                self.planned_sample = start + int(np.searchsorted(t, planned))
+            out = chain.compute(t, q, dq, tau)
+            values = np.column_stack([out[name] for name in self.names])
+            buffer_t, buffer_v = np.r_[history_t, t], np.vstack([history_v, values])
+            offset = len(history_t)
+            sample = np.arange(start, start + n)
+            robot = np.flatnonzero(sample % robot_stride == 0)
+            ee_position = np.array([model.frame_placement(q[k], ee).translation
+                                    for k in robot]).reshape(-1, 3)
+            labels = scores = None
+            if self.pipeline is not None:
+                labels, scores = np.full(n, NONE, dtype=object), np.zeros(n)
+            truth = np.column_stack([table.column(c).to_numpy() for c in TRUTH_FORCE]) \
+                if all(c in table.column_names for c in TRUTH_FORCE) else None
+            contact = table.column("contact").to_numpy(zero_copy_only=False) \
+                if "contact" in table.column_names else None
+            whole = Block(start, start + n, t, q, dq, tau, out["r"], out["f"], out["m"],
+                          out["fm_norm"], robot, ee_position, truth, contact, labels, scores)
+            first, predictions = 0, []
+            for k in range(n):
+                if self.pipeline is not None:
+                    labels[k], scores[k] = self._event_step(float(t[k]), out["r"][k], dq[k],
+                                                            start + k)
+                if t[k] >= next_hop - 1e-12:
+                    in_contact = labels is None or labels[k] != NONE
+                    predictions.append(self._predict(buffer_t, buffer_v, offset + k,
+                                                     start + k, in_contact))
+                    while next_hop <= t[k] + 1e-12:
+                        next_hop += self.hop_s
+                    if every_hop:
+                        yield _part(whole, first, k + 1, predictions)
+                        first, predictions = k + 1, []
+            if first < n:
+                yield _part(whole, first, n, predictions)
+            keep = max(0, int(np.searchsorted(buffer_t, t[-1] - self.window_s
+                                              - HISTORY_MARGIN_S)) - 1)
+            history_t, history_v = buffer_t[keep:], buffer_v[keep:]
+            start += n
+            self.n_samples = start
+            self.event_samples[float(t[-1])] = start - 1
+        if start == 0:
+            raise InputError("session has no complete samples", self.path)
+
+    def _event_step(self, t: float, r: np.ndarray, dq: np.ndarray, sample: int
+                    ) -> tuple[str, float]:
+        """Feed one sample to the event pipeline; return its label and detector score."""
+        before = self.pipeline.current
+        state = self.pipeline.update(t, r, dq)
+        if (before is None and self.pipeline.current is not None) or state.decided \
+                or state.released:
+            self.event_samples[t] = sample
+        return state.label, state.score
+
+    def _predict(self, t: np.ndarray, values: np.ndarray, k: int, sample: int,
+                 in_contact: bool) -> tuple[float, int, np.ndarray, str]:
+        """Classify the window ending at buffer row ``k`` (session sample ``sample``);
+        outside a detected contact the hop is ``none``. Return (time [s], sample,
+        probabilities, label)."""
+        row = self.transformer.online_row(t, values, k)
         window_proba = proba = self._predict_proba(row[None, ...])[0]
-        if self.pipeline is not None and self.event_label[k] == NONE and NONE in self.classes:
+        if not in_contact and NONE in self.classes:
             proba = (np.array(self.classes) == NONE).astype(float)
-        self.pred_t.append(float(self.t[k]))
-        self.pred_sample.append(k)
+        label = self.classes[int(np.argmax(proba))]
+        self.pred_t.append(float(t[k]))
+        self.pred_sample.append(sample)
         self.pred_proba.append(proba)
         self.pred_window_proba.append(window_proba)
-        self.pred_label.append(self.classes[int(np.argmax(proba))])
-
-    def blocks(self) -> Iterator[Block]:
-        """Advance sample by sample; yield a :class:`Block` after every hop (and at the end)."""
-        session = self.session
-        chain = OnlineChain(ChainConfig(self.observer, self.wrench_frame),
-                            session.meta.with_hand)
-        ee = chain.model.end_effector
-        q, dq, tau = session.q, session.dq, session.tau
-        next_hop = self.t[0] + self.window_s
-        start = 0
-        for k in range(session.n_samples):
-            out = chain.update(self.t[k], q[k], dq[k], tau[k])
-            self.r[k], self.force[k], self.moment[k] = out["r"], out["f"], out["m"]
-            self.norms[k] = out["fm_norm"]
-            self.ee_position[k] = chain.model.frame_placement(q[k], ee).translation
-            self._values[k] = np.concatenate([out[name] for name in self.names])
-            if self.pipeline is not None:
-                state = self.pipeline.update(self.t[k], out["r"], dq[k])
-                self.event_label[k], self.score[k] = state.label, state.score
-            if self.t[k] >= next_hop - 1e-12:
-                before = len(self.pred_t)
-                self._predict(k)
-                while next_hop <= self.t[k] + 1e-12:
-                    next_hop += self.hop_s
-                yield Block(start, k + 1, range(before, len(self.pred_t)))
-                start = k + 1
-        if start < session.n_samples:
-            yield Block(start, session.n_samples, range(len(self.pred_t), len(self.pred_t)))
+        self.pred_label.append(label)
+        return float(t[k]), sample, proba, label
 
     def run(self) -> ReplayStream:
         """Process the whole session at once; return self."""
@@ -159,10 +299,57 @@ class ReplayStream:
 
     def offline(self) -> OfflineAnswer | None:
         """Return the thesis method's window and the model's label for it (None for a
-        session without a planned interaction time)."""
-        if self.session.meta.planned_at_s is None:
+        session without a planned interaction time).
+
+        Only the samples within ``OFFLINE_SPAN_S`` of the planned time are read (all of
+        a dataset's sessions; a long session's calibration then starts a minute before
+        the planned time, and the observer has long settled when the window begins)."""
+        planned = self.meta.planned_at_s
+        if planned is None:
             return None
-        values, names, window = self.transformer.session_row(self.session)
-        self.model.check_features(names, self.session.path)
+        low, high = planned - OFFLINE_SPAN_S, planned + OFFLINE_SPAN_S
+        parts, first, seen = [], None, 0
+        for table in self._tables(batch_rows=65_536):
+            t = table.column("t").to_numpy()
+            inside = (t >= low) & (t <= high)
+            if inside.any():
+                first = seen + int(np.argmax(inside)) if first is None else first
+                parts.append(table.filter(pa.array(inside)))
+            seen += table.num_rows
+            if len(t) and t[-1] > high:
+                break
+        if not parts:
+            raise InputError(f"no samples near the planned time {planned:.3f} s", self.path)
+        table = pa.concat_tables(parts)
+        whole = table.num_rows == seen == self.n_samples
+        session = Session(self.meta, table, self.path if whole else None)
+        values, names, window = self.transformer.session_row(session)
+        self.model.check_features(names, self.path)
         proba = self.model.estimator.predict_proba(values[None, ...])[0]
-        return OfflineAnswer(window, self.classes[int(np.argmax(proba))], proba)
+        t = session.t
+        k0 = first + int(np.searchsorted(t, window.start_s))
+        k1 = first + min(int(np.searchsorted(t, window.end_s)), len(t) - 1)
+        return OfflineAnswer(window, self.classes[int(np.argmax(proba))], proba, k0, k1)
+
+
+def _part(block: Block, first: int, stop: int,
+          predictions: list[tuple[float, int, np.ndarray, str]]) -> Block:
+    """Return rows ``[first, stop)`` of a batch's block with the given predictions."""
+    s = slice(first, stop)
+    robot = block.robot[(block.robot >= first) & (block.robot < stop)]
+    ee = block.ee_position[np.searchsorted(block.robot, robot)] if len(robot) else \
+        np.zeros((0, 3))
+
+    def rows(x: np.ndarray | None) -> np.ndarray | None:
+        return None if x is None else x[s]
+
+    part = Block(block.start + first, block.start + stop, block.t[s], block.q[s],
+                 block.dq[s], block.tau[s], block.r[s], block.force[s], block.moment[s],
+                 block.norms[s], robot - first, ee, rows(block.true_force),
+                 rows(block.contact), rows(block.event_label), rows(block.score))
+    if predictions:
+        part.pred_t = np.array([p[0] for p in predictions])
+        part.pred_sample = np.array([p[1] for p in predictions], dtype=np.int64)
+        part.pred_proba = np.array([p[2] for p in predictions])
+        part.pred_label = [p[3] for p in predictions]
+    return part

@@ -1,10 +1,12 @@
 """Logging a replay to Rerun, following the layout in :mod:`contactkit.schemas.rerun_layout`.
 
-Whole series go out with ``send_columns``: at once after a ``--rate max`` replay,
-or block by block (every hop) during a paced replay, where the viewer updates live.
-Both send the same values at the same time stamps. Every time series is logged at
-the full sample rate; the 3-D robot and its force arrow are animated at about
-60 Hz (every n-th sample), which is all a 3-D view needs and keeps files small.
+Series go out with ``send_columns``, block by block as the engine streams the
+session: a batch at a time in a ``--rate max`` replay, every hop during a paced
+replay, where the viewer updates live. Both send the same values at the same time
+stamps. Every time series is logged at the full sample rate unless a log rate thins
+it (:class:`Thinning`: the chain still runs on every sample); the 3-D robot and its
+force arrow are animated at about 60 Hz (every n-th sample), which is all a 3-D view
+needs and keeps files small.
 :func:`log_contact_events` is where the contact-event pipeline hands over its events
 (one state-timeline bar each) and detector thresholds (lines on the residual plot).
 """
@@ -20,7 +22,7 @@ import numpy as np
 import rerun as rr
 
 from contactkit.features.dynamics import viewer_urdf_file
-from contactkit.replay.engine import Block, OfflineAnswer, ReplayStream
+from contactkit.replay.engine import ROBOT_VIEW_HZ, Block, OfflineAnswer, ReplayStream
 from contactkit.schemas import rerun_layout as layout
 from contactkit.util.paths import inside
 
@@ -34,72 +36,110 @@ def new_recording(session_name: str, recording_id: str) -> rr.RecordingStream:
 
 def log_session_properties(rec: rr.RecordingStream, stream: ReplayStream) -> None:
     """Store the session metadata as the recording's ``session`` properties."""
-    meta = vars(stream.session.meta).copy()
+    meta = vars(stream.meta).copy()
     values = {k: (json.dumps(v) if isinstance(v, (dict, list)) else v) for k, v in meta.items()
               if v is not None}
-    values["file"] = str(stream.session.path or "")
+    values["file"] = str(stream.path or "")
     values["model_kind"] = stream.model.meta.get("kind", "")
     rec.send_property("session", rr.AnyValues(**values))
 
 
 def log_static(rec: rr.RecordingStream, stream: ReplayStream) -> rr.urdf.UrdfTree:
-    """Log series styles, the robot model, the planned time and the ground-truth action."""
-    session = stream.session
+    """Log series styles, the robot model, the session properties and the ground-truth
+    action (at ``t0``, the first sample's time [s])."""
+    meta = stream.meta
     layout.log_series_styles(rec, stream.classes)
-    tree = layout.log_robot_model(rec, viewer_urdf_file(session.meta.with_hand))
+    tree = layout.log_robot_model(rec, viewer_urdf_file(meta.with_hand))
     layout.log_force_arrow_style(rec)
     log_session_properties(rec, stream)
-    planned = session.meta.planned_at_s
-    if planned is not None:
-        k = int(np.searchsorted(session.t, planned))
-        layout.text_event(rec, layout.PLANNED, planned, k, f"planned interaction at "
-                          f"{planned:.2f} s")
-    layout.text_event(rec, layout.TRUE_ACTION, float(session.t[0]), 0,
-                      f"recorded action: {session.meta.action}"
-                      + (f" on link {session.meta.link}" if session.meta.link else ""))
-    if session.has("f_ext_x"):
-        force = np.column_stack([session.column(c) for c in ("f_ext_x", "f_ext_y", "f_ext_z")])
-        contact = session.column("contact") if session.has("contact") else \
-            np.linalg.norm(force, axis=1) > 0
-        layout.log_ground_truth(rec, session.t, np.arange(session.n_samples), force, contact)
+    t0, _ = stream.time_span()
+    layout.text_event(rec, layout.TRUE_ACTION, t0, 0, f"recorded action: {meta.action}"
+                      + (f" on link {meta.link}" if meta.link else ""))
     return tree
 
 
-def log_block(rec: rr.RecordingStream, tree: rr.urdf.UrdfTree, stream: ReplayStream,
-              block: Block) -> None:
-    """Send the samples and predictions of one block as columns."""
-    s = slice(block.start, block.stop)
-    session = stream.session
-    t = session.t[s]
-    sample = np.arange(block.start, block.stop)
-    if len(t):
-        layout.log_joint_columns(rec, t, sample, session.q[s], session.dq[s], session.tau[s])
-        layout.log_scalar_columns(rec, layout.RESIDUAL, t, sample, stream.r[s])
-        layout.log_scalar_columns(rec, layout.FORCE, t, sample, stream.force[s])
-        layout.log_scalar_columns(rec, layout.MOMENT, t, sample, stream.moment[s])
-        layout.log_scalar_columns(rec, layout.FORCE_NORM, t, sample, stream.norms[s][:, :1])
-        layout.log_scalar_columns(rec, layout.MOMENT_NORM, t, sample, stream.norms[s][:, 1:])
-        keep = sample % stream.robot_stride == 0
-        if keep.any():
-            layout.log_joint_transforms(rec, tree, t[keep], sample[keep], session.q[s][keep])
-            layout.log_force_arrows(rec, t[keep], sample[keep], stream.ee_position[s][keep],
-                                    stream.force[s][keep])
-    p = block.predictions
-    if len(p):
-        pt = np.array(stream.pred_t[p.start:p.stop])
-        ps = np.array(stream.pred_sample[p.start:p.stop])
-        layout.log_scalar_columns(rec, layout.PROBABILITY, pt, ps,
-                                  np.array(stream.pred_proba[p.start:p.stop]))
-        rec.send_columns(layout.PREDICTED, indexes=layout.time_columns(pt, ps),
-                         columns=rr.StateChange.columns(state=stream.pred_label[p.start:p.stop]))
+def log_planned(rec: rr.RecordingStream, stream: ReplayStream) -> None:
+    """Log the planned interaction time (after the stream has found its sample)."""
+    planned = stream.meta.planned_at_s
+    if planned is not None:
+        sample = stream.planned_sample if stream.planned_sample is not None else \
+            max(stream.n_samples - 1, 0)
+        layout.text_event(rec, layout.PLANNED, planned, sample,
+                          f"planned interaction at {planned:.2f} s")
+
+
+class Thinning:
+    """Which samples go to Rerun at ``rate_hz`` [Hz] (None: all of them): the first
+    sample of every period of 1 / rate_hz seconds, counted from the first sample, carried
+    across blocks."""
+
+    def __init__(self, rate_hz: float | None) -> None:
+        self.rate_hz = rate_hz
+        self._origin: float | None = None
+        self._last = -1
+
+    def keep(self, t: np.ndarray) -> np.ndarray:
+        """Return the indices of the samples at times ``t`` [s] to log."""
+        if self.rate_hz is None or len(t) == 0:
+            return np.arange(len(t))
+        if self._origin is None:
+            self._origin = float(t[0])
+        period = np.floor((t - self._origin) * self.rate_hz + 1e-6).astype(np.int64)
+        keep = np.flatnonzero(np.diff(period, prepend=self._last) != 0)
+        self._last = int(period[-1])
+        return keep
+
+
+class BlockLogger:
+    """Sends blocks of a replay as columns, every series thinned to ``log_rate_hz``
+    [Hz] (None: every sample) and the 3-D robot to at most ``ROBOT_VIEW_HZ``; the
+    predictions always go out in full."""
+
+    def __init__(self, rec: rr.RecordingStream, tree: rr.urdf.UrdfTree,
+                 log_rate_hz: float | None = None) -> None:
+        self.rec, self.tree = rec, tree
+        self.series = Thinning(log_rate_hz)
+        self.robot = Thinning(None if log_rate_hz is None or log_rate_hz >= ROBOT_VIEW_HZ
+                              else log_rate_hz)
+        self._contact: bool | None = None
+
+    def log(self, block: Block) -> None:
+        """Send the (thinned) samples and the predictions of one block."""
+        rec = self.rec
+        keep = self.series.keep(block.t)
+        if len(keep):
+            t, sample = block.t[keep], block.sample[keep]
+            layout.log_joint_columns(rec, t, sample, block.q[keep], block.dq[keep],
+                                     block.tau[keep])
+            layout.log_scalar_columns(rec, layout.RESIDUAL, t, sample, block.r[keep])
+            layout.log_scalar_columns(rec, layout.FORCE, t, sample, block.force[keep])
+            layout.log_scalar_columns(rec, layout.MOMENT, t, sample, block.moment[keep])
+            layout.log_scalar_columns(rec, layout.FORCE_NORM, t, sample, block.norms[keep, :1])
+            layout.log_scalar_columns(rec, layout.MOMENT_NORM, t, sample,
+                                      block.norms[keep, 1:])
+            if block.true_force is not None:
+                contact = block.contact[keep] if block.contact is not None else \
+                    np.linalg.norm(block.true_force[keep], axis=1) > 0
+                layout.log_ground_truth(rec, t, sample, block.true_force[keep], contact,
+                                        self._contact)
+                self._contact = bool(contact[-1])
+        rows = block.robot[self.robot.keep(block.t[block.robot])]
+        if len(rows):
+            at = np.searchsorted(block.robot, rows)
+            t, sample = block.t[rows], block.sample[rows]
+            layout.log_joint_transforms(rec, self.tree, t, sample, block.q[rows])
+            layout.log_force_arrows(rec, t, sample, block.ee_position[at], block.force[rows])
+        if len(block.pred_t):
+            pt, ps = block.pred_t, block.pred_sample
+            layout.log_scalar_columns(rec, layout.PROBABILITY, pt, ps, block.pred_proba)
+            rec.send_columns(layout.PREDICTED, indexes=layout.time_columns(pt, ps),
+                             columns=rr.StateChange.columns(state=block.pred_label))
 
 
 def log_offline(rec: rr.RecordingStream, stream: ReplayStream, answer: OfflineAnswer) -> None:
     """Log the offline window (a state lane and an event) and the offline label."""
     window = answer.window
-    t = stream.session.t
-    k0 = int(np.searchsorted(t, window.start_s))
-    k1 = min(int(np.searchsorted(t, window.end_s)), len(t) - 1)
+    k0, k1 = answer.start_sample, answer.end_sample
     how = "detected onset" if window.found else "planned time (nothing detected)"
     layout.log_state_spans(rec, layout.WINDOW, np.array([window.start_s]),
                            np.array([window.end_s]), ["window"], np.array([k0]), np.array([k1]))
@@ -125,14 +165,18 @@ class ContactEvent:
 
 def log_contact_events(rec: rr.RecordingStream, t: np.ndarray,
                        events: Sequence[ContactEvent],
-                       thresholds: Mapping[str, float] | None = None) -> None:
+                       thresholds: Mapping[str, float] | None = None,
+                       samples: np.ndarray | None = None) -> None:
     """Log each contact event as one bar (onset to release) labelled with its decision in
     the state timeline, a text event at its decision time, and each detector threshold
-    [Nm] as a constant line over the session (times ``t`` [s]) on the residual plot."""
+    [Nm] as a constant line over the session on the residual plot. ``t`` [s] are sample
+    times from the first to the last, at least those of the events' onsets, decisions
+    and releases; ``samples`` their sample indices (default: 0, 1, ...)."""
     t = np.asarray(t, dtype=float)
+    index = np.arange(len(t)) if samples is None else np.asarray(samples, dtype=np.int64)
 
     def sample_at(times: np.ndarray) -> np.ndarray:
-        return np.minimum(np.searchsorted(t, times), len(t) - 1)
+        return index[np.minimum(np.searchsorted(t, times), len(t) - 1)]
 
     if events:
         onset = np.array([e.onset_s for e in events])
@@ -152,7 +196,7 @@ def log_contact_events(rec: rr.RecordingStream, t: np.ndarray,
         rec.log(layout.THRESHOLD, rr.SeriesLines(names=names, colors=[layout.THRESHOLD_COLOR]
                                                  * len(names)), static=True)
         ends = np.array([t[0], t[-1]])
-        layout.log_scalar_columns(rec, layout.THRESHOLD, ends, np.array([0, len(t) - 1]),
+        layout.log_scalar_columns(rec, layout.THRESHOLD, ends, index[[0, -1]],
                                   np.tile([thresholds[n] for n in names], (2, 1)))
 
 

@@ -1,10 +1,12 @@
 """Replaying sessions into Rerun recordings: the library behind the ``replay`` command.
 
-:func:`replay_session` runs one session through :class:`ReplayStream` into its own
-recording (saved to an .rrd file, sent to a viewer, or both), paced at a multiple of
-wall-clock speed or as fast as possible, and returns a :class:`ReplaySummary`. A
-session that is refused (unreadable, or not usable by the model) leaves no file
-behind; a recording file exists only when it was written completely.
+:func:`replay_session` streams one session through :class:`ReplayStream` into its
+own recording (saved to an .rrd file, sent to a viewer, or both) batch by batch, in
+memory bounded by one batch, paced at a multiple of wall-clock speed or as fast as
+possible, optionally thinning what goes to Rerun, and returns a
+:class:`ReplaySummary`. A session that is refused (unreadable, or not usable by the
+model) leaves no file behind; a recording file exists only when it was written
+completely.
 """
 
 from __future__ import annotations
@@ -13,20 +15,23 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from contactkit.classify.events import ContactEvent
 from contactkit.classify.modelfile import ModelFile, load_model
 from contactkit.features.detector import DetectorConfig
 from contactkit.replay.default_model import build_default_model, default_model_path
-from contactkit.replay.engine import DEFAULT_HOP_S, Block, OfflineAnswer, ReplayStream
+from contactkit.replay.engine import DEFAULT_HOP_S, OfflineAnswer, ReplayStream
 from contactkit.replay.recording import (
-    log_block,
+    BlockLogger,
     log_contact_events,
     log_offline,
+    log_planned,
     log_static,
     new_recording,
     save_path_for,
 )
-from contactkit.schemas import InputError, read_session
+from contactkit.schemas import InputError
 from contactkit.schemas import rerun_layout as layout
 from contactkit.schemas.dataset import session_files
 from contactkit.util.pacing import paced
@@ -92,29 +97,32 @@ def default_model_missing() -> bool:
     return not default_model_path().exists()
 
 
-def _whole(stream: ReplayStream) -> Block:
-    return Block(0, stream.session.n_samples, range(len(stream.pred_t)))
-
-
 def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
                    connect: str | None = None, spawn: bool = False, rate: float | None = None,
                    hop_s: float = DEFAULT_HOP_S, detector: DetectorConfig | None = None,
-                   decide_after_s: float | None = None) -> ReplaySummary:
+                   decide_after_s: float | None = None,
+                   log_rate_hz: float | None = None) -> ReplaySummary:
     """Replay one session into its own recording; return its summary.
 
-    The recording goes to the .rrd file ``save``, to the viewer at gRPC URL ``connect``
-    or a spawned native viewer (``spawn``). ``rate`` is the multiple of wall-clock
-    speed (None: as fast as possible, logged in one block); ``hop_s`` [s] is the time
-    between online predictions. ``detector`` overrides the model's contact detector
-    settings and ``decide_after_s`` [s] its decision delay. The session and model are
-    checked before any file is created, and a replay that fails leaves no file.
+    The session is read, computed and logged batch by batch, so memory stays bounded
+    however long it is. The recording goes to the .rrd file ``save``, to the viewer at
+    gRPC URL ``connect`` or a spawned native viewer (``spawn``). ``rate`` is the
+    multiple of wall-clock speed (None: as fast as possible, logged a batch at a time);
+    ``hop_s`` [s] is the time between online predictions. ``log_rate_hz`` [Hz] thins
+    the series sent to Rerun (None: every sample; the chain, the events and the
+    predictions still see every sample). ``detector`` overrides the model's contact
+    detector settings and ``decide_after_s`` [s] its decision delay. The session's
+    metadata and the model are checked before any file is created, and a replay that
+    fails (also on a bad row found late in the file) leaves no file.
     """
     if rate is not None and rate <= 0:
         raise InputError(f"the replay rate must be positive, got {rate}")
-    session = read_session(path)
-    stream = ReplayStream(session, model, hop_s, detector, decide_after_s)
-    rec = new_recording(Path(path).stem, session.meta.session_id)
-    blueprint = layout.replay_blueprint(float(session.t[-1]))
+    if log_rate_hz is not None and not log_rate_hz > 0:
+        raise InputError(f"the log rate must be positive, got {log_rate_hz} Hz")
+    stream = ReplayStream(Path(path), model, hop_s, detector, decide_after_s)
+    t0, t_end = stream.time_span()
+    rec = new_recording(Path(path).stem, stream.meta.session_id)
+    blueprint = layout.replay_blueprint(t_end)
     if save is not None:
         rec.save(save, default_blueprint=blueprint)
     try:
@@ -122,17 +130,16 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
             rec.connect_grpc(connect, default_blueprint=blueprint)
         elif spawn:
             rec.spawn(default_blueprint=blueprint)
-        tree = log_static(rec, stream)
-        times = stream.session.t
-        for block in paced(stream.blocks(), lambda b: times[b.stop - 1], rate,
-                           origin_s=float(times[0])):
-            if rate is not None:
-                log_block(rec, tree, stream, block)
-        if rate is None:
-            log_block(rec, tree, stream, _whole(stream))
+        logger = BlockLogger(rec, log_static(rec, stream), log_rate_hz)
+        for block in paced(stream.blocks(every_hop=rate is not None), lambda b: b.t[-1],
+                           rate, origin_s=t0):
+            logger.log(block)
+        log_planned(rec, stream)
         if stream.pipeline is not None:
-            log_contact_events(rec, stream.t, stream.events, {
-                f"joint {j} at rest": v for j, v in enumerate(stream.detector.noise, 1)})
+            times = sorted(stream.event_samples)
+            log_contact_events(rec, np.array(times), stream.events, {
+                f"joint {j} at rest": v for j, v in enumerate(stream.detector.noise, 1)},
+                samples=np.array([stream.event_samples[t] for t in times]))
         answer = stream.offline()
         if answer is not None:
             log_offline(rec, stream, answer)
@@ -143,7 +150,7 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
             Path(save).unlink(missing_ok=True)
         raise
     rec.disconnect()
-    return ReplaySummary(Path(path), session.meta.action, answer, list(stream.pred_t),
+    return ReplaySummary(Path(path), stream.meta.action, answer, list(stream.pred_t),
                          list(stream.pred_label), save,
                          None if stream.pipeline is None else stream.events)
 
@@ -152,13 +159,13 @@ def replay_sessions(paths: Sequence[Path], model: ModelFile, *, save: Path | Non
                     connect: str | None = None, spawn: bool = False,
                     rate: float | None = None, hop_s: float = DEFAULT_HOP_S,
                     detector: DetectorConfig | None = None,
-                    decide_after_s: float | None = None,
+                    decide_after_s: float | None = None, log_rate_hz: float | None = None,
                     on_done: Callable[[ReplaySummary | InputError], None] | None = None
                     ) -> tuple[list[ReplaySummary], list[InputError]]:
     """Replay each session into its own recording (with several sessions and ``save``,
     one file each, see :func:`contactkit.replay.recording.save_path_for`); return the
-    summaries and the sessions refused, which do not stop the others. ``detector`` and
-    ``decide_after_s`` are as for :func:`replay_session`. ``on_done`` is
+    summaries and the sessions refused, which do not stop the others. ``detector``,
+    ``decide_after_s`` and ``log_rate_hz`` are as for :func:`replay_session`. ``on_done`` is
     called after each session with its summary or its error."""
     many = len(paths) > 1
     summaries, problems = [], []
@@ -167,7 +174,8 @@ def replay_sessions(paths: Sequence[Path], model: ModelFile, *, save: Path | Non
         try:
             result = replay_session(path, model, save=target, connect=connect, spawn=spawn,
                                     rate=rate, hop_s=hop_s, detector=detector,
-                                    decide_after_s=decide_after_s)
+                                    decide_after_s=decide_after_s,
+                                    log_rate_hz=log_rate_hz)
             summaries.append(result)
         except InputError as err:
             result = err

@@ -150,11 +150,16 @@ def log_scalar_columns(rec: rr.RecordingStream, path: str, t: np.ndarray, sample
 
 
 def log_ground_truth(rec: rr.RecordingStream, t: np.ndarray, sample: np.ndarray,
-                     force: np.ndarray, contact: np.ndarray) -> None:
-    """Send the applied force [N] (N, 3) and the contact lane (state changes only)."""
+                     force: np.ndarray, contact: np.ndarray, before: bool | None = None
+                     ) -> None:
+    """Send the applied force [N] (N, 3) and the contact lane (state changes only;
+    ``before`` is the contact state logged last, None at the start of a session)."""
     log_scalar_columns(rec, TRUE_FORCE, t, sample, force)
     contact = np.asarray(contact, dtype=bool)
-    changes = np.flatnonzero(np.diff(contact.astype(int), prepend=-1))
+    changes = np.flatnonzero(np.diff(contact.astype(int),
+                                     prepend=-1 if before is None else int(before)))
+    if not len(changes):
+        return
     states = np.where(contact[changes], "contact", "free")
     rec.send_columns(TRUE_CONTACT, indexes=time_columns(t[changes], sample[changes]),
                      columns=rr.StateChange.columns(state=states))

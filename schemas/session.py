@@ -288,11 +288,10 @@ class Session:
     def complete(self) -> Session:
         """Return the session without samples that lack a joint value (NaN gaps left by a
         CAN source); the feature chain treats the gap as one longer time step."""
-        measured = np.column_stack([self.q, self.dq, self.tau])
-        keep = np.isfinite(measured).all(axis=1)
-        if keep.all():
+        table = complete_table(self.table)
+        if table is self.table:
             return self
-        return Session(meta=self.meta, table=self.table.filter(pa.array(keep)), path=self.path)
+        return Session(meta=self.meta, table=table, path=self.path)
 
     @property
     def n_samples(self) -> int:
@@ -304,6 +303,18 @@ class Session:
         """Time between the first and last sample [s] (0 for fewer than two samples)."""
         t = self.t
         return float(t[-1] - t[0]) if len(t) > 1 else 0.0
+
+
+def complete_table(table: pa.Table) -> pa.Table:
+    """Return the rows of a session table (or of a chunk of one) that have every joint
+    value (q, dq, tau); the table itself when none is missing."""
+    keep = np.ones(table.num_rows, dtype=bool)
+    for prefix in ("q", "dq", "tau"):
+        for name in joint_columns(prefix):
+            keep &= np.isfinite(table.column(name).to_numpy())
+    if keep.all():
+        return table
+    return table.filter(pa.array(keep))
 
 
 def new_session_id() -> str:
@@ -502,7 +513,7 @@ def iter_session_batches(path: str | Path, batch_rows: int = ROW_GROUP_ROWS
     meta, _ = read_session_meta(path)
     gaps = allows_gaps(meta)
     try:
-        batches = pq.ParquetFile(path).iter_batches(batch_size=batch_rows)
+        batches = _rebatched(_group_batches(pq.ParquetFile(path), batch_rows), batch_rows)
         offset, last_t = 0, -math.inf
         for batch in batches:
             _validate_chunk(pa.Table.from_batches([batch]), path, gaps, offset, last_t)
@@ -513,6 +524,31 @@ def iter_session_batches(path: str | Path, batch_rows: int = ROW_GROUP_ROWS
         raise InputError(f"cannot read the Parquet data ({_first_line(err)})", path) from err
     if offset == 0:
         raise InputError("session has no samples", path)
+
+
+def _group_batches(file: pq.ParquetFile, batch_rows: int) -> Iterator[pa.RecordBatch]:
+    """Read one row group at a time: a single ``iter_batches`` over the whole file keeps
+    buffers of the groups already read (RSS grew by about 30 MB per 65,536 rows)."""
+    for group in range(file.metadata.num_row_groups):
+        yield from file.iter_batches(batch_size=batch_rows, row_groups=[group],
+                                     use_threads=False)
+
+
+def _rebatched(batches: Iterable[pa.RecordBatch], rows: int) -> Iterator[pa.RecordBatch]:
+    """Yield the rows of ``batches`` in batches of exactly ``rows`` rows (the last may
+    hold fewer), whatever the row groups."""
+    pending: list[pa.RecordBatch] = []
+    count = 0
+    for batch in batches:
+        pending.append(batch)
+        count += batch.num_rows
+        while count >= rows:
+            table = pa.Table.from_batches(pending)
+            yield table.slice(0, rows).combine_chunks().to_batches()[0]
+            rest = table.slice(rows)
+            pending, count = rest.to_batches(), rest.num_rows
+    if count:
+        yield pa.Table.from_batches(pending).combine_chunks().to_batches()[0]
 
 
 def _validate_chunk(table: pa.Table, path: Path, gaps_allowed: bool, offset: int,

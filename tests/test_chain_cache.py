@@ -20,15 +20,15 @@ def test_cached_chain_equals_the_chain_and_is_computed_once(session_path, tmp_pa
     direct = TimeseriesChain(ChainConfig(), session.meta.with_hand).compute(
         session.t, session.q, session.dq, session.tau, names)
     first = chain_series(session, ChainConfig(), names)
-    assert len(list((tmp_path / "cache" / "chain").glob("*.npz"))) == 1
+    assert len(list((tmp_path / "cache" / "chain").glob("*/r.parquet"))) == 1
     computed = []
-    original = TimeseriesChain.compute
+    original = TimeseriesChain.compute_chunk
 
-    def counting(self, t, q, dq, tau, wanted):
+    def counting(self, t, q, dq, tau, wanted, before=None):
         computed.append(list(wanted))
-        return original(self, t, q, dq, tau, wanted)
+        return original(self, t, q, dq, tau, wanted, before)
 
-    monkeypatch.setattr(TimeseriesChain, "compute", counting)
+    monkeypatch.setattr(TimeseriesChain, "compute_chunk", counting)
     again = chain_series(session, ChainConfig(), names)
     assert computed == [["dq", "tau"]]  # r and f came from the cache
     for name in names:
@@ -47,4 +47,4 @@ def test_windows_of_different_lengths_share_one_chain(session_path, tmp_path,
     for w, row in rows.items():
         fresh = SessionFeatures(window="planned", window_s=w).session_row(session_path)[0]
         assert np.array_equal(row, fresh)
-    assert len(list((tmp_path / "cache" / "chain").glob("*.npz"))) == 1
+    assert len(list((tmp_path / "cache" / "chain").glob("*/r.parquet"))) == 1

@@ -1,0 +1,192 @@
+"""Long sessions streamed in chunks: the chunked chain equals the whole-session chain,
+replay and features read a session row group by row group."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+import rerun.chunk as rc
+
+from contactkit.classify.modelfile import load_model, save_model
+from contactkit.classify.registry import get_kind, make_estimator
+from contactkit.features import chain_cache
+from contactkit.features.extract import SessionFeatures, timeseries_columns
+from contactkit.features.per_sample import write_per_sample_table
+from contactkit.features.timeseries import (
+    ALL_TIMESERIES,
+    ChainConfig,
+    ChunkedChain,
+    TimeseriesChain,
+)
+from contactkit.replay import engine
+from contactkit.replay.session_replay import replay_session
+from contactkit.schemas import SessionMeta, read_session, write_session
+from contactkit.schemas import rerun_layout as layout
+from contactkit.schemas.session import REQUIRED_COLUMNS
+from tests.conftest import make_session, run_cli
+from tests.rrd_frames import assert_frames_ok
+
+
+@pytest.fixture(scope="module")
+def shove(tmp_path_factory) -> Path:
+    return make_session(tmp_path_factory.mktemp("shove"), seed=5, action="shove", link=6,
+                        duration_s=4.0, planned_at_s=2.0, rate_hz=500.0)
+
+
+@pytest.mark.parametrize("size", [1, 7, 333, 1000, 1999, 5000])
+def test_chunked_chain_equals_the_whole_session_chain(shove, size) -> None:
+    s = read_session(shove)
+    whole = TimeseriesChain(with_hand=True).compute(s.t, s.q, s.dq, s.tau)
+    chain = ChunkedChain(with_hand=True)
+    parts = [chain.compute(s.t[i:i + size], s.q[i:i + size], s.dq[i:i + size],
+                           s.tau[i:i + size]) for i in range(0, s.n_samples, size)]
+    for name in ALL_TIMESERIES:
+        chunked = np.concatenate([part[name] for part in parts])
+        assert chunked.shape == whole[name].shape
+        assert np.abs(chunked - whole[name]).max() <= 1e-9, name
+
+
+def test_an_empty_chunk_changes_nothing(shove) -> None:
+    s = read_session(shove)
+    chain = ChunkedChain(with_hand=True, names=["r"])
+    first = chain.compute(s.t[:10], s.q[:10], s.dq[:10], s.tau[:10])["r"]
+    assert chain.compute(s.t[:0], s.q[:0], s.dq[:0], s.tau[:0])["r"].shape == (0, 7)
+    rest = chain.compute(s.t[10:], s.q[10:], s.dq[10:], s.tau[10:])["r"]
+    whole = TimeseriesChain(with_hand=True).compute(s.t, s.q, s.dq, s.tau, ["r"])["r"]
+    assert np.abs(np.vstack([first, rest]) - whole).max() <= 1e-9
+
+
+def test_chain_cache_written_in_row_groups_equals_the_chain(shove, tmp_path,
+                                                            monkeypatch) -> None:
+    monkeypatch.setenv("CONTACTKIT_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(chain_cache, "BATCH_ROWS", 333)
+    s = read_session(shove)
+    cached = chain_cache.chain_series(s, ChainConfig(), ["tau", "r", "f"])
+    whole = TimeseriesChain(with_hand=True).compute(s.t, s.q, s.dq, s.tau, ["tau", "r", "f"])
+    for name, values in whole.items():
+        assert np.abs(cached[name] - values).max() <= 1e-9, name
+    (stored,) = (tmp_path / "cache" / "chain").glob("*/r.parquet")
+    assert pq.ParquetFile(stored).metadata.num_row_groups == -(-s.n_samples // 333)
+
+
+def test_per_sample_table_streams_and_equals_the_chain(shove, tmp_path, monkeypatch) -> None:
+    monkeypatch.setattr(chain_cache, "BATCH_ROWS", 500)
+    out = tmp_path / "samples.parquet"
+    assert write_per_sample_table([shove], out) == (1, [])
+    table = pq.read_table(out)
+    s = read_session(shove)
+    expected = timeseries_columns(s)
+    assert table.column_names == ["session_id", *expected]
+    assert pq.ParquetFile(out).metadata.num_row_groups == -(-s.n_samples // 500)
+    for name, values in expected.items():
+        assert np.abs(table.column(name).to_numpy() - values).max() <= 1e-9, name
+
+
+@pytest.fixture(scope="module")
+def quick_model(tmp_path_factory) -> Path:
+    """An SVM on random rows of the default features: fast to build, predicts anything."""
+    extractor = SessionFeatures(window="planned").fit(None)
+    names = list(extractor.get_feature_names_out())
+    rng = np.random.default_rng(0)
+    labels = np.array(["none", "bump", "adjust", "shove"] * 10)
+    estimator = make_estimator("svm", names).fit(rng.normal(size=(40, len(names))), labels)
+    return save_model(tmp_path_factory.mktemp("model") / "m.skops", estimator,
+                      transformer=extractor, feature_names=names,
+                      classes=list(estimator.classes_), kind=get_kind("svm"), scheme="full",
+                      fingerprint="", training={})
+
+
+def _long_session(directory: Path, n: int, rate_hz: float = 1000.0) -> Path:
+    """A synthetic session of ``n`` samples: smooth joints, noisy torques."""
+    rng = np.random.default_rng(n)
+    t = np.arange(n) / rate_hz
+    columns = {"t": t}
+    for i, name in enumerate(REQUIRED_COLUMNS[1:]):
+        columns[name] = 0.3 * np.sin(0.5 * t + i) + 0.001 * rng.standard_normal(n)
+    meta = SessionMeta(session_id=f"long{n}", source="sim", action="none",
+                       nominal_rate_hz=rate_hz)
+    return write_session(directory / f"long_{n}.parquet", columns, meta)
+
+
+def _peak_above_imports(case: str, session: Path, model: Path, out: Path, rows: int) -> float:
+    script = Path(__file__).with_name("streaming_rss.py")
+    result = subprocess.run([sys.executable, str(script), case, str(session), str(model),
+                             str(out), str(rows)], capture_output=True, text=True,
+                            timeout=600, check=False)
+    assert result.returncode == 0, result.stderr
+    return json.loads(result.stdout.splitlines()[-1])["above_mb"]
+
+
+FLAT_MARGIN_MB = 25.0
+"""Peak RSS of a 4x longer session may exceed the short one's by this much. Holding the
+session would add about 2 kB per sample to a replay (over 60 MB for the 30,000 more
+samples of the long case), and 0.6 kB per sample to the per-sample table."""
+
+
+@pytest.mark.parametrize("case", ["replay", "features"])
+@pytest.mark.parametrize("samples", [
+    10_000, pytest.param(60_000, marks=pytest.mark.slow)])
+def test_peak_memory_is_flat_in_session_length(tmp_path, quick_model, case, samples) -> None:
+    rows = samples // 10
+    peaks = [_peak_above_imports(case, _long_session(tmp_path, n), quick_model,
+                                 tmp_path / f"out_{n}.{'rrd' if case == 'replay' else 'pq'}",
+                                 rows)
+             for n in (samples, 4 * samples)]
+    assert peaks[1] - peaks[0] <= FLAT_MARGIN_MB, peaks
+
+
+def _rows(rrd: Path) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for chunk in rc.RrdReader(rrd).stream():
+        if not chunk.is_static:
+            path = chunk.entity_path.lstrip("/")
+            counts[path] = counts.get(path, 0) + chunk.to_record_batch().num_rows
+    return counts
+
+
+def test_log_rate_thins_what_goes_to_rerun(tmp_path, shove, quick_model) -> None:
+    t = read_session(shove).t  # 500 Hz: the robot is drawn every 8th sample (about 60 Hz)
+    rows = {}
+    for log_rate in (None, 100.0):
+        out = tmp_path / f"thin_{log_rate}.rrd"
+        replay_session(shove, load_model(quick_model), save=out, log_rate_hz=log_rate)
+        rows[log_rate] = _rows(out)
+    out = tmp_path / "thin_cli.rrd"
+    result = run_cli("replay", str(shove), "--viewer", "none", "--save", str(out),
+                     "--model", str(quick_model), "--log-rate", "20")
+    assert result.returncode == 0, result.stderr
+    assert_frames_ok(out)
+    rows[20.0] = _rows(out)
+    expected = {None: (len(t), len(t[::8])), 100.0: (len(t[::5]), len(t[::8])),
+                20.0: (len(t[::25]), len(np.unique(np.floor(t[::8] * 20 + 1e-6))))}
+    for log_rate, (series, robot) in expected.items():
+        for entity in (layout.Q, layout.TAU, layout.RESIDUAL, layout.FORCE_NORM,
+                       layout.TRUE_FORCE):
+            assert rows[log_rate][entity] == series, (log_rate, entity)
+        assert rows[log_rate][f"{layout.JOINT_TRANSFORMS}/panda_joint1"] == robot, log_rate
+        # predictions are logged at every hop, thinned or not
+        assert rows[log_rate][layout.PROBABILITY] == rows[None][layout.PROBABILITY] > 100
+
+
+def test_replay_streamed_in_small_batches_logs_the_chain(tmp_path, shove, quick_model,
+                                                         monkeypatch) -> None:
+    monkeypatch.setattr(engine, "BATCH_ROWS", 137)
+    out = tmp_path / "small.rrd"
+    summary = replay_session(shove, load_model(quick_model), save=out)
+    whole = replay_session(shove, load_model(quick_model), save=tmp_path / "whole.rrd")
+    assert summary.pred_t == whole.pred_t and summary.pred_label == whole.pred_label
+    assert summary.offline.label == whole.offline.label
+    s = read_session(shove)
+    expected = TimeseriesChain(with_hand=True).compute(s.t, s.q, s.dq, s.tau, ["r"])["r"]
+    logged = [b for c in rc.RrdReader(out).stream() if not c.is_static
+              and c.entity_path.lstrip("/") == layout.RESIDUAL for b in [c.to_record_batch()]]
+    t = np.concatenate([b.column("time").cast("int64").to_numpy() for b in logged]) / 1e9
+    values = np.concatenate([np.array(b.column("Scalars:scalars").to_pylist()) for b in logged])
+    order = np.argsort(t, kind="stable")
+    assert np.abs(values[order] - expected).max() <= 1e-9
