@@ -40,7 +40,8 @@ def load_map_file(path: Path, what: str, parse: Callable[[dict, str], Parsed]) -
 
 def one_of(value: object, allowed: Iterable, what: str) -> object:
     """Return ``value`` when it is one of ``allowed`` (the same value and type: 1.0 is
-    not 1); else raise ValueError naming ``what`` and the allowed values (:func:`load_map_file` turns it into an InputError)."""
+    not 1); else raise ValueError naming ``what`` and the allowed values
+    (:func:`load_map_file` turns it into an InputError)."""
     allowed = list(allowed)
     if not any(type(value) is type(a) and value == a for a in allowed):
         names = [str(a) for a in allowed]

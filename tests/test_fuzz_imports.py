@@ -1,5 +1,6 @@
-"""Property-based fuzzing of the importers' inputs (Hypothesis): ROS bags, CSV exports,
-CSV column maps and detector calibrations.
+"""Property-based fuzzing of the importers' inputs and the smaller files (Hypothesis): ROS
+bags, CSV exports, CSV column maps, detector calibrations, simulator noise files and
+scalar feature tables.
 
 The same property as tests/test_fuzz.py: a valid result or one :class:`InputError`
 (one line, naming the file; exit 2 through the CLI), never another exception, and
@@ -31,7 +32,9 @@ from contactkit.recorder.bags import default_typestore, import_bag
 from contactkit.recorder.csv_import import import_csv
 from contactkit.recorder.csv_map import load_csv_map, mindlab_map_path
 from contactkit.recorder.metadata import session_meta
-from contactkit.schemas import read_session, validate_session
+from contactkit.recorder.noise import SensorNoise, default_noise
+from contactkit.schemas import InputError, read_session, validate_session
+from contactkit.schemas.features import FEATURES_KEY, read_feature_table, write_feature_table
 from tests.bag_writers import write_bag
 from tests.conftest import make_session
 from tests.fuzz_support import (
@@ -343,3 +346,127 @@ def test_fuzz_calibrations(work: Path, data, how: str) -> None:
         t = np.arange(50) * 0.01
         detect(t, np.ones((50, 7)), np.zeros((50, 7)), config)
         assert load_calibration(save_calibration(work / "again.json", config)) == config
+
+
+# -- simulator noise files (JSON, `recorder capture --noise-file`) ---------------------------
+
+DEFAULT_NOISE = json.loads(default_noise().to_json())
+
+
+@given(data=st.data(), how=st.sampled_from(["document", "document", "text"]))
+def test_fuzz_noise_files(work: Path, data, how: str) -> None:
+    path = work / "noise.json"
+    if how == "document":
+        path.write_text(json.dumps(mutate_document(DEFAULT_NOISE, data)))
+    else:
+        path.write_text(data.draw(st.text(max_size=100)))
+    noise = refused_or(SensorNoise.from_file, path)
+    if noise is not None:
+        assert np.isfinite(noise.dq_sigma(np.ones(7))).all()
+        assert all(np.isfinite(np.asarray(getattr(noise, name), dtype=float)).all()
+                   for name in ("tau_sigma_nm", "q_sigma_rad", "tau_bias_nm"))
+
+
+# -- scalar feature tables (Parquet) ---------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def valid_features(work: Path) -> Path:
+    row = {"file": "a.parquet", "session_id": "a", "action": "bump", "condition": "static",
+           "pose": "A", "target_pose": None, "link": 3, "operator": "", "speed_rad_s": None,
+           "window_start_s": 0.1, "window_end_s": 0.2, "window_method": "planned",
+           "window_found": True, "planned_at_s": 0.1, "range(tau_3)": 1.5, "max(r_2)": 0.5}
+    return write_feature_table(work / "features.parquet", [row], ["range(tau_3)", "max(r_2)"],
+                               {"window_s": 0.1})
+
+
+@given(data=st.data(), how=st.sampled_from(["metadata", "document", "columns"]))
+def test_fuzz_feature_tables(work: Path, valid_features: Path, data, how: str) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(valid_features)
+    doc = json.loads(table.schema.metadata[FEATURES_KEY])
+    raw = json.dumps(doc).encode()
+    if how == "metadata":
+        raw = data.draw(st.binary(max_size=60))
+    elif how == "document":
+        raw = json.dumps(mutate_document(doc, data)).encode()
+    else:
+        name = data.draw(st.sampled_from(table.column_names))
+        kind = data.draw(st.sampled_from(["drop", "string", "int", "duplicate"]))
+        if kind == "drop":
+            table = table.drop_columns([name])
+        elif kind == "duplicate":
+            table = table.append_column(name, table.column(name))
+        else:
+            values = pa.array(["x"] if kind == "string" else [1])
+            table = table.set_column(table.column_names.index(name), name, values)
+    path = work / "fuzzed_features.parquet"
+    pq.write_table(table.replace_schema_metadata({FEATURES_KEY: raw}), path)
+    read = refused_or(read_feature_table, path)
+    if read is not None:
+        table, doc = read
+        assert all(pa.types.is_floating(table.schema.field(n).type) for n in doc["features"])
+
+
+# -- regressions found by the fuzzers above ----------------------------------------------------
+
+def test_bag_with_ragged_joint_values_is_refused(work: Path) -> None:
+    root = fresh_directory(work / "ragged")
+    seven = np.zeros(7)
+    messages = [{"recorded": 1_700_000_000_000_000_000 + i * 10_000_000, "header": (0, 0),
+                 "names": [], "seven": seven,
+                 "values": [[0.0] * (7 if i else 2), [0.0] * 7, [0.0] * 7]} for i in range(3)]
+    content = {"msgtype": "sensor_msgs/msg/JointState", "messages": messages, "extras": []}
+    bag = write_messages(root / "ragged", "mcap", content)
+    with pytest.raises(InputError, match="q values on /joint_states are not 7 finite"):
+        import_bag(bag, bag_meta(), root)
+
+
+def test_bag_with_foreign_session_topic_is_refused(work: Path, short_session: Path) -> None:
+    root = fresh_directory(work / "foreign")
+    messages = [{"recorded": 1_700_000_000_000_000_000 + i * 10_000_000, "header": (0, 0),
+                 "names": [], "seven": np.zeros(7), "values": [[0.0] * 7] * 3}
+                for i in range(3)]
+    for text, problem in (("not json", "holds no JSON session metadata"),
+                          ("[1, 2]", "holds no session metadata object")):
+        content = {"msgtype": "sensor_msgs/msg/JointState", "messages": messages,
+                   "extras": [("/contactkit/session", text)]}
+        bag = write_messages(fresh_directory(root / "bag") / "b", "sqlite3", content)
+        with pytest.raises(InputError, match=problem):
+            import_bag(bag, bag_meta(), root)
+
+
+@pytest.mark.parametrize("key, value, problem", [
+    ("min_on_s", 10**400, "invalid detector calibration"),
+    ("noise", [10**400] * 7, "invalid detector calibration"),
+    ("source", [1], "'source' must be an object"),
+])
+def test_calibration_with_huge_numbers_is_refused(work: Path, key, value, problem) -> None:
+    path = work / "huge.json"
+    path.write_text(json.dumps(DEFAULT_CALIBRATION | {key: value}))
+    with pytest.raises(InputError, match=problem) as err:
+        load_calibration(path)
+    assert len(str(err.value)) < 300
+
+
+@pytest.mark.parametrize("key, value", [("tau_sigma_nm", [float("nan")] * 7),
+                                        ("q_sigma_rad", ["a"] * 7), ("tau_bias_nm", 3),
+                                        ("dq_sigma_rad_s", [-1.0] * 7), ("source", 5)])
+def test_noise_file_with_bad_values_is_refused(work: Path, key, value) -> None:
+    path = work / "bad_noise.json"
+    path.write_text(json.dumps(DEFAULT_NOISE | {key: value}))
+    with pytest.raises(InputError, match=key.split("_")[0]):
+        SensorNoise.from_file(path)
+
+
+def test_feature_table_with_foreign_metadata_is_refused(work: Path,
+                                                        valid_features: Path) -> None:
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(valid_features)
+    for raw in (b"not json", b"[]", b'{"features": "x"}'):
+        path = work / "foreign_features.parquet"
+        pq.write_table(table.replace_schema_metadata({FEATURES_KEY: raw}), path)
+        with pytest.raises(InputError, match="feature"):
+            read_feature_table(path)
