@@ -470,3 +470,11 @@ def test_feature_table_with_foreign_metadata_is_refused(work: Path,
         pq.write_table(table.replace_schema_metadata({FEATURES_KEY: raw}), path)
         with pytest.raises(InputError, match="feature"):
             read_feature_table(path)
+
+
+def test_csv_with_a_repeated_mapped_column_is_refused(work: Path, valid_csv: Path) -> None:
+    lines = valid_csv.read_text().splitlines()
+    path = work / "repeated.csv"
+    path.write_text("\n".join([lines[0].replace("q1,", "q0,", 1), *lines[1:]]) + "\n")
+    with pytest.raises(InputError, match=r"column .q0. .* appears more than once"):
+        import_csv(path, load_csv_map(mindlab_map_path()), csv_meta(), work)
