@@ -123,6 +123,7 @@ JOINT_NAMES = st.lists(st.sampled_from([f"fr3_joint{j}" for j in range(1, 8)]
                                        + ["fr3_finger_joint1", "", "joint9"]), max_size=9)
 VALUES = st.lists(FLOATS | st.floats(-4, 4), max_size=9)
 STAMPS = st.tuples(st.integers(0, 2**31 - 1), st.integers(0, 2**32 - 1))
+MAX_RECORDED_NS = (2**32 - 1) * 1_000_000_000  # ROS 1 bags store uint32 seconds
 
 
 @st.composite
@@ -133,16 +134,19 @@ def bag_messages(draw) -> dict:
     n = draw(st.integers(0, 12))
     start = 1_700_000_000_000_000_000
     regular = draw(st.booleans())
+    clean = draw(st.booleans())  # 7 finite values per joint quantity
+    number = st.floats(-4, 4) if clean else FLOATS | st.floats(-4, 4)
+    values = st.lists(number, min_size=7, max_size=7) if clean else VALUES
     messages = []
     for i in range(n):
-        recorded = start + i * 10_000_000 if regular else draw(st.integers(1, 2**62))
+        recorded = start + i * 10_000_000 if regular else draw(st.integers(1, MAX_RECORDED_NS))
         stamp = draw(st.sampled_from(["same", "zero", "drawn"]))
         header = {"same": divmod(recorded, 1_000_000_000), "zero": (0, 0),
                   "drawn": draw(STAMPS)}[stamp]
         messages.append({"recorded": recorded, "header": header, "names": draw(JOINT_NAMES),
-                         "values": [draw(VALUES) for _ in range(3)],
-                         "seven": np.array(draw(st.lists(FLOATS | st.floats(-4, 4),
-                                                         min_size=7, max_size=7)))})
+                         "values": [draw(values) for _ in range(3)],
+                         "seven": np.array(draw(st.lists(number, min_size=7,
+                                                         max_size=7)))})
     extras = draw(st.lists(st.tuples(
         st.sampled_from(["/labels", "/contactkit/session", "/joint_states_desired",
                          "/contactkit/contact"]),
