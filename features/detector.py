@@ -104,10 +104,12 @@ class DetectorConfig:
         unknown = sorted(set(doc) - known - {"format"})
         if unknown:
             raise InputError(f"unknown detector setting {unknown[0]!r}", where)
+        if not isinstance(doc.get("source", {}), dict):
+            raise InputError("detector setting 'source' must be an object", where)
         try:
             return cls(**{k: v for k, v in doc.items() if k != "format"})
-        except (TypeError, ValueError) as err:
-            raise InputError(f"invalid detector calibration: {err}", where) from err
+        except (TypeError, ValueError, ArithmeticError) as err:
+            raise InputError(f"invalid detector calibration: {str(err)[:200]}", where) from err
 
 
 def save_calibration(path: str | Path, config: DetectorConfig) -> Path:

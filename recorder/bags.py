@@ -54,6 +54,7 @@ EXPORT_TOPICS = {"desired": "/joint_states_desired", "tau_ext_hat": "/tau_ext_ha
                  "applied": "/contactkit/applied_force", "contact": "/contactkit/contact",
                  "session": "/contactkit/session"}
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
+MEASURED = ("q", "dq", "tau")  # the joint values every message must carry
 
 
 def _msg_folder(ros1: bool) -> Any:
@@ -287,7 +288,14 @@ def bag_session_columns(bag: BagColumns, path: Path) -> tuple[dict[str, np.ndarr
     keep[1:] = times_ns[1:] > np.maximum.accumulate(times_ns)[:-1]
     columns: dict[str, np.ndarray] = {"t": (times_ns[keep] - times_ns[0]) * 1e-9}
     for key, values in bag.columns.items():
-        array = np.asarray(values)[keep]
+        array = _stacked(values)
+        if array is None or (key in MEASURED and (array.shape[1:] != (7,)
+                                                  or not np.isfinite(array).all())):
+            if key in MEASURED:
+                raise InputError(f"the {key} values on {bag.info['topic']} are not 7 finite "
+                                 "numbers in every message", path)
+            continue
+        array = array[keep]
         if key == "wrench_hat":
             names = list(WRENCH_HAT_COLUMNS)
         elif array.ndim == 2:
@@ -296,7 +304,7 @@ def bag_session_columns(bag: BagColumns, path: Path) -> tuple[dict[str, np.ndarr
             columns[key] = array.astype(np.int8 if key == "robot_mode" else np.float64)
             continue
         if array.shape[1] == len(names) and np.isfinite(array).all():
-            columns.update({n: array[:, i].astype(np.float64) for i, n in enumerate(names)})
+            columns.update({n: array[:, i] for i, n in enumerate(names)})
     recorded = np.asarray(bag.recorded_ns, dtype=np.int64)[keep]
     _add_export_topics(columns, bag.extras)
     events = [{"t": float(_session_time(stamp, recorded, columns["t"])), "text": str(data)}
@@ -309,6 +317,15 @@ def bag_session_columns(bag: BagColumns, path: Path) -> tuple[dict[str, np.ndarr
         if flags:
             columns["contact"] = _hold(flags, columns["t"])
     return columns, info
+
+
+def _stacked(values: list) -> np.ndarray | None:
+    """Return per-message values as one float64 array (a row per message), or None when
+    the messages disagree in their number of values or hold something else."""
+    try:
+        return np.asarray(values, dtype=np.float64)
+    except (ValueError, TypeError):
+        return None
 
 
 def _session_time(stamp_ns: int, recorded: np.ndarray, t: np.ndarray) -> float:
@@ -356,10 +373,20 @@ def _joint_block(prefix: str, rows: list) -> dict[str, np.ndarray]:
     return {name: array[:, i] for i, name in enumerate(joint_columns(prefix))}
 
 
-def exported_meta(bag: BagColumns) -> dict | None:
-    """Return the session metadata export-mcap stored in the bag, or None."""
+def exported_meta(bag: BagColumns, path: Path) -> dict | None:
+    """Return the session metadata export-mcap stored in the bag, or None; InputError
+    naming the bag when that topic holds something other than a JSON metadata object."""
     messages = bag.extras.get(EXPORT_TOPICS["session"])
-    return json.loads(messages[0].data) if messages else None
+    if not messages:
+        return None
+    try:
+        doc = json.loads(messages[0].data)
+    except (json.JSONDecodeError, TypeError) as err:
+        raise InputError(f"{EXPORT_TOPICS['session']} holds no JSON session metadata ({err})",
+                         path) from err
+    if not isinstance(doc, dict) or not isinstance(doc.get("source_info", {}), dict):
+        raise InputError(f"{EXPORT_TOPICS['session']} holds no session metadata object", path)
+    return doc
 
 
 def import_bag(path: Path, meta: SessionMeta, out_dir: Path, *, topic: str | None = None,
@@ -373,7 +400,7 @@ def import_bag(path: Path, meta: SessionMeta, out_dir: Path, *, topic: str | Non
     ``meta`` has one.
     """
     bag = read_bag(path, topic, label_topic)
-    stored = exported_meta(bag)
+    stored = exported_meta(bag, path)
     columns, info = bag_session_columns(bag, path)
     if stored is not None:
         meta = SessionMeta.from_dict({**stored, "source_info": {**stored.get("source_info", {}),

@@ -13,16 +13,17 @@ from __future__ import annotations
 
 import math
 import struct
-import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from contactkit.schemas import N_JOINTS, InputError
+from contactkit.recorder.map_file import load_map_file, one_of
+from contactkit.schemas import N_JOINTS
 
 TYPES = {"int8": "b", "uint8": "B", "int16": "h", "uint16": "H", "int32": "i", "uint32": "I",
          "float32": "f"}
 QUANTITIES = ("q", "dq", "tau")
+BYTE_ORDERS = {"little": "<", "big": ">"}
 
 
 @dataclass(frozen=True)
@@ -69,22 +70,10 @@ def default_map_path() -> Path:
 
 
 def load_map(path: str | Path | None = None) -> FrameMap:
-    """Parse and check a frame map (the default map when ``path`` is None)."""
-    path = default_map_path() if path is None else Path(path)
-    try:
-        doc = tomllib.loads(path.read_text())
-    except FileNotFoundError as err:
-        raise InputError("no such frame map", path) from err
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise InputError(f"not a valid TOML frame map ({err})", path) from err
-    except OSError as err:
-        raise InputError(f"cannot read the frame map ({err.strerror or err})", path) from err
-    try:
-        return _parse(doc, str(path))
-    except KeyError as err:
-        raise InputError(f"bad frame map: missing key {err}", path) from err
-    except (TypeError, ValueError, AttributeError, ArithmeticError) as err:
-        raise InputError(f"bad frame map: {err}", path) from err
+    """Parse and check a frame map (the default map when ``path`` is None); raise
+    InputError naming the file and the problem."""
+    return load_map_file(default_map_path() if path is None else Path(path), "frame map",
+                         _parse)
 
 
 def _parse(doc: dict, source: str) -> FrameMap:
@@ -102,11 +91,10 @@ def _parse(doc: dict, source: str) -> FrameMap:
         for node, (joint, params) in joints.items():
             signals = []
             for sig in pdo["signals"]:
-                quantity = sig["quantity"]
-                if quantity not in QUANTITIES:
-                    raise ValueError(f"unknown quantity {quantity!r}")
-                order = {"little": "<", "big": ">"}[sig.get("byte_order", "little")]
-                codec = struct.Struct(order + TYPES[sig["type"]])
+                quantity = one_of(sig["quantity"], QUANTITIES, "quantity")
+                order = one_of(sig.get("byte_order", "little"), BYTE_ORDERS, "byte_order")
+                codec = struct.Struct(BYTE_ORDERS[order] + TYPES[one_of(sig["type"], TYPES,
+                                                                        "type")])
                 start = int(sig["start"])
                 if start < 0 or start + codec.size > length:
                     raise ValueError(f"signal {quantity} does not fit in {length} bytes")

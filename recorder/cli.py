@@ -104,6 +104,18 @@ EVENTS = CaptureExtension((
 ), _start_events)
 register_capture(app, (EVENTS,))
 
+# The protocol options of the import-* commands, declared once.
+PoseOption = Annotated[Pose, typer.Option(help="Pose of the session (thesis Table 3.1).")]
+ActionOption = Annotated[Action, typer.Option(help="What the person did.")]
+ConditionOption = Annotated[Condition, typer.Option(help="Protocol condition.")]
+TargetPoseOption = Annotated[Pose | None, typer.Option(help="Dynamic: target pose.")]
+PlannedAtOption = Annotated[float | None, typer.Option(
+    help="Planned interaction time [s from the first sample].")]
+LinkOption = Annotated[int | None, typer.Option(help="Touched link 1-7.")]
+OperatorOption = Annotated[str, typer.Option(help="Who touched the robot.")]
+HandOption = Annotated[bool, typer.Option(help="The robot carried its hand.")]
+OutOption = Annotated[Path, typer.Option(help="Output directory.")]
+
 
 @app.command("simulate")
 def simulate_command(
@@ -172,7 +184,7 @@ def import_arrays_command(
     q: Annotated[Path, typer.Option("--q", help="Joint positions [rad].")],
     dq: Annotated[Path, typer.Option("--dq", help="Joint velocities [rad/s].")],
     tau: Annotated[Path, typer.Option("--tau", help="Measured joint torques [Nm].")],
-    out: Annotated[Path, typer.Option(help="Output directory.")],
+    out: OutOption,
     meta: Annotated[list[str] | None, typer.Option(
         help="Metadata KEY=VALUE (repeatable), e.g. action=none, with_hand=false, "
              "planned_at_s=10, pose=A, operator=lab1, notes=...")] = None,
@@ -198,14 +210,13 @@ def import_csv_command(
     action: Annotated[Action, typer.Option(
         help="What the person did (a log with several touches keeps them in its contact "
              "column).")] = "none",
-    condition: Annotated[Condition, typer.Option(help="Protocol condition.")] = "static",
-    planned_at: Annotated[float | None, typer.Option(
-        help="Planned interaction time [s from the first sample].")] = None,
-    link: Annotated[int | None, typer.Option(help="Touched link 1-7.")] = None,
-    operator: Annotated[str, typer.Option(help="Who touched the robot.")] = "",
-    hand: Annotated[bool, typer.Option(help="The robot carried its hand.")] = True,
+    condition: ConditionOption = "static",
+    planned_at: PlannedAtOption = None,
+    link: LinkOption = None,
+    operator: OperatorOption = "",
+    hand: HandOption = True,
     notes: Annotated[str, typer.Option(help="Free text stored in the metadata.")] = "",
-    out: Annotated[Path, typer.Option(help="Output directory.")] = Path("sessions"),
+    out: OutOption = Path("sessions"),
 ) -> None:
     """Turn CSV exports into validated sessions, one per file, and print their paths.
 
@@ -262,18 +273,17 @@ def stats_command(
 def import_can_command(
     log: Annotated[Path, typer.Argument(help="CAN log: .asc, .blf, .trc, .csv, .log "
                                              "(candump), .mf4 (with asammdf), .db (SQLite).")],
-    pose: Annotated[Pose, typer.Option(help="Pose of the session (thesis Table 3.1).")],
-    action: Annotated[Action, typer.Option(help="What the person did.")],
+    pose: PoseOption,
+    action: ActionOption,
     can_map: Annotated[Path | None, typer.Option(
         "--map", help="Frame map TOML (default: CANopen CiA 402).")] = None,
-    planned_at: Annotated[float | None, typer.Option(
-        help="Planned interaction time [s from the first sample].")] = None,
-    condition: Annotated[Condition, typer.Option(help="Protocol condition.")] = "static",
-    target_pose: Annotated[Pose | None, typer.Option(help="Dynamic: target pose.")] = None,
-    link: Annotated[int | None, typer.Option(help="Touched link 1-7.")] = None,
-    operator: Annotated[str, typer.Option(help="Who touched the robot.")] = "",
-    hand: Annotated[bool, typer.Option(help="The robot carried its hand.")] = True,
-    out: Annotated[Path, typer.Option(help="Output directory.")] = Path("sessions"),
+    planned_at: PlannedAtOption = None,
+    condition: ConditionOption = "static",
+    target_pose: TargetPoseOption = None,
+    link: LinkOption = None,
+    operator: OperatorOption = "",
+    hand: HandOption = True,
+    out: OutOption = Path("sessions"),
 ) -> None:
     """Convert a CAN log into a validated session and print its path."""
     meta = session_meta(source="can-log", action=action, condition=condition, pose=pose,
@@ -289,8 +299,8 @@ def import_can_command(
 def import_bag_command(
     bag: Annotated[Path, typer.Argument(help="ROS 1 .bag, ROS 2 bag directory, .mcap or .db3 "
                                              "file, or a directory of bags.")],
-    pose: Annotated[Pose, typer.Option(help="Pose of the session(s) (thesis Table 3.1).")],
-    action: Annotated[Action, typer.Option(help="What the person did.")],
+    pose: PoseOption,
+    action: ActionOption,
     topic: Annotated[str | None, typer.Option(
         help="Joint-state topic (FrankaState, FrankaRobotState or JointState; default: the "
              "usual franka_ros/franka_ros2 topics).")] = None,
@@ -298,14 +308,13 @@ def import_bag_command(
         help="std_msgs/String or Bool topic of labels or cue events: String events are "
              "stored with their times (the first is the planned time), Bool is the "
              "ground-truth contact.")] = None,
-    planned_at: Annotated[float | None, typer.Option(
-        help="Planned interaction time [s from the first sample].")] = None,
-    condition: Annotated[Condition, typer.Option(help="Protocol condition.")] = "static",
-    target_pose: Annotated[Pose | None, typer.Option(help="Dynamic: target pose.")] = None,
-    link: Annotated[int | None, typer.Option(help="Touched link 1-7.")] = None,
-    operator: Annotated[str, typer.Option(help="Who touched the robot.")] = "",
-    hand: Annotated[bool, typer.Option(help="The robot carried its hand.")] = True,
-    out: Annotated[Path, typer.Option(help="Output directory.")] = Path("sessions"),
+    planned_at: PlannedAtOption = None,
+    condition: ConditionOption = "static",
+    target_pose: TargetPoseOption = None,
+    link: LinkOption = None,
+    operator: OperatorOption = "",
+    hand: HandOption = True,
+    out: OutOption = Path("sessions"),
     workers: Annotated[int, typer.Option(help="Parallel processes for a directory.")
                        ] = DEFAULT_WORKERS,
 ) -> None:

@@ -25,8 +25,9 @@ def read_csv_columns(path: Path, cmap: CsvMap) -> tuple[dict[str, np.ndarray], d
 
     Columns are in session units (t [s], q [rad], dq [rad/s], torques [Nm], contact
     bool). The counts are ``rows`` read, ``repeated_rows`` dropped and ``samples`` kept.
-    Raises InputError naming the file and the column for a missing column, a value that
-    is not a number, an empty value, a label other than 0/1, or time that goes back.
+    Raises InputError naming the file and the column for a missing or repeated column, a
+    value that is not a number, an empty value, a label other than 0/1, or time that goes
+    back.
     """
     if not path.is_file():
         raise InputError("no such CSV file", path)
@@ -76,6 +77,9 @@ def _numeric(frame: pl.DataFrame, column: str, path: Path, what: str) -> np.ndar
     """Return one CSV column as float64, or raise InputError naming the column."""
     if column not in frame.columns:
         raise InputError(f"no column {column!r} ({what} in the map)", path)
+    if f"{column}_duplicated_0" in frame.columns:
+        raise InputError(f"column {column!r} ({what}) appears more than once in the header",
+                         path)
     text = frame.get_column(column).str.strip_chars()
     values = text.cast(pl.Float64, strict=False).fill_nan(None)
     bad = (values.is_null() | values.is_infinite()).arg_true()

@@ -12,12 +12,12 @@ measured values are dropped. ``recorder/data/mindlab_csv_map.toml`` is the examp
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from contactkit.schemas import N_JOINTS, InputError
+from contactkit.recorder.map_file import load_map_file, one_of
+from contactkit.schemas import N_JOINTS
 
 # Unit name -> factor to the session's unit (s, rad, rad/s, Nm).
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
@@ -81,31 +81,16 @@ def mindlab_map_path() -> Path:
 
 def load_csv_map(path: str | Path) -> CsvMap:
     """Parse and check a CSV column map; raise InputError naming the file and the problem."""
-    path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text())
-    except FileNotFoundError as err:
-        raise InputError("no such column map", path) from err
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise InputError(f"not a valid TOML column map ({err})", path) from err
-    try:
-        return _parse(doc, str(path))
-    except (KeyError, TypeError, ValueError) as err:
-        problem = f"missing key {err}" if isinstance(err, KeyError) else str(err)
-        raise InputError(f"bad column map: {problem}", path) from err
+    return load_map_file(Path(path), "column map", _parse)
 
 
 def _parse(doc: dict, source: str) -> CsvMap:
     unknown = set(doc) - KNOWN_KEYS
     if unknown:
         raise ValueError(f"unknown key {sorted(unknown)[0]!r}")
-    base = doc.get("index_base", 1)
-    if base not in (0, 1):
-        raise ValueError(f"index_base must be 0 or 1, got {base!r}")
+    base = one_of(doc.get("index_base", 1), (0, 1), "index_base")
     time = doc["time"]
-    time_unit = time.get("unit", "s")
-    if time_unit not in TIME_UNITS:
-        raise ValueError(f"time unit {time_unit!r} is not one of {', '.join(TIME_UNITS)}")
+    time_unit = one_of(time.get("unit", "s"), TIME_UNITS, "time unit")
     joints = {}
     for prefix in (*REQUIRED, *OPTIONAL):
         if prefix in doc:
@@ -118,9 +103,7 @@ def _parse(doc: dict, source: str) -> CsvMap:
     delimiter = str(doc.get("delimiter", ","))
     if len(delimiter) != 1:
         raise ValueError(f"delimiter must be one character, got {delimiter!r}")
-    repeated = doc.get("repeated_rows", "drop")
-    if repeated not in ("drop", "keep"):
-        raise ValueError(f"repeated_rows must be 'drop' or 'keep', got {repeated!r}")
+    repeated = one_of(doc.get("repeated_rows", "drop"), ("drop", "keep"), "repeated_rows")
     return CsvMap(str(doc.get("name", Path(source).stem)), delimiter, str(time["column"]),
                   TIME_UNITS[time_unit], joints, contact, repeated == "drop", source)
 
@@ -136,11 +119,7 @@ def _joint_columns(prefix: str, spec: dict, base: int) -> JointColumns:
         if len(names) != N_JOINTS:
             raise ValueError(f"{prefix} needs {N_JOINTS} columns, found {len(names)}")
     units = JOINT_UNITS[prefix]
-    unit = spec.get("unit", next(iter(units)))
-    if unit not in units:
-        raise ValueError(f"{prefix} unit {unit!r} is not one of {', '.join(units)}")
-    sign = spec.get("sign", 1)
-    if sign not in (1, -1) or (sign == -1 and prefix != "tau_ext_hat"):
-        raise ValueError(f"{prefix} sign must be 1" + (" or -1" if prefix == "tau_ext_hat"
-                                                        else ""))
+    unit = one_of(spec.get("unit", next(iter(units))), units, f"{prefix} unit")
+    sign = one_of(spec.get("sign", 1), (1, -1) if prefix == "tau_ext_hat" else (1,),
+                  f"{prefix} sign")
     return JointColumns(names, units[unit] * sign)

@@ -74,12 +74,18 @@ class SensorNoise:
                                                  "q_sigma_rad", "tau_bias_nm")},
                         source=doc.get("source", str(path)),
                         dq_sigma_per_speed=doc.get("dq_sigma_per_speed", [0.0] * 7))
-        except (OSError, json.JSONDecodeError, KeyError, TypeError) as err:
+        except (OSError, ValueError, KeyError, TypeError) as err:
             raise InputError(f"not a noise file ({err})", path) from err
         for name in ("tau_sigma_nm", "dq_sigma_rad_s", "q_sigma_rad", "tau_bias_nm",
                      "dq_sigma_per_speed"):
-            if len(getattr(noise, name)) != 7:
-                raise InputError(f"{name} must have 7 values", path)
+            try:
+                values = np.asarray(getattr(noise, name), dtype=np.float64)
+            except (TypeError, ValueError, OverflowError):
+                values = np.zeros(0)
+            if values.shape != (7,) or not np.isfinite(values).all() or (values < 0).any():
+                raise InputError(f"{name} must be 7 finite non-negative numbers", path)
+        if not isinstance(noise.source, str):
+            raise InputError("source must be a string", path)
         return noise
 
 

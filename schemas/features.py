@@ -67,8 +67,21 @@ def read_feature_table(path: str | Path) -> tuple[pa.Table, dict]:
     meta = table.schema.metadata or {}
     if FEATURES_KEY not in meta:
         raise InputError("not a contactkit feature table (no feature metadata)", path)
-    doc = json.loads(meta[FEATURES_KEY])
-    missing = [n for n in ID_NAMES + doc["features"] if n not in table.column_names]
+    try:
+        doc = json.loads(meta[FEATURES_KEY])
+        names = doc["features"]
+    except (ValueError, KeyError, TypeError) as err:
+        raise InputError(f"feature metadata is not a feature document ({err})", path) from err
+    if not (isinstance(names, list) and all(isinstance(n, str) for n in names)
+            and isinstance(doc.get("config", {}), dict)):
+        raise InputError("feature metadata needs a list of feature names and a config "
+                         "object", path)
+    missing = [n for n in ID_NAMES + names if n not in table.column_names]
     if missing:
         raise InputError(f"feature table lacks column {missing[0]!r}", path)
+    types = dict(zip(table.column_names, table.schema.types, strict=True))
+    for name in names:
+        if not pa.types.is_floating(types[name]):
+            raise InputError(f"feature column {name!r} has type {types[name]}, expected "
+                             "float64", path)
     return table, doc

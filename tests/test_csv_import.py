@@ -82,11 +82,13 @@ GOOD_MAP = ('index_base = 0\n[time]\ncolumn = "time"\n[q]\ncolumns = "q{j}"\n'
     (GOOD_MAP.replace("index_base = 0", "index_base = 2"), "index_base must be 0 or 1"),
     (GOOD_MAP.replace('"q{j}"', '"q"'), "lacks {j}"),
     (GOOD_MAP.replace('"q{j}"', '["q0", "q1"]'), "q needs 7 columns"),
-    (GOOD_MAP + 'unit = "furlong"\n', "tau unit 'furlong'"),
-    (GOOD_MAP.replace('column = "time"', 'column = "time"\nunit = "h"'), "time unit 'h'"),
+    (GOOD_MAP + 'unit = "furlong"\n', "tau unit must be Nm or mNm, got 'furlong'"),
+    (GOOD_MAP.replace('column = "time"', 'column = "time"\nunit = "h"'),
+     "time unit must be s, ms, us or ns, got 'h'"),
     (GOOD_MAP + "sign = -1\n", "tau sign must be 1"),
     (GOOD_MAP + "[frobnicate]\n", "unknown key 'frobnicate'"),
     (GOOD_MAP.replace('column = "time"', 'col = "time"'), "missing key 'column'"),
+    (GOOD_MAP.replace('[time]\ncolumn = "time"\n', 'time = 5\n'), "'int' object has no"),
 ])
 def test_bad_map(tmp_path: Path, text: str, problem: str) -> None:
     path = _write_map(tmp_path, text)

@@ -4,7 +4,8 @@ The property, for every file contactkit reads: a valid result or one
 :class:`InputError` (one line, naming the file), never another exception, and
 nothing written outside the output directory. The example count comes from the
 Hypothesis profile (``ci`` in ``make test``, ``long`` in benchmarks/bench_fuzz.py).
-ROS bags are not fuzzed here yet: their importer is still being written.
+The importers of ROS bags and CSV exports, the CSV map and detector calibrations
+are fuzzed in tests/test_fuzz_imports.py.
 """
 
 from __future__ import annotations
@@ -31,7 +32,6 @@ from contactkit.recorder.journal import SessionWriter, journal_path, recover_dir
 from contactkit.recorder.metadata import session_filename
 from contactkit.recorder.stats import build_report
 from contactkit.schemas import (
-    InputError,
     SessionMeta,
     read_session,
     validate_session,
@@ -39,24 +39,14 @@ from contactkit.schemas import (
 from contactkit.schemas.session import COLUMN_ORDER, METADATA_KEY
 from contactkit.util.paths import inside
 from tests.conftest import make_session
-
-
-def refused_or(fn, *args, **kwargs):
-    """Call ``fn``; return its result, or None when it refused with a one-line InputError."""
-    try:
-        result = fn(*args, **kwargs)
-    except InputError as err:
-        assert "\n" not in str(err) and err.problem
-        event(f"{fn.__name__}: refused")
-        return None
-    event(f"{fn.__name__}: accepted")
-    return result
-
-
-def nothing_outside(root: Path, allowed: Path) -> None:
-    """Assert that every file under ``root`` lies inside ``allowed`` (or is an input)."""
-    for path in root.rglob("*.parquet"):
-        assert path.resolve().is_relative_to(allowed.resolve()), path
+from tests.fuzz_support import (
+    FLOATS,
+    JSON_VALUES,
+    mutate_document,
+    nothing_outside,
+    refused_or,
+    to_toml,
+)
 
 
 @pytest.fixture(scope="module")
@@ -68,13 +58,6 @@ def work(tmp_path_factory) -> Path:
 def valid_session(work: Path) -> Path:
     return make_session(work, seed=2, action="bump", link=5, duration_s=1.0,
                         planned_at_s=0.5, rate_hz=100.0)
-
-
-FLOATS = st.floats(allow_nan=True, allow_infinity=True, width=64)
-JSON_SCALARS = st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=20)
-JSON_VALUES = st.recursive(JSON_SCALARS, lambda inner: st.lists(inner, max_size=8)
-                           | st.dictionaries(st.text(max_size=10), inner, max_size=5),
-                           max_leaves=20)
 
 
 # -- session Parquet -----------------------------------------------------------------------
@@ -218,45 +201,12 @@ def test_fuzz_map_text(work: Path, text: str) -> None:
 
 @given(data=st.data())
 def test_fuzz_map_documents(work: Path, data) -> None:
-    doc = json.loads(json.dumps(DEFAULT_MAP))
-    for _ in range(data.draw(st.integers(1, 3))):
-        parent = data.draw(st.sampled_from(_tables(doc)))
-        key = data.draw(st.sampled_from([*sorted(parent), "extra"]))
-        parent[key] = data.draw(JSON_VALUES | st.sampled_from([-4, 0, 1e308, "big", "int8"]))
     path = work / "doc.toml"
-    path.write_text(_toml(doc))
+    path.write_text(to_toml(mutate_document(DEFAULT_MAP, data)))
     fmap = refused_or(load_map, path)
     if fmap is not None:
         assert all(math.isfinite(s.scale) and s.start >= 0 for layout in fmap.frames.values()
                    for s in layout.signals)
-
-
-def _tables(value) -> list[dict]:
-    """Return every table (dict) inside a parsed TOML document, the document first."""
-    if isinstance(value, dict):
-        return [value, *[t for v in value.values() for t in _tables(v)]]
-    if isinstance(value, list):
-        return [t for v in value for t in _tables(v)]
-    return []
-
-
-def _toml(doc: dict) -> str:
-    """A small TOML writer for map documents (JSON-like values; tables of tables as
-    inline tables)."""
-    def value(v) -> str:
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, (int, float)):
-            return repr(v) if math.isfinite(v) else ("nan" if v != v else
-                                                     ("inf" if v > 0 else "-inf"))
-        if isinstance(v, str):
-            return json.dumps(v)
-        if v is None:
-            return '""'
-        if isinstance(v, list):
-            return "[" + ", ".join(value(x) for x in v) + "]"
-        return "{" + ", ".join(f"{json.dumps(k)} = {value(x)}" for k, x in v.items()) + "}"
-    return "\n".join(f"{json.dumps(k)} = {value(v)}" for k, v in doc.items()) + "\n"
 
 
 # -- plain arrays --------------------------------------------------------------------------

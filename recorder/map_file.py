@@ -1,0 +1,50 @@
+"""What the TOML map files (CAN frame maps, CSV column maps) share: reading the file,
+turning every problem into one InputError naming it, and checking a field's value
+against the allowed ones."""
+
+from __future__ import annotations
+
+import tomllib
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import TypeVar
+
+from contactkit.schemas import InputError
+
+Parsed = TypeVar("Parsed")
+
+
+def load_map_file(path: Path, what: str, parse: Callable[[dict, str], Parsed]) -> Parsed:
+    """Read the TOML file ``path`` and return ``parse(document, str(path))``.
+
+    ``what`` names the kind of file in messages ("frame map", "column map"). A missing
+    or unreadable file, invalid TOML, and any KeyError, TypeError, ValueError,
+    AttributeError or ArithmeticError of ``parse`` (a missing key, a value of the wrong
+    type or out of range) become one :class:`InputError` naming the file.
+    """
+    try:
+        doc = tomllib.loads(path.read_text())
+    except FileNotFoundError as err:
+        raise InputError(f"no such {what}", path) from err
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise InputError(f"not a valid TOML {what} ({err})", path) from err
+    except OSError as err:
+        raise InputError(f"cannot read the {what} ({err.strerror or err})", path) from err
+    try:
+        return parse(doc, str(path))
+    except KeyError as err:
+        raise InputError(f"bad {what}: missing key {err}", path) from err
+    except (TypeError, ValueError, AttributeError, ArithmeticError) as err:
+        raise InputError(f"bad {what}: {err}", path) from err
+
+
+def one_of(value: object, allowed: Iterable, what: str) -> object:
+    """Return ``value`` when it is one of ``allowed`` (the same value and type: 1.0 is
+    not 1); else raise ValueError naming ``what`` and the allowed values
+    (:func:`load_map_file` turns it into an InputError)."""
+    allowed = list(allowed)
+    if not any(type(value) is type(a) and value == a for a in allowed):
+        names = [str(a) for a in allowed]
+        choices = names[0] if len(names) == 1 else f"{', '.join(names[:-1])} or {names[-1]}"
+        raise ValueError(f"{what} must be {choices}, got {value!r}")
+    return value
