@@ -67,6 +67,12 @@ def resolve_device(torch, device: str):
     return torch.device("cuda", (dask_worker_rank() or 0) % torch.cuda.device_count())
 
 
+def check_device(device: str) -> None:
+    """Raise InputError now for an unknown device, or for ``cuda`` where PyTorch (or
+    the ``nn`` extra) is missing or sees no GPU; return None otherwise."""
+    resolve_device(require_torch(), device)
+
+
 def _cnn_module(torch, channels: int, steps: int, classes: int, depth: int, width: float,
                 dropout: float):
     nn = torch.nn

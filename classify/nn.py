@@ -38,9 +38,16 @@ from sklearn.base import BaseEstimator, ClassifierMixin
 from contactkit.classify.grids import CNN_INPUT, GRIDS, LSTM_INPUT
 from contactkit.classify.kind import ModelKind, ModelOptions
 from contactkit.classify.modelfile import SKOPS
-from contactkit.classify.networks import DEVICES, CNNClassifier, LSTMClassifier, require_torch
+from contactkit.classify.networks import (
+    DEVICES,
+    CNNClassifier,
+    LSTMClassifier,
+    check_device,
+    require_torch,
+)
 from contactkit.classify.onnx_model import ONNX
 from contactkit.schemas import InputError
+from contactkit.util.parallel import resolve_scheduler
 
 
 class MiniRocketClassifier(ClassifierMixin, BaseEstimator):
@@ -96,6 +103,8 @@ def _check_network(options: ModelOptions) -> None:
     if options.device not in DEVICES:
         raise InputError(f"unknown device {options.device!r} (expected one of "
                          f"{', '.join(DEVICES)})")
+    if resolve_scheduler() is None:  # the GPUs of a cluster are its workers' business
+        check_device(options.device)
 
 
 def _torch_params(options: ModelOptions) -> dict:

@@ -37,7 +37,8 @@ from contactkit.recorder.stats import build_report, write_noise_file
 from contactkit.recorder.stats_report import print_summary, write_report
 from contactkit.schemas import InputError, SessionMeta, read_session
 from contactkit.schemas.dataset import rebuild_index
-from contactkit.util.cli import new_app, run_app
+from contactkit.util.cli import SchedulerOpt, new_app, run_app
+from contactkit.util.parallel import use_scheduler
 from contactkit.util.progress import (
     bar_callback,
     err_console,
@@ -103,6 +104,13 @@ EVENTS = CaptureExtension((
                   "at which its intent is decided [s] (default: the model's)."),
 ), _start_events)
 register_capture(app, (EVENTS,))
+
+
+@app.callback()
+def _root(scheduler: SchedulerOpt = None) -> None:
+    """Record Panda joint streams while a person touches the arm on cue, and manage the
+    resulting sessions. Without a robot, sessions come from a physics simulation."""
+    use_scheduler(scheduler)
 
 
 @app.command("simulate")
