@@ -161,3 +161,27 @@ def test_gridsearch_and_lstm_evaluate_identical(cluster, tmp_path, monkeypatch):
     monkeypatch.setenv("CONTACTKIT_SCHEDULER", CLUSTER)
     remote_report, _ = evaluate_kind([dataset], options, workers=2)
     assert remote_report.as_dict() == local_report.as_dict()
+
+
+def test_scheduler_without_workers(monkeypatch):
+    import distributed
+
+    monkeypatch.setattr(dask_executor, "CONNECT_TIMEOUT_S", 2.0)
+    with (distributed.LocalCluster(n_workers=0, processes=False, protocol="tcp",
+                                   host="127.0.0.1", dashboard_address=None) as empty,
+          pytest.raises(InputError, match="has no worker")):
+        list(map_ordered(_slow_square, [1], scheduler=empty.scheduler_address))
+
+
+def test_cli_scheduler_option(tmp_path, session_path):
+    """--scheduler on the root of a command sends its jobs to Dask; same table."""
+    from tests.conftest import run_cli
+
+    tables = {}
+    for name, root in (("local", ()), ("dask", ("--scheduler", "local:1"))):
+        out = tmp_path / f"{name}.parquet"
+        done = run_cli("classify", *root, "features", str(session_path), "--out", str(out),
+                       "--workers", "1")
+        assert done.returncode == 0, done.stderr
+        tables[name] = pq.read_table(out)
+    assert tables["dask"].equals(tables["local"])
