@@ -162,6 +162,9 @@ def run_trials(sources: Sequence[Path], trials: Sequence[Trial], protocol: Proto
     protocol.check()
     if not trials:
         raise InputError("the grid has no trials")
+    kind = get_kind(protocol.model)
+    for trial in trials:  # unknown inputs fail now, not once per trial
+        kind.transformer(protocol.options(trial))
 
     grids = grids or (lambda options: training_set(sources, options, workers=workers,
                                                    progress=progress).data)

@@ -51,6 +51,8 @@ def test_grid_trials_and_checks() -> None:
             grid_trials(**args)
     with pytest.raises(InputError, match="cnn or lstm"):
         run_trials([], trials, Protocol(model="svm"))
+    with pytest.raises(InputError, match="unknown timeseries feature 'no_such'"):
+        run_trials([], grid_trials([1], [1], [0], [20], [("no_such",)]), TINY)
 
 
 def test_gridsearch_table(dataset: Path, tmp_path: Path) -> None:
