@@ -22,8 +22,22 @@ from contactkit.classify.data import GROUP_KEYS
 from contactkit.classify.evaluate import PROTOCOLS, report_markdown
 from contactkit.classify.events import session_events
 from contactkit.classify.experiments import EXPERIMENTS, Setting, run_experiment
+from contactkit.classify.gridsearch import (
+    NETWORKS,
+    THESIS_DEPTHS,
+    THESIS_DROPOUTS,
+    THESIS_WIDTHS,
+    best_model_path,
+    best_trial,
+    grid_trials,
+    run_trials,
+    train_best,
+    write_results,
+)
+from contactkit.classify.gridsearch import Protocol as GridProtocol
 from contactkit.classify.kind import ModelOptions
 from contactkit.classify.modelfile import load_model
+from contactkit.classify.networks import DEVICES
 from contactkit.classify.prediction import predict_sources, session_paths
 from contactkit.classify.registry import get_kind, kind_names
 from contactkit.classify.schemes import SCHEMES
@@ -36,7 +50,8 @@ from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS
 from contactkit.features.windows import METHODS
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.features import write_feature_table
-from contactkit.util.cli import new_app, run_app
+from contactkit.util.cli import SchedulerOpt, new_app, run_app
+from contactkit.util.parallel import use_scheduler
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar
 
 app = new_app("classify", help="Turn sessions into features and contact predictions.")
@@ -53,11 +68,14 @@ Protocol = _choices("Protocol", PROTOCOLS)
 Group = _choices("Group", GROUP_KEYS)
 Method = _choices("Method", METHODS)
 Experiment = _choices("Experiment", (*EXPERIMENTS, "augmentation"))
+Device = _choices("Device", DEVICES)
+Network = _choices("Network", NETWORKS)
 
 
 @app.callback()
-def _root() -> None:
+def _root(scheduler: SchedulerOpt = None) -> None:
     """Turn sessions into features and contact predictions."""
+    use_scheduler(scheduler)
 
 
 def _split(value: str | None) -> tuple[str, ...] | None:
@@ -139,17 +157,25 @@ WidthOpt = Annotated[float, typer.Option(
     help="CNN/LSTM: kernel and neuron multiplier (thesis grid 0.5, 1, 2).")]
 DropoutOpt = Annotated[float, typer.Option(
     help="CNN/LSTM: dropout after each pooling and dense layer (thesis grid 0, 0.1, 0.25).")]
+DeviceOpt = Annotated[Device, typer.Option(
+    help="CNN/LSTM: where to train (auto: CUDA when PyTorch sees a GPU; a Dask worker "
+         "uses its own GPU). Repeatable under --seed on the CPU.")]
 DatasetsArg = Annotated[list[Path], typer.Argument(
     help="Dataset directories (or feature tables from `classify features`); several are "
          "combined, e.g. a static and a dynamic set.")]
 
 
 def _options(model, features, scalars, window, window_s, c, seed, epochs, steps, depth,
-             width, dropout) -> ModelOptions:
-    return ModelOptions(kind=Kind(model).value, timeseries=_split(features),
-                        scalars=_split(scalars), window=None if window is None
-                        else Method(window).value, window_s=window_s, steps=steps, c=c,
-                        seed=seed, epochs=epochs, depth=depth, width=width, dropout=dropout)
+             width, dropout, device) -> ModelOptions:
+    """Return the model options of the command line, checked for their kind before any
+    data is read (or a progress bar drawn)."""
+    options = ModelOptions(kind=Kind(model).value, timeseries=_split(features),
+                           scalars=_split(scalars), window=None if window is None
+                           else Method(window).value, window_s=window_s, steps=steps, c=c,
+                           seed=seed, epochs=epochs, depth=depth, width=width,
+                           dropout=dropout, device=Device(device).value)
+    get_kind(options.kind).check_options(options)
+    return options
 
 
 @app.command("train")
@@ -163,13 +189,13 @@ def train_command(
     workers: WorkersOpt = DEFAULT_WORKERS,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing model file.")] = False,
     epochs: EpochsOpt = 100, steps: StepsOpt = 300, depth: DepthOpt = None,
-    width: WidthOpt = 2.0, dropout: DropoutOpt = 0.02,
+    width: WidthOpt = 2.0, dropout: DropoutOpt = 0.02, device: DeviceOpt = "cpu",
 ) -> None:
     """Train a classifier on every session of the datasets and save it as a safe model file
     (.skops; a CNN or LSTM as .onnx)."""
     _refuse_existing(out, overwrite)
     options = _options(model, features, scalars, window, window_s, c, seed, epochs, steps,
-                       depth, width, dropout)
+                       depth, width, dropout, device)
     with progress_bar("train") as bar:
         trained = train(datasets, out, options, scheme=Scheme(scheme).value, limited=limited,
                         workers=workers, overwrite=overwrite, progress=labelled_progress(bar))
@@ -193,12 +219,12 @@ def evaluate_command(
     json_out: Annotated[Path | None, typer.Option(
         "--json", help="Also write the report as JSON.")] = None,
     epochs: EpochsOpt = 100, steps: StepsOpt = 300, depth: DepthOpt = None,
-    width: WidthOpt = 2.0, dropout: DropoutOpt = 0.02,
+    width: WidthOpt = 2.0, dropout: DropoutOpt = 0.02, device: DeviceOpt = "cpu",
 ) -> None:
     """Evaluate a classifier honestly and print accuracy, balanced accuracy, macro-F1,
     per-class recall with 95 % confidence intervals, and the confusion matrix."""
     options = _options(model, features, scalars, window, window_s, c, seed, epochs, steps,
-                       depth, width, dropout)
+                       depth, width, dropout, device)
     with progress_bar("evaluate") as bar:
         report, problems = evaluate_kind(
             datasets, options, protocol=Protocol(protocol).value, group=Group(group).value,
@@ -307,6 +333,7 @@ def experiment_command(
     noise_file: Annotated[Path | None, typer.Option(
         help="augmentation: noise baseline from `recorder stats --deep` (default: "
              "measured on the real set's no-contact sessions).")] = None,
+    device: DeviceOpt = "cpu",
 ) -> None:
     """Regenerate a thesis table on any dataset: features (Appendix B), rfe, speed
     (Figure 6.5), window (accuracy against window length), or augmentation REAL SIM
@@ -320,7 +347,8 @@ def experiment_command(
             if len(datasets) != 2:
                 raise InputError("augmentation takes two datasets: REAL_DIR SIM_DIR")
             kind = get_kind(Kind(model).value)
-            options = ModelOptions(kind=kind.name, steps=steps, epochs=epochs, seed=seed)
+            options = ModelOptions(kind=kind.name, steps=steps, epochs=epochs, seed=seed,
+                                   device=Device(device).value)
             paths = run_augmentation(datasets[0], datasets[1], out, kind=kind,
                                      options=options, repeats=repeats, workers=workers,
                                      noise_file=noise_file, progress=progress)
@@ -328,6 +356,76 @@ def experiment_command(
             paths = run_experiment(name, datasets, out, setting, progress)
     for path in paths:
         print(path)
+
+
+def _numbers(option: str, text: str, kind: type) -> list:
+    try:
+        return [kind(v) for v in _split(text) or ()]
+    except ValueError as err:
+        raise InputError(f"{option}: {text!r} is not a list of numbers") from err
+
+
+@app.command("gridsearch")
+def gridsearch_command(
+    datasets: DatasetsArg,
+    out: Annotated[Path, typer.Option(
+        help="Output directory: gridsearch.md, gridsearch.json and the best network "
+             "trained on every session (best.onnx).")],
+    model: Annotated[Network, typer.Option(help="The network.")] = "lstm",
+    depths: Annotated[str, typer.Option(help="Layer multipliers to try, comma-separated.")
+                      ] = ",".join(f"{v:g}" for v in THESIS_DEPTHS),
+    widths: Annotated[str, typer.Option(help="Kernel and neuron multipliers to try.")
+                      ] = ",".join(f"{v:g}" for v in THESIS_WIDTHS),
+    dropouts: Annotated[str, typer.Option(help="Dropouts to try.")
+                        ] = ",".join(f"{v:g}" for v in THESIS_DROPOUTS),
+    steps: Annotated[str, typer.Option(help="Time steps of a window grid to try.")] = "300",
+    inputs: Annotated[list[str] | None, typer.Option(
+        "--inputs", help="Input timeseries of one set of trials, comma-separated; repeat "
+                         "the option for more (default: the network's default inputs, "
+                         "q,dq,tau for the CNN, dq,tau,r for the LSTM).")] = None,
+    protocol: Annotated[Protocol, typer.Option(help="Evaluation protocol of every trial.")
+                        ] = "group",
+    group: Annotated[Group, typer.Option(help="Grouping for the group protocol.")] = "pose",
+    scheme: SchemeOpt = "full", window: WindowOpt = None, window_s: WindowSOpt = 0.5,
+    epochs: EpochsOpt = 100,
+    patience: Annotated[int, typer.Option(
+        help="Early stopping: epochs without a better validation loss before a training "
+             "stops.")] = 20,
+    seed: SeedOpt = 0, device: DeviceOpt = "cpu",
+    workers: Annotated[int, typer.Option(
+        help="Parallel processes: grids, then one trial per process.")] = DEFAULT_WORKERS,
+    overwrite: Annotated[bool, typer.Option(help="Replace existing results.")] = False,
+) -> None:
+    """Search the thesis's network grid (depth, width, dropout, steps, inputs): every
+    trial evaluated under the protocol with early stopping, a ranked table with 95 %
+    intervals (gridsearch.md, .json), and the best network saved as a model file that
+    predict and replay --model take."""
+    kind = get_kind(Network(model).value)
+    setting = GridProtocol(model=kind.name, protocol=Protocol(protocol).value,
+                           group_by=Group(group).value, scheme=Scheme(scheme).value,
+                           seed=seed, epochs=epochs, patience=patience,
+                           device=Device(device).value,
+                           window=kind.default_window if window is None
+                           else Method(window).value, window_s=window_s)
+    best_path = best_model_path(out, setting)
+    _refuse_existing(best_path, overwrite)
+    trials = grid_trials(_numbers("--depths", depths, int), _numbers("--widths", widths, float),
+                         _numbers("--dropouts", dropouts, float),
+                         _numbers("--steps", steps, int),
+                         [_split(i) for i in inputs] if inputs else [kind.default_timeseries])
+    with progress_bar("grid search") as bar:
+        progress = labelled_progress(bar)
+        results = run_trials(datasets, trials, setting, workers=workers, progress=progress)
+        md, _ = write_results(out, results, setting)
+        best = best_trial(results)
+        trained = train_best(datasets, best, setting, best_path, workers=workers,
+                             overwrite=overwrite, progress=progress)
+    failed = [r for r in results if r.report is None]
+    for r in failed:
+        err_console.print(f"[yellow]failed[/] {r.trial.label()}: {r.problem}")
+    err_console.print(f"{len(results) - len(failed)} of {len(results)} trials evaluated; "
+                      f"best {best.label()}, saved as {trained.path}")
+    print(md.read_text(), end="")
 
 
 def main() -> None:

@@ -27,7 +27,9 @@ class ModelOptions:
 
     ``timeseries`` and ``window`` default to the kind's own choice (None). ``c`` is
     the SVM regularisation; ``epochs``, ``depth``, ``width`` and ``dropout`` size the
-    networks; ``steps`` is the length of a grid; ``window_s`` is in seconds.
+    networks, ``patience`` is their early stopping (epochs without a better validation
+    loss) and ``device`` where they train (auto, cpu or cuda); ``steps`` is the length
+    of a grid; ``window_s`` is in seconds.
     """
 
     kind: str = "svm"
@@ -42,6 +44,8 @@ class ModelOptions:
     depth: int | None = None
     width: float = 2.0
     dropout: float = 0.02
+    patience: int = 20
+    device: str = "cpu"
 
 
 class SessionTransformer(Protocol):

@@ -37,7 +37,8 @@ from contactkit.recorder.stats import build_report, write_noise_file
 from contactkit.recorder.stats_report import print_summary, write_report
 from contactkit.schemas import InputError, SessionMeta, read_session
 from contactkit.schemas.dataset import rebuild_index
-from contactkit.util.cli import new_app, run_app
+from contactkit.util.cli import SchedulerOpt, new_app, run_app
+from contactkit.util.parallel import use_scheduler
 from contactkit.util.progress import (
     bar_callback,
     err_console,
@@ -115,6 +116,13 @@ LinkOption = Annotated[int | None, typer.Option(help="Touched link 1-7.")]
 OperatorOption = Annotated[str, typer.Option(help="Who touched the robot.")]
 HandOption = Annotated[bool, typer.Option(help="The robot carried its hand.")]
 OutOption = Annotated[Path, typer.Option(help="Output directory.")]
+
+
+@app.callback()
+def _root(scheduler: SchedulerOpt = None) -> None:
+    """Record Panda joint streams while a person touches the arm on cue, and manage the
+    resulting sessions. Without a robot, sessions come from a physics simulation."""
+    use_scheduler(scheduler)
 
 
 @app.command("simulate")

@@ -136,3 +136,52 @@ def test_unreachable_scheduler(monkeypatch):
         list(map_ordered(_slow_square, [1], scheduler=address))
     assert "cannot reach the Dask scheduler" in str(caught.value)
     assert "\n" not in str(caught.value)
+
+
+def test_gridsearch_and_lstm_evaluate_identical(cluster, tmp_path, monkeypatch):
+    """A 4-trial grid search and a small LSTM evaluation give the same reports on the
+    cluster as on the local path."""
+    pytest.importorskip("torch")
+    from contactkit.classify.gridsearch import Protocol, grid_trials, run_trials
+    from contactkit.classify.kind import ModelOptions
+    from contactkit.classify.training import evaluate_kind
+    from tests.conftest import make_dataset
+
+    dataset = make_dataset(tmp_path, poses=("A", "B"), repeats=1)
+    trials = grid_trials([1], [0.5], [0.0, 0.1], [20, 30], [("dq", "tau")])
+    protocol = Protocol(model="lstm", epochs=2, patience=1)
+    local = run_trials([dataset], trials, protocol, scheduler="local")
+    remote = run_trials([dataset], trials, protocol, scheduler=CLUSTER)
+    assert [r.trial for r in remote] == trials
+    assert [r.report.as_dict() for r in remote] == [r.report.as_dict() for r in local]
+
+    options = ModelOptions(kind="lstm", timeseries=("dq", "tau"), steps=20, epochs=2,
+                           depth=1, width=0.5, patience=1)
+    local_report, _ = evaluate_kind([dataset], options, workers=2)
+    monkeypatch.setenv("CONTACTKIT_SCHEDULER", CLUSTER)
+    remote_report, _ = evaluate_kind([dataset], options, workers=2)
+    assert remote_report.as_dict() == local_report.as_dict()
+
+
+def test_scheduler_without_workers(monkeypatch):
+    import distributed
+
+    monkeypatch.setattr(dask_executor, "CONNECT_TIMEOUT_S", 2.0)
+    with (distributed.LocalCluster(n_workers=0, processes=False, protocol="tcp",
+                                   host="127.0.0.1", dashboard_address=None) as empty,
+          pytest.raises(InputError, match="has no worker")):
+        list(map_ordered(_slow_square, [1], scheduler=empty.scheduler_address))
+
+
+def test_cli_scheduler_option(tmp_path, session_path):
+    """--scheduler on the root of a command sends its jobs to Dask; same table."""
+    from tests.conftest import run_cli
+
+    tables = {}
+    for name, root in (("local", ()), ("dask", ("--scheduler", "local:1"))):
+        out = tmp_path / f"{name}.parquet"
+        done = run_cli("classify", *root, "features", str(session_path), "--out", str(out),
+                       "--workers", "1")
+        assert done.returncode == 0, done.stderr
+        tables[name] = pq.read_table(out)
+    assert tables["dask"].equals(tables["local"])

@@ -4,10 +4,21 @@ stderr and exit code 2."""
 from __future__ import annotations
 
 import sys
+from typing import Annotated
 
 import typer
 
 from contactkit.errors import InputError
+from contactkit.util.parallel import SCHEDULER_ENV
+
+SchedulerOpt = Annotated[str | None, typer.Option(
+    "--scheduler", envvar=SCHEDULER_ENV, show_envvar=True,
+    help="Where parallel jobs run: local (processes on this machine, --workers of them), "
+         "local:N (a Dask LocalCluster of N workers on 127.0.0.1) or tcp://host:8786 (a "
+         "running Dask scheduler whose workers see the sessions under the same paths). "
+         "Dask needs the dask extra. Results are the same wherever the jobs run.")]
+"""The ``--scheduler`` option of every app whose commands run parallel jobs: pass its
+value to :func:`contactkit.util.parallel.use_scheduler` in the app's callback."""
 
 
 def new_app(name: str | None = None, help: str | None = None, **settings) -> typer.Typer:

@@ -18,6 +18,7 @@ the mapped function propagates, as on the local path.
 from __future__ import annotations
 
 import atexit
+import logging
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any, TypeVar
 
@@ -60,8 +61,8 @@ def _require_distributed():
 def get_client(address: str):
     """Return the (cached) ``distributed.Client`` of a scheduler string.
 
-    Raises :class:`InputError` when a remote scheduler does not answer within
-    :data:`CONNECT_TIMEOUT_S`.
+    Raises :class:`InputError` when a remote scheduler does not answer, or has no
+    worker, within :data:`CONNECT_TIMEOUT_S`.
     """
     if address in _clients:
         return _clients[address]
@@ -70,7 +71,8 @@ def get_client(address: str):
     if kind == "local":
         cluster = distributed.LocalCluster(n_workers=count, threads_per_worker=1,
                                            processes=True, host="127.0.0.1",
-                                           dashboard_address=None)
+                                           dashboard_address=None,
+                                           silence_logs=logging.CRITICAL)
         client = distributed.Client(cluster)
     else:
         try:
@@ -78,6 +80,13 @@ def get_client(address: str):
         except (OSError, TimeoutError) as err:
             raise InputError(f"cannot reach the Dask scheduler at {address} within "
                              f"{CONNECT_TIMEOUT_S:g} s") from err
+        try:
+            client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
+        except TimeoutError as err:
+            client.close()
+            raise InputError(f"the Dask scheduler at {address} has no worker within "
+                             f"{CONNECT_TIMEOUT_S:g} s (start some with `dask worker`)"
+                             ) from err
     _clients[address] = client
     return client
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import sys
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Any, TypeVar
@@ -36,8 +37,12 @@ def resolve_scheduler(scheduler: str | None = None) -> str | None:
     """Return the scheduler to use: ``scheduler``, else ``$CONTACTKIT_SCHEDULER``;
     None for the local pool (also for ``local`` or an empty string).
 
-    Raises :class:`~contactkit.errors.InputError` on a malformed address.
+    A job already running on a Dask worker maps its own jobs locally (None), so a job
+    never starts a cluster inside a cluster. Raises
+    :class:`~contactkit.errors.InputError` on a malformed address.
     """
+    if dask_worker_rank() is not None:
+        return None
     chosen = scheduler if scheduler is not None else os.environ.get(SCHEDULER_ENV, "")
     chosen = chosen.strip()
     if chosen in ("", "local"):
@@ -46,6 +51,38 @@ def resolve_scheduler(scheduler: str | None = None) -> str | None:
 
     parse_scheduler(chosen)
     return chosen
+
+
+def use_scheduler(scheduler: str | None) -> None:
+    """Make ``scheduler`` the default of every later :func:`map_ordered` of this process
+    (by setting ``$CONTACTKIT_SCHEDULER``); None leaves the default as it is.
+
+    Raises :class:`~contactkit.errors.InputError` on a malformed address.
+    """
+    if scheduler is not None:
+        resolve_scheduler(scheduler)
+        os.environ[SCHEDULER_ENV] = scheduler
+
+
+def dask_worker_rank() -> int | None:
+    """Return the rank of the Dask worker this code runs on, None outside one.
+
+    The rank is the worker's name where it is a number (a ``LocalCluster`` names its
+    workers 0..N-1) or ends in one (``dask worker --nworkers N --name node`` names them
+    node-0..node-N-1), else 0. Dask is not imported here: outside a worker it is
+    usually not loaded at all.
+    """
+    distributed = sys.modules.get("distributed")
+    if distributed is None:
+        return None
+    try:
+        name = distributed.get_worker().name
+    except ValueError:
+        return None
+    if isinstance(name, int):
+        return name
+    tail = str(name).rsplit("-", 1)[-1]
+    return int(tail) if tail.isdigit() else 0
 
 
 def map_ordered(fn: Callable[..., R], items: Iterable[Any], *, workers: int = 1,
