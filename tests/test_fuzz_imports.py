@@ -123,7 +123,9 @@ JOINT_NAMES = st.lists(st.sampled_from([f"fr3_joint{j}" for j in range(1, 8)]
                                        + ["fr3_finger_joint1", "", "joint9"]), max_size=9)
 VALUES = st.lists(FLOATS | st.floats(-4, 4), max_size=9)
 STAMPS = st.tuples(st.integers(0, 2**31 - 1), st.integers(0, 2**32 - 1))
-MAX_RECORDED_NS = (2**32 - 1) * 1_000_000_000  # ROS 1 bags store uint32 seconds
+# ROS 1 bags store recording times as uint32 seconds, and a header stamp copied from
+# the recording time must fit ROS 2's int32 seconds too
+MAX_RECORDED_NS = (2**31 - 1) * 1_000_000_000
 
 
 @st.composite
