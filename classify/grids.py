@@ -229,14 +229,9 @@ def _grid_job(job: tuple[str, GridSpec, Augmentation | None]
         return Path(path).name, None, err.problem
 
 
-def load_grids(sources: Sequence[Path], spec: GridSpec, workers: int = 1,
-               augmentation: Augmentation | None = None,
-               progress: Callable[[int, int], None] | None = None) -> FeatureSet:
-    """Compute the grids of every session of the dataset directories (in parallel).
-
-    Returns a :class:`contactkit.classify.data.FeatureSet` whose X is (sessions, channels, steps),
-    so labels, groups and the limited context work as for scalar features.
-    """
+def session_paths(sources: Sequence[Path]) -> list[str]:
+    """Return the session files of the dataset directories ``sources``; an InputError
+    names a source that is not a directory, or says that none holds a session."""
     paths = []
     for source in sources:
         if not Path(source).is_dir():
@@ -245,7 +240,18 @@ def load_grids(sources: Sequence[Path], spec: GridSpec, workers: int = 1,
         paths += [str(p) for p in session_files(source)]
     if not paths:
         raise InputError("no session files (*.parquet) in these directories")
-    jobs = [(p, spec, augmentation) for p in paths]
+    return paths
+
+
+def load_grids(sources: Sequence[Path], spec: GridSpec, workers: int = 1,
+               augmentation: Augmentation | None = None,
+               progress: Callable[[int, int], None] | None = None) -> FeatureSet:
+    """Compute the grids of every session of the dataset directories (in parallel).
+
+    Returns a :class:`contactkit.classify.data.FeatureSet` whose X is (sessions, channels, steps),
+    so labels, groups and the limited context work as for scalar features.
+    """
+    jobs = [(p, spec, augmentation) for p in session_paths(sources)]
     good, problems = split_problems(map_ordered(_grid_job, jobs, workers=workers,
                                                 progress=progress))
     if not good:

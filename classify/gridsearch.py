@@ -23,6 +23,7 @@ from pathlib import Path
 
 from contactkit.classify.data import FeatureSet
 from contactkit.classify.evaluate import PROTOCOLS, Report, evaluate
+from contactkit.classify.grids import session_paths
 from contactkit.classify.kind import ModelOptions
 from contactkit.classify.registry import get_kind
 from contactkit.classify.schemes import check_scheme, scheme_classes
@@ -166,6 +167,8 @@ def run_trials(sources: Sequence[Path], trials: Sequence[Trial], protocol: Proto
     for trial in trials:  # unknown inputs fail now, not once per trial
         kind.transformer(protocol.options(trial))
 
+    if grids is None:
+        session_paths(sources)  # a missing dataset fails now, not once per trial
     grids = grids or (lambda options: training_set(sources, options, workers=workers,
                                                    progress=progress).data)
     cache: dict[tuple, FeatureSet | str] = {}

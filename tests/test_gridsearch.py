@@ -53,6 +53,8 @@ def test_grid_trials_and_checks() -> None:
         run_trials([], trials, Protocol(model="svm"))
     with pytest.raises(InputError, match="unknown timeseries feature 'no_such'"):
         run_trials([], grid_trials([1], [1], [0], [20], [("no_such",)]), TINY)
+    with pytest.raises(InputError, match="no such dataset directory"):
+        run_trials([Path("no/such/dataset")], trials, TINY)  # once, before any trial
 
 
 def test_gridsearch_table(dataset: Path, tmp_path: Path) -> None:
