@@ -6,6 +6,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -130,18 +131,48 @@ def make_dataset(directory: Path, poses=("A", "B", "C", "D"), repeats: int = 2,
     return directory
 
 
-def kill_after_recording_starts(command: list[str], seconds: float) -> tuple[int, float]:
-    """Start ``command``, SIGKILL it ``seconds`` after it prints "recording started" on
-    stderr; return its exit code and the time [s] from that line to the kill."""
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        for line in proc.stderr:
-            if "recording started" in line:
-                break
-        started = time.monotonic()
-        time.sleep(seconds)
-        proc.send_signal(signal.SIGKILL)
-        killed_after = time.monotonic() - started
-    finally:
-        proc.wait(timeout=30)
-    return proc.returncode, killed_after
+def journal_samples(directory: Path) -> int:
+    """Return the complete samples the capture journal in ``directory`` holds now (0 when
+    there is none yet, or its header is still being written)."""
+    from contactkit.recorder.journal import read_journal
+    from contactkit.schemas import InputError
+
+    for journal in directory.glob("*.journal"):
+        try:
+            return read_journal(journal).table.num_rows
+        except InputError:
+            return 0
+    return 0
+
+
+def kill_when_journal_holds(command: list[str], directory: Path, samples: int,
+                            timeout_s: float = 180.0) -> tuple[int, int]:
+    """Start ``command`` (a capture into ``directory``) and SIGKILL it as soon as its
+    journal holds at least ``samples`` complete samples (read every 20 ms); return its
+    exit code and the samples the journal held just before the kill.
+
+    Nothing here depends on how fast the machine is: a capture that lags behind the
+    wall clock is simply killed later. Fails the test when the capture ends on its own
+    or its journal stays short for ``timeout_s`` [s].
+    """
+    with tempfile.TemporaryFile() as log:
+        proc = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+        try:
+            deadline = time.monotonic() + timeout_s
+            held = 0
+            while proc.poll() is None and time.monotonic() < deadline:
+                held = journal_samples(directory)
+                if held >= samples:
+                    break
+                time.sleep(0.02)
+            if proc.poll() is not None or held < samples:
+                log.seek(0)
+                pytest.fail(f"the capture ended or stalled before its journal held {samples} "
+                            f"samples (it held {held}): "
+                            f"{log.read().decode(errors='replace')[-2000:]}")
+            proc.send_signal(signal.SIGKILL)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            proc.wait(timeout=60)
+    return proc.returncode, held

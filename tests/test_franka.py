@@ -13,7 +13,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from conftest import BIN, kill_after_recording_starts, run_cli
+from conftest import BIN, kill_when_journal_holds, run_cli
 
 from contactkit.recorder.capture import capture
 from contactkit.recorder.metadata import session_meta
@@ -109,12 +109,12 @@ def test_server_killed_mid_capture_keeps_the_session(tmp_path):
 def test_sigkill_then_recover(server, tmp_path):
     command = [str(BIN / "recorder"), "capture", "--source", "franka", "--host", server,
                "--pose", "A", "--action", "none", "--duration", "60", "--out", str(tmp_path)]
-    code, _ = kill_after_recording_starts(command, 1.5)
+    code, held = kill_when_journal_holds(command, tmp_path, 200)
     assert code == -9
     result = run_cli("recorder", "recover", str(tmp_path))
     assert result.returncode == 0, result.stderr
     session = validate_session(next(tmp_path.glob("*.parquet")))
-    assert session.meta.recovered and session.n_samples > 100
+    assert session.meta.recovered and session.n_samples >= held >= 200
     assert (np.diff(session.t) > 0).all()
 
 
