@@ -8,7 +8,6 @@ options, draws progress bars and prints results.
 from __future__ import annotations
 
 import json
-import os
 import sys
 from enum import Enum
 from pathlib import Path
@@ -51,11 +50,11 @@ from contactkit.features.windows import METHODS
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.features import write_feature_table
 from contactkit.util.cli import SchedulerOpt, new_app, run_app
-from contactkit.util.parallel import use_scheduler
+from contactkit.util.parallel import available_cpus, use_scheduler
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar
 
 app = new_app("classify", help="Turn sessions into features and contact predictions.")
-DEFAULT_WORKERS = max(os.cpu_count() or 1, 1)
+DEFAULT_WORKERS = available_cpus()
 
 
 def _choices(name: str, values) -> type[Enum]:

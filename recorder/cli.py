@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import inspect
 import json
-import os
 import sys
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -38,7 +37,7 @@ from contactkit.recorder.stats_report import print_summary, write_report
 from contactkit.schemas import InputError, SessionMeta, read_session
 from contactkit.schemas.dataset import rebuild_index
 from contactkit.util.cli import SchedulerOpt, new_app, run_app
-from contactkit.util.parallel import use_scheduler
+from contactkit.util.parallel import available_cpus, use_scheduler
 from contactkit.util.progress import (
     bar_callback,
     err_console,
@@ -49,7 +48,7 @@ from contactkit.util.progress import (
 app = new_app("recorder", help="Record Panda joint streams while a person touches the arm on "
               "cue, and manage the resulting sessions. Without a robot, sessions come from a "
               "physics simulation.")
-DEFAULT_WORKERS = max(os.cpu_count() or 1, 1)
+DEFAULT_WORKERS = available_cpus()
 Preset = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
 ReportFormat = Literal["html", "md", "json"]
 

@@ -3,6 +3,7 @@ no other module starts processes or pools of its own."""
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
@@ -20,3 +21,20 @@ def test_no_pool_outside_the_seam() -> None:
                  for number, line in enumerate(path.read_text().splitlines(), 1)
                  if POOLS.search(line.split("#")[0])]
     assert not offenders, "\n".join(offenders)
+
+
+def test_default_workers_follow_the_container_cpu_quota(tmp_path, monkeypatch) -> None:
+    from contactkit.util import parallel
+
+    v2, quota, period = tmp_path / "cpu.max", tmp_path / "quota", tmp_path / "period"
+    monkeypatch.setattr(parallel, "CGROUP_CPU_FILES", ((str(v2), None),
+                                                       (str(quota), str(period))))
+    assert parallel.available_cpus() == len(os.sched_getaffinity(0))  # no cgroup files
+    v2.write_text("max 100000\n")
+    assert parallel.available_cpus() == len(os.sched_getaffinity(0))  # no quota
+    v2.write_text("100000 100000\n")
+    assert parallel.available_cpus() == 1
+    v2.unlink()
+    quota.write_text("50000\n")
+    period.write_text("100000\n")
+    assert parallel.available_cpus() == 1  # half a CPU still gets one worker

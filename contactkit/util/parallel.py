@@ -23,6 +23,7 @@ import os
 import sys
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from pathlib import Path
 from typing import Any, TypeVar
 
 from contactkit.util.progress import ProgressCallback
@@ -31,6 +32,34 @@ T = TypeVar("T")
 R = TypeVar("R")
 
 SCHEDULER_ENV = "CONTACTKIT_SCHEDULER"
+CGROUP_CPU_FILES = (("/sys/fs/cgroup/cpu.max", None),  # cgroup v2: "quota period" or "max"
+                    ("/sys/fs/cgroup/cpu/cpu.cfs_quota_us", "/sys/fs/cgroup/cpu/cpu.cfs_period_us"))
+
+
+def available_cpus() -> int:
+    """Return how many CPUs this process may really use (at least 1): the CPUs it may
+    run on, further limited by a container's CPU quota (cgroup v1 or v2).
+
+    ``os.cpu_count()`` counts the host's CPUs, which in a container limited to 2 CPUs
+    of a large host would start a pool of dozens of processes on 2 CPUs' worth of time.
+    """
+    count = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
+        os.cpu_count() or 1)
+    for quota_file, period_file in CGROUP_CPU_FILES:
+        try:
+            fields = Path(quota_file).read_text().split()
+            if period_file is not None:
+                fields.append(Path(period_file).read_text().strip())
+        except OSError:
+            continue
+        if len(fields) >= 2 and fields[0] not in ("max", "-1"):
+            try:
+                quota = float(fields[0]) / float(fields[1])
+            except (ValueError, ZeroDivisionError):
+                continue
+            count = min(count, max(1, int(quota + 0.5)))
+        break
+    return max(1, count)
 
 
 def resolve_scheduler(scheduler: str | None = None) -> str | None:
