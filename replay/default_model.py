@@ -39,6 +39,7 @@ from contactkit.classify.kind import ModelOptions
 from contactkit.classify.training import train
 from contactkit.features.detector import MIN_NOISE
 from contactkit.recorder.dataset import simulate_dataset
+from contactkit.recorder.sim import SimConfig
 from contactkit.schemas.dataset import session_files
 from contactkit.util.cache import cache_dir
 
@@ -58,8 +59,10 @@ Progress = Callable[[str, int, int], None]
 
 
 def recipe_dir() -> Path:
-    """Return the cache directory of the current recipe."""
-    key = hashlib.sha256(json.dumps(RECIPE, sort_keys=True).encode()).hexdigest()[:12]
+    """Return the cache directory of the current recipe and simulator defaults."""
+    # The simulator's defaults are part of the key: a recalibrated simulator builds anew.
+    recipe = {**RECIPE, "simulator": SimConfig().to_dict()}
+    key = hashlib.sha256(json.dumps(recipe, sort_keys=True).encode()).hexdigest()[:12]
     return cache_dir() / "default-model" / key
 
 
