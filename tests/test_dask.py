@@ -69,6 +69,21 @@ def test_same_results_order_and_progress(cluster):
     assert calls_dask == calls_local == [(d, 12) for d in range(1, 13)]
 
 
+def _square(x: int) -> int:
+    return x * x
+
+
+def test_short_jobs_go_out_in_batches_in_order(cluster):
+    assert dask_executor.batch_size(100, 2) == 6 and dask_executor.batch_size(12, 2) == 1
+    assert dask_executor.batch_size(None, 2) == 1
+    calls = []
+    results = list(map_ordered(_square, range(100), scheduler=CLUSTER,
+                               progress=lambda d, t: calls.append((d, t))))
+    assert results == [x * x for x in range(100)]
+    assert calls[-1] == (100, 100) and len(calls) == 17  # 16 batches of 6, one of 4
+    assert [d for d, _ in calls] == sorted(d for d, _ in calls)
+
+
 def test_simulate_identical(cluster, tmp_path):
     config = SimConfig(rate_hz=PRESETS["smoke"].rate_hz)
     specs = [dataclasses.replace(spec, duration_s=1.5, planned_at_s=0.5)
