@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -100,10 +101,24 @@ def load_mindlab(path: Path) -> dict[str, np.ndarray]:
 
 def run_cli(*args: str, cwd: Path | None = None, timeout: float = 300
             ) -> subprocess.CompletedProcess:
-    """Run one of the project's console scripts and capture its output."""
+    """Run one of the project's console scripts and capture its output.
+
+    The command runs in a process group of its own; on ``timeout`` [s] the whole group
+    is killed (a child that outlives its parent, such as a browser, would otherwise keep
+    the output pipes open and the test waiting forever) and TimeoutExpired raised.
+    """
     env = dict(os.environ, COLUMNS="200")
-    return subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True,
-                          cwd=cwd, timeout=timeout, env=env)
+    with subprocess.Popen([str(BIN / args[0]), *args[1:]], stdout=subprocess.PIPE,
+                          stderr=subprocess.PIPE, text=True, cwd=cwd, env=env,
+                          start_new_session=True) as proc:
+        try:
+            stdout, stderr = proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate(timeout=60)
+            raise
+    return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
 
 
 def make_dataset(directory: Path, poses=("A", "B", "C", "D"), repeats: int = 2,

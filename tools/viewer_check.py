@@ -28,16 +28,20 @@ from __future__ import annotations
 
 import argparse
 import base64
+import contextlib
 import json
+import os
 import re
 import shutil
 import sys
+import threading
 import time
 from dataclasses import asdict, dataclass, field
 from io import BytesIO
 from pathlib import Path
 
 import numpy as np
+import psutil
 
 from contactkit.errors import InputError
 from contactkit.util.viewer import free_port, start_web_viewer, viewer_page_url
@@ -226,9 +230,32 @@ def _line(finding: Finding) -> str:
     return "\n  ".join([f"{head}; screenshot {finding.screenshot}", *problems])
 
 
+STALLED = 3  # exit code: the browser or the viewer's server stopped answering
+REPORT_BUDGET_S = 60.0  # s allowed for opening one HTML report
+
+
+def start_watchdog(budget_s: float) -> threading.Timer:
+    """Start a timer that, after ``budget_s`` [s], kills this program's child processes
+    (Chromium, Playwright's driver, the Rerun web server) and exits with
+    :data:`STALLED`: a browser that stops answering (a CDP call never returns, seen on
+    an overloaded machine) must end the check, not hang it and its caller."""
+    def give_up() -> None:
+        print(f"viewer_check: error: the browser stopped answering; gave up after "
+              f"{budget_s:.0f} s", file=sys.stderr, flush=True)
+        for child in psutil.Process().children(recursive=True):
+            with contextlib.suppress(psutil.Error):
+                child.kill()
+        os._exit(STALLED)
+
+    timer = threading.Timer(budget_s, give_up)
+    timer.daemon = True
+    timer.start()
+    return timer
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the check from the command line; return the exit code (0 clean, 1 problems,
-    2 no browser or bad arguments)."""
+    2 no browser or bad arguments, 3 the browser stopped answering)."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("recordings", nargs="*", type=Path, help=".rrd files to open")
     parser.add_argument("--report", action="append", default=[], type=Path,
@@ -257,12 +284,16 @@ def main(argv: list[str] | None = None) -> int:
         print("viewer_check: error: Playwright is not installed (pip install "
               "'contactkit[browser]')", file=sys.stderr)
         return 2
+    watchdog = start_watchdog(len(args.recordings) * (args.timeout + REPORT_BUDGET_S)
+                              + len(args.report) * REPORT_BUDGET_S + REPORT_BUDGET_S)
     try:
         findings = run(args.recordings, args.report, args.out, args.timeout, chromium,
                        args.cursor)
     except InputError as err:
         print(f"viewer_check: error: {err}", file=sys.stderr)
         return 2
+    finally:
+        watchdog.cancel()
     bad = [f for f in findings if not f.ok]
     print(f"{len(findings) - len(bad)} of {len(findings)} clean; screenshots in {args.out}")
     return 1 if bad else 0
