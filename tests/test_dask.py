@@ -131,7 +131,7 @@ def test_killed_worker_loses_nothing(cluster):
     killed = []
 
     def kill_one(done: int, total: int) -> None:
-        if done == 3 and not killed:
+        if done >= 3 and not killed:  # progress counts items; batches of 2 here
             os.kill(pids[0], signal.SIGKILL)
             killed.append(pids[0])
 
