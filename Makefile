@@ -23,7 +23,8 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
 test: $(STAMP) lint chromium
-	$(PY) -m pytest -q -n 2 -m "not slow" --durations=25
+	$(PY) -m pytest -q -n 2 -m "not slow and not browser" --durations=25
+	$(PY) -m pytest -q -m "browser and not slow"
 
 # The browser check needs a system Chromium: installed here when running as root with
 # apt-get; otherwise (or when that fails) the browser test skips and says why.
