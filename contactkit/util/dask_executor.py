@@ -73,10 +73,19 @@ def get_client(address: str):
     kind, count = parse_scheduler(address)
     distributed = _require_distributed()
     if kind == "local":
-        cluster = distributed.LocalCluster(n_workers=count, threads_per_worker=1,
-                                           processes=True, host="127.0.0.1",
-                                           dashboard_address=None,
-                                           silence_logs=logging.CRITICAL)
+        import dask
+
+        # Dask's nannies start workers with MALLOC_TRIM_THRESHOLD_=65536, which makes
+        # glibc hand memory back to the system after every large free: one session's
+        # features took 71 ms instead of 54 ms under it (bench_dask's +44 %).
+        environ = {name: value for name, value in
+                   dask.config.get("distributed.nanny.pre-spawn-environ").items()
+                   if name != "MALLOC_TRIM_THRESHOLD_"}
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+            cluster = distributed.LocalCluster(n_workers=count, threads_per_worker=1,
+                                               processes=True, host="127.0.0.1",
+                                               dashboard_address=None,
+                                               silence_logs=logging.CRITICAL)
         client = distributed.Client(cluster)
     else:
         try:
