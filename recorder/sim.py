@@ -447,7 +447,7 @@ class PandaSimulator:
                 drive[:, col] += jac[:3].T @ force
                 if record is not None:
                     record["f_ext"][:, col] = force
-        dq_before = dq.copy()
+        dq_before = dq.copy() if record is not None else None
         ddq = np.zeros_like(q, order="F")
         for _ in range(self.config.substeps):
             pin.abaInParallel(1, self._plant_pool, q, dq, drive - self.friction.torque(dq), ddq)

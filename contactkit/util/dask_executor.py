@@ -145,8 +145,8 @@ def dask_map_ordered(fn: Callable[..., R], items: Iterable[Any], address: str, *
                      in_flight: int = 4) -> Iterator[R]:
     """Yield ``fn(item)`` for each item in order, computed on the Dask cluster.
 
-    Items go out in batches (:func:`batch_size`), so that Dask's scheduling cost of
-    about 10 ms per job does not dominate short jobs such as one session's features.
+    Items go out in batches (:func:`batch_size`), so that a scheduler round trip per
+    item is not paid for short jobs such as one session's features.
     At most ``in_flight`` jobs per worker thread are submitted at once (2 when
     batched), so ``items`` may be a lazy generator. ``progress(done, total)`` is called
     as jobs finish, counting items.
