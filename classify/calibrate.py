@@ -65,9 +65,11 @@ def session_calibration_data(path: str | Path, template: DetectorConfig | None =
 
 def calibrate_sessions(paths: Sequence[str | Path], template: DetectorConfig | None = None,
                        margin: float = 1.5, workers: int = 1,
-                       progress: ProgressCallback | None = None) -> DetectorConfig:
-    """Calibrate the detector on the no-contact samples of ``paths``; return its
-    settings, with the session count and duration in ``source``."""
+                       progress: ProgressCallback | None = None,
+                       motion_margin: float | None = None) -> DetectorConfig:
+    """Calibrate the detector on the no-contact samples of ``paths`` (``margin`` and
+    ``motion_margin`` as in :func:`~contactkit.features.detector.calibrate`); return
+    its settings, with the session count in ``source``."""
     template = template or DetectorConfig()
     parts = [part for parts in map_ordered(_job, [(str(p), template) for p in paths],
                                            workers=workers, progress=progress)
@@ -75,7 +77,8 @@ def calibrate_sessions(paths: Sequence[str | Path], template: DetectorConfig | N
     if not parts:
         raise InputError("no no-contact stretch of at least "
                          f"{MIN_STRETCH_S} s in the given sessions")
-    return calibrate(parts, template, margin, source={"sessions": len(paths)})
+    return calibrate(parts, template, margin, source={"sessions": len(paths)},
+                     motion_margin=motion_margin)
 
 
 def _job(item: tuple[str, DetectorConfig]) -> list[CalibrationData]:

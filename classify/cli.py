@@ -297,6 +297,10 @@ def calibrate_command(
     out: Annotated[Path, typer.Option(help="Calibration file to write (JSON).")],
     margin: Annotated[float, typer.Option(
         help="Factor on the fitted thresholds.")] = 1.5,
+    motion_margin: Annotated[float | None, typer.Option(
+        help="Factor on the thresholds' growth with speed and acceleration (default: "
+             "--margin). Wider when calibrating on another arm than the one it runs on, "
+             "such as a simulated one.")] = None,
     workers: Annotated[int, typer.Option(help="Parallel worker processes.")] = 1,
 ) -> None:
     """Calibrate the contact detector on a robot's no-contact sessions: record a minute
@@ -304,10 +308,13 @@ def calibrate_command(
     and predict."""
     if margin < 1:
         raise InputError(f"--margin must be at least 1, got {margin}")
+    if motion_margin is not None and motion_margin < 1:
+        raise InputError(f"--motion-margin must be at least 1, got {motion_margin}")
     paths = [p for source in sessions for p in session_paths(source)]
     with progress_bar("calibrating") as bar:
         config = calibrate_sessions(paths, margin=margin, workers=workers,
-                                    progress=bar_callback(bar, "sessions"))
+                                    progress=bar_callback(bar, "sessions"),
+                                    motion_margin=motion_margin)
     save_calibration(out, config)
     print(f"{out}: thresholds at rest {[round(v, 2) for v in config.noise]} Nm, "
           f"per rad/s {[round(v, 2) for v in config.speed]}, "

@@ -37,7 +37,7 @@ from contactkit.classify.event_training import (
 )
 from contactkit.classify.events import batch_events, stream_events
 from contactkit.classify.modelfile import load_model
-from contactkit.features.detector import REST_SPEED, Detection
+from contactkit.features.detector import MIN_NOISE, REST_SPEED, Detection
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.recorder.arrays import load_joint_arrays
 from contactkit.replay.default_model import RECIPE, build_default_model, recipe_dir
@@ -184,14 +184,17 @@ def real_figures(model, gaz, gaz_first, gaz_second, mindlab, workers: int) -> li
         f"{hop_contact} of {len(hop.pred_label)} hops say contact.", "",
         "Default detector (calibrated on the no-contact stretches of the recipe's "
         f"simulated free-motion presets ({', '.join(RECIPE['event_presets'])}), margin "
-        f"{RECIPE['detector']['margin']}): thresholds at rest "
+        f"{RECIPE['detector']['margin']} at rest and {RECIPE['detector']['motion_margin']} "
+        f"on the growth with motion; residual low-passed with {1000 * d.smooth_s:.0f} ms, "
+        f"baseline time constant {d.baseline_s:.1f} s at rest and "
+        f"{d.baseline_moving_s:.1f} s while moving): thresholds at rest "
         f"{[round(v, 2) for v in d.noise]} Nm, growth per rad/s "
         f"{[round(v, 2) for v in d.speed]}, per rad/s^2 {[round(v, 3) for v in d.accel]}. "
         "The simulator's held-pose noise and free-motion model error are calibrated "
         "against these real recordings (tests/test_sim_calibration.py: within +-50 % per "
         "joint at rest); the 0.3 Nm floor on the thresholds at rest covers what it still "
-        "misses (wrist stiction, joint 7's model error). A lab calibrating on its own "
-        "robot (second row) gets earlier onsets.", ""]
+        "misses (wrist stiction, joint 7's model error). The second row is what a lab "
+        "gets by calibrating on its own robot.", ""]
 
 
 def true_onset_events(path: str, delays: tuple[float, ...]) -> list[SessionEvents]:
@@ -285,22 +288,21 @@ def simulated_figures(detector, workers: int) -> list[str]:
                            for p in session_files(recipe_dir() / preset)])
     lines += ["", "Missed contacts by touched link: " + ", ".join(
         f"link {link} {missed_links[link]} of {per_link[link]}" for link in sorted(per_link))
-        + ". What limits the aim (95 % at <= 150 ms): (1) missed contacts, on links 1-3, "
-        "which load joints 1-2 only a little: their residual stays below the detector's "
-        "thresholds at rest on joints 1 and 2 (above). Those thresholds are not set by "
-        "the held poses, which are quiet (residual standard deviation on joints 1 / 3 "
-        f"at most {max(v[0] for v in held.values()):.2f} / "
-        f"{max(v[1] for v in held.values()):.2f} Nm over the poses, pose E "
-        f"{held['E'][0]:.2f} / {held['E'][1]:.2f}; real Panda about 0.09 / 0.07 Nm), but "
-        "by the largest excursion of that noise: the threshold at rest is the largest "
-        "deviation from the baseline among the free-motion calibration data's samples "
-        "at rest (speed below 0.05 rad/s, mostly the hold that starts each session) "
-        "times the margin, and on joints 1 / 2 that deviation has a median of "
-        f"{rest[50][0]:.2f} / {rest[50][1]:.2f} Nm, a 99th percentile of "
-        f"{rest[99][0]:.2f} / {rest[99][1]:.2f} and a maximum of {rest[100][0]:.2f} / "
-        f"{rest[100][1]:.2f} Nm (4-5 standard deviations of the noisiest poses). A "
-        "detector that integrates a small deviation over time instead of thresholding "
-        "each sample would see weaker touches at the same false-event rate. "
+        + ". What limits the aim (95 % at <= 150 ms): (1) missed contacts, on links 1 "
+        "and 2, which load joints 1 and 2 only a little (peak residual 0.2-0.9 Nm): "
+        "their residual stays below the detector's thresholds at rest, which sit on "
+        f"the {MIN_NOISE} Nm floor. The noise itself is far below it: the held poses' "
+        "residual standard deviation on joints 1 / 3 is at most "
+        f"{max(v[0] for v in held.values()):.2f} / {max(v[1] for v in held.values()):.2f}"
+        f" Nm over the poses (pose E {held['E'][0]:.2f} / {held['E'][1]:.2f}; real "
+        "Panda about 0.09 / 0.07 Nm), and the detector's deviation from its baseline "
+        "at rest in the calibration data (low-passed, baseline following the arm's "
+        f"moves) has on joints 1 / 2 a median of {rest[50][0]:.2f} / {rest[50][1]:.2f} "
+        f"Nm, a 99th percentile of {rest[99][0]:.2f} / {rest[99][1]:.2f} and a maximum "
+        f"of {rest[100][0]:.2f} / {rest[100][1]:.2f} Nm. The floor stays because a real "
+        "arm has what the simulator lacks: wrist stiction that keeps up to 0.5 Nm "
+        "after a push, joint 7's model error, and only seconds of real held-pose data "
+        "without contact to calibrate on (3.4 s in the MindLab files). "
         "(2) Even with true onsets (last column) the intent classifier confuses shove "
         "with adjust at 150 ms; a longer window resolves most of it.", ""]
     return lines

@@ -7,15 +7,21 @@ and an error that grows with speed and acceleration (up to 5.5 Nm on joint 2 in
 fast free motion), while a touch adds 1-15 Nm on joints 1-4 and the held-pose
 noise is ~0.05-0.2 Nm. The detector therefore works on
 
-    e_j = r_j - b_j                    (deviation from a baseline b, Nm)
+    e_j = rf_j - b_j                   (deviation from a baseline b, Nm)
     th_j = noise_j + speed_j s + accel_j a      (threshold, Nm)
     score = max_j |e_j| / th_j
 
-where b is an exponential average of r (time constant ``baseline_s``) updated only
-while no contact is reported and the score is below the release level (frozen
-during contact), s = |dq| (2-norm, rad/s) and a = |ddq| (2-norm of the joint
-acceleration low-passed with the observer's own 20 ms time constant, rad/s^2), both
-held as a decaying peak (``motion_hold_s``) because model error reaches r through
+where rf is r low-passed (first order, time constant ``smooth_s``: the residual's
+noise at rest has peaks of 4-5 standard deviations that a 30 ms low-pass halves,
+while a touch lasts at least tens of milliseconds); b is an exponential average of
+rf, updated while no contact is reported or pending (frozen from the first sample
+above threshold until the release) with time constant ``baseline_s`` at rest and
+``baseline_moving_s`` while the arm moves (s at least ``REST_SPEED``): the model
+error, gravity's in particular, changes with the pose, and a baseline that lags a
+slow 1.5 rad/s move by 2 s piles up more than 1 Nm on joint 2 of the simulated
+Panda. s = |dq| (2-norm, rad/s) and a = |ddq| (2-norm of the joint acceleration
+low-passed with the observer's own 20 ms time constant, rad/s^2) are both held as
+a decaying peak (``motion_hold_s``) because model error reaches r through
 the observer's lag. Contact starts when the score stays above 1 for ``min_on_s``
 and ends when the joints that started it stay below ``release`` for ``min_off_s``
 (hysteresis); the other joints then take their current residual as baseline. That
@@ -28,7 +34,7 @@ baseline (the observer starts at r = 0).
 
 The coefficients noise/speed/accel are calibrated per robot from no-contact data
 (:func:`calibrate`): per joint, the smallest linear envelope over (1, s, a) that
-covers every calibration sample, times ``margin``. :class:`Detector` is the
+covers every calibration sample, times a margin. :class:`Detector` is the
 streaming form (one sample at a time); :func:`detect` runs the same code over
 whole arrays, so batch and streaming agree exactly.
 """
@@ -73,8 +79,10 @@ class DetectorConfig:
     min_on_s: float = 0.01
     min_off_s: float = 0.05
     baseline_s: float = 2.0
+    baseline_moving_s: float = 0.5
     motion_hold_s: float = 0.5
     warmup_s: float = 0.3
+    smooth_s: float = 0.03
     source: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
@@ -84,12 +92,14 @@ class DetectorConfig:
             raise ValueError("noise thresholds must be positive")
         if not 0 < self.release < 1:
             raise ValueError(f"release must lie in (0, 1), got {self.release}")
-        for name in ("min_on_s", "min_off_s", "motion_hold_s", "warmup_s"):
+        for name in ("min_on_s", "min_off_s", "motion_hold_s", "warmup_s", "smooth_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a non-negative number of seconds")
-        if not (math.isfinite(self.baseline_s) and self.baseline_s > 0):
-            raise ValueError("baseline_s must be positive")
+        for name in ("baseline_s", "baseline_moving_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number of seconds")
 
     def to_dict(self) -> dict:
         """Return the settings as a JSON-ready document (with its format tag)."""
@@ -106,8 +116,13 @@ class DetectorConfig:
             raise InputError(f"unknown detector setting {unknown[0]!r}", where)
         if not isinstance(doc.get("source", {}), dict):
             raise InputError("detector setting 'source' must be an object", where)
+        settings = {k: v for k, v in doc.items() if k != "format"}
+        # Calibrations written before these settings existed meant: no low-pass, one
+        # baseline time constant.
+        settings.setdefault("smooth_s", 0.0)
+        settings.setdefault("baseline_moving_s", settings.get("baseline_s", 2.0))
         try:
-            return cls(**{k: v for k, v in doc.items() if k != "format"})
+            return cls(**settings)
         except (TypeError, ValueError, ArithmeticError) as err:
             raise InputError(f"invalid detector calibration: {str(err)[:200]}", where) from err
 
@@ -166,6 +181,7 @@ class Detector:
         self.speed = 0.0
         self.accel = 0.0
         self.baseline = np.zeros(N_JOINTS)
+        self.r_f = np.zeros(N_JOINTS)
         self.contact = False
         self._since: float | None = None  # time the pending switch started
         self._onset_joints = np.ones(N_JOINTS, bool)
@@ -189,15 +205,21 @@ class Detector:
         """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,)."""
         cfg = self.config
         s, a = self.motion(t, dq)
-        h = 0.0 if self.t is None else t - self.t
+        first = self.t is None
+        h = 0.0 if first else t - self.t
         self.t = t
         if self.t0 is None:
             self.t0 = t
         threshold = self._noise + self._speed * s + self._accel * a
+        r = np.asarray(r, dtype=float)
+        if first or cfg.smooth_s == 0.0:
+            self.r_f = r.copy()
+        else:
+            self.r_f = self.r_f + h / (cfg.smooth_s + h) * (r - self.r_f)
         if t - self.t0 < cfg.warmup_s:
-            self.baseline = np.asarray(r, dtype=float).copy()
+            self.baseline = self.r_f.copy()
             return DetectorState(False, 0.0, False, False, np.zeros(N_JOINTS), threshold)
-        e = r - self.baseline
+        e = self.r_f - self.baseline
         ratio = np.abs(e) / threshold
         score = float(ratio.max())
         onset = release = False
@@ -209,14 +231,14 @@ class Detector:
                     self._onset_joints = ratio > 1.0
             else:
                 self._since = None
-                if score < cfg.release:
-                    self.baseline = self.baseline + h / (cfg.baseline_s + h) * e
+                tau = cfg.baseline_moving_s if s >= REST_SPEED else cfg.baseline_s
+                self.baseline = self.baseline + h / (tau + h) * e
         elif ratio[self._onset_joints].max() < cfg.release:
             self._since = t if self._since is None else self._since
             if t - self._since >= cfg.min_off_s - 1e-12:
                 self.contact, release, self._since = False, True, None
                 others = ~self._onset_joints
-                self.baseline[others] = r[others]
+                self.baseline[others] = self.r_f[others]
         else:
             self._since = None
         return DetectorState(self.contact, score, onset, release, e, threshold)
@@ -299,7 +321,8 @@ def _thin(y: np.ndarray, points: int) -> np.ndarray:
 
 
 def calibrate(parts: list[CalibrationData], template: DetectorConfig | None = None,
-              margin: float = 1.5, source: dict | None = None) -> DetectorConfig:
+              margin: float = 1.5, source: dict | None = None,
+              motion_margin: float | None = None) -> DetectorConfig:
     """Fit the detector's per-joint threshold coefficients to no-contact data.
 
     Two steps per joint: ``noise`` is the largest |e| among samples at rest (speed
@@ -308,10 +331,13 @@ def calibrate(parts: list[CalibrationData], template: DetectorConfig | None = No
     joint keeps after being moved: up to 0.5 Nm on the MindLab Panda; the
     free-motion log's joint 7 model error is 0.2 Nm);
     then ``speed`` and ``accel`` are the smallest (by mean) envelope
-    speed s + accel a >= |e| - noise over every sample. All three are multiplied by
-    ``margin``. Calibration data without motion leave speed and accel at 0, and
-    data without rest keep the template's noise: record both holds and free motion.
-    Returns ``template`` with the fitted coefficients.
+    speed s + accel a >= |e| - noise over every sample. ``noise`` is multiplied by
+    ``margin``, speed and accel by ``motion_margin`` (default: ``margin``; wider when
+    the calibration data come from another arm than the one it will run on, such as
+    a simulator, whose model error in motion matches the real arm's only roughly).
+    Calibration data without motion leave speed and accel at 0, and data without
+    rest keep the template's noise: record both holds and free motion. Returns
+    ``template`` with the fitted coefficients.
     """
     if not parts:
         raise InputError("no no-contact data to calibrate on")
@@ -322,6 +348,7 @@ def calibrate(parts: list[CalibrationData], template: DetectorConfig | None = No
         raise InputError(f"too little no-contact data to calibrate on ({len(x)} samples "
                          "after the warm-up)")
     template = template or DetectorConfig()
+    motion_margin = margin if motion_margin is None else motion_margin
     rest = x[:, 0] < REST_SPEED
     noise = abs_e[rest].max(axis=0) if rest.any() else np.array(template.noise) / margin
     noise = np.maximum(noise, MIN_NOISE / margin)
@@ -332,7 +359,8 @@ def calibrate(parts: list[CalibrationData], template: DetectorConfig | None = No
             idx = _thin(excess, CALIBRATION_POINTS)
             over = excess[idx] > 0
             moving[j] = _envelope(excess[idx][over], x[idx][over])
-    return replace(template, noise=tuple(margin * noise), speed=tuple(margin * moving[:, 0]),
-                   accel=tuple(margin * moving[:, 1]),
-                   source=dict(source or {}, margin=margin, samples=len(x),
-                               rest_samples=int(rest.sum())))
+    return replace(template, noise=tuple(margin * noise),
+                   speed=tuple(motion_margin * moving[:, 0]),
+                   accel=tuple(motion_margin * moving[:, 1]),
+                   source=dict(source or {}, margin=margin, motion_margin=motion_margin,
+                               samples=len(x), rest_samples=int(rest.sum())))

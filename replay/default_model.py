@@ -13,8 +13,10 @@ a progress bar, the first time replay needs the model):
    complexity of joint velocity, torque and observer residual in a 0.5 s window at the
    planned time, seed 0;
 3. the contact detector: ``classify calibrate`` on the no-contact stretches of the
-   free-motion presets (margin 1.5, at-rest floor ``MIN_NOISE``), so that its
-   thresholds cover the model error of a moving arm;
+   free-motion presets (margin 1.5 at rest, at-rest floor ``MIN_NOISE``), so that its
+   thresholds cover the model error of a moving arm; the growth with speed and
+   acceleration gets margin 3: the simulator's model error in motion matches a real
+   Panda's only within about +-50 % RMS per joint (tests/test_sim_calibration.py);
 4. the per-event intent classifier (:mod:`contactkit.classify.event_training`): SVM
    (C = 10) on the events the detector finds in the free-motion presets, decided
    0.15 s after onset, from residual-only event features.
@@ -37,7 +39,7 @@ from contactkit.classify.event_training import fit_event_model, load_session_eve
 from contactkit.classify.events import DEFAULT_DECIDE_AFTER_S
 from contactkit.classify.kind import ModelOptions
 from contactkit.classify.training import train
-from contactkit.features.detector import MIN_NOISE
+from contactkit.features.detector import MIN_NOISE, DetectorConfig
 from contactkit.recorder.dataset import simulate_dataset
 from contactkit.recorder.sim import SimConfig
 from contactkit.schemas.dataset import session_files
@@ -52,7 +54,9 @@ RECIPE = {
     "features": {"timeseries": ["dq", "tau", "r"],
                  "scalars": ["range", "hjorth_mob", "hjorth_comp"],
                  "window": "planned", "window_s": 0.5},
-    "detector": {"margin": 1.5, "min_noise": MIN_NOISE},
+    "detector": {"margin": 1.5, "motion_margin": 3.0, "min_noise": MIN_NOISE,
+                 "smooth_s": DetectorConfig().smooth_s,
+                 "baseline_moving_s": DetectorConfig().baseline_moving_s},
     "events": {"decide_after_s": DEFAULT_DECIDE_AFTER_S, "C": 10.0},
 }
 Progress = Callable[[str, int, int], None]
@@ -96,6 +100,7 @@ def build_default_model(workers: int = 2, progress: Progress | None = None,
     moving = [p for d in _simulated(RECIPE["event_presets"], workers, progress)
               for p in session_files(d)]
     detector = calibrate_sessions(moving, margin=RECIPE["detector"]["margin"],
+                                  motion_margin=RECIPE["detector"]["motion_margin"],
                                   workers=workers, progress=_labelled(progress, "detector"))
     delay = RECIPE["events"]["decide_after_s"]
     events = load_session_events(moving, detector, [delay], workers,

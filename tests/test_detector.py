@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -97,6 +98,60 @@ def test_missing_calibration_file(tmp_path: Path) -> None:
 def test_defaults_survive_json() -> None:
     doc = json.loads(json.dumps(DetectorConfig().to_dict()))
     assert DetectorConfig.from_dict(doc) == DetectorConfig()
+
+
+def test_calibrations_from_before_the_low_pass_keep_their_meaning() -> None:
+    doc = DetectorConfig().to_dict()
+    for name in ("smooth_s", "baseline_moving_s"):
+        del doc[name]
+    old = DetectorConfig.from_dict({**doc, "baseline_s": 3.0})
+    assert old.smooth_s == 0.0 and old.baseline_moving_s == 3.0
+
+
+def test_a_one_sample_spike_is_low_passed_away_a_touch_is_not() -> None:
+    t, r, dq = _synthetic()
+    r[1000, 1] += 1.5  # one sample, 1 ms: a glitch, not a touch
+    spiky = DetectorConfig(noise=(0.5,) * 7, min_on_s=0.0, smooth_s=0.0)
+    assert t[detect(t, r, dq, spiky).intervals[0][0]] == pytest.approx(1.0)
+    found = detect(t, r, dq, replace(spiky, smooth_s=0.03))
+    assert len(found.intervals) == 1 and 1.5 <= t[found.intervals[0][0]] <= 1.53
+
+
+def _slow_move(n: int = 9000, rate: float = 1000.0) -> tuple[np.ndarray, ...]:
+    """A 6 s move at 1 rad/s along which the model error on joint 2 drifts by 1.5 Nm
+    (gravity's error changes with the pose), with a 1 Nm push at t = 6 s."""
+    rng = np.random.default_rng(1)
+    t = np.arange(n) / rate
+    dq = np.zeros((n, 7))
+    dq[(t > 1.0) & (t < 7.0), 1] = 1.0
+    r = rng.normal(0.0, 0.03, (n, 7))
+    r[:, 1] += 1.5 * np.clip((t - 1.0) / 6.0, 0.0, 1.0)
+    r[(t > 6.0) & (t < 6.4), 1] += 1.0
+    return t, r, dq
+
+
+def test_the_baseline_follows_model_error_that_changes_along_a_move() -> None:
+    t, r, dq = _slow_move()
+    config = DetectorConfig(noise=(0.3,) * 7, speed=(0.1,) * 7, accel=(0.0,) * 7)
+    found = detect(t, r, dq, config)
+    assert len(found.intervals) == 1
+    onset, release = found.intervals[0]
+    assert 6.0 <= t[onset] <= 6.1
+    assert release is not None and 6.4 <= t[release] <= 6.6
+    lagging = detect(t, r, dq, replace(config, baseline_moving_s=2.0))
+    assert t[lagging.intervals[0][0]] < 6.0  # a 2 s baseline lags: a false contact
+
+
+def test_motion_margin_widens_only_the_growth_with_motion() -> None:
+    t, r, dq = _slow_move()
+    quiet = t < 5.9
+    part = calibration_samples(t[quiet], r[quiet], dq[quiet],
+                               DetectorConfig(baseline_moving_s=2.0))
+    narrow, wide = calibrate([part]), calibrate([part], motion_margin=3.0)
+    assert wide.noise == narrow.noise
+    assert max(narrow.speed) > 0
+    np.testing.assert_allclose(np.array(wide.speed), 2.0 * np.array(narrow.speed))
+    assert wide.source["motion_margin"] == 3.0 and narrow.source["motion_margin"] == 1.5
 
 
 # --- real recordings ---------------------------------------------------------------

@@ -23,7 +23,7 @@ from contactkit.features.timeseries import OnlineChain, TimeseriesChain
 from contactkit.schemas import InputError, read_session
 from tests.conftest import make_session
 
-DETECTOR = DetectorConfig(noise=(1.0,) * 7, speed=(0.5,) * 7, accel=(0.02,) * 7)
+DETECTOR = DetectorConfig(noise=(0.5,) * 7, speed=(0.5,) * 7, accel=(0.02,) * 7)
 
 
 @pytest.fixture(scope="module")

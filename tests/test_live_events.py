@@ -55,7 +55,8 @@ def test_capture_reports_one_event_as_replay_does(captured, model_path) -> None:
         for key, value in live.items():
             expected = value if isinstance(value, str | bool) else pytest.approx(value, rel=1e-9)
             assert batch[key] == expected, key
-    assert stored[0]["label"] == "adjust"
+    # which contact class is the model's quality (docs/results.md), not this test's
+    assert stored[0]["label"] in {"bump", "adjust", "shove"}
     assert stored[0]["decision_s"] - stored[0]["onset_s"] == pytest.approx(0.15, abs=0.003)
 
 
@@ -64,9 +65,9 @@ def test_info_shows_the_stored_events(captured) -> None:
     result = run_cli("recorder", "info", str(path), "--json")
     assert result.returncode == 0, result.stderr
     events = json.loads(result.stdout)["metadata"]["events"]
-    assert [e["label"] for e in events] == ["adjust"]
+    assert events == read_session(path).meta.events
     table = run_cli("recorder", "info", str(path)).stdout
-    assert "event 1" in table and "adjust (p = " in table
+    assert "event 1" in table and f"{events[0]['label']} (p = " in table
 
 
 def _chunks(path: Path, size: int) -> list[dict[str, np.ndarray]]:
