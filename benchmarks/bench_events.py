@@ -84,7 +84,7 @@ def main() -> None:
     window_t, window_e = t[:150], r[:150]  # 0.15 s at 1 kHz
 
     def decide(_: int) -> None:
-        x = event_features(window_t, window_e)
+        x = event_features(window_t, window_e, float(window_t[0]))
         predict(x[None, :])
         model.out_of_range(x)
 

@@ -19,7 +19,12 @@ Event features (all from e = r - baseline, Nm, and seconds; none from dq, tau or
 q, which grow with motion and do not transfer from the simulator to a real robot):
 per joint the peak |e| and |e| at the decision; over the joints the norm |e|: its
 peak, mean, value at the decision, value at the decision over the peak, time from
-onset to the peak, mean absolute rate of change, and the window length.
+onset to the peak, mean absolute rate of change, and the window length; and the
+shape of its rise: the norm every 25 ms from 25 ms before to 150 ms after the
+onset (the window's last value beyond its end), as it is and divided by the largest
+of the eight, so that a quick shove and a slowly building adjust differ whatever
+the operator's strength (leave-one-pose-out on the default model's simulated
+sessions, decided at 150 ms: balanced accuracy 86.8 -> 90.8 %).
 """
 
 from __future__ import annotations
@@ -45,24 +50,31 @@ PRE_S = 0.05  # s of samples before the onset in the decision window
 DEFAULT_DECIDE_AFTER_S = 0.15
 RANGE_SLACK = 0.5  # a feature beyond its training range by this share of the range is out
 NONE, UNDECIDED, UNKNOWN = "none", "undecided", "unknown"
+RISE_S = np.arange(-1, 7) * 0.025  # s after onset at which the rise is sampled
 EVENT_FEATURES = ([f"peak_abs_e_{j}" for j in range(1, N_JOINTS + 1)]
                   + [f"final_abs_e_{j}" for j in range(1, N_JOINTS + 1)]
                   + ["peak_norm", "mean_norm", "final_norm", "final_over_peak",
-                     "time_to_peak", "mean_abs_rate", "window_s"])
+                     "time_to_peak", "mean_abs_rate", "window_s"]
+                  + [f"norm_at_{1000 * s:+.0f}ms" for s in RISE_S]
+                  + [f"relative_norm_at_{1000 * s:+.0f}ms" for s in RISE_S])
 
 
-def event_features(t: np.ndarray, e: np.ndarray) -> np.ndarray:
+def event_features(t: np.ndarray, e: np.ndarray, onset_s: float) -> np.ndarray:
     """Return the event feature vector (see the module docstring) of a decision window:
-    times ``t`` (n,) [s] starting with the onset, deviations ``e`` (n, 7) [Nm]."""
+    times ``t`` (n,) [s] from ``PRE_S`` before the onset, deviations ``e`` (n, 7) [Nm],
+    onset time ``onset_s`` [s]."""
     norm = np.linalg.norm(e, axis=1)
     peak_at = int(np.argmax(norm))
     peak = float(norm[peak_at])
     span = float(t[-1] - t[0])
     rate = float(np.abs(np.diff(norm)).sum() / span) if span > 0 else 0.0
+    rise = np.interp(np.clip(onset_s + RISE_S, t[0], t[-1]), t, norm)
+    top = float(rise.max())
     return np.concatenate([np.abs(e).max(axis=0), np.abs(e[-1]),
                            [peak, float(norm.mean()), float(norm[-1]),
                             float(norm[-1] / peak) if peak > 0 else 0.0,
-                            float(t[peak_at] - t[0]), rate, span]])
+                            float(t[peak_at] - t[0]), rate, span],
+                           rise, rise / top if top > 0 else np.zeros_like(rise)])
 
 
 @dataclass
@@ -157,7 +169,7 @@ class EventPipeline:
         times = np.array([s for s, _ in self._window])
         e = np.array([r for _, r in self._window]) - self._baseline
         event.decision_s = t
-        event.features = x = event_features(times, e)
+        event.features = x = event_features(times, e, event.onset_s)
         if self.model is None:
             event.label = "contact"
             return event

@@ -36,7 +36,7 @@ from pathlib import Path
 
 from contactkit.classify.calibrate import calibrate_sessions
 from contactkit.classify.event_training import fit_event_model, load_session_events
-from contactkit.classify.events import DEFAULT_DECIDE_AFTER_S
+from contactkit.classify.events import DEFAULT_DECIDE_AFTER_S, EVENT_FEATURES
 from contactkit.classify.kind import ModelOptions
 from contactkit.classify.training import train
 from contactkit.features.detector import MIN_NOISE, DetectorConfig
@@ -64,8 +64,9 @@ Progress = Callable[[str, int, int], None]
 
 def recipe_dir() -> Path:
     """Return the cache directory of the current recipe and simulator defaults."""
-    # The simulator's defaults are part of the key: a recalibrated simulator builds anew.
-    recipe = {**RECIPE, "simulator": SimConfig().to_dict()}
+    # The simulator's defaults and the event features are part of the key: a
+    # recalibrated simulator or new event features build anew.
+    recipe = {**RECIPE, "simulator": SimConfig().to_dict(), "event_features": EVENT_FEATURES}
     key = hashlib.sha256(json.dumps(recipe, sort_keys=True).encode()).hexdigest()[:12]
     return cache_dir() / "default-model" / key
 
