@@ -31,11 +31,13 @@ uses the observer residual. Every method returns the window and how it was found
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from contactkit.schemas import InputError
+from contactkit.util.moments import RunningMoments
 
 METHODS = ("fixed", "planned", "difference", "change")
 THRESHOLD_C = 5.5
@@ -141,3 +143,110 @@ def find_window(t: np.ndarray, planned_at_s: float, spec: WindowSpec,
         return planned
     onset = float(t[hits[0]])
     return Window(onset, onset + length, spec.method, True, onset)
+
+
+class WindowSearch:
+    """:func:`find_window` over a session streamed in consecutive chunks, in memory
+    bounded by the method's look-ahead (0.15 s for ``change``; for the thesis
+    calibration of ``difference``, the samples between the calibration's end and the
+    reference time), not by the session's length.
+
+    Feed each chunk's ``t`` [s] and signal values (n, 7) to :meth:`feed`, then call
+    :meth:`finish` for the window. :attr:`window` is known as soon as the onset is
+    found (or the planned fallback is certain); :attr:`undecided_from_s` is the earliest
+    time that may still become the onset. Equal to :func:`find_window` on the whole
+    session, except that the calibration's mean and standard deviation are merged chunk
+    by chunk (equal to about 1e-15 relative; a sample within that of the threshold
+    could fall the other way).
+    """
+
+    def __init__(self, planned_at_s: float, spec: WindowSpec) -> None:
+        self.planned_at_s = planned_at_s
+        self.spec = spec
+        self.window: Window | None = None
+        if spec.method in ("fixed", "planned"):
+            self.window = find_window(np.zeros(0), planned_at_s, spec)
+        self._calibration = RunningMoments()
+        self._span: tuple[float, float] | None = None
+        self._threshold: float | None = None
+        self._reference: float | None = None
+        self._last_s = math.nan
+        self._pending_t = np.zeros(0)
+        self._pending_s = np.zeros(0)
+
+    @property
+    def undecided_from_s(self) -> float:
+        """The earliest time [s] that may still become the onset (inf once decided)."""
+        if self.window is not None:
+            return math.inf
+        if len(self._pending_t):
+            return float(self._pending_t[0])
+        return -math.inf if self._span is None else self._span[1]
+
+    def _planned(self) -> Window:
+        return Window(self.planned_at_s, self.planned_at_s + self.spec.length_s,
+                      self.spec.method, False, None)
+
+    def feed(self, t: np.ndarray, signal_values: np.ndarray) -> None:
+        """Take the next chunk: ``t`` (n,) [s] after the previous chunk's, the signal's
+        values (n, 7)."""
+        if self.window is not None or len(t) == 0:
+            return
+        s = detection_signal(signal_values)
+        spec, length = self.spec, self.spec.length_s
+        if self._span is None:
+            if spec.calibration == "thesis":
+                start = self.planned_at_s - CALIBRATION_LEAD_S
+                self._span = (start, start + length)
+            else:
+                self._span = (float(t[0]) + SETTLE_S, self.planned_at_s - length)
+        t_cs, t_ce = self._span
+        self._calibration.add(s[(t >= t_cs) & (t <= t_ce)])
+        if spec.calibration == "thesis" and self._reference is None:
+            at = np.flatnonzero(t >= self.planned_at_s - length)
+            self._reference = float(s[at[0]]) if at.size else None
+        self._last_s = float(s[-1])
+        candidates = t > t_ce
+        if not candidates.any():
+            return
+        if self._threshold is None:
+            if self._calibration.count < 2:
+                self.window = self._planned()
+                return
+            self._threshold = spec.c * float(self._calibration.std())
+        self._pending_t = np.concatenate([self._pending_t, t[candidates]])
+        self._pending_s = np.concatenate([self._pending_s, s[candidates]])
+        self._search(final=False)
+
+    def _search(self, final: bool) -> None:
+        """Look for the first hit among the pending candidates; drop those decided."""
+        pending_t, pending_s, threshold = self._pending_t, self._pending_s, self._threshold
+        if self.spec.method == "difference":
+            if self.spec.calibration == "thesis":
+                reference = self._last_s if final and self._reference is None \
+                    else self._reference
+                if reference is None:  # the reference sample is still to come
+                    return
+            else:
+                reference = float(self._calibration.mean)
+            hits = np.flatnonzero(np.abs(reference - pending_s) > threshold)
+            onset_index, decided = (hits[0] if hits.size else None), len(pending_t)
+        else:
+            b_index = np.searchsorted(pending_t, pending_t + CHANGE_LAG_S)
+            decided = int(np.searchsorted(b_index, len(pending_t)))
+            a_index = np.arange(decided)
+            hits = b_index[:decided][np.abs(pending_s[a_index] - pending_s[b_index[:decided]])
+                                     > threshold]
+            onset_index = hits[0] if hits.size else None
+        if onset_index is not None:
+            onset = float(pending_t[onset_index])
+            self.window = Window(onset, onset + self.spec.length_s, self.spec.method, True,
+                                 onset)
+        self._pending_t, self._pending_s = pending_t[decided:], pending_s[decided:]
+
+    def finish(self) -> Window:
+        """Return the window of the whole session fed so far (the planned window when
+        no onset was found)."""
+        if self.window is None and self._threshold is not None:
+            self._search(final=True)
+        return self.window or self._planned()

@@ -1,31 +1,57 @@
 """Per-session measurements for ``recorder stats --deep``.
 
-Each worker reads one session and returns a small summary (a few hundred numbers),
-so memory stays bounded however large the dataset: sampling, the thesis's
-torque-noise statistic, peak residual norm and estimated force, the estimated
-force profile around the interaction, how the Difference window was found, the
-delay between planned and detected onset, joint-limit proximity and the file's
-SHA-256.
+Each worker reads one session and returns a small summary (a few hundred numbers):
+sampling, the thesis's torque-noise statistic, peak residual norm and estimated
+force, the estimated force profile around the interaction, how the Difference window
+was found, the delay between planned and detected onset, joint-limit proximity and
+the file's SHA-256.
+
+The session is read batch by batch, several times, so memory stays bounded however
+long the session is: one pass validates it and takes the extremes, moments and the
+Difference window (:class:`contactkit.features.windows.WindowSearch`); the medians
+(median step, the robust noise sigmas, the residual's median) are exact, found by
+radix selection in a few more passes (:func:`contactkit.util.exact_median.exact_medians`);
+one pass runs the feature chain batch by batch
+(:class:`contactkit.features.timeseries.ChunkedChain`) and spills the residual after
+the first second to an anonymous temporary file for its median. The numbers equal
+those of the whole session held at once up to rounding (1e-12 relative for the
+chunked chain, 1e-15 for the merged moments).
 """
 
 from __future__ import annotations
 
 import hashlib
+import math
+import tempfile
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
+import pyarrow as pa
 
+from contactkit.features import chain_cache
 from contactkit.features.dynamics import PandaModel
-from contactkit.features.timeseries import TimeseriesChain
-from contactkit.features.windows import WindowSpec, find_window
-from contactkit.recorder.noise import robust_noise_sigma
-from contactkit.schemas import InputError, read_session
-from contactkit.schemas.timing import sampling_stats
+from contactkit.features.timeseries import ChunkedChain
+from contactkit.features.windows import WindowSearch, WindowSpec
+from contactkit.schemas import InputError, SessionMeta
+from contactkit.schemas.session import (
+    REQUIRED_COLUMNS,
+    complete_table,
+    iter_session_batches,
+    joint_columns,
+    read_session_meta,
+)
+from contactkit.schemas.timing import streamed_sampling_stats
+from contactkit.util.exact_median import exact_medians
+from contactkit.util.moments import RunningMoments
 
 PROFILE_BEFORE_S = 0.25
 PROFILE_AFTER_S = 2.0
 PROFILE_HZ = 100.0
 PROFILE_T = np.arange(-PROFILE_BEFORE_S, PROFILE_AFTER_S, 1.0 / PROFILE_HZ)
+RESIDUAL_SETTLE_S = 1.0
+"""The residual's median leaves out the observer's first second [s]."""
 
 
 def file_sha256(path: Path) -> str:
@@ -37,48 +63,169 @@ def file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
+class _Chunks:
+    """One session's complete samples (every joint value present), read again batch by
+    batch on each call; each chunk is (t (n,) [s], q, dq, tau (n, 7))."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def __call__(self, validate_all: bool = False
+                 ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        columns = None if validate_all else REQUIRED_COLUMNS
+        for batch in iter_session_batches(self.path, chain_cache.BATCH_ROWS, columns):
+            table = complete_table(pa.Table.from_batches([batch]))
+            if table.num_rows:
+                yield (table.column("t").to_numpy(), *(
+                    np.column_stack([table.column(c).to_numpy() for c in joint_columns(p)])
+                    for p in ("q", "dq", "tau")))
+
+
+def _second_differences(chunks: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
+    """Yield ``np.diff(x, n=2, axis=0)`` of the rows of consecutive chunks, chunk by
+    chunk (the differences across chunk boundaries included)."""
+    tail = None
+    for chunk in chunks:
+        rows = chunk if tail is None else np.concatenate([tail, chunk])
+        tail = rows[-2:]
+        if len(rows) > 2:
+            yield np.diff(rows, n=2, axis=0)
+
+
+def _robust_noise_sigmas(read: Callable[[], Iterable[np.ndarray]]) -> np.ndarray:
+    """Return :func:`contactkit.recorder.noise.robust_noise_sigma` of each column of a
+    re-readable stream, exactly: the MAD's two medians are found in passes."""
+    def differences() -> Iterator[np.ndarray]:
+        return _second_differences(read())
+
+    center = exact_medians(differences)
+    mad = exact_medians(lambda: (np.abs(d - center) for d in differences()))
+    return 1.4826 * mad / np.sqrt(6.0)
+
+
+class _Profile:
+    """The samples of a force [N] needed to interpolate it at given times as
+    ``np.interp(times, t, force, left=nan, right=nan)`` on the whole session does: those
+    within the times' span and the one on either side."""
+
+    def __init__(self, times: np.ndarray) -> None:
+        self.times = times
+        self.t: list[np.ndarray] = []
+        self.force: list[np.ndarray] = []
+        self._before: tuple[float, float] | None = None
+        self._after_seen = False
+
+    def add(self, t: np.ndarray, force: np.ndarray) -> None:
+        """Take the next chunk's times [s] and forces [N]."""
+        if self._after_seen:
+            return
+        low, high = self.times[0], self.times[-1]
+        before = np.flatnonzero(t < low)
+        if before.size:
+            self._before = (float(t[before[-1]]), float(force[before[-1]]))
+        inside = (t >= low) & (t <= high)
+        after = np.flatnonzero(t > high)
+        if after.size:
+            inside[after[0]] = True
+            self._after_seen = True
+        self.t.append(t[inside])
+        self.force.append(force[inside])
+
+    def values(self) -> np.ndarray:
+        """Return the force interpolated at the times [N], NaN outside the session."""
+        t, force = np.concatenate(self.t), np.concatenate(self.force)
+        if self._before is not None:
+            t, force = np.insert(t, 0, self._before[0]), np.insert(force, 0, self._before[1])
+        if t.size == 0:
+            return np.full(self.times.shape, np.nan)
+        return np.interp(self.times, t, force, left=np.nan, right=np.nan)
+
+
+def _residual_medians(spill: BinaryIO, rows: int) -> np.ndarray:
+    """Return the exact median of each residual column [Nm] spilled to ``spill`` (rows
+    of 7 float64), read back a batch at a time."""
+    def read() -> Iterator[np.ndarray]:
+        spill.seek(0)
+        block = chain_cache.BATCH_ROWS * 7 * 8
+        while chunk := spill.read(block):
+            yield np.frombuffer(chunk, dtype=np.float64).reshape(-1, 7)
+
+    return exact_medians(read) if rows else np.zeros(7)
+
+
 def session_summary(path: str) -> dict:
     """Measure one session; on a bad file return ``{"file": name, "problem": text}``."""
     name = Path(path).name
     try:
-        session = read_session(path).complete()
+        meta, _ = read_session_meta(path)
+        return _summary(Path(path), meta)
     except InputError as err:
         return {"file": name, "problem": err.problem}
-    meta = session.meta
-    t = session.t
-    sampling = sampling_stats(t).as_dict()
-    chain = TimeseriesChain(with_hand=meta.with_hand)
-    series = chain.compute(t, session.q, session.dq, session.tau, ["r", "fm_norm"])
-    r_norm = np.linalg.norm(series["r"], axis=1)
-    force = series["fm_norm"][:, 0]
-    out = {"file": name, "session_id": meta.session_id, "action": meta.action,
-           "condition": meta.condition, "sha256": file_sha256(Path(path)),
-           "duration_s": session.duration_s, "sampling": sampling,
-           "tau_std_nm": session.tau.std(axis=0).tolist(),
-           "tau_sigma_nm": robust_noise_sigma(session.tau).tolist(),
-           "dq_sigma_rad_s": robust_noise_sigma(session.dq).tolist(),
-           "q_sigma_rad": robust_noise_sigma(session.q).tolist(),
-           "r_median_nm": np.median(series["r"][t > t[0] + 1.0], axis=0).tolist()
-           if (t > t[0] + 1.0).any() else [0.0] * 7,
-           "peak_residual_norm_nm": float(r_norm.max()),
-           "peak_force_n": float(force.max())}
+
+
+def _summary(path: Path, meta: SessionMeta) -> dict:
+    chunks = _Chunks(path)
     planned = meta.planned_at_s
-    if planned is not None:
-        window = find_window(t, planned, WindowSpec("difference"), session.tau)
-        onset = window.onset_s if window.found else planned
+    search = WindowSearch(planned, WindowSpec("difference")) if planned is not None else None
+    tau_moments = RunningMoments()
+    q_low, q_high = np.full(7, np.inf), np.full(7, -np.inf)
+    dq_peak, tau_peak = np.zeros(7), np.zeros(7)
+    first_t = last_t = math.nan
+    for t, q, dq, tau in chunks(validate_all=True):
+        if tau_moments.count == 0:
+            first_t = float(t[0])
+        q_low, q_high = np.minimum(q_low, q.min(axis=0)), np.maximum(q_high, q.max(axis=0))
+        dq_peak = np.maximum(dq_peak, np.abs(dq).max(axis=0))
+        tau_peak = np.maximum(tau_peak, np.abs(tau).max(axis=0))
+        tau_moments.add(tau)
+        last_t = float(t[-1])
+        if search is not None:
+            search.feed(t, tau)
+    if tau_moments.count == 0:
+        raise InputError("no sample has every joint value", path)
+    duration = last_t - first_t if tau_moments.count > 1 else 0.0
+    sampling = streamed_sampling_stats(lambda: (t for t, *_ in chunks())).as_dict()
+    sigmas = _robust_noise_sigmas(lambda: (np.hstack([tau, dq, q])
+                                           for _, q, dq, tau in chunks()))
+    window = search.finish() if search is not None else None
+    onset = None if window is None else (window.onset_s if window.found else planned)
+    profile = _Profile(onset + PROFILE_T) if onset is not None else None
+    chain = ChunkedChain(None, meta.with_hand, ["r", "fm_norm"])
+    peak_residual = peak_force = -math.inf
+    settled = 0
+    with tempfile.TemporaryFile() as spill:
+        for t, q, dq, tau in chunks():
+            series = chain.compute(t, q, dq, tau)
+            residual, force = series["r"], series["fm_norm"][:, 0]
+            peak_residual = max(peak_residual, float(np.linalg.norm(residual, axis=1).max()))
+            peak_force = max(peak_force, float(force.max()))
+            if profile is not None:
+                profile.add(t, force)
+            after = residual[t > first_t + RESIDUAL_SETTLE_S]
+            spill.write(np.ascontiguousarray(after).tobytes())
+            settled += len(after)
+        residual_median = _residual_medians(spill, settled)
+    out = {"file": path.name, "session_id": meta.session_id, "action": meta.action,
+           "condition": meta.condition, "sha256": file_sha256(path),
+           "duration_s": duration, "sampling": sampling,
+           "tau_std_nm": np.asarray(tau_moments.std()).tolist(),
+           "tau_sigma_nm": sigmas[:7].tolist(),
+           "dq_sigma_rad_s": sigmas[7:14].tolist(),
+           "q_sigma_rad": sigmas[14:].tolist(),
+           "r_median_nm": residual_median.tolist(),
+           "peak_residual_norm_nm": peak_residual,
+           "peak_force_n": peak_force}
+    if window is not None:
         out.update({"window_found": window.found,
                     "onset_delay_s": None if not window.found else window.onset_s - planned,
-                    "short_for_window": bool(t[-1] < planned + 0.5),
-                    "force_profile_n": np.interp(onset + PROFILE_T, t, force,
-                                                 left=np.nan, right=np.nan).tolist()})
+                    "short_for_window": bool(last_t < planned + 0.5),
+                    "force_profile_n": profile.values().tolist()})
     else:
         out.update({"window_found": None, "onset_delay_s": None,
-                    "short_for_window": bool(session.duration_s < 0.5),
+                    "short_for_window": bool(duration < 0.5),
                     "force_profile_n": None})
     limits = PandaModel(meta.with_hand).limits
-    q = session.q
-    out["limit_margin_rad"] = np.minimum(q.min(axis=0) - limits.q_min,
-                                         limits.q_max - q.max(axis=0)).tolist()
-    out["max_speed_fraction"] = (np.abs(session.dq).max(axis=0) / limits.dq_max).tolist()
-    out["max_torque_fraction"] = (np.abs(session.tau).max(axis=0) / limits.tau_max).tolist()
+    out["limit_margin_rad"] = np.minimum(q_low - limits.q_min, limits.q_max - q_high).tolist()
+    out["max_speed_fraction"] = (dq_peak / limits.dq_max).tolist()
+    out["max_torque_fraction"] = (tau_peak / limits.tau_max).tolist()
     return out

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass
 
 import numpy as np
+
+from contactkit.util.exact_median import exact_medians
+from contactkit.util.moments import RunningMoments
 
 GAP_FACTOR = 3.0
 
@@ -53,6 +57,55 @@ def sampling_stats(t: np.ndarray) -> SamplingStats:
         gaps=int(is_gap.sum()),
         dropped_estimate=int(np.round(steps[is_gap] / median - 1).sum()),
     )
+
+
+def streamed_sampling_stats(read_t: Callable[[], Iterable[np.ndarray]]) -> SamplingStats:
+    """Return :func:`sampling_stats` of time stamps [s] read in chunks, in bounded memory.
+
+    ``read_t()`` returns a fresh iterable of consecutive chunks of ``t`` each time; it
+    is read a few times (the exact median step takes up to 5 passes, see
+    :func:`contactkit.util.exact_median.exact_medians`, then one more). Equal to
+    :func:`sampling_stats` except the jitter, which is merged chunk by chunk (to about
+    1e-15 relative).
+    """
+    def read_steps() -> Iterator[np.ndarray]:
+        return (steps[:, None] for steps in _chunked_steps(read_t()))
+
+    samples, first, last = 0, math.nan, math.nan
+    for chunk in read_t():
+        if len(chunk):
+            first = chunk[0] if samples == 0 else first
+            samples, last = samples + len(chunk), chunk[-1]
+    if samples < 2:
+        return sampling_stats(np.asarray([first] if samples else [], dtype=float))
+    median = float(exact_medians(read_steps)[0])
+    regular = RunningMoments()
+    gaps, dropped, low, high = 0, 0.0, math.inf, -math.inf
+    for steps in _chunked_steps(read_t()):
+        is_gap = steps > GAP_FACTOR * median
+        regular.add(steps[~is_gap])
+        gaps += int(is_gap.sum())
+        dropped += float(np.round(steps[is_gap] / median - 1).sum())
+        low, high = min(low, float(steps.min())), max(high, float(steps.max()))
+    return SamplingStats(
+        samples=samples, duration_s=float(last - first), median_step_s=median,
+        min_step_s=low, max_step_s=high,
+        jitter_s=float(regular.std()) if regular.count else 0.0,
+        rate_hz=1.0 / median, gaps=gaps, dropped_estimate=int(dropped))
+
+
+def _chunked_steps(chunks: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
+    """Yield the steps [s] of consecutive chunks of time stamps, the step across each
+    chunk boundary included (empty chunks skipped)."""
+    last = None
+    for chunk in chunks:
+        t = np.asarray(chunk, dtype=float)
+        if len(t) == 0:
+            continue
+        steps = np.diff(t) if last is None else np.diff(t, prepend=last)
+        last = t[-1]
+        if len(steps):
+            yield steps
 
 
 MIN_FEATURE_RATE_HZ = 200.0
