@@ -12,7 +12,13 @@ from contactkit.features.scalars import (
     hjorth_mobility,
     scalar_features,
 )
-from contactkit.features.windows import WindowSpec, find_window
+from contactkit.features.windows import (
+    CALIBRATIONS,
+    METHODS,
+    WindowSearch,
+    WindowSpec,
+    find_window,
+)
 from contactkit.schemas import InputError, read_session
 from tests.conftest import make_session
 
@@ -71,3 +77,23 @@ def test_scalars_on_known_signals() -> None:
     assert np.allclose(mags, np.abs(np.fft.fft(x, axis=0))[:3].T)
     _, fft_names = scalar_features(x, ["fft"], ["a", "b", "c"])
     assert fft_names[:4] == ["fft0(a)", "fft0(b)", "fft0(c)", "fft1(a)"]
+
+
+def test_window_search_over_chunks_equals_find_window() -> None:
+    rng = np.random.default_rng(0)
+    for _ in range(60):
+        rows = int(rng.integers(5, 3000))
+        t = np.arange(rows) / float(rng.choice([200, 500, 1000]))
+        values = 0.1 * rng.standard_normal((rows, 7))
+        start = int(rng.integers(0, rows))
+        values[start:start + int(rng.integers(1, 200))] += rng.uniform(0, 2)
+        planned = float(rng.uniform(0, t[-1] + 1))
+        for method in METHODS:
+            for calibration in CALIBRATIONS:
+                spec = WindowSpec(method, float(rng.choice([0.2, 0.5, 1.5])),
+                                  calibration=calibration)
+                size = int(rng.integers(1, 400))
+                search = WindowSearch(planned, spec)
+                for first in range(0, rows, size):
+                    search.feed(t[first:first + size], values[first:first + size])
+                assert search.finish() == find_window(t, planned, spec, values)
