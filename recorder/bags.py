@@ -16,12 +16,19 @@ Time comes from the message headers; where they are zero or not increasing, from
 the time the bag recorded each message. ``source_info.time_source`` says which.
 A bag that ends early (a crashed recorder) keeps every message that can be read,
 and ``source_info.read_error`` says where reading stopped.
+
+Hour-long bags import in bounded memory: the time source, the samples dropped as out
+of order and the optional columns every message carries are known only at the bag's
+end, so the messages are read once into temporary files (:class:`BagSpill`, about the
+session's size on disk) and the session is written from them a row group at a time.
+Only the label topic's messages stay in memory.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from collections.abc import Iterator
+from dataclasses import dataclass
 from functools import cache
 from importlib import resources
 from pathlib import Path
@@ -30,11 +37,12 @@ from typing import Any
 import numpy as np
 
 from contactkit.recorder.bag_salvage import SalvageReader
-from contactkit.recorder.importer import write_imported_session
+from contactkit.recorder.importer import write_imported_chunks
 from contactkit.recorder.metadata import session_meta
+from contactkit.recorder.spill import RowSpill
 from contactkit.schemas import InputError, SessionMeta, joint_columns
 from contactkit.schemas.session import WRENCH_HAT_COLUMNS
-from contactkit.schemas.timing import sampling_stats
+from contactkit.schemas.timing import streamed_sampling_stats
 from contactkit.util.parallel import map_ordered, split_problems
 from contactkit.util.progress import ProgressCallback
 
@@ -83,18 +91,123 @@ def bundled_msgdef(msgtype: str, ros1: bool) -> str:
     return (_msg_folder(ros1) / f"{msgtype.rsplit('/', 1)[-1]}.msg").read_text()
 
 
-@dataclass
-class BagColumns:
-    """What the importer read from a bag: per-sample values by kind, the bag's recording
-    time of each sample [ns], header stamps [ns] (0 where absent), label messages
-    (recording time [ns], data), messages of the export-mcap topics, and statistics."""
+CHUNK_MESSAGES = 8192
+"""Messages gathered before they are stacked and spilled, and rows handled at a time
+while writing: the importer's memory, whatever the bag's length."""
 
-    columns: dict[str, list] = field(default_factory=dict)
-    recorded_ns: list[int] = field(default_factory=list)
-    header_ns: list[int] = field(default_factory=list)
-    labels: list[tuple[int, Any]] = field(default_factory=list)
-    extras: dict[str, list] = field(default_factory=dict)
-    info: dict[str, Any] = field(default_factory=dict)
+
+class _Stacked:
+    """One kind of per-message values, stacked a chunk at a time into a temporary file;
+    ``usable`` turns false (and the file goes) once the messages disagree in shape."""
+
+    def __init__(self) -> None:
+        self.pending: list = []
+        self.shape: tuple[int, ...] = ()
+        self.finite = True
+        self.usable = True
+        self.spill: RowSpill | None = None
+
+    @property
+    def rows(self) -> int:
+        """The messages spilled."""
+        return 0 if self.spill is None else self.spill.rows
+
+    def flush(self) -> None:
+        """Stack the pending values and spill them."""
+        values, self.pending = self.pending, []
+        if not values or not self.usable:
+            return
+        array = _stacked(values)
+        if array is None or (self.spill is not None and array.shape[1:] != self.shape):
+            self.usable = False
+            self.close()
+            return
+        if self.spill is None:
+            self.shape = array.shape[1:]
+            self.spill = RowSpill(int(np.prod(self.shape, dtype=np.int64)))
+        self.finite = self.finite and bool(np.isfinite(array).all())
+        self.spill.append(array.reshape(len(array), -1))
+
+    def read(self, start: int, stop: int) -> np.ndarray:
+        """Return the values of messages ``start`` up to ``stop``, each of ``shape``."""
+        return self.spill.read(start, stop).reshape(-1, *self.shape)
+
+    def close(self) -> None:
+        """Remove the temporary file."""
+        if self.spill is not None:
+            self.spill.close()
+            self.spill = None
+
+
+class BagSpill:
+    """What the importer read from a bag, spilled to temporary files as it was read: per
+    message of the joint topic its recording time and header stamp [ns] (0 where
+    absent) and its values by kind (``q``, ``dq``, ``tau``, ``wrench_hat``, ...), the
+    label messages (recording time [ns], data; these stay in memory), the values of the
+    export-mcap topics, the first stored session metadata message, and statistics. Use
+    it as a context manager: the files go when it closes."""
+
+    def __init__(self) -> None:
+        self.recorded = RowSpill(1, np.int64)
+        self.header = RowSpill(1, np.int64)
+        self.values: dict[str, _Stacked] = {}
+        self.extras: dict[str, _Stacked] = {}
+        self.labels: list[tuple[int, Any]] = []
+        self.session_text: Any = None
+        self.info: dict[str, Any] = {}
+        self._times: list[tuple[int, int]] = []
+        self._header_any = False
+        self._header_rising = True
+        self._last_header: int | None = None
+
+    def __enter__(self) -> BagSpill:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Remove the temporary files."""
+        for kind in (*self.values.values(), *self.extras.values()):
+            kind.close()
+        self.recorded.close()
+        self.header.close()
+
+    @property
+    def messages(self) -> int:
+        """The joint-topic messages read."""
+        return self.recorded.rows + len(self._times)
+
+    def add_sample(self, recorded_ns: int, header_ns: int, values: dict[str, Any]) -> None:
+        """Take one joint-topic message: its recording time, header stamp and values."""
+        self._times.append((recorded_ns, header_ns))
+        for key, value in values.items():
+            self.values.setdefault(key, _Stacked()).pending.append(value)
+
+    def add_extra(self, topic: str, row: Any) -> None:
+        """Take one message of an export-mcap topic, as its numbers."""
+        self.extras.setdefault(topic, _Stacked()).pending.append(row)
+
+    def flush(self, *, when_full: bool = False) -> None:
+        """Spill what is pending (with ``when_full``, only once a chunk has gathered)."""
+        if when_full and len(self._times) < CHUNK_MESSAGES:
+            return
+        if self._times:
+            recorded, header = np.array(self._times, dtype=np.int64).T
+            self._times = []
+            before = [] if self._last_header is None else [self._last_header]
+            stamps = np.concatenate([np.array(before, dtype=np.int64), header])
+            self._header_rising = self._header_rising and bool((np.diff(stamps) > 0).all())
+            self._header_any = self._header_any or bool(header.any())
+            self._last_header = int(header[-1])
+            self.recorded.append(recorded)
+            self.header.append(header)
+        for kind in (*self.values.values(), *self.extras.values()):
+            kind.flush()
+
+    def time_source(self) -> str:
+        """Return "header" when the header stamps are set and increase, else "recording"."""
+        return "header" if self._header_any and self._header_rising else "recording"
 
 
 def _stamp_ns(header: Any) -> int:
@@ -208,8 +321,8 @@ def choose_topic(topics: dict[str, str], wanted: str | None, path: Path) -> str:
     raise InputError(f"{reason}; the bag has: {listing}", path)
 
 
-def read_bag(path: Path, topic: str | None = None, label_topic: str | None = None) -> BagColumns:
-    """Read the joint stream (and label topic) of one bag into :class:`BagColumns`.
+def read_bag(path: Path, topic: str | None = None, label_topic: str | None = None) -> BagSpill:
+    """Read the joint stream (and label topic) of one bag into a :class:`BagSpill`.
 
     Messages that cannot be read (a truncated file, a corrupt chunk) end the reading;
     what came before is kept and ``info['read_error']`` says what happened.
@@ -232,34 +345,44 @@ def read_bag(path: Path, topic: str | None = None, label_topic: str | None = Non
 
 
 def _read_messages(reader: Any, path: Path, chosen: str, label_topic: str | None,
-                   wanted: set[str], topics: dict[str, str]) -> BagColumns:
+                   wanted: set[str], topics: dict[str, str]) -> BagSpill:
     rows_of = ROWS[topics[chosen]]
-    out = BagColumns()
-    rows: dict[str, list] = {}
+    out = BagSpill()
     connections = [c for c in reader.connections if c.topic in wanted]
     expected = sum(c.msgcount for c in connections if c.topic == chosen)
     error = None
+    messages = iter(reader.messages(connections=connections))
     try:
-        for connection, timestamp, raw in reader.messages(connections=connections):
-            msg = reader.deserialize(raw, connection.msgtype)
-            if connection.topic == chosen:
-                for key, value in rows_of(msg).items():
-                    rows.setdefault(key, []).append(value)
-                out.recorded_ns.append(timestamp)
-                header = getattr(msg, "header", None)
-                out.header_ns.append(0 if header is None else _stamp_ns(header))
-            elif connection.topic == label_topic:
-                out.labels.append((timestamp, msg.data))
-            else:
-                out.extras.setdefault(connection.topic, []).append(msg)
-    except InputError:
+        while error is None:
+            try:
+                item = next(messages, None)
+                if item is None:
+                    break
+                connection, timestamp, raw = item
+                msg = reader.deserialize(raw, connection.msgtype)
+                if connection.topic == chosen:
+                    header = getattr(msg, "header", None)
+                    out.add_sample(timestamp, 0 if header is None else _stamp_ns(header),
+                                   rows_of(msg))
+                elif connection.topic == label_topic:
+                    out.labels.append((timestamp, msg.data))
+                elif connection.topic == EXPORT_TOPICS["session"]:
+                    out.session_text = msg.data if out.session_text is None else \
+                        out.session_text
+                else:
+                    out.add_extra(connection.topic, _export_row(connection.topic, msg))
+            except InputError:
+                raise
+            except Exception as err:  # a truncated or corrupt bag: keep what came before
+                error = _first_line(err)
+            out.flush(when_full=True)
+        out.flush()
+    except BaseException:
+        out.close()
         raise
-    except Exception as err:  # a truncated or corrupt bag: keep what came before
-        error = _first_line(err)
-    out.columns = rows
     out.info = {"bag": str(path), "topic": chosen, "msgtype": topics[chosen],
-                "messages": len(out.recorded_ns), "messages_in_index": expected,
-                "lost_messages": max(expected - len(out.recorded_ns), 0)}
+                "messages": out.messages, "messages_in_index": expected,
+                "lost_messages": max(expected - out.messages, 0)}
     if isinstance(reader, SalvageReader):
         out.info["salvaged"] = True
         error = error or reader.lost()
@@ -268,56 +391,112 @@ def _read_messages(reader: Any, path: Path, chosen: str, label_topic: str | None
     return out
 
 
-def _times(bag: BagColumns) -> tuple[np.ndarray, str]:
-    """Return sample times [ns] and their source: headers where usable, else recording."""
-    header = np.asarray(bag.header_ns, dtype=np.int64)
-    if header.size and header.any() and (np.diff(header) > 0).all():
-        return header, "header"
-    return np.asarray(bag.recorded_ns, dtype=np.int64), "recording"
+def _export_row(topic: str, msg: Any) -> Any:
+    """Return the numbers export-mcap put into one message of its topics."""
+    if topic == EXPORT_TOPICS["desired"]:
+        return (*msg.position, *msg.velocity)
+    if topic == EXPORT_TOPICS["tau_ext_hat"]:
+        return msg.effort
+    if topic == EXPORT_TOPICS["contact"]:
+        return float(msg.data)
+    w = msg.wrench
+    return (w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z)
 
 
-def bag_session_columns(bag: BagColumns, path: Path) -> tuple[dict[str, np.ndarray], dict]:
-    """Turn :class:`BagColumns` into session columns (``t`` in s from the first sample) and
-    the ``source_info`` statistics: time source, measured rate, messages read and lost,
-    dropped out-of-order samples and label events."""
-    if not bag.recorded_ns:
-        detail = f" ({bag.info['read_error']})" if "read_error" in bag.info else ""
-        raise InputError(f"no readable messages on {bag.info['topic']}{detail}", path)
-    times_ns, time_source = _times(bag)
-    keep = np.ones(times_ns.size, bool)
-    keep[1:] = times_ns[1:] > np.maximum.accumulate(times_ns)[:-1]
-    columns: dict[str, np.ndarray] = {"t": (times_ns[keep] - times_ns[0]) * 1e-9}
-    for key, values in bag.columns.items():
-        array = _stacked(values)
-        if array is None or (key in MEASURED and (array.shape[1:] != (7,)
-                                                  or not np.isfinite(array).all())):
-            if key in MEASURED:
+class BagSession:
+    """A :class:`BagSpill` as session columns, streamed: time from the headers where
+    usable, else from the recording; samples whose time does not pass every earlier one
+    dropped; the optional kinds that every message carries, finite, with their names;
+    the export-mcap topics where they line up one message per sample; label events and
+    the contact they hold. ``info`` is the ``source_info`` statistics."""
+
+    def __init__(self, bag: BagSpill, path: Path) -> None:
+        if bag.messages == 0:
+            detail = f" ({bag.info['read_error']})" if "read_error" in bag.info else ""
+            raise InputError(f"no readable messages on {bag.info['topic']}{detail}", path)
+        for key, kind in bag.values.items():
+            if key in MEASURED and not (kind.usable and kind.shape == (7,) and kind.finite):
                 raise InputError(f"the {key} values on {bag.info['topic']} are not 7 finite "
                                  "numbers in every message", path)
-            continue
-        array = array[keep]
-        if key == "wrench_hat":
-            names = list(WRENCH_HAT_COLUMNS)
-        elif array.ndim == 2:
-            names = joint_columns(key)
-        else:
-            columns[key] = array.astype(np.int8 if key == "robot_mode" else np.float64)
-            continue
-        if array.shape[1] == len(names) and np.isfinite(array).all():
-            columns.update({n: array[:, i] for i, n in enumerate(names)})
-    recorded = np.asarray(bag.recorded_ns, dtype=np.int64)[keep]
-    _add_export_topics(columns, bag.extras)
-    events = [{"t": float(_session_time(stamp, recorded, columns["t"])), "text": str(data)}
-              for stamp, data in bag.labels]
-    info = {**bag.info, "time_source": time_source, "dropped_out_of_order": int((~keep).sum()),
-            "rate_hz": sampling_stats(columns["t"]).rate_hz}
-    if events:
-        info["label_events"] = events
-        flags = [e for e in events if e["text"] in ("True", "False")]
-        if flags:
-            columns["contact"] = _hold(flags, columns["t"])
-    return columns, info
+        self.bag = bag
+        self.time_source = bag.time_source()
+        stamps = np.array([stamp for stamp, _ in bag.labels], dtype=np.int64)
+        counts = np.zeros(stamps.size, dtype=np.int64)
+        self.samples = 0
+        for _, t, recorded in self._kept():
+            counts += np.searchsorted(recorded, stamps, side="right")
+            self.samples += t.size
+        label_t = self._times_at(np.maximum(counts - 1, 0))
+        self.events = [{"t": float(t), "text": str(data)}
+                       for t, (_, data) in zip(label_t, bag.labels, strict=True)]
+        self.flags = [e for e in self.events if e["text"] in ("True", "False")]
+        self.info = {**bag.info, "time_source": self.time_source,
+                     "dropped_out_of_order": bag.messages - self.samples,
+                     "rate_hz": streamed_sampling_stats(self.times).rate_hz}
+        if self.events:
+            self.info["label_events"] = self.events
 
+    def _kept(self) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Yield, a chunk of messages at a time: which are kept (their time passes every
+        earlier one), their session times t [s] (from the first message) and recording
+        times [ns]."""
+        times = self.bag.header if self.time_source == "header" else self.bag.recorded
+        first = highest = None
+        for start in range(0, self.bag.messages, CHUNK_MESSAGES):
+            stamps = times.read(start, start + CHUNK_MESSAGES)[:, 0]
+            recorded = self.bag.recorded.read(start, start + CHUNK_MESSAGES)[:, 0]
+            if first is None:
+                first = stamps[0]
+                keep = np.ones(stamps.size, dtype=bool)
+                keep[1:] = stamps[1:] > np.maximum.accumulate(stamps)[:-1]
+            else:
+                keep = stamps > np.maximum.accumulate(np.concatenate([[highest], stamps]))[:-1]
+            highest = stamps.max() if highest is None else max(highest, stamps.max())
+            yield keep, (stamps[keep] - first) * 1e-9, recorded[keep]
+
+    def _times_at(self, index: np.ndarray) -> np.ndarray:
+        """Return the session times [s] of the kept samples at ``index``."""
+        out = np.zeros(index.size)
+        offset = 0
+        for _, t, _ in self._kept():
+            inside = (index >= offset) & (index < offset + t.size)
+            out[inside] = t[index[inside] - offset]
+            offset += t.size
+        return out
+
+    def times(self) -> Iterator[np.ndarray]:
+        """Yield the session times [s] of the kept samples, a chunk at a time."""
+        return (t for _, t, _ in self._kept())
+
+    def chunks(self) -> Iterator[dict[str, np.ndarray]]:
+        """Yield the session columns of the kept samples, a chunk at a time."""
+        start = offset = 0
+        for keep, t, _ in self._kept():
+            columns: dict[str, np.ndarray] = {"t": t}
+            for key, kind in self.bag.values.items():
+                if kind.usable:
+                    _add_kind(columns, key, kind.read(start, start + keep.size)[keep])
+            _add_export_topics(columns, self.bag.extras, self.samples, offset)
+            if self.flags:
+                columns["contact"] = _hold(self.flags, t)
+            start, offset = start + keep.size, offset + t.size
+            yield columns
+
+
+def _add_kind(columns: dict[str, np.ndarray], key: str, array: np.ndarray) -> None:
+    """Add one kind of values as session columns where it has them all, finite: a
+    scalar per message as one column, else one per joint (or wrench component)."""
+    if key == "wrench_hat":
+        names = list(WRENCH_HAT_COLUMNS)
+    elif array.ndim == 2:
+        names = joint_columns(key)
+    elif array.ndim == 1:
+        columns[key] = array.astype(np.int8 if key == "robot_mode" else np.float64)
+        return
+    else:
+        return
+    if array.shape[1] == len(names) and np.isfinite(array).all():
+        columns.update({n: array[:, i] for i, n in enumerate(names)})
 
 def _stacked(values: list) -> np.ndarray | None:
     """Return per-message values as one float64 array (a row per message), or None when
@@ -328,13 +507,6 @@ def _stacked(values: list) -> np.ndarray | None:
         return None
 
 
-def _session_time(stamp_ns: int, recorded: np.ndarray, t: np.ndarray) -> float:
-    """Session time [s] of a message recorded at ``stamp_ns``: the time of the sample
-    recorded at or just before it (labels carry no header, samples may)."""
-    i = int(np.searchsorted(recorded, stamp_ns, side="right")) - 1
-    return float(t[max(i, 0)])
-
-
 def _hold(flags: list[dict], t: np.ndarray) -> np.ndarray:
     """A bool column that holds each True/False label from its time on."""
     values = np.zeros(t.size, bool)
@@ -343,44 +515,39 @@ def _hold(flags: list[dict], t: np.ndarray) -> np.ndarray:
     return values
 
 
-def _add_export_topics(columns: dict[str, np.ndarray], extras: dict[str, list]) -> None:
+EXPORT_COLUMNS = {"desired": (14, [*joint_columns("q_d"), *joint_columns("dq_d")]),
+                  "tau_ext_hat": (7, joint_columns("tau_ext_hat")),
+                  "wrench_hat": (6, list(WRENCH_HAT_COLUMNS)),
+                  "applied": (6, ["f_ext_x", "f_ext_y", "f_ext_z"])}
+"""The export-mcap topics' values per message and the session columns they fill."""
+
+
+def _add_export_topics(columns: dict[str, np.ndarray], extras: dict[str, _Stacked],
+                       samples: int, offset: int) -> None:
     """Add the columns export-mcap writes on its own topics, where they line up one
-    message per sample."""
+    message per sample (``samples`` of them), for the kept samples from ``offset`` on."""
     n = columns["t"].size
 
-    def lined_up(topic: str) -> list | None:
-        messages = extras.get(topic)
-        return messages if messages is not None and len(messages) == n else None
+    def lined_up(topic: str, shape: tuple[int, ...]) -> np.ndarray | None:
+        kind = extras.get(topic)
+        if kind is None or not kind.usable or kind.rows != samples or kind.shape != shape:
+            return None
+        return kind.read(offset, offset + n)
 
-    if (desired := lined_up(EXPORT_TOPICS["desired"])) is not None:
-        columns.update(_joint_block("q_d", [m.position for m in desired]))
-        columns.update(_joint_block("dq_d", [m.velocity for m in desired]))
-    if (hat := lined_up(EXPORT_TOPICS["tau_ext_hat"])) is not None:
-        columns.update(_joint_block("tau_ext_hat", [m.effort for m in hat]))
-    for key, names in (("wrench_hat", WRENCH_HAT_COLUMNS),
-                       ("applied", ("f_ext_x", "f_ext_y", "f_ext_z"))):
-        if (wrenches := lined_up(EXPORT_TOPICS[key])) is not None:
-            w = [m.wrench for m in wrenches]
-            values = np.array([(x.force.x, x.force.y, x.force.z, x.torque.x, x.torque.y,
-                                x.torque.z) for x in w])
+    for key, (width, names) in EXPORT_COLUMNS.items():
+        if (values := lined_up(EXPORT_TOPICS[key], (width,))) is not None:
             columns.update({name: values[:, i] for i, name in enumerate(names)})
-    if (contact := lined_up(EXPORT_TOPICS["contact"])) is not None:
-        columns["contact"] = np.array([m.data for m in contact], bool)
+    if (contact := lined_up(EXPORT_TOPICS["contact"], ())) is not None:
+        columns["contact"] = contact.astype(bool)
 
 
-def _joint_block(prefix: str, rows: list) -> dict[str, np.ndarray]:
-    array = np.asarray(rows, dtype=np.float64)
-    return {name: array[:, i] for i, name in enumerate(joint_columns(prefix))}
-
-
-def exported_meta(bag: BagColumns, path: Path) -> dict | None:
+def exported_meta(bag: BagSpill, path: Path) -> dict | None:
     """Return the session metadata export-mcap stored in the bag, or None; InputError
     naming the bag when that topic holds something other than a JSON metadata object."""
-    messages = bag.extras.get(EXPORT_TOPICS["session"])
-    if not messages:
+    if bag.session_text is None:
         return None
     try:
-        doc = json.loads(messages[0].data)
+        doc = json.loads(bag.session_text)
     except (json.JSONDecodeError, TypeError) as err:
         raise InputError(f"{EXPORT_TOPICS['session']} holds no JSON session metadata ({err})",
                          path) from err
@@ -398,21 +565,26 @@ def import_bag(path: Path, meta: SessionMeta, out_dir: Path, *, topic: str | Non
     (session id, protocol, source), with the import recorded in ``source_info``. With a
     label topic, the first label's time is the planned interaction time unless
     ``meta`` has one.
+
+    The messages are read once and spilled to temporary files (:class:`BagSpill`), then
+    the session is written from them a row group at a time: memory stays bounded
+    however long the bag (the label messages excepted, which stay in memory).
     """
-    bag = read_bag(path, topic, label_topic)
-    stored = exported_meta(bag, path)
-    columns, info = bag_session_columns(bag, path)
-    if stored is not None:
-        meta = SessionMeta.from_dict({**stored, "source_info": {**stored.get("source_info", {}),
-                                                                "imported_from_bag": info}})
-    else:
-        meta.source_info = info
-        events = info.get("label_events", [])
-        if meta.planned_at_s is None and events:
-            meta.planned_at_s = events[0]["t"]
-        if meta.nominal_rate_hz is None:
-            meta.nominal_rate_hz = float(round(info["rate_hz"], 3))
-    return write_imported_session(columns, meta, out_dir, name)
+    with read_bag(path, topic, label_topic) as bag:
+        stored = exported_meta(bag, path)
+        session = BagSession(bag, path)
+        info = session.info
+        if stored is not None:
+            meta = SessionMeta.from_dict({**stored, "source_info": {
+                **stored.get("source_info", {}), "imported_from_bag": info}})
+        else:
+            meta.source_info = info
+            events = info.get("label_events", [])
+            if meta.planned_at_s is None and events:
+                meta.planned_at_s = events[0]["t"]
+            if meta.nominal_rate_hz is None:
+                meta.nominal_rate_hz = float(round(info["rate_hz"], 3))
+        return write_imported_chunks(session.times, session.chunks, meta, out_dir, name)
 
 
 def find_bags(directory: Path) -> list[Path]:

@@ -3,14 +3,19 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 
 from contactkit.recorder.arrays import load_joint_arrays
 from contactkit.recorder.metadata import session_filename, session_meta
 from contactkit.schemas import InputError, SessionMeta, joint_columns, write_session
+from contactkit.schemas.session import table_from_columns, write_session_batches
+from contactkit.schemas.timing import chunked_steps
+from contactkit.util.exact_median import exact_medians
 from contactkit.util.paths import inside, safe_name
 
 _FIELDS = {f.name: f for f in fields(SessionMeta)}
@@ -60,6 +65,44 @@ def write_imported_session(columns: dict[str, np.ndarray], meta: SessionMeta, ou
         meta.nominal_rate_hz = float(round(1.0 / np.median(steps), 3))
     filename = session_filename(meta) if name is None else safe_name(name, "output name")
     return write_session(inside(out_dir, filename), columns, meta)
+
+
+def write_imported_chunks(times: Callable[[], Iterable[np.ndarray]],
+                          chunks: Callable[[], Iterable[Mapping[str, np.ndarray]]],
+                          meta: SessionMeta, out_dir: Path, name: str | None = None) -> Path:
+    """Write an imported recording streamed in chunks, as :func:`write_imported_session`
+    writes it whole; return the path. Memory holds one Parquet row group however long
+    the recording is.
+
+    ``times()`` and ``chunks()`` each return a fresh iterable over the recording from
+    its start: of the time stamps [s], and of dicts of session columns (``t`` among
+    them) for consecutive samples. The times are read once, and a few more times when
+    the nominal rate must be measured (its exact median step); the chunks once, while
+    writing. The written table equals :func:`write_imported_session`'s on the
+    concatenated columns (in row groups of
+    :data:`contactkit.schemas.session.ROW_GROUP_ROWS`).
+    """
+    first, rising, samples = None, True, 0
+    for steps in chunked_steps(times()):
+        rising = rising and bool((steps > 0).all())
+    for t in times():
+        if len(t):
+            first = float(t[0]) if first is None else first
+            samples += len(t)
+    if meta.nominal_rate_hz is None and samples > 1 and rising:
+        median = exact_medians(lambda: (s[:, None] for s in chunked_steps(times())))[0]
+        meta.nominal_rate_hz = float(round(1.0 / median, 3))
+    filename = session_filename(meta) if name is None else safe_name(name, "output name")
+
+    def batches() -> Iterator[pa.RecordBatch]:
+        for chunk in chunks():
+            columns = dict(chunk)
+            columns["t"] = np.asarray(columns["t"], dtype=float) - first
+            yield from table_from_columns(columns, meta).to_batches()
+
+    path = inside(out_dir, filename)
+    write_session_batches(path, batches(), meta)
+    return path
 
 
 def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out_dir: Path,

@@ -69,7 +69,7 @@ def streamed_sampling_stats(read_t: Callable[[], Iterable[np.ndarray]]) -> Sampl
     1e-15 relative).
     """
     def read_steps() -> Iterator[np.ndarray]:
-        return (steps[:, None] for steps in _chunked_steps(read_t()))
+        return (steps[:, None] for steps in chunked_steps(read_t()))
 
     samples, first, last = 0, math.nan, math.nan
     for chunk in read_t():
@@ -81,7 +81,7 @@ def streamed_sampling_stats(read_t: Callable[[], Iterable[np.ndarray]]) -> Sampl
     median = float(exact_medians(read_steps)[0])
     regular = RunningMoments()
     gaps, dropped, low, high = 0, 0.0, math.inf, -math.inf
-    for steps in _chunked_steps(read_t()):
+    for steps in chunked_steps(read_t()):
         is_gap = steps > GAP_FACTOR * median
         regular.add(steps[~is_gap])
         gaps += int(is_gap.sum())
@@ -94,9 +94,10 @@ def streamed_sampling_stats(read_t: Callable[[], Iterable[np.ndarray]]) -> Sampl
         rate_hz=1.0 / median, gaps=gaps, dropped_estimate=int(dropped))
 
 
-def _chunked_steps(chunks: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
-    """Yield the steps [s] of consecutive chunks of time stamps, the step across each
-    chunk boundary included (empty chunks skipped)."""
+def chunked_steps(chunks: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
+    """Yield the steps of consecutive chunks of time stamps (``np.diff`` of the whole,
+    chunk by chunk, in the stamps' unit), the step across each chunk boundary included
+    (empty chunks skipped)."""
     last = None
     for chunk in chunks:
         t = np.asarray(chunk, dtype=float)

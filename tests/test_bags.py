@@ -144,3 +144,27 @@ def test_cli_import_export_and_slow_rate(source, tmp_path):
     result = run_cli("recorder", "import-bag", str(tmp_path / "missing"), "--pose", "B",
                      "--action", "shove", "--out", str(out))
     assert result.returncode == 2 and "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize("kind", ["ros1", "mcap"])
+def test_streamed_import_does_not_depend_on_the_chunk(source, tmp_path, kind, monkeypatch):
+    """The bag is spilled and written a chunk at a time: 7-message chunks give the table
+    and metadata of one chunk for the whole bag (labels, contact and export topics)."""
+    from contactkit.recorder import bags
+
+    session = read_session(source)
+    bag = write_bag(session, tmp_path / ("bag.bag" if kind == "ros1" else "bag"), kind,
+                    labels=[(1.0, True), (2.0, False)])
+    exported = export_mcap(source, tmp_path / "exported")
+    written = {}
+    for chunk in (7, 100_000):
+        monkeypatch.setattr(bags, "CHUNK_MESSAGES", chunk)
+        out = tmp_path / f"out{chunk}"
+        out.mkdir()
+        written[chunk] = [validate_session(import_bag(bag, meta(), out, label_topic="/labels")),
+                          validate_session(import_bag(exported, meta(), out))]
+    for small, whole in zip(written[7], written[100_000], strict=True):
+        assert small.table.equals(whole.table)
+        assert {**small.meta.__dict__, "session_id": "", "created_utc": ""} == \
+            {**whole.meta.__dict__, "session_id": "", "created_utc": ""}
+    assert written[7][0].column("contact").any()
