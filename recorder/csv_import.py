@@ -5,98 +5,229 @@ counted when the map says so: a log written faster than the robot's state update
 (the MindLab files log at 200 Hz a state that changes at about 100 Hz) holds each
 state twice with two time stamps, and keeping both would halve the apparent time
 step and put zero-velocity steps into every difference.
+
+Long files import in bounded memory: the file is parsed once in blocks of
+:data:`BLOCK_ROWS` rows (Polars' streaming CSV reader) into temporary files
+(:class:`contactkit.recorder.spill.RowSpill`), because the row counts (metadata) and
+the first problem in column order are known only at its end; the session is then
+written from them a row group at a time.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import polars as pl
 
 from contactkit.recorder.csv_map import CsvMap
-from contactkit.recorder.importer import write_imported_session
+from contactkit.recorder.importer import write_imported_chunks
 from contactkit.recorder.metadata import session_filename
+from contactkit.recorder.spill import RowSpill
 from contactkit.schemas import InputError, SessionMeta, joint_columns
 
+BLOCK_ROWS = 16_384
+"""CSV rows parsed (and session rows written) at a time."""
 
-def read_csv_columns(path: Path, cmap: CsvMap) -> tuple[dict[str, np.ndarray], dict]:
-    """Read one CSV file per the map; return session columns and import counts.
 
-    Columns are in session units (t [s], q [rad], dq [rad/s], torques [Nm], contact
-    bool). The counts are ``rows`` read, ``repeated_rows`` dropped and ``samples`` kept.
-    Raises InputError naming the file and the column for a missing or repeated column, a
-    value that is not a number, an empty value, a label other than 0/1, or time that goes
-    back.
+class CsvSpill:
+    """One CSV file parsed per a map into temporary files, in session units (t [s], q
+    [rad], dq [rad/s], torques [Nm], contact bool), repeated rows dropped; ``counts``
+    holds the ``rows`` read, ``repeated_rows`` dropped and ``samples`` kept. Use it as a
+    context manager: the files go when it closes."""
+
+    def __init__(self, cmap: CsvMap) -> None:
+        self.time = RowSpill(1)
+        self.joints = {prefix: RowSpill(len(spec.names)) for prefix, spec in
+                       cmap.joints.items()}
+        self.contact = RowSpill(1, np.bool_) if cmap.contact is not None else None
+        self.counts: dict[str, int] = {}
+
+    def __enter__(self) -> CsvSpill:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for spill in (self.time, *self.joints.values(), self.contact):
+            if spill is not None:
+                spill.close()
+
+    def times(self) -> Iterator[np.ndarray]:
+        """Yield the kept samples' times [s], a block at a time."""
+        return (t[:, 0] for t in self.time.chunks(BLOCK_ROWS))
+
+    def chunks(self) -> Iterator[dict[str, np.ndarray]]:
+        """Yield the session columns of the kept samples, a block at a time."""
+        for start in range(0, self.time.rows, BLOCK_ROWS):
+            stop = start + BLOCK_ROWS
+            columns = {"t": self.time.read(start, stop)[:, 0]}
+            for prefix, spill in self.joints.items():
+                block = spill.read(start, stop)
+                columns.update(zip(joint_columns(prefix), block.T, strict=True))
+            if self.contact is not None:
+                columns["contact"] = self.contact.read(start, stop)[:, 0]
+            yield columns
+
+
+def spill_csv(path: Path, cmap: CsvMap) -> CsvSpill:
+    """Parse one CSV file per the map into a :class:`CsvSpill`, in bounded memory.
+
+    Raises InputError naming the file and, as for the whole file read at once, the first
+    problem in the order time, joints (map order), contact label: a missing or repeated
+    column, a value that is not a number, an empty value; then a label other than 0/1,
+    then time that goes back (the first data row that has each).
     """
     if not path.is_file():
         raise InputError("no such CSV file", path)
+    names = [cmap.time_column, *[n for spec in cmap.joints.values() for n in spec.names],
+             *([cmap.contact] if cmap.contact is not None else [])]
+    spill = CsvSpill(cmap)
     try:
-        frame = pl.read_csv(path, separator=cmap.delimiter, infer_schema=False)
+        _parse(path, cmap, names, spill)
+    except BaseException:
+        spill.__exit__()
+        raise
+    return spill
+
+
+def _what(cmap: CsvMap) -> dict[str, str]:
+    """Return what each mapped column is, for messages ("time", "q joint 1", ...)."""
+    what = {cmap.time_column: "time"}
+    for prefix, spec in cmap.joints.items():
+        what.update({name: f"{prefix} joint {j}" for j, name in enumerate(spec.names, 1)})
+    if cmap.contact is not None:
+        what[cmap.contact] = "contact label"
+    return what
+
+
+def _parse(path: Path, cmap: CsvMap, names: list[str], spill: CsvSpill) -> None:
+    what = _what(cmap)
+    lazy = pl.scan_csv(path, separator=cmap.delimiter, infer_schema=False)
+    problems: dict[str, str] = {}
+    label_problem = back_problem = None
+    rows = kept = 0
+    last_measured = last_t = None
+    try:
+        header = lazy.collect_schema().names()
+        for name in names:
+            if name not in header:
+                problems[name] = f"no column {name!r} ({what[name]} in the map)"
+            elif f"{name}_duplicated_0" in header:
+                problems[name] = (f"column {name!r} ({what[name]}) appears more than once "
+                                  "in the header")
+        present = [n for n in dict.fromkeys(names) if n not in problems]
+        read = present or header[:1]  # at least one column, to count the rows
+        for frame in lazy.select(read).collect_batches(chunk_size=BLOCK_ROWS):
+            values = {}
+            for name in present:
+                values[name], problem = _numeric(frame, name, rows, what[name])
+                if problem is not None:
+                    problems.setdefault(name, problem)
+            if not problems:
+                label_problem = label_problem or _label_problem(cmap, values, rows)
+                block_kept, last_measured = _not_repeated(cmap, values, last_measured)
+                t = values[cmap.time_column][block_kept] * cmap.time_factor
+                if back_problem is None:
+                    steps = np.diff(t, prepend=last_t) if last_t is not None else np.diff(t)
+                    going_back = np.flatnonzero(steps <= 0)
+                    if going_back.size:
+                        index = going_back[0] + (1 if last_t is None else 0)
+                        row = rows + int(np.flatnonzero(block_kept)[index]) + 1
+                        back_problem = (f"column {cmap.time_column!r} (time) does not "
+                                        f"increase at data row {row}")
+                last_t = t[-1] if t.size else last_t
+                _spill_block(spill, cmap, values, block_kept, t)
+                kept += int(block_kept.sum())
+            rows += frame.height
     except (pl.exceptions.PolarsError, OSError, UnicodeDecodeError) as err:
         raise InputError(f"cannot read this CSV ({type(err).__name__}: "
                          f"{str(err).splitlines()[0]})", path) from err
-    if frame.height == 0:
+    if rows == 0:
         raise InputError("no data rows", path)
-    t = _numeric(frame, cmap.time_column, path, "time") * cmap.time_factor
-    values = {}
-    for prefix, spec in cmap.joints.items():
-        values[prefix] = np.column_stack(
-            [_numeric(frame, name, path, f"{prefix} joint {j}")
-             for j, name in enumerate(spec.names, start=1)]) * spec.factor
-    contact = None
-    if cmap.contact is not None:
-        label = _numeric(frame, cmap.contact, path, "contact label")
-        bad = np.flatnonzero((label != 0) & (label != 1))
-        if bad.size:
-            raise InputError(f"column {cmap.contact!r} (contact label) holds {label[bad[0]]:g} "
-                             f"at data row {bad[0] + 1}, expected 0 or 1", path)
-        contact = label == 1
-    keep = np.ones(frame.height, dtype=bool)
-    if cmap.drop_repeated_rows:
-        measured = np.column_stack([values[p] for p in ("q", "dq", "tau")])
-        keep[1:] = (np.diff(measured, axis=0) != 0).any(axis=1)
-    t = t[keep]
-    going_back = np.flatnonzero(np.diff(t) <= 0)
-    if going_back.size:
-        row = int(np.flatnonzero(keep)[going_back[0] + 1]) + 1
-        raise InputError(f"column {cmap.time_column!r} (time) does not increase at data row "
-                         f"{row}", path)
-    columns = {"t": t}
-    for prefix, array in values.items():
-        for col, series in zip(joint_columns(prefix), array[keep].T, strict=True):
-            columns[col] = series
-    if contact is not None:
-        columns["contact"] = contact[keep]
-    counts = {"rows": frame.height, "repeated_rows": int((~keep).sum()),
-              "samples": int(keep.sum())}
-    return columns, counts
+    for problem in (*(problems[n] for n in names if n in problems), label_problem,
+                    back_problem):
+        if problem is not None:
+            raise InputError(problem, path)
+    spill.counts = {"rows": rows, "repeated_rows": rows - kept, "samples": kept}
 
 
-def _numeric(frame: pl.DataFrame, column: str, path: Path, what: str) -> np.ndarray:
-    """Return one CSV column as float64, or raise InputError naming the column."""
-    if column not in frame.columns:
-        raise InputError(f"no column {column!r} ({what} in the map)", path)
-    if f"{column}_duplicated_0" in frame.columns:
-        raise InputError(f"column {column!r} ({what}) appears more than once in the header",
-                         path)
+def _numeric(frame: pl.DataFrame, column: str, offset: int, what: str
+             ) -> tuple[np.ndarray, str | None]:
+    """Return one block of a CSV column as float64 and the problem of its first value
+    that is not a number (data rows counted from the file's first, ``offset`` before
+    this block), or None."""
     text = frame.get_column(column).str.strip_chars()
     values = text.cast(pl.Float64, strict=False).fill_nan(None)
     bad = (values.is_null() | values.is_infinite()).arg_true()
     if bad.len():
         row = int(bad[0])
-        raise InputError(f"column {column!r} ({what}) holds {text[row]!r} at data row "
-                         f"{row + 1}, not a number", path)
-    return values.to_numpy()
+        return np.zeros(0), (f"column {column!r} ({what}) holds {text[row]!r} at data row "
+                             f"{offset + row + 1}, not a number")
+    return values.to_numpy(), None
+
+
+def _label_problem(cmap: CsvMap, values: dict[str, np.ndarray], offset: int) -> str | None:
+    """Return the problem of the block's first contact label other than 0 or 1, or None."""
+    if cmap.contact is None:
+        return None
+    label = values[cmap.contact]
+    bad = np.flatnonzero((label != 0) & (label != 1))
+    if not bad.size:
+        return None
+    return (f"column {cmap.contact!r} (contact label) holds {label[bad[0]]:g} at data row "
+            f"{offset + bad[0] + 1}, expected 0 or 1")
+
+
+def _not_repeated(cmap: CsvMap, values: dict[str, np.ndarray], last: np.ndarray | None
+                  ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Return which rows of the block to keep (with ``drop_repeated_rows``, those whose
+    measured values differ from the previous row's, across blocks) and the block's last
+    measured row."""
+    rows = len(values[cmap.time_column])
+    if not cmap.drop_repeated_rows:
+        return np.ones(rows, dtype=bool), None
+    measured = np.column_stack([values[name] * cmap.joints[prefix].factor
+                                for prefix in ("q", "dq", "tau")
+                                for name in cmap.joints[prefix].names])
+    with_last = measured if last is None else np.vstack([last, measured])
+    keep = np.ones(rows, dtype=bool)
+    changed = (np.diff(with_last, axis=0) != 0).any(axis=1)
+    keep[1 if last is None else 0:] = changed
+    return keep, measured[-1:]
+
+
+def _spill_block(spill: CsvSpill, cmap: CsvMap, values: dict[str, np.ndarray],
+                 keep: np.ndarray, t: np.ndarray) -> None:
+    spill.time.append(t)
+    for prefix, spec in cmap.joints.items():
+        block = np.column_stack([values[name] for name in spec.names]) * spec.factor
+        spill.joints[prefix].append(block[keep])
+    if spill.contact is not None:
+        spill.contact.append(values[cmap.contact][keep] == 1)
+
+
+def read_csv_columns(path: Path, cmap: CsvMap) -> tuple[dict[str, np.ndarray], dict]:
+    """Read one CSV file per the map; return session columns and import counts, the
+    whole file in memory (:func:`spill_csv` streams it).
+
+    Columns are in session units (t [s], q [rad], dq [rad/s], torques [Nm], contact
+    bool). The counts are ``rows`` read, ``repeated_rows`` dropped and ``samples`` kept.
+    Raises InputError as :func:`spill_csv` does.
+    """
+    with spill_csv(path, cmap) as spill:
+        chunks = list(spill.chunks())
+        columns = {name: np.concatenate([c[name] for c in chunks]) for name in chunks[0]}
+        return columns, spill.counts
 
 
 def import_csv(path: Path, cmap: CsvMap, meta: SessionMeta, out_dir: Path) -> Path:
     """Write the session read from one CSV file; return its path.
 
     The file is named after the CSV file and the session (``<stem>_<condition>_...``);
-    ``source_info`` records the CSV path, the map and the row counts.
+    ``source_info`` records the CSV path, the map and the row counts. Memory stays
+    bounded however long the file (:func:`spill_csv`).
     """
-    columns, counts = read_csv_columns(path, cmap)
-    meta.source_info = {"csv": str(path), "map": cmap.describe(), **counts}
-    return write_imported_session(columns, meta, out_dir,
-                                  f"{path.stem}_{session_filename(meta)}")
+    with spill_csv(path, cmap) as spill:
+        meta.source_info = {"csv": str(path), "map": cmap.describe(), **spill.counts}
+        return write_imported_chunks(spill.times, spill.chunks, meta, out_dir,
+                                     f"{path.stem}_{session_filename(meta)}")

@@ -8,6 +8,7 @@ import numpy as np
 import polars as pl
 import pytest
 
+from contactkit.recorder import csv_import
 from contactkit.recorder.csv_import import import_csv, read_csv_columns
 from contactkit.recorder.csv_map import load_csv_map, mindlab_map_path
 from contactkit.recorder.metadata import session_meta
@@ -119,7 +120,10 @@ def _mindlab_like(tmp_path: Path, mindlab_dir: Path, edit) -> Path:
                               .otherwise(pl.col("time")).alias("time")),
      "column 'time' (time) does not increase at data row 20"),
 ])
-def test_bad_csv(mindlab_dir: Path, tmp_path: Path, edit, problem: str) -> None:
+@pytest.mark.parametrize("block_rows", [6, csv_import.BLOCK_ROWS])
+def test_bad_csv(mindlab_dir: Path, tmp_path: Path, edit, problem: str, block_rows: int,
+                 monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(csv_import, "BLOCK_ROWS", block_rows)  # rows counted across blocks
     path = _mindlab_like(tmp_path, mindlab_dir, edit)
     with pytest.raises(InputError) as err:
         read_csv_columns(path, load_csv_map(MAP))
@@ -143,3 +147,20 @@ def test_import_refuses_to_overwrite(mindlab_dir: Path, tmp_path: Path) -> None:
     with pytest.raises(InputError, match="already exists"):
         import_csv(mindlab_dir / "d3.csv", load_csv_map(MAP), meta, tmp_path)
     assert path.name.startswith("d3_static_x_none_")
+
+
+def test_streamed_import_does_not_depend_on_the_block(mindlab_dir: Path, tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """The file is parsed and written a block at a time: blocks of 7 rows give the
+    table and counts of one block for the whole file (repeated rows across blocks)."""
+    written = []
+    for block_rows in (7, 1_000_000):
+        monkeypatch.setattr(csv_import, "BLOCK_ROWS", block_rows)
+        meta = session_meta(source="csv", action="none", condition="static", pose="A")
+        out = tmp_path / str(block_rows)
+        out.mkdir()
+        written.append(validate_session(import_csv(mindlab_dir / "a4.csv", load_csv_map(MAP),
+                                                   meta, out)))
+    assert written[0].table.equals(written[1].table)
+    assert written[0].meta.source_info == written[1].meta.source_info
+    assert written[0].meta.nominal_rate_hz == written[1].meta.nominal_rate_hz
