@@ -3,19 +3,30 @@
 Text files hold one number per line (7 consecutive lines per sample for joint
 arrays) or 7 numbers per line separated by spaces, tabs or commas. ``.npy`` files
 hold an (N,) or (N, 7) array.
+
+:func:`spill_array` reads a file a block at a time into a temporary file, so an
+hour-long recording takes one block of memory; :func:`load_array` returns it whole.
+A ``.npy`` file that is not a plain C-order array of numbers (Fortran order, object
+or text values, format 3.0, a truncated file) is read whole with ``np.load``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
+from contactkit.recorder.spill import RowSpill
 from contactkit.schemas import N_JOINTS, InputError
 
+BLOCK_LINES = 65_536
+"""Text lines (or .npy rows) read at a time."""
 
-def load_array(path: str | Path, width: int) -> np.ndarray:
-    """Load ``path`` as an (N, width) float64 array (``width`` 1 gives shape (N,)).
+
+def spill_array(path: str | Path, width: int) -> RowSpill:
+    """Read ``path`` into a :class:`RowSpill` of rows of ``width`` values (float64), in
+    bounded memory; close it when done.
 
     Raises InputError naming the file when it cannot be read, holds non-numbers or
     has a length that is not a multiple of ``width``.
@@ -24,37 +35,157 @@ def load_array(path: str | Path, width: int) -> np.ndarray:
     if not path.is_file():
         raise InputError("no such file", path)
     try:
-        if path.suffix == ".npy":
-            raw = np.load(path, allow_pickle=False)
-        else:
-            text = path.read_text().replace(",", " ").replace(";", " ")
-            rows = [line.split() for line in text.splitlines() if line.strip()
-                    and not line.lstrip().startswith("#")]
-            lengths = {len(r) for r in rows}
-            if len(lengths) > 1:
-                raise InputError(f"lines have different numbers of values {sorted(lengths)}",
-                                 path)
-            raw = np.array(rows, dtype=float)
-        raw = np.asarray(raw, dtype=float)
+        raw, ndim = _npy(path) if path.suffix == ".npy" else _text(path)
+    except InputError:
+        raise
     except (ValueError, TypeError, OSError, EOFError) as err:
         raise InputError(f"not a numeric array ({type(err).__name__}: {str(err)[:80]})",
                          path) from err
-    if raw.ndim not in (1, 2):
-        raise InputError(f"expected a table of numbers, found {raw.ndim} dimensions", path)
-    if raw.ndim == 2 and raw.shape[1] == 1:
-        raw = raw[:, 0]
+    try:
+        return _shaped(raw, ndim, width, path)
+    except InputError:
+        raw.close()
+        raise
+
+
+def _shaped(raw: RowSpill, ndim: int, width: int, path: Path) -> RowSpill:
+    """Check a read array's shape against ``width`` and return it as rows of ``width``."""
+    if ndim not in (1, 2):
+        raise InputError(f"expected a table of numbers, found {ndim} dimensions", path)
+    if ndim == 2 and raw.width == 1:
+        ndim = 1
     if width == 1:
-        if raw.ndim != 1:
-            raise InputError(f"expected one value per line, found {raw.shape[1]}", path)
+        if ndim != 1:
+            raise InputError(f"expected one value per line, found {raw.width}", path)
         return raw
-    if raw.ndim == 1:
-        if raw.size % width:
-            raise InputError(f"{raw.size} values is not a multiple of {width} joints", path)
-        return raw.reshape(-1, width)
-    if raw.shape[1] != width:
-        raise InputError(f"wrong joint count: {raw.shape[1]} values per line, expected "
+    if ndim == 1:
+        if raw.rows % width:
+            raise InputError(f"{raw.rows} values is not a multiple of {width} joints", path)
+        raw.regroup(width)
+        return raw
+    if raw.width != width:
+        raise InputError(f"wrong joint count: {raw.width} values per line, expected "
                          f"{width}", path)
     return raw
+
+
+def _text(path: Path) -> tuple[RowSpill, int]:
+    """Read a text array: rows of numbers, the same count on every line (comments and
+    blank lines skipped); return them spilled and their dimensions (1 when empty)."""
+    lengths: set[int] = set()
+    spill: RowSpill | None = None
+    problem: Exception | None = None
+    block: list[list[str]] = []
+
+    def flush() -> None:
+        nonlocal spill, problem
+        rows, block[:] = list(block), []
+        if not rows or problem is not None or len(lengths) > 1:
+            return
+        try:
+            values = np.array(rows, dtype=float)
+        except (ValueError, TypeError) as err:
+            problem = err
+            return
+        spill = spill or RowSpill(values.shape[1])
+        spill.append(values)
+
+    try:
+        with open(path) as fh:
+            for line in _lines(fh):
+                if line.strip() and not line.lstrip().startswith("#"):
+                    block.append(line.split())
+                    lengths.add(len(block[-1]))
+                    if len(block) >= BLOCK_LINES:
+                        flush()
+            flush()
+        if len(lengths) > 1:
+            raise InputError(f"lines have different numbers of values {sorted(lengths)}",
+                             path)
+        if problem is not None:
+            raise problem
+    except BaseException:
+        if spill is not None:
+            spill.close()
+        raise
+    return (spill, 2) if spill is not None else (RowSpill(1), 1)
+
+
+def _lines(fh) -> Iterator[str]:
+    """Yield the lines of a text file as ``str.splitlines`` splits the whole text, with
+    commas and semicolons read as spaces."""
+    for line in fh:
+        yield from line.replace(",", " ").replace(";", " ").splitlines()
+
+
+def _npy(path: Path) -> tuple[RowSpill, int]:
+    """Read a .npy array a block of rows at a time (whole, with ``np.load``, when it is
+    not a plain C-order array of numbers); return it spilled and its dimensions."""
+    with open(path, "rb") as fh:
+        try:
+            version = np.lib.format.read_magic(fh)
+            header = {(1, 0): np.lib.format.read_array_header_1_0,
+                      (2, 0): np.lib.format.read_array_header_2_0}[version]
+            shape, fortran, dtype = header(fh)
+        except (ValueError, KeyError, OSError, EOFError):
+            return _whole_npy(path)  # np.load names the problem
+        row_values = int(np.prod(shape[1:], dtype=np.int64))
+        size = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+        if (fortran or dtype.kind not in "biuf" or len(shape) not in (1, 2) or row_values == 0
+                or path.stat().st_size - fh.tell() < size):
+            return _whole_npy(path)
+        spill = RowSpill(row_values)
+        for start in range(0, shape[0], BLOCK_LINES):
+            rows = min(BLOCK_LINES, shape[0] - start)
+            data = fh.read(rows * row_values * dtype.itemsize)
+            spill.append(np.frombuffer(data, dtype=dtype).astype(np.float64))
+    return spill, len(shape)
+
+
+def _whole_npy(path: Path) -> tuple[RowSpill, int]:
+    raw = np.asarray(np.load(path, allow_pickle=False), dtype=float)
+    spill = RowSpill(raw.shape[1] if raw.ndim == 2 else 1)
+    if raw.ndim in (1, 2):
+        spill.append(raw)
+    return spill, raw.ndim
+
+
+def load_array(path: str | Path, width: int) -> np.ndarray:
+    """Load ``path`` as an (N, width) float64 array (``width`` 1 gives shape (N,)).
+
+    Raises InputError naming the file when it cannot be read, holds non-numbers or
+    has a length that is not a multiple of ``width``.
+    """
+    spill = spill_array(path, width)
+    try:
+        values = spill.read(0, spill.rows).copy()
+    finally:
+        spill.close()
+    return values[:, 0] if width == 1 else values
+
+
+def spill_joint_arrays(t_path: str | Path, q_path: str | Path, dq_path: str | Path,
+                       tau_path: str | Path) -> dict[str, RowSpill]:
+    """Read time [s], q [rad], dq [rad/s] and tau [Nm] files into temporary files (see
+    :func:`spill_array`; the caller closes them); check their lengths agree.
+
+    Returns a dict with ``t`` (rows of 1) and ``q``, ``dq``, ``tau`` (rows of 7).
+    """
+    paths = {"t": t_path, "q": q_path, "dq": dq_path, "tau": tau_path}
+    spills: dict[str, RowSpill] = {}
+    try:
+        for name, path in paths.items():
+            spills[name] = spill_array(path, 1 if name == "t" else N_JOINTS)
+        n = spills["t"].rows
+        for name, spill in spills.items():
+            if spill.rows != n:
+                raise InputError(f"{spill.rows} samples, but the time file has {n}",
+                                 paths[name])
+    except BaseException:
+        for spill in spills.values():
+            spill.close()
+        raise
+    return spills
 
 
 def load_joint_arrays(t_path: str | Path, q_path: str | Path, dq_path: str | Path,
@@ -63,11 +194,11 @@ def load_joint_arrays(t_path: str | Path, q_path: str | Path, dq_path: str | Pat
 
     Returns a dict with ``t`` (N,) and ``q``, ``dq``, ``tau`` (N, 7).
     """
-    arrays = {"t": load_array(t_path, 1), "q": load_array(q_path, N_JOINTS),
-              "dq": load_array(dq_path, N_JOINTS), "tau": load_array(tau_path, N_JOINTS)}
-    paths = {"t": t_path, "q": q_path, "dq": dq_path, "tau": tau_path}
-    n = len(arrays["t"])
-    for name, values in arrays.items():
-        if len(values) != n:
-            raise InputError(f"{len(values)} samples, but the time file has {n}", paths[name])
+    spills = spill_joint_arrays(t_path, q_path, dq_path, tau_path)
+    try:
+        arrays = {name: spill.read(0, spill.rows).copy() for name, spill in spills.items()}
+    finally:
+        for spill in spills.values():
+            spill.close()
+    arrays["t"] = arrays["t"][:, 0]
     return arrays

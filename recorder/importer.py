@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from contactkit.recorder.arrays import load_joint_arrays
+from contactkit.recorder.arrays import spill_joint_arrays
 from contactkit.recorder.metadata import session_filename, session_meta
 from contactkit.schemas import InputError, SessionMeta, joint_columns, write_session
 from contactkit.schemas.session import table_from_columns, write_session_batches
@@ -18,6 +18,8 @@ from contactkit.schemas.timing import chunked_steps
 from contactkit.util.exact_median import exact_medians
 from contactkit.util.paths import inside, safe_name
 
+BLOCK_ROWS = 16_384
+"""Samples of array files written at a time."""
 _FIELDS = {f.name: f for f in fields(SessionMeta)}
 _NOT_SETTABLE = {"schema_version", "recovered", "recovered_samples", "simulator", "source_info",
                  "tool_version", "created_utc", "urdf_sha256"}
@@ -107,21 +109,35 @@ def write_imported_chunks(times: Callable[[], Iterable[np.ndarray]],
 
 def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out_dir: Path,
                   meta_pairs: list[str], name: str | None = None) -> Path:
-    """Write a validated session from array files; return its path."""
-    arrays = load_joint_arrays(t_path, q_path, dq_path, tau_path)
-    doc = {"action": "none", "source": "arrays", **parse_meta(meta_pairs)}
-    for key, argument in (("pose_q", "pose_q_rad"), ("target_q", "target_q_rad")):
-        if key in doc:
-            doc[argument] = doc.pop(key)
-    doc["with_hand"] = bool(doc.get("with_hand", True))
+    """Write a validated session from array files; return its path. The files are read a
+    block at a time into temporary files and the session written a row group at a time
+    (:func:`contactkit.recorder.arrays.spill_joint_arrays`), in bounded memory."""
+    spills = spill_joint_arrays(t_path, q_path, dq_path, tau_path)
     try:
-        meta = session_meta(**doc, source_info={
-            "imported_from": [str(p) for p in (t_path, q_path, dq_path, tau_path)]})
-        meta.check()
-    except (InputError, TypeError) as err:
-        raise InputError(f"bad metadata: {err}") from err
-    columns = {"t": arrays["t"]}
-    for prefix in ("q", "dq", "tau"):
-        for col, values in zip(joint_columns(prefix), arrays[prefix].T, strict=True):
-            columns[col] = values
-    return write_imported_session(columns, meta, out_dir, name)
+        doc = {"action": "none", "source": "arrays", **parse_meta(meta_pairs)}
+        for key, argument in (("pose_q", "pose_q_rad"), ("target_q", "target_q_rad")):
+            if key in doc:
+                doc[argument] = doc.pop(key)
+        doc["with_hand"] = bool(doc.get("with_hand", True))
+        try:
+            meta = session_meta(**doc, source_info={
+                "imported_from": [str(p) for p in (t_path, q_path, dq_path, tau_path)]})
+            meta.check()
+        except (InputError, TypeError) as err:
+            raise InputError(f"bad metadata: {err}") from err
+
+        def times() -> Iterator[np.ndarray]:
+            return (t[:, 0] for t in spills["t"].chunks(BLOCK_ROWS))
+
+        def chunks() -> Iterator[dict[str, np.ndarray]]:
+            for start in range(0, spills["t"].rows, BLOCK_ROWS):
+                columns = {"t": spills["t"].read(start, start + BLOCK_ROWS)[:, 0]}
+                for prefix in ("q", "dq", "tau"):
+                    block = spills[prefix].read(start, start + BLOCK_ROWS)
+                    columns.update(zip(joint_columns(prefix), block.T, strict=True))
+                yield columns
+
+        return write_imported_chunks(times, chunks, meta, out_dir, name)
+    finally:
+        for spill in spills.values():
+            spill.close()

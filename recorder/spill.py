@@ -37,6 +37,12 @@ class RowSpill:
                              tempfile.gettempdir()) from err
         self.rows += len(values)
 
+    def regroup(self, width: int) -> None:
+        """Read the same values from now on as rows of ``width`` (the values in order,
+        their count a multiple of ``width``)."""
+        self.rows = self.rows * self.width // width
+        self.width = width
+
     def read(self, start: int, stop: int) -> np.ndarray:
         """Return rows ``start`` up to ``stop`` as an (n, width) array."""
         row_bytes = self.width * self.dtype.itemsize

@@ -13,7 +13,8 @@ from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
 
 from contactkit.features.extract import SessionFeatures, feature_rows
-from contactkit.schemas import InputError
+from contactkit.recorder import arrays, importer
+from contactkit.schemas import InputError, read_session
 from contactkit.schemas.features import read_feature_table
 from tests.conftest import make_session, run_cli
 
@@ -107,3 +108,28 @@ def test_import_arrays_round_trip(reference_dir: Path, tmp_path: Path) -> None:
     assert bad.returncode == 2 and "wrong joint count" in bad.stderr
     bad_meta = run_cli(*args[:-2], "--out", str(tmp_path / "o"), "--meta", "colour=red")
     assert bad_meta.returncode == 2 and "bad metadata pair 'colour=red'" in bad_meta.stderr
+
+
+def test_import_arrays_streamed_in_blocks(reference_dir: Path, tmp_path: Path,
+                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """Text and .npy files read, and the session written, a few rows at a time give the
+    table of one block for the whole recording (and of the arrays loaded whole)."""
+    whole = arrays.load_joint_arrays(*(reference_dir / f for f in (
+        "time.txt", "positions.txt", "velocity.txt", "torques.txt")))
+    for name, values in whole.items():
+        np.save(tmp_path / f"{name}.npy", values[:3000])
+    texts = [reference_dir / f for f in ("time.txt", "positions.txt", "velocity.txt",
+                                         "torques.txt")]
+    npys = [tmp_path / f"{name}.npy" for name in ("t", "q", "dq", "tau")]
+    tables = {}
+    for block in (5, 1_000_000):
+        monkeypatch.setattr(arrays, "BLOCK_LINES", block)
+        monkeypatch.setattr(importer, "BLOCK_ROWS", block)
+        for kind, files in (("text", texts), ("npy", npys)):
+            out = tmp_path / f"{kind}{block}"
+            out.mkdir()
+            tables[kind, block] = read_session(importer.import_arrays(
+                *files, out, ["with_hand=false"])).table
+    for kind in ("text", "npy"):
+        assert tables[kind, 5].equals(tables[kind, 1_000_000])
+    assert np.array_equal(tables["npy", 5].column("q_3").to_numpy(), whole["q"][:3000, 2])
