@@ -21,11 +21,16 @@ from contactkit.features.chain_cache import chain_series
 from contactkit.features.observer import ObserverConfig
 from contactkit.features.scalars import SCALARS, scalar_features
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
+from contactkit.features.window_stream import streamed_window_values
 from contactkit.features.windows import Window, WindowSpec, find_window
 from contactkit.schemas import InputError, Session, read_session
+from contactkit.schemas.session import ROW_GROUP_ROWS, read_session_meta
 from contactkit.util.parallel import map_ordered, split_problems
 
 DEFAULT_TIMESERIES = ("dq", "tau", "r")
+STREAMED_ABOVE_ROWS = ROW_GROUP_ROWS
+"""Session files with more samples (about 65 s at 1 kHz) are read batch by batch for
+their window's features, without the chain cache; shorter ones are read whole."""
 DEFAULT_SCALARS = ("range",)
 
 
@@ -118,21 +123,32 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
         return row
 
     def session_row(self, session: Session | str | Path) -> tuple[np.ndarray, list[str], Window]:
-        """Return (values, names, window) for one session."""
-        if not isinstance(session, Session):
-            session = read_session(session)
-        session = session.complete()
+        """Return (values, names, window) for one session. A session file longer than
+        :data:`STREAMED_ABOVE_ROWS` samples is read batch by batch, keeping only what
+        its window needs (:mod:`contactkit.features.window_stream`)."""
         names = expand(list(self.timeseries))
         spec = self.window_spec
+        if not isinstance(session, Session):
+            _, footer = read_session_meta(session)
+            if footer.num_rows > STREAMED_ABOVE_ROWS:
+                values, window = streamed_window_values(session, spec, self.chain_config(),
+                                                        names)
+                return self._scalar_row(values, names, window, Path(session))
+            session = read_session(session)
+        session = session.complete()
         needed = list(dict.fromkeys(names + ([spec.signal] if spec.method in
                                              ("difference", "change") else [])))
         series = chain_series(session, self.chain_config(), needed)
         window = session_window(session, spec, series.get(spec.signal))
-        mask = window.mask(session.t)
-        if mask.sum() < 2:
+        values = np.column_stack([series[n] for n in names])[window.mask(session.t)]
+        return self._scalar_row(values, names, window, session.path)
+
+    def _scalar_row(self, values: np.ndarray, names: list[str], window: Window,
+                    path: Path | None) -> tuple[np.ndarray, list[str], Window]:
+        """Return (scalar features, their names, window) of a window's samples."""
+        if len(values) < 2:
             raise InputError(f"window {window.start_s:.3f}-{window.end_s:.3f} s holds fewer "
-                             "than 2 samples (session too short?)", session.path)
-        values = np.column_stack([series[n] for n in names])[mask]
+                             "than 2 samples (session too short?)", path)
         channels = [c for n in names for c in columns_of(n)]
         row, labels = scalar_features(values, list(self.scalars), channels, self.fft_k)
         return row, labels, window
@@ -160,11 +176,10 @@ def _session_feature_row(job: tuple[str, dict]) -> tuple[str, dict | None, str |
     path, params = job
     extractor = SessionFeatures(**params)
     try:
-        session = read_session(path)
-        values, names, window = extractor.session_row(session)
+        meta, _ = read_session_meta(path)
+        values, names, window = extractor.session_row(path)
     except InputError as err:
         return Path(path).name, None, err.problem
-    meta = session.meta
     row = {"file": Path(path).name, "session_id": meta.session_id, "action": meta.action,
            "condition": meta.condition, "pose": meta.pose, "target_pose": meta.target_pose,
            "link": meta.link, "operator": meta.operator, "speed_rad_s": meta.speed_rad_s,

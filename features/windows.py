@@ -170,7 +170,7 @@ class WindowSearch:
         self._span: tuple[float, float] | None = None
         self._threshold: float | None = None
         self._reference: float | None = None
-        self._last_s = math.nan
+        self._last_s = self._last_t = math.nan
         self._pending_t = np.zeros(0)
         self._pending_s = np.zeros(0)
 
@@ -181,6 +181,8 @@ class WindowSearch:
             return math.inf
         if len(self._pending_t):
             return float(self._pending_t[0])
+        if self._threshold is not None:  # every candidate fed so far is decided
+            return math.nextafter(self._last_t, math.inf)
         return -math.inf if self._span is None else self._span[1]
 
     def _planned(self) -> Window:
@@ -205,7 +207,7 @@ class WindowSearch:
         if spec.calibration == "thesis" and self._reference is None:
             at = np.flatnonzero(t >= self.planned_at_s - length)
             self._reference = float(s[at[0]]) if at.size else None
-        self._last_s = float(s[-1])
+        self._last_s, self._last_t = float(s[-1]), float(t[-1])
         candidates = t > t_ce
         if not candidates.any():
             return

@@ -133,3 +133,25 @@ def test_import_arrays_streamed_in_blocks(reference_dir: Path, tmp_path: Path,
     for kind in ("text", "npy"):
         assert tables[kind, 5].equals(tables[kind, 1_000_000])
     assert np.array_equal(tables["npy", 5].column("q_3").to_numpy(), whole["q"][:3000, 2])
+
+
+@pytest.mark.parametrize("params", [
+    {}, {"window": "change"}, {"window": "difference", "calibration": "thesis"},
+    {"window": "fixed", "shift_s": 0.1}, {"window": "planned", "window_s": 0.3},
+    {"signal": "r", "timeseries": ["r", "f"], "scalars": ["range", "mean", "variance", "fft"]},
+])
+def test_long_session_window_features_streamed(tmp_path: Path, params: dict,
+                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """Read batch by batch (97-sample batches), keeping only what the window needs, the
+    features equal those of the whole session (to 1e-9), for every window method."""
+    from contactkit.features import chain_cache, extract
+
+    monkeypatch.setenv("CONTACTKIT_CHAIN_CACHE", "0")
+    path = make_session(tmp_path, duration_s=3.0, planned_at_s=1.5)
+    extractor = SessionFeatures(**params)
+    whole, names, window = extractor.session_row(path)
+    monkeypatch.setattr(extract, "STREAMED_ABOVE_ROWS", 0)
+    monkeypatch.setattr(chain_cache, "BATCH_ROWS", 97)
+    streamed, streamed_names, streamed_window = extractor.session_row(path)
+    assert streamed_names == names and streamed_window == window
+    np.testing.assert_allclose(streamed, whole, rtol=1e-9, atol=1e-9)
