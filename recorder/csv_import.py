@@ -7,7 +7,8 @@ state twice with two time stamps, and keeping both would halve the apparent time
 step and put zero-velocity steps into every difference.
 
 Long files import in bounded memory: the file is parsed once in blocks of
-:data:`BLOCK_ROWS` rows (Polars' streaming CSV reader) into temporary files
+:data:`BLOCK_ROWS` lines (each by ``pl.read_csv``, the header before each; Polars'
+own streaming reader memory-maps the file and its RSS grew with it) into temporary files
 (:class:`contactkit.recorder.spill.RowSpill`), because the row counts (metadata) and
 the first problem in column order are known only at its end; the session is then
 written from them a row group at a time.
@@ -15,6 +16,7 @@ written from them a row group at a time.
 
 from __future__ import annotations
 
+import io
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -90,6 +92,39 @@ def spill_csv(path: Path, cmap: CsvMap) -> CsvSpill:
     return spill
 
 
+def _blocks(path: Path, separator: str) -> Iterator[pl.DataFrame]:
+    """Yield the file's header as an empty frame, then its data rows in frames of about
+    :data:`BLOCK_ROWS` rows, every value a string, parsed by Polars as ``pl.read_csv``
+    parses the whole file (lines are gathered until their double quotes pair up, so a
+    quoted field may span lines)."""
+    with open(path, "rb") as fh:
+        header = _record(fh, fh.readline())
+        yield _frame(header, [], separator)
+        lines: list[bytes] = []
+        for line in fh:
+            lines.append(_record(fh, line))
+            if len(lines) >= BLOCK_ROWS:
+                yield _frame(header, lines, separator)
+                lines = []
+        if lines:
+            yield _frame(header, lines, separator)
+
+
+def _record(fh, line: bytes) -> bytes:
+    """Return ``line`` with the lines that follow while a quoted field is open."""
+    while line.count(b'"') % 2:
+        more = fh.readline()
+        if not more:
+            break
+        line += more
+    return line
+
+
+def _frame(header: bytes, lines: list[bytes], separator: str) -> pl.DataFrame:
+    return pl.read_csv(io.BytesIO(header + b"".join(lines)), separator=separator,
+                       infer_schema=False)
+
+
 def _what(cmap: CsvMap) -> dict[str, str]:
     """Return what each mapped column is, for messages ("time", "q joint 1", ...)."""
     what = {cmap.time_column: "time"}
@@ -102,13 +137,13 @@ def _what(cmap: CsvMap) -> dict[str, str]:
 
 def _parse(path: Path, cmap: CsvMap, names: list[str], spill: CsvSpill) -> None:
     what = _what(cmap)
-    lazy = pl.scan_csv(path, separator=cmap.delimiter, infer_schema=False)
     problems: dict[str, str] = {}
     label_problem = back_problem = None
     rows = kept = 0
     last_measured = last_t = None
     try:
-        header = lazy.collect_schema().names()
+        blocks = _blocks(path, cmap.delimiter)
+        header = next(blocks).columns
         for name in names:
             if name not in header:
                 problems[name] = f"no column {name!r} ({what[name]} in the map)"
@@ -116,8 +151,7 @@ def _parse(path: Path, cmap: CsvMap, names: list[str], spill: CsvSpill) -> None:
                 problems[name] = (f"column {name!r} ({what[name]}) appears more than once "
                                   "in the header")
         present = [n for n in dict.fromkeys(names) if n not in problems]
-        read = present or header[:1]  # at least one column, to count the rows
-        for frame in lazy.select(read).collect_batches(chunk_size=BLOCK_ROWS):
+        for frame in blocks:
             values = {}
             for name in present:
                 values[name], problem = _numeric(frame, name, rows, what[name])

@@ -152,15 +152,20 @@ def test_import_refuses_to_overwrite(mindlab_dir: Path, tmp_path: Path) -> None:
 def test_streamed_import_does_not_depend_on_the_block(mindlab_dir: Path, tmp_path: Path,
                                                       monkeypatch: pytest.MonkeyPatch) -> None:
     """The file is parsed and written a block at a time: blocks of 7 rows give the
-    table and counts of one block for the whole file (repeated rows across blocks)."""
+    table and counts of one block for the whole file (repeated rows across blocks, a
+    quoted field over two lines)."""
+    frame = pl.read_csv(mindlab_dir / "a4.csv", infer_schema=False)
+    notes = [f"line one\nline two, {i}" if i % 50 == 3 else "" for i in range(frame.height)]
+    csv = tmp_path / "a4_notes.csv"
+    frame.with_columns(pl.Series("note", notes)).write_csv(csv)
     written = []
     for block_rows in (7, 1_000_000):
         monkeypatch.setattr(csv_import, "BLOCK_ROWS", block_rows)
         meta = session_meta(source="csv", action="none", condition="static", pose="A")
         out = tmp_path / str(block_rows)
         out.mkdir()
-        written.append(validate_session(import_csv(mindlab_dir / "a4.csv", load_csv_map(MAP),
-                                                   meta, out)))
+        written.append(validate_session(import_csv(csv, load_csv_map(MAP), meta, out)))
     assert written[0].table.equals(written[1].table)
     assert written[0].meta.source_info == written[1].meta.source_info
     assert written[0].meta.nominal_rate_hz == written[1].meta.nominal_rate_hz
+    assert written[0].n_samples == written[0].meta.source_info["samples"] > 1000
