@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -166,6 +167,8 @@ def run_case(case: str, minutes: float, directory: Path, model: Path | None = No
         from contactkit.features.per_sample import write_per_sample_table
     elif case == "windows":
         from contactkit.features.extract import SessionFeatures, feature_rows
+
+        os.environ["CONTACTKIT_CHAIN_CACHE"] = "0"  # short sessions: no cache hit, none left
     elif case == "stats-deep":
         from contactkit.recorder.stats_deep import session_summary
     elif case == "import-bag":

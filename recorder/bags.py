@@ -351,7 +351,7 @@ def _read_messages(reader: Any, path: Path, chosen: str, label_topic: str | None
     connections = [c for c in reader.connections if c.topic in wanted]
     expected = sum(c.msgcount for c in connections if c.topic == chosen)
     error = None
-    messages = iter(reader.messages(connections=connections))
+    messages = _lazily(lambda: reader.messages(connections=connections))
     try:
         while error is None:
             try:
@@ -389,6 +389,12 @@ def _read_messages(reader: Any, path: Path, chosen: str, label_topic: str | None
     if error is not None:
         out.info["read_error"] = error
     return out
+
+
+def _lazily(start: Any) -> Iterator[Any]:
+    """Yield from ``start()``, called at the first ``next``: its errors come from there,
+    where the reading loop catches them."""
+    yield from start()
 
 
 def _export_row(topic: str, msg: Any) -> Any:
