@@ -28,7 +28,8 @@ class RowSpill:
     def append(self, values: np.ndarray) -> None:
         """Append rows: ``values`` (n, width), or (n,) for width 1; InputError naming the
         temporary directory when it is full or not writable."""
-        values = np.ascontiguousarray(values, dtype=self.dtype).reshape(-1, self.width)
+        values = np.ascontiguousarray(values, dtype=self.dtype)
+        values = values.reshape(len(values), self.width)
         try:
             self._file.seek(0, 2)
             self._file.write(values.tobytes())
@@ -47,8 +48,8 @@ class RowSpill:
         """Return rows ``start`` up to ``stop`` as an (n, width) array."""
         row_bytes = self.width * self.dtype.itemsize
         stop = min(stop, self.rows)
-        if stop <= start:
-            return np.zeros((0, self.width), self.dtype)
+        if stop <= start or row_bytes == 0:
+            return np.zeros((max(stop - start, 0), self.width), self.dtype)
         self._file.seek(start * row_bytes)
         data = self._file.read((stop - start) * row_bytes)
         return np.frombuffer(data, dtype=self.dtype).reshape(-1, self.width)
