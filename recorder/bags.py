@@ -130,7 +130,8 @@ class _Stacked:
 
     def read(self, start: int, stop: int) -> np.ndarray:
         """Return the values of messages ``start`` up to ``stop``, each of ``shape``."""
-        return self.spill.read(start, stop).reshape(-1, *self.shape)
+        rows = self.spill.read(start, stop)
+        return rows.reshape(len(rows), *self.shape)
 
     def close(self) -> None:
         """Remove the temporary file."""
