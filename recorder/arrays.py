@@ -138,7 +138,8 @@ def _npy(path: Path) -> tuple[RowSpill, int]:
         for start in range(0, shape[0], BLOCK_LINES):
             rows = min(BLOCK_LINES, shape[0] - start)
             data = fh.read(rows * row_values * dtype.itemsize)
-            spill.append(np.frombuffer(data, dtype=dtype).astype(np.float64))
+            spill.append(np.frombuffer(data, dtype=dtype).astype(np.float64)
+                         .reshape(rows, row_values))
     return spill, len(shape)
 
 
