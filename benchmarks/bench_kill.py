@@ -31,26 +31,13 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 
+from contactkit.recorder.journal import journal_progress
+
 BIN = Path(sys.executable).parent
 RATE_HZ = 1000.0
 FLUSH_S = 0.1
 ARGS = ["--pose", "C", "--action", "shove", "--seed", "21", "--duration", "8",
         "--planned-at", "4", "--rate", str(RATE_HZ)]
-
-
-def journal_state(directory: Path) -> tuple[int, float]:
-    """Return the complete samples the journal in ``directory`` holds now and the time
-    [s] of its last sample ((0, 0.0) when there is none yet)."""
-    from contactkit.recorder.journal import read_journal
-    from contactkit.schemas import InputError
-
-    for journal in directory.glob("*.journal"):
-        try:
-            table = read_journal(journal).table
-        except InputError:
-            return 0, 0.0
-        return table.num_rows, float(table.column("t")[-1].as_py()) if table.num_rows else 0.0
-    return 0, 0.0
 
 
 def kill_once(directory: Path, after_s: float) -> tuple[float, int, float | None]:
@@ -70,10 +57,10 @@ def kill_once(directory: Path, after_s: float) -> tuple[float, int, float | None
             if started + after_s - now > 1.0:
                 time.sleep(started + after_s - now - 1.0)
                 continue
-            before, t_last = journal_state(directory)
+            before, t_last = journal_progress(directory)
             polls.append((time.monotonic(), t_last))
             time.sleep(0.02)
-        before, t_last = journal_state(directory)
+        before, t_last = journal_progress(directory)
         proc.send_signal(signal.SIGKILL)
         killed = time.monotonic()
     finally:

@@ -222,6 +222,23 @@ def journal_batches(path: str | Path) -> Iterator[pa.RecordBatch]:
     yield from _complete_batches(reader, [False])
 
 
+def journal_progress(directory: str | Path) -> tuple[int, float]:
+    """Return how far the capture journalling into ``directory`` has come: its complete
+    samples and the time [s] of the last one ((0, 0.0) when there is no journal yet,
+    or its header is still being written). Reads one batch at a time."""
+    for journal in Path(directory).glob("*" + JOURNAL_SUFFIX):
+        samples, last_t = 0, 0.0
+        try:
+            for batch in journal_batches(journal):
+                if batch.num_rows:
+                    samples += batch.num_rows
+                    last_t = float(batch.column("t")[-1].as_py())
+        except InputError:
+            return 0, 0.0
+        return samples, last_t
+    return 0, 0.0
+
+
 def read_journal(path: str | Path) -> JournalContents:
     """Read every complete record batch of a journal (a torn last batch is dropped)."""
     reader, meta = _open_journal(Path(path))

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, settings
 
+from contactkit.recorder.journal import journal_progress
 from contactkit.recorder.sim import SimConfig, plan_session
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
 from contactkit.schemas import write_session
@@ -146,20 +147,6 @@ def make_dataset(directory: Path, poses=("A", "B", "C", "D"), repeats: int = 2,
     return directory
 
 
-def journal_samples(directory: Path) -> int:
-    """Return the complete samples the capture journal in ``directory`` holds now (0 when
-    there is none yet, or its header is still being written)."""
-    from contactkit.recorder.journal import read_journal
-    from contactkit.schemas import InputError
-
-    for journal in directory.glob("*.journal"):
-        try:
-            return read_journal(journal).table.num_rows
-        except InputError:
-            return 0
-    return 0
-
-
 def kill_when_journal_holds(command: list[str], directory: Path, samples: int,
                             timeout_s: float = 180.0) -> tuple[int, int]:
     """Start ``command`` (a capture into ``directory``) and SIGKILL it as soon as its
@@ -176,7 +163,7 @@ def kill_when_journal_holds(command: list[str], directory: Path, samples: int,
             deadline = time.monotonic() + timeout_s
             held = 0
             while proc.poll() is None and time.monotonic() < deadline:
-                held = journal_samples(directory)
+                held = journal_progress(directory)[0]
                 if held >= samples:
                     break
                 time.sleep(0.02)
