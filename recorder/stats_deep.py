@@ -6,8 +6,9 @@ force, the estimated force profile around the interaction, how the Difference wi
 was found, the delay between planned and detected onset, joint-limit proximity and
 the file's SHA-256.
 
-The session is read batch by batch, several times, so memory stays bounded however
-long the session is: one pass validates it and takes the extremes, moments and the
+The session is read batch by batch, several times (a session of at most one row
+group, 65,536 samples, is read once and its batches kept), so memory stays bounded
+however long the session is: one pass validates it and takes the extremes, moments and the
 Difference window (:class:`contactkit.features.windows.WindowSearch`); the medians
 (median step, the robust noise sigmas, the residual's median) are exact, found by
 radix selection in a few more passes (:func:`contactkit.util.exact_median.exact_medians`);
@@ -37,6 +38,7 @@ from contactkit.features.windows import WindowSearch, WindowSpec
 from contactkit.schemas import InputError, SessionMeta
 from contactkit.schemas.session import (
     REQUIRED_COLUMNS,
+    ROW_GROUP_ROWS,
     complete_table,
     iter_session_batches,
     joint_columns,
@@ -64,14 +66,28 @@ def file_sha256(path: Path) -> str:
 
 
 class _Chunks:
-    """One session's complete samples (every joint value present), read again batch by
-    batch on each call; each chunk is (t (n,) [s], q, dq, tau (n, 7))."""
+    """One session's complete samples (every joint value present), batch by batch on
+    each call; each chunk is (t (n,) [s], q, dq, tau (n, 7)). A file of at most
+    ``ROW_GROUP_ROWS`` samples is read once, by the first, validating call, and its
+    chunks are kept for the later passes; a longer one is read again on each call."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, rows: int) -> None:
         self.path = path
+        self._keep = rows <= ROW_GROUP_ROWS
+        self._kept: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = None
 
     def __call__(self, validate_all: bool = False
                  ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        if self._kept is not None:
+            return iter(self._kept)
+        chunks = self._read(validate_all)
+        if self._keep and validate_all:
+            self._kept = list(chunks)
+            return iter(self._kept)
+        return chunks
+
+    def _read(self, validate_all: bool
+              ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
         columns = None if validate_all else REQUIRED_COLUMNS
         for batch in iter_session_batches(self.path, chain_cache.BATCH_ROWS, columns):
             table = complete_table(pa.Table.from_batches([batch]))
@@ -157,14 +173,14 @@ def session_summary(path: str) -> dict:
     """Measure one session; on a bad file return ``{"file": name, "problem": text}``."""
     name = Path(path).name
     try:
-        meta, _ = read_session_meta(path)
-        return _summary(Path(path), meta)
+        meta, footer = read_session_meta(path)
+        return _summary(Path(path), meta, footer.num_rows)
     except InputError as err:
         return {"file": name, "problem": err.problem}
 
 
-def _summary(path: Path, meta: SessionMeta) -> dict:
-    chunks = _Chunks(path)
+def _summary(path: Path, meta: SessionMeta, rows: int) -> dict:
+    chunks = _Chunks(path, rows)
     planned = meta.planned_at_s
     search = WindowSearch(planned, WindowSpec("difference")) if planned is not None else None
     tau_moments = RunningMoments()

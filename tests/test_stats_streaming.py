@@ -83,9 +83,13 @@ def sessions(tmp_path_factory) -> list[Path]:
             _with_gaps(shove)]
 
 
+@pytest.mark.parametrize("kept_up_to_rows", [0, stats_deep.ROW_GROUP_ROWS],
+                         ids=["read-on-each-pass", "read-once"])
 @pytest.mark.parametrize("batch_rows", [97, 1000, chain_cache.BATCH_ROWS])
-def test_streamed_summary_equals_the_whole_session(sessions, batch_rows, monkeypatch) -> None:
+def test_streamed_summary_equals_the_whole_session(sessions, batch_rows, kept_up_to_rows,
+                                                   monkeypatch) -> None:
     monkeypatch.setattr(chain_cache, "BATCH_ROWS", batch_rows)
+    monkeypatch.setattr(stats_deep, "ROW_GROUP_ROWS", kept_up_to_rows)
     monkeypatch.setattr(exact_median, "COLLECT_AT", 40)  # radix passes, not one partition
     for path in sessions:
         got, want = stats_deep.session_summary(str(path)), _whole_session_summary(path)
