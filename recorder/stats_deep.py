@@ -14,7 +14,8 @@ Difference window (:class:`contactkit.features.windows.WindowSearch`); the media
 radix selection in a few more passes (:func:`contactkit.util.exact_median.exact_medians`);
 one pass runs the feature chain batch by batch
 (:class:`contactkit.features.timeseries.ChunkedChain`) and spills the residual after
-the first second to an anonymous temporary file for its median. The numbers equal
+the first second to a temporary file (:class:`contactkit.recorder.spill.RowSpill`)
+for its median. The numbers equal
 those of the whole session held at once up to rounding (1e-12 relative for the
 chunked chain, 1e-15 for the merged moments).
 """
@@ -23,10 +24,8 @@ from __future__ import annotations
 
 import hashlib
 import math
-import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import BinaryIO
 
 import numpy as np
 import pyarrow as pa
@@ -35,6 +34,7 @@ from contactkit.features import chain_cache
 from contactkit.features.dynamics import PandaModel
 from contactkit.features.timeseries import ChunkedChain
 from contactkit.features.windows import WindowSearch, WindowSpec
+from contactkit.recorder.spill import RowSpill
 from contactkit.schemas import InputError, SessionMeta
 from contactkit.schemas.session import (
     REQUIRED_COLUMNS,
@@ -157,18 +157,6 @@ class _Profile:
         return np.interp(self.times, t, force, left=np.nan, right=np.nan)
 
 
-def _residual_medians(spill: BinaryIO, rows: int) -> np.ndarray:
-    """Return the exact median of each residual column [Nm] spilled to ``spill`` (rows
-    of 7 float64), read back a batch at a time."""
-    def read() -> Iterator[np.ndarray]:
-        spill.seek(0)
-        block = chain_cache.BATCH_ROWS * 7 * 8
-        while chunk := spill.read(block):
-            yield np.frombuffer(chunk, dtype=np.float64).reshape(-1, 7)
-
-    return exact_medians(read) if rows else np.zeros(7)
-
-
 def session_summary(path: str) -> dict:
     """Measure one session; on a bad file return ``{"file": name, "problem": text}``."""
     name = Path(path).name
@@ -208,8 +196,8 @@ def _summary(path: Path, meta: SessionMeta, rows: int) -> dict:
     profile = _Profile(onset + PROFILE_T) if onset is not None else None
     chain = ChunkedChain(None, meta.with_hand, ["r", "fm_norm"])
     peak_residual = peak_force = -math.inf
-    settled = 0
-    with tempfile.TemporaryFile() as spill:
+    settled = RowSpill(7)
+    try:
         for t, q, dq, tau in chunks():
             series = chain.compute(t, q, dq, tau)
             residual, force = series["r"], series["fm_norm"][:, 0]
@@ -217,10 +205,11 @@ def _summary(path: Path, meta: SessionMeta, rows: int) -> dict:
             peak_force = max(peak_force, float(force.max()))
             if profile is not None:
                 profile.add(t, force)
-            after = residual[t > first_t + RESIDUAL_SETTLE_S]
-            spill.write(np.ascontiguousarray(after).tobytes())
-            settled += len(after)
-        residual_median = _residual_medians(spill, settled)
+            settled.append(residual[t > first_t + RESIDUAL_SETTLE_S])
+        residual_median = (exact_medians(lambda: settled.chunks(chain_cache.BATCH_ROWS))
+                           if settled.rows else np.zeros(7))
+    finally:
+        settled.close()
     out = {"file": path.name, "session_id": meta.session_id, "action": meta.action,
            "condition": meta.condition, "sha256": file_sha256(path),
            "duration_s": duration, "sampling": sampling,
