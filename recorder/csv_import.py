@@ -26,8 +26,8 @@ import polars as pl
 from contactkit.recorder.csv_map import CsvMap
 from contactkit.recorder.importer import write_imported_chunks
 from contactkit.recorder.metadata import session_filename
-from contactkit.recorder.spill import RowSpill
-from contactkit.schemas import InputError, SessionMeta, joint_columns
+from contactkit.recorder.spill import RowSpill, spilled_session_chunks, spilled_times
+from contactkit.schemas import InputError, SessionMeta
 
 BLOCK_ROWS = 16_384
 """CSV rows parsed (and session rows written) at a time."""
@@ -50,25 +50,22 @@ class CsvSpill:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        for spill in (self.time, *self.joints.values(), self.contact):
-            if spill is not None:
-                spill.close()
+        for spill in self._spills().values():
+            spill.close()
+
+    def _spills(self) -> dict[str, RowSpill]:
+        spills = {"t": self.time, **self.joints}
+        if self.contact is not None:
+            spills["contact"] = self.contact
+        return spills
 
     def times(self) -> Iterator[np.ndarray]:
         """Yield the kept samples' times [s], a block at a time."""
-        return (t[:, 0] for t in self.time.chunks(BLOCK_ROWS))
+        return spilled_times(self.time, BLOCK_ROWS)
 
     def chunks(self) -> Iterator[dict[str, np.ndarray]]:
         """Yield the session columns of the kept samples, a block at a time."""
-        for start in range(0, self.time.rows, BLOCK_ROWS):
-            stop = start + BLOCK_ROWS
-            columns = {"t": self.time.read(start, stop)[:, 0]}
-            for prefix, spill in self.joints.items():
-                block = spill.read(start, stop)
-                columns.update(zip(joint_columns(prefix), block.T, strict=True))
-            if self.contact is not None:
-                columns["contact"] = self.contact.read(start, stop)[:, 0]
-            yield columns
+        return spilled_session_chunks(self._spills(), BLOCK_ROWS)
 
 
 def spill_csv(path: Path, cmap: CsvMap) -> CsvSpill:

@@ -12,7 +12,8 @@ import pyarrow as pa
 
 from contactkit.recorder.arrays import spill_joint_arrays
 from contactkit.recorder.metadata import session_filename, session_meta
-from contactkit.schemas import InputError, SessionMeta, joint_columns, write_session
+from contactkit.recorder.spill import spilled_session_chunks, spilled_times
+from contactkit.schemas import InputError, SessionMeta, write_session
 from contactkit.schemas.session import table_from_columns, write_session_batches
 from contactkit.schemas.timing import chunked_steps
 from contactkit.util.exact_median import exact_medians
@@ -126,18 +127,9 @@ def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out
         except (InputError, TypeError) as err:
             raise InputError(f"bad metadata: {err}") from err
 
-        def times() -> Iterator[np.ndarray]:
-            return (t[:, 0] for t in spills["t"].chunks(BLOCK_ROWS))
-
-        def chunks() -> Iterator[dict[str, np.ndarray]]:
-            for start in range(0, spills["t"].rows, BLOCK_ROWS):
-                columns = {"t": spills["t"].read(start, start + BLOCK_ROWS)[:, 0]}
-                for prefix in ("q", "dq", "tau"):
-                    block = spills[prefix].read(start, start + BLOCK_ROWS)
-                    columns.update(zip(joint_columns(prefix), block.T, strict=True))
-                yield columns
-
-        return write_imported_chunks(times, chunks, meta, out_dir, name)
+        return write_imported_chunks(lambda: spilled_times(spills["t"], BLOCK_ROWS),
+                                     lambda: spilled_session_chunks(spills, BLOCK_ROWS),
+                                     meta, out_dir, name)
     finally:
         for spill in spills.values():
             spill.close()

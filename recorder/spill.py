@@ -8,11 +8,11 @@ the session from it afterwards, so memory holds one chunk, not the whole recordi
 from __future__ import annotations
 
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 
 import numpy as np
 
-from contactkit.schemas import InputError
+from contactkit.schemas import N_JOINTS, InputError, joint_columns
 
 
 class RowSpill:
@@ -62,3 +62,27 @@ class RowSpill:
     def close(self) -> None:
         """Remove the file."""
         self._file.close()
+
+
+def spilled_times(time: RowSpill, block_rows: int) -> Iterator[np.ndarray]:
+    """Yield spilled time stamps [s] (rows of one value) as (n,) arrays, ``block_rows``
+    at a time."""
+    return (t[:, 0] for t in time.chunks(block_rows))
+
+
+def spilled_session_chunks(spills: Mapping[str, RowSpill], block_rows: int
+                           ) -> Iterator[dict[str, np.ndarray]]:
+    """Yield session columns from spills holding the same samples, ``block_rows`` at a
+    time, in the spills' order: a spill of rows of 7 gives the joint columns of its
+    prefix (``q`` -> ``q_1`` .. ``q_7``), one of rows of one value the column of its
+    name (``t``, ``contact``)."""
+    rows = min(spill.rows for spill in spills.values())
+    for start in range(0, rows, block_rows):
+        columns: dict[str, np.ndarray] = {}
+        for name, spill in spills.items():
+            block = spill.read(start, start + block_rows)
+            if spill.width == N_JOINTS:
+                columns.update(zip(joint_columns(name), block.T, strict=True))
+            else:
+                columns[name] = block[:, 0]
+        yield columns
