@@ -114,50 +114,25 @@ def find_window(t: np.ndarray, planned_at_s: float, spec: WindowSpec,
         return planned
     if signal_values is None:
         raise ValueError("the difference and change methods need the signal values")
-    s = detection_signal(signal_values)
-    if spec.calibration == "thesis":
-        t_cs = planned_at_s - CALIBRATION_LEAD_S
-        t_ce = t_cs + length
-    else:
-        t_cs, t_ce = t[0] + SETTLE_S, planned_at_s - length
-    calibration = (t >= t_cs) & (t <= t_ce)
-    if calibration.sum() < 2:
-        return planned
-    threshold = spec.c * float(np.std(s[calibration]))
-    candidates = np.flatnonzero(t > t_ce)
-    if candidates.size == 0:
-        return planned
-    if spec.method == "difference":
-        if spec.calibration == "thesis":
-            a_index = min(int(np.searchsorted(t, planned_at_s - length)), len(t) - 1)
-            reference = s[a_index]
-        else:
-            reference = float(np.mean(s[calibration]))
-        hits = candidates[np.abs(reference - s[candidates]) > threshold]
-    else:
-        b_index = np.searchsorted(t, t[candidates] + CHANGE_LAG_S)
-        valid = b_index < len(t)
-        a_idx, b_idx = candidates[valid], b_index[valid]
-        hits = b_idx[np.abs(s[a_idx] - s[b_idx]) > threshold]
-    if hits.size == 0:
-        return planned
-    onset = float(t[hits[0]])
-    return Window(onset, onset + length, spec.method, True, onset)
+    search = WindowSearch(planned_at_s, spec)
+    search.feed(t, signal_values)
+    return search.finish()
 
 
 class WindowSearch:
-    """:func:`find_window` over a session streamed in consecutive chunks, in memory
-    bounded by the method's look-ahead (0.15 s for ``change``; for the thesis
+    """The difference and change methods' search over a session streamed in
+    consecutive chunks (:func:`find_window` feeds it the whole session as one), in
+    memory bounded by the method's look-ahead (0.15 s for ``change``; for the thesis
     calibration of ``difference``, the samples between the calibration's end and the
     reference time), not by the session's length.
 
     Feed each chunk's ``t`` [s] and signal values (n, 7) to :meth:`feed`, then call
     :meth:`finish` for the window. :attr:`window` is known as soon as the onset is
     found (or the planned fallback is certain); :attr:`undecided_from_s` is the earliest
-    time that may still become the onset. Equal to :func:`find_window` on the whole
-    session, except that the calibration's mean and standard deviation are merged chunk
-    by chunk (equal to about 1e-15 relative; a sample within that of the threshold
-    could fall the other way).
+    time that may still become the onset. Fed in several chunks, the calibration's mean
+    and standard deviation are merged chunk by chunk (equal to the one-chunk values to
+    about 1e-15 relative; a sample within that of the threshold could fall the other
+    way).
     """
 
     def __init__(self, planned_at_s: float, spec: WindowSpec) -> None:
