@@ -242,9 +242,13 @@ def start_watchdog(budget_s: float) -> threading.Timer:
     def give_up() -> None:
         print(f"viewer_check: error: the browser stopped answering; gave up after "
               f"{budget_s:.0f} s", file=sys.stderr, flush=True)
-        for child in psutil.Process().children(recursive=True):
+        children = psutil.Process().children(recursive=True)
+        for child in children:
             with contextlib.suppress(psutil.Error):
                 child.kill()
+        # SIGKILL lands asynchronously: wait (bounded) until they are gone, so that a
+        # caller that sees the exit code sees no child left behind
+        psutil.wait_procs(children, timeout=10.0)
         os._exit(STALLED)
 
     timer = threading.Timer(budget_s, give_up)
