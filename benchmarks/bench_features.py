@@ -26,6 +26,7 @@ from contactkit.features.timeseries import OnlineChain, TimeseriesChain
 from contactkit.recorder.arrays import load_joint_arrays
 from contactkit.recorder.sim import SimConfig, plan_session
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
+from contactkit.robots import RobotSetup
 from contactkit.schemas import read_session, write_session
 
 REFERENCE = Path(__file__).resolve().parents[2] / "shared/reference/gaz2019-exciting-traj"
@@ -81,12 +82,12 @@ def main() -> None:
     print(f"{'recording':<16} {'samples':>7} {'chain us':>9} {'bare us':>8} {'ratio':>6} "
           f"{'RT @1kHz':>9} {'stream p50':>11} {'stream p99':>11}")
     for name, data, with_hand in (simulated_session(), reference_session()):
-        chain = TimeseriesChain(with_hand=with_hand)
+        chain = TimeseriesChain(robot=RobotSetup(with_hand=with_hand))
         n = len(data["t"])
         chain_s = best_of(3, lambda chain=chain, data=data: chain.compute(
             data["t"], data["q"], data["dq"], data["tau"]))
         bare_s = best_of(3, lambda chain=chain, data=data: bare_calls(chain, data))
-        online = OnlineChain(with_hand=with_hand)
+        online = OnlineChain(robot=RobotSetup(with_hand=with_hand))
         latencies = np.empty(n)
         gc.collect()
         for k in range(n):

@@ -18,14 +18,14 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 import pinocchio as pin
 
-from contactkit.recorder.sim import PandaSimulator, SimConfig, plan_session
+from contactkit.recorder.sim import ArmSimulator, SimConfig, plan_session
 
 SIM_SECONDS = 6.0
 
 
 def bare_pinocchio_seconds_per_sim_second(config: SimConfig, batch: int) -> float:
     """Wall time of the batched pinocchio calls for one simulated second of ``batch``."""
-    sim = PandaSimulator(config)
+    sim = ArmSimulator(config)
     q = np.asfortranarray(np.tile(np.array([0.0, -0.78, 0.0, -2.36, 0.0, 1.57, 0.78])[:, None],
                                   (1, batch)))
     v = np.asfortranarray(np.full_like(q, 0.1))
@@ -43,7 +43,7 @@ def simulate_seconds(config: SimConfig, batch: int) -> float:
     """Wall time to simulate ``batch`` static shove sessions of SIM_SECONDS each."""
     specs = [plan_session(seed=k, condition="static", action="shove", pose="C", link=7,
                           duration_s=SIM_SECONDS, planned_at_s=2.0) for k in range(batch)]
-    sim = PandaSimulator(config)
+    sim = ArmSimulator(config)
     start = time.perf_counter()
     for _ in sim.run(specs):
         pass

@@ -12,6 +12,7 @@ labelled real recordings can be used too). A session with contact but without a
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,8 +23,10 @@ from contactkit.features.detector import (
     calibrate,
     calibration_samples,
 )
-from contactkit.features.timeseries import TimeseriesChain
+from contactkit.features.timeseries import ChainConfig, TimeseriesChain
+from contactkit.robots import canonical_robot_name
 from contactkit.schemas import InputError, Session, read_session
+from contactkit.schemas.session import read_session_meta
 from contactkit.util.parallel import map_ordered
 from contactkit.util.progress import ProgressCallback
 
@@ -50,13 +53,14 @@ def no_contact_stretches(session: Session) -> list[np.ndarray]:
     return [run for run in runs if t[run[-1]] - t[run[0]] >= MIN_STRETCH_S]
 
 
-def session_calibration_data(path: str | Path, template: DetectorConfig | None = None
-                             ) -> list[CalibrationData]:
+def session_calibration_data(path: str | Path, template: DetectorConfig | None = None,
+                             robot: str | None = None) -> list[CalibrationData]:
     """Read one session and return the detector's calibration samples of each of its
-    no-contact stretches (the observer restarts on each stretch)."""
+    no-contact stretches (the observer restarts on each stretch); ``robot`` names the
+    arm's model instead of the session's own."""
     session = read_session(path).complete()
     template = template or DetectorConfig()
-    chain = TimeseriesChain(with_hand=session.meta.with_hand)
+    chain = TimeseriesChain.for_session(session.meta, ChainConfig(robot=robot), path)
     r = chain.compute(session.t, session.q, session.dq, session.tau, ["r"])["r"]
     t, dq = session.t, session.dq
     return [calibration_samples(t[run], r[run], dq[run], template)
@@ -66,20 +70,25 @@ def session_calibration_data(path: str | Path, template: DetectorConfig | None =
 def calibrate_sessions(paths: Sequence[str | Path], template: DetectorConfig | None = None,
                        margin: float = 1.5, workers: int = 1,
                        progress: ProgressCallback | None = None,
-                       motion_margin: float | None = None) -> DetectorConfig:
+                       motion_margin: float | None = None,
+                       robot: str | None = None) -> DetectorConfig:
     """Calibrate the detector on the no-contact samples of ``paths`` (``margin`` and
-    ``motion_margin`` as in :func:`~contactkit.features.detector.calibrate`); return
-    its settings, with the session count in ``source``."""
+    ``motion_margin`` as in :func:`~contactkit.features.detector.calibrate`; ``robot``
+    the arm's model instead of each session's own); return its settings, with the
+    session count in ``source`` and, when every session is of one arm, its name in
+    ``robot`` (the settings then apply to that arm as they are)."""
     template = template or DetectorConfig()
-    parts = [part for parts in map_ordered(_job, [(str(p), template) for p in paths],
+    parts = [part for parts in map_ordered(_job, [(str(p), template, robot) for p in paths],
                                            workers=workers, progress=progress)
              for part in parts]
     if not parts:
         raise InputError("no no-contact stretch of at least "
                          f"{MIN_STRETCH_S} s in the given sessions")
-    return calibrate(parts, template, margin, source={"sessions": len(paths)},
-                     motion_margin=motion_margin)
+    robots = {canonical_robot_name(robot or read_session_meta(p)[0].robot) for p in paths}
+    config = calibrate(parts, template, margin, source={"sessions": len(paths)},
+                       motion_margin=motion_margin)
+    return replace(config, robot=robots.pop() if len(robots) == 1 else None)
 
 
-def _job(item: tuple[str, DetectorConfig]) -> list[CalibrationData]:
+def _job(item: tuple[str, DetectorConfig, str | None]) -> list[CalibrationData]:
     return session_calibration_data(*item)

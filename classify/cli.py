@@ -45,11 +45,11 @@ from contactkit.features.detector import DetectorConfig, load_calibration, save_
 from contactkit.features.extract import SessionFeatures, feature_rows
 from contactkit.features.per_sample import write_per_sample_table
 from contactkit.features.scalars import SCALARS
-from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS
+from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS, ChainConfig
 from contactkit.features.windows import METHODS
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.features import write_feature_table
-from contactkit.util.cli import SchedulerOpt, new_app, run_app
+from contactkit.util.cli import RobotOpt, SchedulerOpt, new_app, run_app
 from contactkit.util.parallel import available_cpus, use_scheduler
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar
 
@@ -108,6 +108,7 @@ def features_command(
              "tau_inv_*, ddq_*, p_int_*, p_ext_*, f_x.. m_norm).")] = False,
     workers: Annotated[int, typer.Option(help="Parallel processes.")] = DEFAULT_WORKERS,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
+    robot: RobotOpt = None,
 ) -> None:
     """Compute features of a session or dataset: one row per session (scalar features
     of the interaction window), or with --per-sample one row per sample."""
@@ -116,12 +117,14 @@ def features_command(
     with progress_bar("per-sample features" if per_sample else "features") as bar:
         progress = bar_callback(bar, "sessions")
         if per_sample:
-            _, problems = write_per_sample_table(files, out, progress)
+            _, problems = write_per_sample_table(files, out, progress,
+                                                 ChainConfig(robot=robot))
             _skipped(problems)
             print(out)
             return
         extractor = SessionFeatures(timeseries=list(_split(timeseries)), scalars=list(
-            _split(scalars)), window=Method(window).value, window_s=window_s).fit(None)
+            _split(scalars)), window=Method(window).value, window_s=window_s,
+            robot=robot).fit(None)
         result = feature_rows(files, extractor, workers, progress)
     _skipped(result.problems)
     if not result.rows:
@@ -248,6 +251,7 @@ def predict_command(
         help="Contact detector calibration (overrides the model's detector).")] = None,
     decide_after: Annotated[float | None, typer.Option(
         help="Time after onset at which an event's intent is decided [s].")] = None,
+    robot: RobotOpt = None,
 ) -> None:
     """Predict the contact class of sessions with a trained model, or (--events) the
     contact events the model's detector finds and the intent decided for each."""
@@ -259,9 +263,9 @@ def predict_command(
             raise InputError("model carries no contact detector; give --calibration",
                              model_path)
         for source in sessions:
-            _print_events(model, source, detector, decide_after, as_json)
+            _print_events(model, source, detector, decide_after, as_json, robot)
         return
-    predictions, problems = predict_sources(model, sessions)
+    predictions, problems = predict_sources(model, sessions, robot)
     _skipped(problems)
     if not predictions:
         raise InputError("nothing to predict")
@@ -276,11 +280,11 @@ def predict_command(
 
 
 def _print_events(model, source: Path, detector: DetectorConfig, decide_after: float | None,
-                  as_json: bool) -> None:
+                  as_json: bool, robot: str | None) -> None:
     events_model = model.event_model()
     for path in session_paths(source):
         session = read_session(path)
-        for event in session_events(session, detector, events_model, decide_after):
+        for event in session_events(session, detector, events_model, decide_after, robot):
             if as_json:
                 print(json.dumps({"session": str(path), "event": event.to_dict()}))
             else:
@@ -302,6 +306,7 @@ def calibrate_command(
              "--margin). Wider when calibrating on another arm than the one it runs on, "
              "such as a simulated one.")] = None,
     workers: Annotated[int, typer.Option(help="Parallel worker processes.")] = 1,
+    robot: RobotOpt = None,
 ) -> None:
     """Calibrate the contact detector on a robot's no-contact sessions: record a minute
     of free motion and holds, calibrate, then pass --calibration robot.json to replay
@@ -314,7 +319,7 @@ def calibrate_command(
     with progress_bar("calibrating") as bar:
         config = calibrate_sessions(paths, margin=margin, workers=workers,
                                     progress=bar_callback(bar, "sessions"),
-                                    motion_margin=motion_margin)
+                                    motion_margin=motion_margin, robot=robot)
     save_calibration(out, config)
     print(f"{out}: thresholds at rest {[round(v, 2) for v in config.noise]} Nm, "
           f"per rad/s {[round(v, 2) for v in config.speed]}, "

@@ -20,6 +20,7 @@ import numpy as np
 from contactkit.classify.events import ContactEvent, EventModel, EventPipeline
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.timeseries import ChainConfig, OnlineChain
+from contactkit.robots import RobotSetup
 from contactkit.schemas import joint_columns
 
 Report = Callable[[str, ContactEvent], None]
@@ -43,17 +44,18 @@ class LiveEvents:
     """Capture listener: per sample observer -> detector -> decide -> hold.
 
     ``chain`` is the feature chain configuration of the model (its observer),
-    ``with_hand`` whether the arm carries its hand, ``detector`` and ``model`` the
+    ``robot`` the arm being recorded, ``detector`` and ``model`` the
     contact detector settings and intent classifier, ``decide_after_s`` [s] the
     decision delay (None: the model's), ``report`` receives every onset, decision
     and release as it happens.
     """
 
-    def __init__(self, chain: ChainConfig, with_hand: bool, detector: DetectorConfig,
+    def __init__(self, chain: ChainConfig, robot: RobotSetup, detector: DetectorConfig,
                  model: EventModel | None = None, decide_after_s: float | None = None,
                  report: Report | None = None) -> None:
-        self.chain = OnlineChain(chain, with_hand)
-        self.pipeline = EventPipeline(detector, model, decide_after_s)
+        self.chain = OnlineChain(chain, robot)
+        self.pipeline = EventPipeline(detector.for_robot(self.chain.model.spec), model,
+                                      decide_after_s)
         self.report = report
         self.samples = 0
         self._columns = [joint_columns(prefix) for prefix in ("q", "dq", "tau")]

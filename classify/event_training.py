@@ -78,14 +78,14 @@ def session_events(path: str | Path, detector: DetectorConfig,
     return one :class:`SessionEvents` per delay."""
     session = read_session(path).complete()
     meta = session.meta
-    chain = TimeseriesChain(with_hand=meta.with_hand)
+    chain = TimeseriesChain.for_session(meta, path=path)
     t, dq = session.t, session.dq
     r = chain.compute(t, session.q, dq, session.tau, ["r"])["r"]
     contact = None
     if session.has("contact") and session.column("contact").any():
         touched = np.flatnonzero(session.column("contact"))
         contact = (float(t[touched[0]]), float(t[touched[-1]]))
-    detection = detect(t, r, dq, detector)
+    detection = detect(t, r, dq, detector.for_robot(chain.model.spec))
     group = meta.target_pose or meta.pose or ""
     return [SessionEvents(str(path), meta.action, group, contact,
                           batch_events(t, r, detection, None, delay))

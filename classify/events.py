@@ -43,7 +43,7 @@ from contactkit.features.detector import (
     DetectorConfig,
     detect,
 )
-from contactkit.features.timeseries import TimeseriesChain
+from contactkit.features.timeseries import ChainConfig, TimeseriesChain
 from contactkit.schemas import Session
 
 PRE_S = 0.05  # s of samples before the onset in the decision window
@@ -247,10 +247,14 @@ def stream_events(t: np.ndarray, r: np.ndarray, dq: np.ndarray,
 
 
 def session_events(session: Session, detector: DetectorConfig, model: EventModel | None = None,
-                   decide_after_s: float | None = None) -> list[ContactEvent]:
-    """Return the contact events of a whole session (observer, detector, pipeline)."""
+                   decide_after_s: float | None = None, robot: str | None = None
+                   ) -> list[ContactEvent]:
+    """Return the contact events of a whole session (observer, detector, pipeline);
+    ``robot`` names the arm's model instead of the session's own. The detector is
+    adapted to the arm (:meth:`DetectorConfig.for_robot`)."""
     session = session.complete()
     t, dq = session.t, session.dq
-    chain = TimeseriesChain(with_hand=session.meta.with_hand)
+    chain = TimeseriesChain.for_session(session.meta, ChainConfig(robot=robot), session.path)
     r = chain.compute(t, session.q, dq, session.tau, ["r"])["r"]
+    detector = detector.for_robot(chain.model.spec)
     return batch_events(t, r, detect(t, r, dq, detector), model, decide_after_s)

@@ -132,7 +132,7 @@ def session_grid_and_window(session: Session, spec: GridSpec,
     if augmentation is None:
         series = chain_series(session, config, needed)
     else:
-        series = TimeseriesChain(config, session.meta.with_hand).compute(
+        series = TimeseriesChain.for_session(session.meta, config, session.path).compute(
             session.t, session.q, session.dq, tau, needed)
     planned = session.meta.planned_at_s
     if planned is None:

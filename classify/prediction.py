@@ -72,11 +72,12 @@ def predict_table(model: ModelFile, table: Path) -> list[Prediction]:
     return _rows(model, proba, data.info["file"], data.info["action"])
 
 
-def predict_sources(model: ModelFile, sources: Sequence[Path]
+def predict_sources(model: ModelFile, sources: Sequence[Path], robot: str | None = None
                     ) -> tuple[list[Prediction], list[InputError]]:
     """Predict every session of the sources (session files, dataset directories or
-    feature tables). Return the predictions in order and the sessions that could not
-    be used (unreadable, window too short), which do not stop the others."""
+    feature tables), with the arm's model ``robot`` instead of each session's own when
+    given. Return the predictions in order and the sessions that could not be used
+    (unreadable, window too short), which do not stop the others."""
     pipeline = model.pipeline()
     predictions: list[Prediction] = []
     problems: list[InputError] = []
@@ -87,6 +88,7 @@ def predict_sources(model: ModelFile, sources: Sequence[Path]
         for path in session_paths(source):
             try:
                 session = read_session(path)
+                session.meta = session.meta.with_robot(robot)
                 proba = pipeline.predict_proba([session])
             except InputError as err:
                 problems.append(err)

@@ -101,7 +101,7 @@ def run_events(path: Path, detector, model, decide_after_s=None):
     """Return a session's events and per-sample labels (streaming pipeline)."""
     session = read_session(path)
     t, dq = session.t, session.dq
-    r = TimeseriesChain(with_hand=session.meta.with_hand).compute(t, session.q, dq,
+    r = TimeseriesChain.for_session(session.meta).compute(t, session.q, dq,
                                                                   session.tau, ["r"])["r"]
     return stream_events(t, r, dq, detector, model, decide_after_s)
 
@@ -203,7 +203,7 @@ def true_onset_events(path: str, delays: tuple[float, ...]) -> list[SessionEvent
     release at its end (the ceiling of the intent classifier, not of the detector)."""
     session = read_session(path).complete()
     t = session.t
-    r = TimeseriesChain(with_hand=session.meta.with_hand).compute(
+    r = TimeseriesChain.for_session(session.meta).compute(
         t, session.q, session.dq, session.tau, ["r"])["r"]
     baseline, intervals, contact = np.zeros_like(r), [], None
     if session.has("contact") and session.column("contact").any():
@@ -324,7 +324,7 @@ def missed_contact_peak(path: str, detector) -> tuple[float, bool]:
     least REST_SPEED)."""
     session = read_session(path).complete()
     t = session.t
-    r = TimeseriesChain(with_hand=session.meta.with_hand).compute(
+    r = TimeseriesChain.for_session(session.meta).compute(
         t, session.q, session.dq, session.tau, ["r"])["r"]
     found = detect(t, r, session.dq, detector)
     touched = np.flatnonzero(session.column("contact"))
@@ -349,7 +349,7 @@ def held_pose_residual(paths: list) -> dict[str, tuple[float, float, float]]:
     for path in paths:
         session = read_session(path).complete()
         keep = session.t - session.t[0] > 1.0
-        r = TimeseriesChain(with_hand=session.meta.with_hand).compute(
+        r = TimeseriesChain.for_session(session.meta).compute(
             session.t, session.q, session.dq, session.tau, ["r"])["r"][keep]
         found.setdefault(session.meta.pose, []).append(
             (float(r[:, 0].std()), float(r[:, 2].std()),

@@ -38,6 +38,7 @@ from contactkit.features.timeseries import (
     columns_of,
     expand,
 )
+from contactkit.robots import RobotSetup
 from contactkit.schemas import Session
 from contactkit.schemas.session import complete_table, joint_columns
 from contactkit.util.cache import cache_dir
@@ -58,7 +59,9 @@ def _key(session: Session, config: ChainConfig) -> str | None:
     except OSError:
         return None
     doc = {"file": str(path), "size": stat.st_size, "mtime_ns": stat.st_mtime_ns,
-           "samples": session.n_samples, "with_hand": session.meta.with_hand,
+           "samples": session.n_samples,
+           "robot": asdict(config.robot_setup(session.meta, session.path)),
+           "urdf_sha256": session.meta.urdf_sha256,
            "config": asdict(config)}
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
 
@@ -77,13 +80,13 @@ def _joints(table: pa.Table, prefix: str) -> np.ndarray:
     return np.column_stack([table.column(c).to_numpy() for c in joint_columns(prefix)])
 
 
-def write_chain_files(tables: Iterator[pa.Table], with_hand: bool, config: ChainConfig,
+def write_chain_files(tables: Iterator[pa.Table], robot: RobotSetup, config: ChainConfig,
                       targets: dict[str, Path]) -> None:
     """Stream a session's complete rows (``tables``, consecutive chunks) through the
     chunked chain and write each feature in ``targets`` (name -> Parquet path; its
     columns as in :func:`contactkit.features.timeseries.columns_of`) one row group per
     chunk, each file atomically."""
-    chain = ChunkedChain(config, with_hand, list(targets))
+    chain = ChunkedChain(config, robot, list(targets))
     writers: dict[str, pq.ParquetWriter] = {}
     temps = {name: path.with_name(f".{path.name}.{os.getpid()}.tmp")
              for name, path in targets.items()}
@@ -122,14 +125,15 @@ def chain_series(session: Session, config: ChainConfig | None = None,
     """Return the named timeseries features of ``session`` (name -> (N, k) array, units
     as in :mod:`contactkit.features.timeseries`), the expensive ones from the cache
     when this session file and ``config`` were computed before. Equal to
-    ``TimeseriesChain(config, session.meta.with_hand).compute(...)`` on the complete
+    ``TimeseriesChain(config, config.robot_setup(session.meta)).compute(...)`` on the complete
     samples (exactly for sessions up to ``BATCH_ROWS`` samples, to about 1e-12 beyond)."""
     config = config or ChainConfig()
     names = expand(list(names))
     session = session.complete()
     key = _key(session, config)
+    robot = config.robot_setup(session.meta, session.path)
     if key is None:
-        return TimeseriesChain(config, session.meta.with_hand).compute(
+        return TimeseriesChain(config, robot).compute(
             session.t, session.q, session.dq, session.tau, names)
     directory = cache_dir() / "chain" / key
     rows = session.n_samples
@@ -137,22 +141,22 @@ def chain_series(session: Session, config: ChainConfig | None = None,
     missing = {n: directory / f"{n}.parquet" for n, v in stored.items() if v is None}
     if missing:
         directory.mkdir(parents=True, exist_ok=True)
-        write_chain_files(_session_tables(session), session.meta.with_hand, config, missing)
+        write_chain_files(_session_tables(session), robot, config, missing)
         stored.update({n: _read(path, n, rows) for n, path in missing.items()})
     cheap = [n for n in names if n not in CACHED]
-    computed = TimeseriesChain(config, session.meta.with_hand).compute(
+    computed = TimeseriesChain(config, robot).compute(
         session.t, session.q, session.dq, session.tau, cheap) if cheap else {}
     return {n: stored[n] if n in CACHED else computed[n] for n in names}
 
 
-def iter_chain_batches(tables: Iterator[pa.Table], with_hand: bool,
+def iter_chain_batches(tables: Iterator[pa.Table], robot: RobotSetup,
                        config: ChainConfig | None = None,
                        names: Sequence[str] = ("dq", "tau", "r")
                        ) -> Iterator[tuple[pa.Table, dict[str, np.ndarray]]]:
     """Yield each chunk of a session's complete rows (``tables``) with its features
     (name -> (n, k) array), computed by one :class:`ChunkedChain`: memory is bounded
     by one chunk."""
-    chain = ChunkedChain(config or ChainConfig(), with_hand, list(names))
+    chain = ChunkedChain(config or ChainConfig(), robot, list(names))
     for table in tables:
         if table.num_rows:
             yield table, chain.compute(table.column("t").to_numpy(), _joints(table, "q"),

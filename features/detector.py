@@ -51,6 +51,7 @@ import numpy as np
 from scipy.optimize import linprog
 
 from contactkit.errors import InputError
+from contactkit.robots import RobotSpec
 
 N_JOINTS = 7
 FORMAT = "contactkit-detector/1"
@@ -71,7 +72,9 @@ def _seven(value: object, name: str) -> tuple[float, ...]:
 class DetectorConfig:
     """Detector settings. Per joint (7 values each): ``noise`` [Nm] at rest,
     ``speed`` [Nm per rad/s of |dq|], ``accel`` [Nm per rad/s^2 of |ddq|]. Timing
-    in seconds; ``release`` is the score below which a contact ends (< 1)."""
+    in seconds; ``release`` is the score below which a contact ends (< 1).
+    ``robot`` is the registry name of the arm the settings were calibrated on (None:
+    not recorded); :meth:`for_robot` adapts them to another arm."""
 
     noise: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 0.5, 0.5, 0.5)
     speed: tuple[float, ...] = (2.0,) * N_JOINTS
@@ -84,6 +87,7 @@ class DetectorConfig:
     motion_hold_s: float = 0.5
     warmup_s: float = 0.3
     smooth_s: float = 0.03
+    robot: str | None = None
     source: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
@@ -105,6 +109,21 @@ class DetectorConfig:
     def to_dict(self) -> dict:
         """Return the settings as a JSON-ready document (with its format tag)."""
         return {"format": FORMAT, **asdict(self)}
+
+    def for_robot(self, robot: RobotSpec) -> DetectorConfig:
+        """Return the settings for sessions of ``robot``: these, when they were
+        calibrated on it; else with its detector defaults applied (the at-rest
+        thresholds raised to ``robot.detector_floor_nm`` and the growth with speed and
+        acceleration times ``robot.detector_motion_scale``), as when the default
+        model's detector, calibrated on a simulated Panda, runs on a real FR3."""
+        if self.robot == robot.name:
+            return self
+        floor = robot.detector_floor_nm or (0.0,) * N_JOINTS
+        scale = robot.detector_motion_scale
+        return replace(self, noise=tuple(max(n, f) for n, f in zip(self.noise, floor,
+                                                                  strict=True)),
+                       speed=tuple(scale * v for v in self.speed),
+                       accel=tuple(scale * v for v in self.accel), robot=robot.name)
 
     @classmethod
     def from_dict(cls, doc: dict, where: str | Path | None = None) -> DetectorConfig:

@@ -42,7 +42,9 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
     ``window_s`` length [s], ``shift_s`` for fixed windows [s], ``signal`` and
     ``calibration`` of the detection methods, ``scalars`` (see
     :mod:`contactkit.features.scalars`), ``fft_k``, observer ``gain`` [1/s] and ``friction``,
-    ``wrench_frame`` ("ee" or a link 1..7). Defaults are the thesis's best SVM
+    ``wrench_frame`` ("ee" or a link 1..7), ``robot`` the arm's model instead of each
+    session's own (None: the session's, see :mod:`contactkit.robots`). Defaults are
+    the thesis's best SVM
     input: the range of joint velocity, torque and residual in a 0.5 s window.
     """
 
@@ -50,8 +52,8 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
                  window: str = "difference", window_s: float = 0.5, shift_s: float = 0.0,
                  signal: str = "tau", calibration: str = "pre-contact",
                  scalars: Sequence[str] = DEFAULT_SCALARS, fft_k: int = 3,
-                 gain: float = 50.0, friction: bool = True, wrench_frame: str | int = "ee"
-                 ) -> None:
+                 gain: float = 50.0, friction: bool = True, wrench_frame: str | int = "ee",
+                 robot: str | None = None) -> None:
         self.timeseries = timeseries
         self.window = window
         self.window_s = window_s
@@ -63,6 +65,7 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
         self.gain = gain
         self.friction = friction
         self.wrench_frame = wrench_frame
+        self.robot = robot
 
     def _check(self) -> None:
         try:
@@ -83,7 +86,7 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
     def chain_config(self) -> ChainConfig:
         """The feature-chain settings."""
         return ChainConfig(ObserverConfig(gain=self.gain, friction=self.friction),
-                           self.wrench_frame)
+                           self.wrench_frame, self.robot)
 
     def config(self) -> dict:
         """Return the parameters as JSON-ready values (stored with tables and models)."""
@@ -211,7 +214,7 @@ def timeseries_columns(session: Session, config: ChainConfig | None = None
     """Return every timeseries feature of every sample of a session, as flat columns:
     ``t``, then ``q_1``.., ``r_1``.., ``f_x``.., ``m_norm``
     (see :mod:`contactkit.features.timeseries`)."""
-    chain = TimeseriesChain(config, session.meta.with_hand)
+    chain = TimeseriesChain.for_session(session.meta, config, session.path)
     series = chain.compute(session.t, session.q, session.dq, session.tau)
     columns = {"t": session.t}
     for name, values in series.items():

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contactkit.features.dynamics import GAZ_FRICTION, FrictionModel
+from contactkit.robots import FrictionModel, RobotSpec
 
 DEFAULT_GAIN = 50.0
 BLOCK_DECAY = np.log(1e-3)
@@ -39,7 +39,7 @@ BLOCK_DECAY = np.log(1e-3)
 @dataclass(frozen=True)
 class ObserverConfig:
     """Observer settings: gain K_O [1/s] (scalar or 7 values) and friction compensation
-    with the identified model."""
+    with the robot's identified model (where it has one)."""
 
     gain: float | tuple[float, ...] = DEFAULT_GAIN
     friction: bool = True
@@ -48,9 +48,10 @@ class ObserverConfig:
         """Return K_O as a (7,) array [1/s]."""
         return np.broadcast_to(np.asarray(self.gain, dtype=float), (7,)).copy()
 
-    def friction_model(self) -> FrictionModel | None:
-        """Return the friction model used for compensation, or None."""
-        return GAZ_FRICTION if self.friction else None
+    def friction_model(self, robot: RobotSpec) -> FrictionModel | None:
+        """Return the friction model used for compensation on ``robot``: its identified
+        model when compensation is on and it has one, else None."""
+        return robot.friction if self.friction else None
 
 
 def observer_coefficients(t: np.ndarray, p: np.ndarray, u: np.ndarray, gain: np.ndarray

@@ -39,7 +39,9 @@ def per_sample_tables(path: str | Path, config: ChainConfig | None = None
     meta, _ = read_session_meta(path)
     for _ in iter_session_batches(path, chain_cache.BATCH_ROWS):
         pass
-    for table, series in iter_chain_batches(_complete_batches(path), meta.with_hand, config,
+    config = config or ChainConfig()
+    for table, series in iter_chain_batches(_complete_batches(path),
+                                            config.robot_setup(meta, path), config,
                                             ALL_TIMESERIES):
         columns = {"session_id": pa.array([meta.session_id] * table.num_rows),
                    "t": table.column("t")}
@@ -50,12 +52,13 @@ def per_sample_tables(path: str | Path, config: ChainConfig | None = None
 
 
 def write_per_sample_table(files: Sequence[Path], out: Path,
-                           progress: ProgressCallback | None = None
+                           progress: ProgressCallback | None = None,
+                           config: ChainConfig | None = None
                            ) -> tuple[int, list[InputError]]:
     """Write one row per sample of every readable session (``session_id`` and the
-    columns of :func:`contactkit.features.extract.timeseries_columns`) to ``out``
-    atomically, one row group per batch of a session; return the number of sessions
-    written and the ones refused."""
+    columns of :func:`contactkit.features.extract.timeseries_columns`, computed with
+    ``config``) to ``out`` atomically, one row group per batch of a session; return the
+    number of sessions written and the ones refused."""
     out = Path(out)
     tmp = out.with_name(f".{out.name}.tmp")
     writer = None
@@ -63,7 +66,7 @@ def write_per_sample_table(files: Sequence[Path], out: Path,
     try:
         for i, path in enumerate(files):
             try:
-                tables = per_sample_tables(path)
+                tables = per_sample_tables(path, config)
                 for table in tables:
                     if writer is None:
                         writer = pq.ParquetWriter(tmp, table.schema, compression="zstd")

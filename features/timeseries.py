@@ -40,17 +40,21 @@ under 1 %.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
-from contactkit.features.dynamics import PandaModel
+from contactkit.errors import InputError
 from contactkit.features.observer import (
     ObserverConfig,
     RecurrenceStep,
     observer_coefficients,
     solve_recurrence,
 )
+from contactkit.robots import RobotSetup
+from contactkit.robots.model import RobotModel
+from contactkit.schemas.session import SessionMeta
 
 SENSOR = ("q", "dq", "tau", "ddq", "p_int")
 MODEL = ("r", "g", "tau_inv", "p_ext")
@@ -90,18 +94,30 @@ def expand(names: tuple[str, ...] | list[str]) -> list[str]:
 @dataclass(frozen=True)
 class ChainConfig:
     """Feature-chain settings: the observer and the wrench frame ("ee" for the end
-    effector, or a link 1..7). Whether the arm carries the hand comes from each
-    session's metadata."""
+    effector, or a link 1..7). Which arm, and whether it carries its hand, comes from
+    each session's metadata (:meth:`SessionMeta.robot_setup`), unless ``robot`` names
+    the model to use instead (``--robot``: a session recorded before its arm was
+    named, or a comparison of models)."""
 
     observer: ObserverConfig = field(default_factory=ObserverConfig)
     wrench_frame: str | int = "ee"
+    robot: str | None = None
 
-    def model(self, with_hand: bool) -> PandaModel:
-        """Return the Panda model the chain uses."""
-        return PandaModel(with_hand)
+    def robot_setup(self, meta: SessionMeta, path: str | Path | None = None) -> RobotSetup:
+        """Return the arm the chain models for a session with metadata ``meta``: the
+        session's own, or :attr:`robot` in its place. Raises InputError naming ``path``
+        for an unknown robot or a URDF that is not the session's."""
+        try:
+            return meta.with_robot(self.robot).robot_setup(path)
+        except InputError as err:
+            raise InputError(err.problem, path or err.path) from err
+
+    def model(self, robot: RobotSetup) -> RobotModel:
+        """Return the dynamics model the chain uses for ``robot``."""
+        return RobotModel(robot)
 
 
-def _frame_id(model: PandaModel, wrench_frame: str | int) -> int:
+def _frame_id(model: RobotModel, wrench_frame: str | int) -> int:
     return model.frame_id(model.end_effector if wrench_frame == "ee" else wrench_frame)
 
 
@@ -128,12 +144,21 @@ class TimeseriesChain:
     """Batch chain: all samples of a session at once, or of one chunk of it after the
     :class:`ChainState` of the chunk before (see :class:`ChunkedChain`)."""
 
-    def __init__(self, config: ChainConfig | None = None, with_hand: bool = True) -> None:
+    def __init__(self, config: ChainConfig | None = None,
+                 robot: RobotSetup | None = None) -> None:
         self.config = config or ChainConfig()
-        self.model = self.config.model(with_hand)
+        self.model = self.config.model(robot or RobotSetup())
         self._pool = pin.ModelPool(self.model.model, 1)
         self._gain = self.config.observer.gain_vector()
-        self._friction = self.config.observer.friction_model()
+        self._friction = self.config.observer.friction_model(self.model.spec)
+
+    @classmethod
+    def for_session(cls, meta: SessionMeta, config: ChainConfig | None = None,
+                    path: str | Path | None = None) -> TimeseriesChain:
+        """Return the chain for a session with metadata ``meta`` (its arm, or the one
+        ``config.robot`` names; InputError naming ``path`` for an unknown robot)."""
+        config = config or ChainConfig()
+        return cls(config, config.robot_setup(meta, path))
 
     def _rnea(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
         out = np.zeros_like(q, order="F")
@@ -217,9 +242,9 @@ class ChunkedChain:
     the observer's closed form splits at other places), with memory bounded by one
     chunk."""
 
-    def __init__(self, config: ChainConfig | None = None, with_hand: bool = True,
+    def __init__(self, config: ChainConfig | None = None, robot: RobotSetup | None = None,
                  names: list[str] | tuple[str, ...] = ALL_TIMESERIES) -> None:
-        self.chain = TimeseriesChain(config, with_hand)
+        self.chain = TimeseriesChain(config, robot)
         self.names = expand(names)
         self.model = self.chain.model
         self._state: ChainState | None = None
@@ -244,11 +269,12 @@ def _wrench_features(wrench: np.ndarray) -> dict[str, np.ndarray]:
 class OnlineChain:
     """Streaming chain: one sample at a time, the same numbers as :class:`TimeseriesChain`."""
 
-    def __init__(self, config: ChainConfig | None = None, with_hand: bool = True) -> None:
+    def __init__(self, config: ChainConfig | None = None,
+                 robot: RobotSetup | None = None) -> None:
         self.config = config or ChainConfig()
-        self.model = self.config.model(with_hand)
+        self.model = self.config.model(robot or RobotSetup())
         self._fid = _frame_id(self.model, self.config.wrench_frame)
-        self._friction = self.config.observer.friction_model()
+        self._friction = self.config.observer.friction_model(self.model.spec)
         self._observer = RecurrenceStep(self.config.observer.gain_vector())
         self._zeros = np.zeros(7)
         self._last: tuple[float, np.ndarray] | None = None

@@ -68,7 +68,9 @@ def streamed_window_values(path: str | Path, spec: WindowSpec, config: ChainConf
     rows = fallback = None
     batches = iter_session_batches(path, chain_cache.BATCH_ROWS)
     tables = (complete_table(pa.Table.from_batches([batch])) for batch in batches)
-    for table, series in iter_chain_batches(tables, meta.with_hand, config, needed):
+    config = config or ChainConfig()
+    robot = config.robot_setup(meta, path)
+    for table, series in iter_chain_batches(tables, robot, config, needed):
         t = table.column("t").to_numpy()
         values = np.column_stack([series[n] for n in names])
         if rows is None:

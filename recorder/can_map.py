@@ -18,6 +18,7 @@ from importlib import resources
 from pathlib import Path
 
 from contactkit.recorder.map_file import load_map_file, one_of
+from contactkit.robots import canonical_robot_name
 from contactkit.schemas import N_JOINTS
 
 TYPES = {"int8": "b", "uint8": "B", "int16": "h", "uint16": "H", "int32": "i", "uint32": "I",
@@ -50,13 +51,15 @@ class FrameLayout:
 
 @dataclass(frozen=True)
 class FrameMap:
-    """A parsed frame map: SYNC id, CAN FD flag, and frame layouts by id."""
+    """A parsed frame map: SYNC id, CAN FD flag, frame layouts by id, and the arm the
+    bus carries (``robot``, a registry name of :mod:`contactkit.robots`; None: not said)."""
 
     name: str
     sync_id: int
     fd: bool
     frames: dict[int, FrameLayout]
     source: str
+    robot: str | None = None
 
     def describe(self) -> dict:
         """Return a JSON-ready description for session metadata."""
@@ -115,4 +118,6 @@ def _parse(doc: dict, source: str) -> FrameMap:
     missing = {(q, j) for q in QUANTITIES for j in range(1, N_JOINTS + 1)} - covered
     if missing:
         raise ValueError(f"no signal carries {sorted(missing)[0]}")
-    return FrameMap(doc.get("name", Path(source).stem), int(doc["sync_id"]), fd, frames, source)
+    robot = doc.get("robot")
+    return FrameMap(doc.get("name", Path(source).stem), int(doc["sync_id"]), fd, frames, source,
+                    None if robot is None else canonical_robot_name(str(robot)))

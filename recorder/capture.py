@@ -12,10 +12,12 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from contactkit.features.agreement import StreamAgreement
 from contactkit.recorder.journal import SessionWriter
 from contactkit.recorder.metadata import session_filename
 from contactkit.recorder.sources.base import Source
-from contactkit.schemas import InputError, SessionMeta
+from contactkit.robots import get_robot
+from contactkit.schemas import InputError, SessionMeta, joint_columns
 from contactkit.util.pacing import paced
 
 ChunkCallback = Callable[[dict[str, np.ndarray]], None]
@@ -82,6 +84,28 @@ class OperatorCue:
             self._say(t, f"NOW: {self.what.upper()}", bell=True)
 
 
+class AgreementListener:
+    """Measures the observer residual's agreement with the robot's own estimate while a
+    capture records (:class:`contactkit.features.agreement.StreamAgreement`) and leaves
+    it in the metadata's ``residual_agreement``. The arm's model is the one the source
+    names once its first chunk has arrived (a Franka robot's backend tells which arm)."""
+
+    def __init__(self, meta: SessionMeta, source: Source) -> None:
+        self.meta, self.source = meta, source
+        self.stream: StreamAgreement | None = None
+
+    def on_chunk(self, chunk: dict[str, np.ndarray]) -> None:
+        """Take the next chunk of session columns."""
+        if self.stream is None:
+            robot = self.source.metadata().get("robot", self.meta.robot)
+            self.stream = StreamAgreement(self.meta.with_robot(robot).robot_setup())
+        self.stream.add(chunk)
+
+    def session_fields(self) -> dict:
+        """Return the ``residual_agreement`` metadata field."""
+        return {"residual_agreement": None if self.stream is None else self.stream.result()}
+
+
 @dataclass
 class CaptureResult:
     """The written session path and how many samples it holds."""
@@ -100,7 +124,9 @@ def capture(source: Source, meta: SessionMeta, out_path: Path, *, realtime: bool
     reaches its last time stamp, as with a live robot; otherwise as fast as possible.
     ``on_chunk`` callbacks (for example a Rerun logger) see every chunk, and so do
     ``listeners``, whose :meth:`CaptureListener.session_fields` go into the session
-    metadata, written with the session (atomically). If the capture is interrupted,
+    metadata, written with the session (atomically). A source that records the robot's
+    own estimate (``tau_ext_hat``) gets the residual's agreement with it measured as it
+    goes (:class:`AgreementListener`). If the capture is interrupted,
     the journal stays for ``recorder recover`` (without the listeners' fields). An
     existing file at ``out_path`` is replaced only with ``overwrite``.
     """
@@ -108,6 +134,8 @@ def capture(source: Source, meta: SessionMeta, out_path: Path, *, realtime: bool
         out_path.unlink()
     rate = 1.0 if realtime and not source.live else None
     listeners = list(listeners or ())
+    if all(c in source.columns for c in joint_columns("tau_ext_hat")):
+        listeners.append(AgreementListener(meta, source))
     callbacks = list(on_chunk or ()) + [listener.on_chunk for listener in listeners]
     with SessionWriter(out_path, meta, source.columns, flush_interval_s) as writer:
         for chunk in paced(source.stream(), lambda c: c["t"][-1], rate, origin_s=0.0):
@@ -118,6 +146,9 @@ def capture(source: Source, meta: SessionMeta, out_path: Path, *, realtime: bool
                 cue.update(float(chunk["t"][-1]))
         for key, value in source.metadata().items():
             setattr(writer.meta, key, value)
+        # a source may name its arm only once connected (a Franka robot's backend)
+        writer.meta.urdf_sha256 = get_robot(writer.meta.robot).urdf_sha256(
+            writer.meta.with_hand)
         for listener in listeners:
             for key, value in listener.session_fields().items():
                 setattr(writer.meta, key, value)

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import numpy as np
 import typer
 from rich.console import Console
 
@@ -29,11 +30,12 @@ from contactkit.recorder.importer import import_arrays
 from contactkit.recorder.info import print_info, session_info
 from contactkit.recorder.journal import recover_directory
 from contactkit.recorder.mcap_export import export_mcap
-from contactkit.recorder.metadata import session_filename, session_meta
+from contactkit.recorder.metadata import session_filename, session_meta, set_session_robot
 from contactkit.recorder.sim import SimConfig
 from contactkit.recorder.sources.can import BusConfig
 from contactkit.recorder.stats import build_report, write_noise_file
 from contactkit.recorder.stats_report import print_summary, write_report
+from contactkit.robots import DEFAULT_ROBOT, URDF_PREFIX, get_robot, robot_names
 from contactkit.schemas import InputError, SessionMeta, read_session
 from contactkit.schemas.dataset import rebuild_index
 from contactkit.util.cli import SchedulerOpt, new_app, run_app
@@ -87,7 +89,7 @@ def _start_events(values: dict[str, Any], meta: SessionMeta) -> Any:
     def report(kind: str, event: Any) -> None:
         err_console.print(f"  [bold]event[/] {describe(kind, event)}")
 
-    return LiveEvents(chain, meta.with_hand, detector, model.event_model(),
+    return LiveEvents(chain, chain.robot_setup(meta), detector, model.event_model(),
                       values["decide_after"], report)
 
 
@@ -114,6 +116,9 @@ PlannedAtOption = Annotated[float | None, typer.Option(
 LinkOption = Annotated[int | None, typer.Option(help="Touched link 1-7.")]
 OperatorOption = Annotated[str, typer.Option(help="Who touched the robot.")]
 HandOption = Annotated[bool, typer.Option(help="The robot carried its hand.")]
+RobotOption = Annotated[str | None, typer.Option(
+    help="The arm: panda, fr3, a plugin's name or urdf:PATH (`recorder robots` lists "
+         "them; default: the map's, else panda).")]
 OutOption = Annotated[Path, typer.Option(help="Output directory.")]
 
 
@@ -140,13 +145,16 @@ def simulate_command(
     variability: Annotated[float | None, typer.Option(
         help="Spread of strength and tempo between simulated people (default: the "
              "preset's, 1 for most).")] = None,
+    robot: Annotated[str, typer.Option(
+        help="The simulated arm: panda, fr3 or another registered robot (`recorder "
+             "robots`). Not --robot-seed, which picks an instance of it.")] = "panda",
 ) -> None:
     """Write many simulated sessions in parallel (existing ones are skipped) and index them.
 
     A session that fails is reported and the others are still written (exit code 2).
     """
     chosen = PRESETS[preset]
-    config = SimConfig(rate_hz=rate or chosen.rate_hz, noise_scale=noise_scale,
+    config = SimConfig(rate_hz=rate or chosen.rate_hz, noise_scale=noise_scale, robot=robot,
                        robot_seed=chosen.robot_seed if robot_seed is None else robot_seed)
     with progress_bar("simulating") as bar:
         result = simulate_dataset(output_directory(out_dir), preset, sessions, seed, workers,
@@ -160,6 +168,44 @@ def simulate_command(
     print(out_dir / "index.parquet")
     if result.failed:
         raise typer.Exit(2)
+
+
+@app.command("robots")
+def robots_command() -> None:
+    """List the robot models a session can name: built-in, installed plugins (the
+    contactkit.robots entry-point group) and the urdf:PATH form, with their limits."""
+    for name in robot_names():
+        try:
+            spec = get_robot(name)
+        except InputError as err:
+            print(f"{name}: cannot be loaded ({err.problem})")
+            continue
+        limits = spec.limits
+        print(f"{name}: {spec.description}")
+        print(f"  joints {', '.join(spec.joint_names)}")
+        print(f"  q [rad] {np.round(limits.q_min, 4).tolist()} .. "
+              f"{np.round(limits.q_max, 4).tolist()}")
+        print(f"  dq max [rad/s] {np.round(limits.dq_max, 4).tolist()}; tau max [Nm] "
+              f"{np.round(limits.tau_max, 1).tolist()}")
+        print(f"  hand: {'yes' if spec.has_hand else 'no'}; friction model: "
+              f"{'identified' if spec.friction else 'none'}; aliases: "
+              f"{', '.join(spec.aliases) or '-'}")
+    print(f"{URDF_PREFIX}PATH: any 7-joint serial arm from its URDF file (the session stores "
+          "the file's SHA-256)")
+
+
+@app.command("set-robot")
+def set_robot_command(
+    sessions: Annotated[list[Path], typer.Argument(help="Session files to correct.")],
+    robot: Annotated[str, typer.Option(
+        help="The arm they were recorded on: panda, fr3, a plugin's name or urdf:PATH.")],
+) -> None:
+    """Correct the robot a session names (for example FR3 sessions recorded with --source
+    franka before sessions named their arm, which say franka_panda). Each file's metadata
+    is rewritten atomically; its samples are unchanged."""
+    for path in sessions:
+        meta = set_session_robot(path, robot)
+        err_console.print(f"{path}: robot {meta.robot}")
 
 
 @app.command("index")
@@ -197,13 +243,15 @@ def import_arrays_command(
              "planned_at_s=10, pose=A, operator=lab1, notes=...")] = None,
     name: Annotated[str | None, typer.Option(help="Output file name (default from the "
                                                    "metadata).")] = None,
+    robot: RobotOption = None,
 ) -> None:
     """Turn plain arrays (text, CSV or .npy) into a validated session; print its path.
 
     Joint files hold 7 values per line, or one per line (7 lines a sample); the time
     file one value per line. Time is shifted to start at 0 s.
     """
-    print(import_arrays(t, q, dq, tau, output_directory(out), meta or [], name))
+    pairs = [*(meta or []), *([] if robot is None else [f"robot={robot}"])]
+    print(import_arrays(t, q, dq, tau, output_directory(out), pairs, name))
 
 
 @app.command("import-csv")
@@ -222,6 +270,7 @@ def import_csv_command(
     link: LinkOption = None,
     operator: OperatorOption = "",
     hand: HandOption = True,
+    robot: RobotOption = None,
     notes: Annotated[str, typer.Option(help="Free text stored in the metadata.")] = "",
     out: OutOption = Path("sessions"),
 ) -> None:
@@ -236,7 +285,8 @@ def import_csv_command(
     for csv_file in csv_files:
         meta = session_meta(source="csv", action=action, condition=condition, pose=pose,
                             link=link, planned_at_s=planned_at, operator=operator,
-                            with_hand=hand, notes=notes)
+                            with_hand=hand, notes=notes,
+                            robot=robot or cmap.robot or DEFAULT_ROBOT)
         path = import_csv(csv_file, cmap, meta, directory)
         info = read_session(path).meta.source_info
         err_console.print(f"{csv_file}: {info['samples']} samples from {info['rows']} rows, "
@@ -290,14 +340,16 @@ def import_can_command(
     link: LinkOption = None,
     operator: OperatorOption = "",
     hand: HandOption = True,
+    robot: RobotOption = None,
     out: OutOption = Path("sessions"),
 ) -> None:
     """Convert a CAN log into a validated session and print its path."""
+    fmap = load_map(can_map)
     meta = session_meta(source="can-log", action=action, condition=condition, pose=pose,
                         target_pose=target_pose, link=link, planned_at_s=planned_at,
-                        operator=operator, with_hand=hand)
-    path = import_can_log(log, load_map(can_map), meta, output_directory(out),
-                          session_filename(meta))
+                        operator=operator, with_hand=hand,
+                        robot=robot or fmap.robot or DEFAULT_ROBOT)
+    path = import_can_log(log, fmap, meta, output_directory(out), session_filename(meta))
     err_console.print(decoding_summary(read_session(path).meta.source_info))
     print(path)
 
@@ -321,6 +373,7 @@ def import_bag_command(
     link: LinkOption = None,
     operator: OperatorOption = "",
     hand: HandOption = True,
+    robot: RobotOption = None,
     out: OutOption = Path("sessions"),
     workers: Annotated[int, typer.Option(help="Parallel processes for a directory.")
                        ] = DEFAULT_WORKERS,
@@ -329,7 +382,7 @@ def import_bag_command(
     print their paths; a directory imports in parallel and reports the bags that failed."""
     protocol = {"action": action, "condition": condition, "pose": pose,
                 "target_pose": target_pose, "link": link, "planned_at_s": planned_at,
-                "operator": operator, "with_hand": hand}
+                "operator": operator, "with_hand": hand, "robot": robot or DEFAULT_ROBOT}
     session_meta(source="ros-bag", **protocol)
     directory = output_directory(out)
     single = not bag.is_dir() or (bag / "metadata.yaml").exists()

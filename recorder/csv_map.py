@@ -17,6 +17,7 @@ from importlib import resources
 from pathlib import Path
 
 from contactkit.recorder.map_file import load_map_file, one_of
+from contactkit.robots import canonical_robot_name
 from contactkit.schemas import N_JOINTS
 
 # Unit name -> factor to the session's unit (s, rad, rad/s, Nm).
@@ -32,7 +33,7 @@ JOINT_UNITS = {
 }
 REQUIRED = ("q", "dq", "tau")
 OPTIONAL = ("q_d", "dq_d", "tau_ext_hat")
-KNOWN_KEYS = {"name", "delimiter", "index_base", "time", "contact", "repeated_rows",
+KNOWN_KEYS = {"name", "robot", "delimiter", "index_base", "time", "contact", "repeated_rows",
               *REQUIRED, *OPTIONAL}
 
 
@@ -50,7 +51,8 @@ class CsvMap:
 
     ``joints`` maps a session prefix (q, dq, tau, ...) to its CSV columns; ``time_factor``
     converts the time column to s; ``contact`` is the label column (None without one),
-    whose nonzero values mean the person touches the arm.
+    whose nonzero values mean the person touches the arm; ``robot`` the arm the exports
+    come from (a registry name, :mod:`contactkit.robots`; None: not said).
     """
 
     name: str
@@ -61,6 +63,7 @@ class CsvMap:
     contact: str | None
     drop_repeated_rows: bool
     source: str
+    robot: str | None = None
 
     def measured_columns(self) -> list[str]:
         """Return the CSV columns whose values define a repeated row (q, dq, tau)."""
@@ -104,8 +107,10 @@ def _parse(doc: dict, source: str) -> CsvMap:
     if len(delimiter) != 1:
         raise ValueError(f"delimiter must be one character, got {delimiter!r}")
     repeated = one_of(doc.get("repeated_rows", "drop"), ("drop", "keep"), "repeated_rows")
+    robot = doc.get("robot")
     return CsvMap(str(doc.get("name", Path(source).stem)), delimiter, str(time["column"]),
-                  TIME_UNITS[time_unit], joints, contact, repeated == "drop", source)
+                  TIME_UNITS[time_unit], joints, contact, repeated == "drop", source,
+                  None if robot is None else canonical_robot_name(str(robot)))
 
 
 def _joint_columns(prefix: str, spec: dict, base: int) -> JointColumns:

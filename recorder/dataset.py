@@ -46,13 +46,14 @@ import numpy as np
 from contactkit.recorder.metadata import session_filename
 from contactkit.recorder.protocol import POSES, START_POSE
 from contactkit.recorder.sim import (
-    PandaSimulator,
+    ArmSimulator,
     SessionSpec,
     SimConfig,
     plan_free_session,
     plan_session,
 )
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
+from contactkit.robots import DEFAULT_ROBOT, RobotSetup
 from contactkit.schemas import ACTIONS, InputError, write_session
 from contactkit.schemas.dataset import IndexResult, rebuild_index
 from contactkit.util.parallel import map_ordered
@@ -101,7 +102,7 @@ PRESETS: dict[str, Preset] = {
 }
 
 
-def preset_specs(preset: Preset, n: int, seed: int, with_hand: bool = True,
+def preset_specs(preset: Preset, n: int, seed: int, robot: RobotSetup | None = None,
                  variability: float | None = None) -> list[SessionSpec]:
     """Return the first ``n`` session specs of a preset for ``seed`` (deterministic)."""
     specs = []
@@ -113,7 +114,7 @@ def preset_specs(preset: Preset, n: int, seed: int, with_hand: bool = True,
         link = None if preset.links is None or action == "none" else \
             int(preset.links[int(rng.integers(len(preset.links)))])
         common = dict(seed=session_seed, action=action, operator=OPERATORS[k % len(OPERATORS)],
-                      pose_jitter_rad=preset.pose_jitter_rad, with_hand=with_hand,
+                      pose_jitter_rad=preset.pose_jitter_rad, robot=robot,
                       duration_s=preset.duration_s, link=link,
                       operator_variability=preset.variability if variability is None
                       else variability)
@@ -175,7 +176,7 @@ def _simulated(specs: list[SessionSpec], config: SimConfig
                ) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
     """Yield ``(spec index, columns)`` of every session of a batch as it finishes."""
     parts: dict[int, list[dict[str, np.ndarray]]] = {}
-    for index, columns, finished in PandaSimulator(config).run(specs):
+    for index, columns, finished in ArmSimulator(config).run(specs):
         parts.setdefault(index, []).append(columns)
         if finished:
             chunks = parts.pop(index)
@@ -218,13 +219,15 @@ class SimulateResult:
 def simulate_dataset(out_dir: str | Path, preset_name: str, sessions: int | None, seed: int,
                      workers: int, config: SimConfig | None = None,
                      progress: Callable[[int, int], None] | None = None,
-                     variability: float | None = None) -> SimulateResult:
+                     variability: float | None = None, robot: str = DEFAULT_ROBOT
+                     ) -> SimulateResult:
     """Write a preset's sessions into ``out_dir`` with ``workers`` processes.
 
     Sessions whose file exists are skipped, and temporary files left by a killed run
     are removed. ``progress(done, total)`` is called as
     sessions finish. The index is rebuilt at the end. ``config`` defaults to the
-    preset's rate with default physics.
+    preset's rate with default physics on ``robot`` (a registry name,
+    :mod:`contactkit.robots`).
     """
     if preset_name not in PRESETS:
         raise InputError(f"unknown preset {preset_name!r} (available: {', '.join(PRESETS)})")
@@ -234,11 +237,12 @@ def simulate_dataset(out_dir: str | Path, preset_name: str, sessions: int | None
     if not os.access(out_dir, os.W_OK):
         raise InputError("cannot write here (permission denied)", out_dir)
     remove_stale_temporaries(out_dir)
-    config = config or SimConfig(rate_hz=preset.rate_hz, robot_seed=preset.robot_seed)
+    config = config or SimConfig(rate_hz=preset.rate_hz, robot_seed=preset.robot_seed,
+                                 robot=robot)
     count = preset.sessions if sessions is None else sessions
     if count < 1:
         raise InputError(f"a dataset needs at least 1 session, got {count}")
-    specs = preset_specs(preset, count, seed, config.with_hand, variability)
+    specs = preset_specs(preset, count, seed, config.setup, variability)
     todo = []
     for spec in specs:
         meta = SimSource(spec, config).session_meta()

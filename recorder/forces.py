@@ -36,14 +36,13 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import asdict, dataclass
-from functools import cache
 
 import numpy as np
 
-from contactkit.features.dynamics import PandaModel, urdf_path
 from contactkit.recorder.protocol import MAX_ONSET_DELAY_S
+from contactkit.robots.model import RobotModel
+from contactkit.robots.surfaces import LinkSurface
 
-STL_TRIANGLE = np.dtype([("normal", "<f4", 3), ("vertices", "<f4", (3, 3)), ("attr", "<u2")])
 PROFILE_RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "bump": {"peak_n": (8.0, 30.0), "rise_s": (0.025, 0.075)},
     "adjust": {"peak_n": (8.0, 30.0), "rise_s": (0.3, 0.6), "hold_s": (0.3, 1.2),
@@ -119,40 +118,6 @@ class Contact:
         return asdict(self)
 
 
-@dataclass(frozen=True)
-class LinkSurface:
-    """Triangles of a link's collision mesh in the link frame: centroids [m], unit
-    outward normals and areas [m^2], each with one row per triangle."""
-
-    vertices: np.ndarray
-    normals: np.ndarray
-    areas: np.ndarray
-
-
-def _read_stl(path) -> np.ndarray:
-    raw = path.read_bytes()
-    count = int(np.frombuffer(raw, "<u4", 1, 80)[0])
-    return np.frombuffer(raw, STL_TRIANGLE, count, 84)["vertices"].astype(float)
-
-
-@cache
-def link_surface(link: int, with_hand: bool) -> LinkSurface:
-    """Return the collision surface of link 1..7 (link 7 includes the hand when mounted)."""
-    meshes = urdf_path().parent.parent / "meshes" / "collision"
-    triangles = [_read_stl(meshes / f"link{link}.stl")]
-    if link == 7 and with_hand:
-        model = PandaModel(with_hand=True)
-        hand = model.model.frames[model.frame_id("panda_hand")].placement
-        local = _read_stl(meshes / "hand.stl")
-        triangles.append(local @ hand.rotation.T + hand.translation)
-    tri = np.concatenate(triangles)
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    areas = 0.5 * np.linalg.norm(cross, axis=1)
-    keep = areas > 1e-10
-    return LinkSurface(vertices=tri[keep], normals=cross[keep] / (2 * areas[keep, None]),
-                       areas=areas[keep])
-
-
 MAX_DIRECTION_DRAWS = 100
 
 
@@ -198,3 +163,23 @@ def sample_contact(rng: np.random.Generator, action: str, planned_at_s: float, l
         hold_s=draw.get("hold_s", 0.0) * persona.tempo,
         fall_s=draw.get("fall_s", 0.0) * persona.tempo,
     )
+
+
+def contact_torque(model: RobotModel, t: np.ndarray, q: np.ndarray, contact: Contact
+                   ) -> np.ndarray:
+    """Return the joint torque [Nm] (N, 7) that ``contact`` applies to an arm moving
+    through ``q`` [rad] (N, 7) at times ``t`` [s] (N,): J_k(q, p)^T F at the contact's
+    point on its link, zero where its force is.
+
+    Subtracted from a recording's measured torque (the motors hold the arm against the
+    push), it makes a synthetic touch on real data: the residual then shows J^T F on
+    top of the recording's own noise and model error.
+    """
+    magnitude = contact.magnitude(t)
+    out = np.zeros((len(t), q.shape[1]))
+    direction = np.array(contact.direction)
+    point = np.array(contact.point_local)
+    for k in np.flatnonzero(magnitude > 0):
+        jac = model.point_jacobian(q[k], contact.link, point)
+        out[k] = jac[:3].T @ (magnitude[k] * direction)
+    return out

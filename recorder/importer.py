@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from contactkit.features.agreement import stream_residual_agreement
 from contactkit.recorder.arrays import spill_joint_arrays
 from contactkit.recorder.metadata import session_filename, session_meta
 from contactkit.recorder.spill import spilled_session_chunks, spilled_times
@@ -83,7 +84,11 @@ def write_imported_chunks(times: Callable[[], Iterable[np.ndarray]],
     the nominal rate must be measured (its exact median step); the chunks once, while
     writing. The written table equals :func:`write_imported_session`'s on the
     concatenated columns (in row groups of
-    :data:`contactkit.schemas.session.ROW_GROUP_ROWS`).
+    :data:`contactkit.schemas.session.ROW_GROUP_ROWS`). A recording with the robot's
+    own estimate (``tau_ext_hat``) is run through the chain of its robot once more
+    first, and the residual's agreement with that estimate is stored in the metadata
+    (``residual_agreement``, :mod:`contactkit.features.agreement`), which
+    ``recorder info`` shows without running the chain.
     """
     first, rising, samples = None, True, 0
     for steps in chunked_steps(times()):
@@ -96,6 +101,7 @@ def write_imported_chunks(times: Callable[[], Iterable[np.ndarray]],
         median = exact_medians(lambda: (s[:, None] for s in chunked_steps(times())))[0]
         meta.nominal_rate_hz = float(round(1.0 / median, 3))
     filename = session_filename(meta) if name is None else safe_name(name, "output name")
+    meta.residual_agreement = stream_residual_agreement(chunks(), meta.robot_setup())
 
     def batches() -> Iterator[pa.RecordBatch]:
         for chunk in chunks():

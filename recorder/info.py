@@ -52,7 +52,7 @@ def print_info(info: dict, console: Console) -> None:
     meta, s = info["metadata"], info["sampling"]
     table = Table(title=info["file"], show_header=False, title_justify="left")
     for key in ("session_id", "source", "condition", "pose", "target_pose", "speed_rad_s",
-                "action", "link", "planned_at_s", "operator", "with_hand", "recovered",
+                "action", "link", "planned_at_s", "operator", "robot", "with_hand", "recovered",
                 "recovered_samples", "created_utc", "notes"):
         if meta.get(key) not in (None, ""):
             table.add_row(key, str(meta[key]))
@@ -71,6 +71,9 @@ def print_info(info: dict, console: Console) -> None:
                       + ("" if peak is None else f", peak {peak:.1f} N"))
     elif info["peak_force_n"] is not None:
         table.add_row("contact", "none")
+    agreement = meta.get("residual_agreement")
+    if isinstance(agreement, dict) and isinstance(agreement.get("correlation"), list):
+        table.add_row("residual vs robot", agreement_line(agreement))
     for number, event in enumerate(meta.get("events") or (), 1):
         table.add_row(f"event {number}", event_line(event))
     console.print(table)
@@ -89,3 +92,16 @@ def event_line(event: dict) -> str:
             + f", onset {at('onset_s')}, decided {at('decision_s')}, "
               f"released {at('release_s')}"
             + (", outside the training range" if event.get("out_of_range") else ""))
+
+
+def agreement_line(agreement: dict) -> str:
+    """Return one line for the residual's agreement with the robot's own estimate stored
+    at import or capture (:mod:`contactkit.features.agreement`): correlation and RMS
+    difference [Nm] per joint."""
+    def numbers(key: str, fmt: str) -> str:
+        values = agreement.get(key)
+        return " ".join(format(v, fmt) if isinstance(v, int | float) else "-"
+                        for v in (values if isinstance(values, list) else []))
+
+    return (f"correlation {numbers('correlation', '.2f')}; RMS difference "
+            f"{numbers('rms_difference_nm', '.2f')} Nm (joints 1-7, against -tau_ext_hat)")

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from contactkit.features.dynamics import viewer_urdf_file
+from contactkit.robots.surfaces import viewer_urdf_file
 from contactkit.schemas import SessionMeta, joint_columns
 from contactkit.schemas import rerun_layout as layout
 from contactkit.schemas.rerun_layout import capture_blueprint
@@ -32,7 +32,7 @@ class CaptureViewer:
         self.sample = 0
         self.stride = max(1, round((rate_hz or PANDA_RATE_HZ) / ROBOT_VIEW_HZ))
         layout.log_series_styles(rec)
-        self.tree = layout.log_robot_model(rec, viewer_urdf_file(meta.with_hand))
+        self.tree = layout.log_robot_model(rec, viewer_urdf_file(meta.robot_setup()))
         rec.send_property("session", rr.AnyValues(session_id=meta.session_id, pose=meta.pose,
                                                   action=meta.action, source=meta.source,
                                                   operator=meta.operator))

@@ -1,7 +1,8 @@
 """A session as a ROS 2 MCAP bag (``recorder export-mcap``), for Foxglove and Rerun.
 
 Each sample becomes a ``sensor_msgs/JointState`` on ``/joint_states`` (q, dq, tau as
-position, velocity, effort; joints ``fr3_joint1..7``), stamped with the sample's
+position, velocity, effort; joints named as the session robot names them,
+``panda_joint1..7`` or ``fr3_joint1..7``), stamped with the sample's
 time. Optional columns go on their own topics, one message per sample:
 ``/joint_states_desired`` (q_d, dq_d), ``/tau_ext_hat_filtered`` (JointState effort),
 ``geometry_msgs/WrenchStamped`` on
@@ -19,10 +20,9 @@ from typing import Any
 import numpy as np
 
 from contactkit.recorder.bags import BOOL, EXPORT_TOPICS, JOINT_STATE, STRING, WRENCH_STAMPED
+from contactkit.robots import get_robot
 from contactkit.schemas import InputError, Session, joint_columns, read_session
 from contactkit.schemas.session import FORCE_COLUMNS, WRENCH_HAT_COLUMNS
-
-JOINT_NAMES = [f"fr3_joint{i}" for i in range(1, 8)]
 
 
 def _stamps_ns(t: np.ndarray, start_ns: int) -> np.ndarray:
@@ -70,18 +70,19 @@ def _block(session: Session, prefix: str) -> np.ndarray | None:
 def _message_streams(session: Session, store: Any) -> dict[str, tuple[str, Any]]:
     """Return ``{topic: (msgtype, make(i, header))}`` for the columns the session has."""
     joint_state = store.types[JOINT_STATE]
+    names = list(get_robot(session.meta.robot_setup(session.path).robot).joint_names)
     empty = np.zeros(0)
     q, dq, tau = session.q, session.dq, session.tau
     streams = {"/joint_states": (JOINT_STATE, lambda i, h: joint_state(
-        header=h, name=JOINT_NAMES, position=q[i], velocity=dq[i], effort=tau[i]))}
+        header=h, name=names, position=q[i], velocity=dq[i], effort=tau[i]))}
     q_d, dq_d = _block(session, "q_d"), _block(session, "dq_d")
     if q_d is not None and dq_d is not None:
         streams[EXPORT_TOPICS["desired"]] = (JOINT_STATE, lambda i, h: joint_state(
-            header=h, name=JOINT_NAMES, position=q_d[i], velocity=dq_d[i], effort=empty))
+            header=h, name=names, position=q_d[i], velocity=dq_d[i], effort=empty))
     hat = _block(session, "tau_ext_hat")
     if hat is not None:
         streams[EXPORT_TOPICS["tau_ext_hat"]] = (JOINT_STATE, lambda i, h: joint_state(
-            header=h, name=JOINT_NAMES, position=empty, velocity=empty, effort=hat[i]))
+            header=h, name=names, position=empty, velocity=empty, effort=hat[i]))
     for key, names in (("wrench_hat", WRENCH_HAT_COLUMNS), ("applied", FORCE_COLUMNS)):
         if all(session.has(n) for n in names):
             values = np.column_stack([session.column(n) for n in names])

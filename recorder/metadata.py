@@ -11,11 +11,17 @@ from __future__ import annotations
 import importlib.metadata
 from collections.abc import Sequence
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
-from contactkit.features.dynamics import urdf_sha256
 from contactkit.recorder.protocol import POSES, check_action, check_condition, pose_q
+from contactkit.robots import DEFAULT_ROBOT, canonical_robot_name, get_robot
 from contactkit.schemas import InputError, SessionMeta, new_session_id
+from contactkit.schemas.session import (
+    iter_session_batches,
+    read_session_meta,
+    write_session_batches,
+)
 from contactkit.util.paths import safe_name
 
 N_LINKS = 7
@@ -41,18 +47,22 @@ def session_meta(*, source: str, action: str, condition: str = "static",
                  speed_rad_s: float | None = None, link: int | None = None,
                  planned_at_s: float | None = None, nominal_rate_hz: float | None = None,
                  operator: str = "", notes: str = "", with_hand: bool = True,
-                 session_id: str | None = None, **source_fields: Any) -> SessionMeta:
+                 robot: str = DEFAULT_ROBOT, session_id: str | None = None,
+                 **source_fields: Any) -> SessionMeta:
     """Return checked session metadata with its provenance filled in.
 
     ``action``, ``condition`` and ``link`` (1-7) are checked (InputError otherwise).
     Thesis pose names (A-H) are upper-cased and their joint values [rad] come from
     thesis Table 3.1 unless ``pose_q_rad``/``target_q_rad`` give the values actually
-    used (a simulated session's jittered pose). ``session_id`` defaults to a fresh random id.
+    used (a simulated session's jittered pose). ``robot`` is the arm's registry name
+    (:mod:`contactkit.robots`; InputError listing the known ones otherwise), whose URDF's
+    hash is stored. ``session_id`` defaults to a fresh random id.
     ``source_fields`` are the fields a source contributes (``simulator``,
     ``source_info``, ``recovered``...), passed to :class:`SessionMeta` as they are.
     """
     check_action(action)
     check_condition(condition)
+    robot = canonical_robot_name(robot)
     if link is not None and not 1 <= link <= N_LINKS:
         raise InputError(f"unknown link {link} (expected 1..{N_LINKS})")
     pose, target_pose = _pose_name(pose), _pose_name(target_pose)
@@ -68,7 +78,8 @@ def session_meta(*, source: str, action: str, condition: str = "static",
         target_q=None if target_q_rad is None else [float(v) for v in target_q_rad],
         speed_rad_s=speed_rad_s, link=link, planned_at_s=planned_at_s,
         nominal_rate_hz=nominal_rate_hz, operator=operator, notes=notes,
-        created_utc=utc_now(), with_hand=with_hand, urdf_sha256=urdf_sha256(with_hand),
+        created_utc=utc_now(), robot=robot, with_hand=with_hand,
+        urdf_sha256=get_robot(robot).urdf_sha256(with_hand),
         tool_version=tool_version(), **source_fields)
 
 
@@ -92,3 +103,17 @@ def session_filename(meta: SessionMeta) -> str:
         poses += "to" + meta.target_pose
     return safe_name(f"{meta.condition}_{poses}_{meta.action}_{meta.session_id[:12]}.parquet",
                      "session file name")
+
+
+def set_session_robot(path: str | Path, robot: str) -> SessionMeta:
+    """Rewrite the session file at ``path`` so that its metadata names ``robot`` (with that
+    robot's URDF hash); return the new metadata. The file is rewritten row group by row
+    group into a temporary file that replaces it atomically, so a reader sees the old or
+    the new session, never a mix; the samples are unchanged. This is how a session
+    recorded before its arm was named (an FR3 captured as ``franka_panda``) is corrected.
+    """
+    path = Path(path)
+    meta, _ = read_session_meta(path)
+    updated = meta.with_robot(robot)
+    write_session_batches(path, iter_session_batches(path), updated, overwrite=True)
+    return updated

@@ -22,7 +22,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from contactkit.features.dynamics import JointLimits
+from contactkit.robots import JointLimits
 
 KINDS = ("hold", "move", "sines")
 LIMIT_MARGIN_RAD = 0.25

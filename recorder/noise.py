@@ -37,7 +37,8 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
-from contactkit.features.dynamics import GAZ_FRICTION, PandaModel
+from contactkit.robots import GAZ_FRICTION, RobotSetup
+from contactkit.robots.model import RobotModel
 from contactkit.schemas import InputError
 
 
@@ -161,7 +162,7 @@ def estimate_noise(t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.ndarray
     ``t`` [s] (N,), ``q`` [rad], ``dq`` [rad/s], ``tau`` [Nm] (N, 7). See the module
     docstring for the method.
     """
-    model = PandaModel(with_hand)
+    model = RobotModel(RobotSetup("panda", with_hand))
     step = float(np.median(np.diff(t)))
     sos = butter(2, min(20.0 * 2.0 * step, 0.9), output="sos")
     dq_smooth = sosfiltfilt(sos, dq, axis=0)

@@ -1,4 +1,13 @@
-"""Simulated Panda: the default source when no robot is attached.
+"""Simulated arm (a Panda by default, an FR3 with ``--robot fr3``): the default source
+when no robot is attached.
+
+Which arm is simulated comes from :mod:`contactkit.robots`: its URDF's inertias, its
+joint, velocity and torque limits, and its friction. An FR3 simulation uses the FR3's
+own inertias and limits, *no* joint friction (none is identified for the FR3, and on
+the real FR3 recordings the link-side torque sensors show none that a model removes:
+the residual matches the robot's own estimate without it), the same armature, and
+the Panda's sensor-noise statistics: the only ones measured on a held pose, from
+torque sensors of the same design.
 
 Physics (thesis section 5.3.1, extended):
 
@@ -48,8 +57,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from contactkit.features.dynamics import GAZ_FRICTION, N_JOINTS, PandaModel
-from contactkit.recorder.forces import Contact, Persona, link_surface, sample_contact
+from contactkit.recorder.forces import Contact, Persona, sample_contact
 from contactkit.recorder.motion import MotionPlan, free_motion_plan
 from contactkit.recorder.noise import SensorNoise, default_noise
 from contactkit.recorder.protocol import (
@@ -59,6 +67,9 @@ from contactkit.recorder.protocol import (
     motion_duration_s,
     pose_q,
 )
+from contactkit.robots import N_JOINTS, RobotSetup, canonical_robot_name, get_robot
+from contactkit.robots.model import RobotModel
+from contactkit.robots.surfaces import link_surface
 from contactkit.schemas import InputError, joint_columns
 
 KP = (600.0, 600.0, 600.0, 600.0, 250.0, 150.0, 50.0)  # Nm/rad
@@ -88,6 +99,7 @@ class SimConfig:
 
     rate_hz: float = 1000.0
     substeps: int = 5
+    robot: str = "panda"
     with_hand: bool = True
     robot_seed: int = 0
     mass_perturbation: float = 0.15
@@ -101,6 +113,7 @@ class SimConfig:
     noise: SensorNoise = field(default_factory=default_noise)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "robot", canonical_robot_name(self.robot))
         if not 1.0 <= self.rate_hz <= 10_000.0:
             raise InputError(f"rate must be between 1 and 10000 Hz, got {self.rate_hz}")
         if self.substeps < 1:
@@ -118,6 +131,11 @@ class SimConfig:
     def to_dict(self) -> dict:
         """Return the configuration as JSON-ready values (for session metadata)."""
         return asdict(self)
+
+    @property
+    def setup(self) -> RobotSetup:
+        """The simulated arm: robot and hand."""
+        return RobotSetup(self.robot, self.with_hand)
 
 
 @dataclass(frozen=True)
@@ -166,7 +184,7 @@ def plan_session(*, seed: int, condition: str, action: str, pose: str,
                  target_pose: str | None = None, speed_rad_s: float | None = None,
                  link: int | None = None, planned_at_s: float | None = None,
                  duration_s: float | None = None, operator: str = "sim",
-                 pose_jitter_rad: float = 0.0, with_hand: bool = True,
+                 pose_jitter_rad: float = 0.0, robot: RobotSetup | None = None,
                  operator_variability: float = 1.0) -> SessionSpec:
     """Turn capture choices into a fully determined :class:`SessionSpec`.
 
@@ -178,7 +196,8 @@ def plan_session(*, seed: int, condition: str, action: str, pose: str,
     check_action(action)
     check_condition(condition)
     rng = np.random.default_rng(seed)
-    model = PandaModel(with_hand)
+    robot = robot or RobotSetup()
+    model = RobotModel(robot)
     lo, hi = model.limits.q_min + 0.02, model.limits.q_max - 0.02
     q_start = np.clip(pose_q(pose) + rng.normal(0.0, pose_jitter_rad, N_JOINTS), lo, hi)
     q_target = None
@@ -208,7 +227,7 @@ def plan_session(*, seed: int, condition: str, action: str, pose: str,
         link = int(rng.integers(1, N_JOINTS + 1)) if link is None else link
         rotation = model.frame_placement(q_start, link).rotation
         persona = Persona.from_name(operator, operator_variability)
-        contact = sample_contact(rng, action, planned, link, link_surface(link, with_hand),
+        contact = sample_contact(rng, action, planned, link, link_surface(robot, link),
                                  rotation, persona)
     return SessionSpec(
         seed=seed, condition=condition, action=action, pose=pose.upper(),
@@ -225,7 +244,7 @@ CONTACT_TIMING = ("moving", "after-stop", "any")
 
 def plan_free_session(*, seed: int, action: str, pose: str, duration_s: float,
                       link: int | None = None, operator: str = "sim",
-                      pose_jitter_rad: float = 0.0, with_hand: bool = True,
+                      pose_jitter_rad: float = 0.0, robot: RobotSetup | None = None,
                       operator_variability: float = 1.0,
                       contact_timing: str = "any") -> SessionSpec:
     """Plan a free-motion session (:mod:`contactkit.recorder.motion`) from pose ``pose``.
@@ -244,7 +263,8 @@ def plan_free_session(*, seed: int, action: str, pose: str, duration_s: float,
     if duration_s < 3.0:
         raise InputError(f"a free-motion session needs at least 3 s, got {duration_s} s")
     rng = np.random.default_rng(seed)
-    model = PandaModel(with_hand)
+    robot = robot or RobotSetup()
+    model = RobotModel(robot)
     lo, hi = model.limits.q_min + 0.02, model.limits.q_max - 0.02
     q_start = np.clip(pose_q(pose) + rng.normal(0.0, pose_jitter_rad, N_JOINTS), lo, hi)
     plan = free_motion_plan(rng, q_start, duration_s, model.limits)
@@ -268,7 +288,7 @@ def plan_free_session(*, seed: int, action: str, pose: str, duration_s: float,
         q_at = plan.sample(np.array([planned]))[0][0]
         rotation = model.frame_placement(q_at, link).rotation
         persona = Persona.from_name(operator, operator_variability)
-        contact = sample_contact(rng, action, planned, link, link_surface(link, with_hand),
+        contact = sample_contact(rng, action, planned, link, link_surface(robot, link),
                                  rotation, persona)
     return SessionSpec(
         seed=seed, condition="dynamic", action=action, pose=pose.upper(),
@@ -295,12 +315,12 @@ class _Batch:
             raise AttributeError(name) from err
 
 
-class PandaSimulator:
+class ArmSimulator:
     """Simulates batches of sessions on one simulated robot instance."""
 
     def __init__(self, config: SimConfig) -> None:
         self.config = config
-        self.nominal = PandaModel(config.with_hand)
+        self.nominal = RobotModel(config.setup)
         robot_rng = np.random.default_rng([config.robot_seed, 0xC0FFEE])
         self.plant = self.nominal.perturbed(robot_rng, config.mass_perturbation,
                                             config.com_perturbation_m)
@@ -308,7 +328,9 @@ class PandaSimulator:
         self.plant.model.armature[:] = config.armature_kgm2
         self.plant.data = self.plant.model.createData()
         spread = config.friction_spread
-        self.friction = GAZ_FRICTION.scaled(robot_rng.uniform(1 - spread, 1 + spread, N_JOINTS))
+        scale = robot_rng.uniform(1 - spread, 1 + spread, N_JOINTS)
+        friction = get_robot(config.robot).friction
+        self.friction = None if friction is None else friction.scaled(scale)
         self._plant_pool = pin.ModelPool(self.plant.model, 1)
         self._nominal_pool = pin.ModelPool(self.nominal.model, 1)
         noise = config.noise
@@ -450,7 +472,8 @@ class PandaSimulator:
         dq_before = dq.copy() if record is not None else None
         ddq = np.zeros_like(q, order="F")
         for _ in range(self.config.substeps):
-            pin.abaInParallel(1, self._plant_pool, q, dq, drive - self.friction.torque(dq), ddq)
+            plant = drive if self.friction is None else drive - self.friction.torque(dq)
+            pin.abaInParallel(1, self._plant_pool, q, dq, plant, ddq)
             dq += ddq * h
             q += dq * h
         if record is not None:
@@ -482,7 +505,7 @@ class PandaSimulator:
         return columns
 
 
-class TrackingSimulator(PandaSimulator):
+class TrackingSimulator(ArmSimulator):
     """A simulator whose robot tracks a recorded trajectory instead of the protocol's.
 
     ``t_ref`` (M,) [s], ``q_ref`` and ``dq_ref`` (M, 7) are interpolated linearly.

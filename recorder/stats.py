@@ -3,7 +3,7 @@
 From the index alone (Polars over ``index.parquet``, fast for 100,000 sessions):
 counts by condition x pose x action and by link (static) or speed band (dynamic),
 as the thesis's Tables 3.5 and 5.3; class balance with warnings; durations;
-sources, operators and recovered sessions; problems (unreadable files, duplicate
+sources, operators, robots and recovered sessions; problems (unreadable files, duplicate
 session ids, sessions too short for a 0.5 s window). Counts are over unique
 session ids: a duplicate is reported, not counted twice.
 
@@ -98,6 +98,11 @@ def index_stats(index: pl.LazyFrame) -> dict:
         elif n < BALANCE_RATIO * largest:
             warnings.append(f"'{action}' is under-represented: {n} sessions against {largest} "
                             f"for the largest class")
+    robots = frame["robot"].unique().sort().to_list()
+    if len(robots) > 1:
+        warnings.append(f"sessions of {len(robots)} robots ({', '.join(robots)}): the feature "
+                        "chain models each with its own robot model, but a classifier trained "
+                        "on them all mixes their data")
     problems = [{"file": f, "problem": f"duplicate session id {sid} (also in "
                                        f"{', '.join(files[:1] + files[2:])})"}
                 for sid, files in zip(dupes["session_id"], dupes["file"], strict=True)
@@ -139,6 +144,8 @@ def index_stats(index: pl.LazyFrame) -> dict:
                             .sort("source")),
         "operators": _records(frame.group_by("operator").agg(pl.len().alias("sessions"))
                               .sort("operator")),
+        "robots": _records(frame.group_by("robot").agg(pl.len().alias("sessions"))
+                           .sort("robot")),
         "recovered": int(frame["recovered"].sum()),
         "problems": problems,
         "index_fingerprint": hashlib.sha256("\n".join(
@@ -168,10 +175,32 @@ def _spread(values: list[float]) -> dict:
             "p10": float(np.percentile(arr, 10)), "p90": float(np.percentile(arr, 90))}
 
 
+def _agreement_by_robot(good: list[dict]) -> list[dict]:
+    """Per robot, the median over its sessions with the robot's own estimate of the
+    residual's agreement with it (per joint: correlation, RMS difference [Nm])."""
+    out = []
+    for robot in sorted({s["robot"] for s in good}):
+        found = [s["residual_agreement"] for s in good
+                 if s["robot"] == robot and s.get("residual_agreement")]
+        if not found:
+            continue
+
+        def median(key: str, found: list[dict] = found) -> list[float | None]:
+            values = np.array([[np.nan if v is None else v for v in a[key]] for a in found])
+            return [None if np.isnan(v) else round(float(v), 4)
+                    for v in np.nanmedian(values, axis=0)] if values.size else []
+
+        out.append({"robot": robot, "sessions": len(found),
+                    "correlation": median("correlation"),
+                    "rms_difference_nm": median("rms_difference_nm")})
+    return out
+
+
 def _aggregate(good: list[dict]) -> dict:
     if not good:
         return {"sampling": None, "noise_baseline": None, "peaks_by_class": [],
-                "window_detection": [], "onset_delay_s": _spread([]), "joint_limits": None}
+                "window_detection": [], "onset_delay_s": _spread([]),
+                "residual_agreement": [], "joint_limits": None}
     steps = [s["sampling"] for s in good]
     none = [s for s in good if s["action"] == "none"]
     noise = None
@@ -206,6 +235,7 @@ def _aggregate(good: list[dict]) -> dict:
         "peaks_by_class": peaks,
         "window_detection": windows,
         "onset_delay_s": _spread([s["onset_delay_s"] for s in good]),
+        "residual_agreement": _agreement_by_robot(good),
         "joint_limits": {
             "min_margin_rad": np.min([s["limit_margin_rad"] for s in good], axis=0).tolist(),
             "max_speed_fraction": np.max([s["max_speed_fraction"] for s in good],

@@ -31,10 +31,11 @@ import numpy as np
 import pyarrow as pa
 
 from contactkit.features import chain_cache
-from contactkit.features.dynamics import PandaModel
+from contactkit.features.agreement import session_residual_agreement
 from contactkit.features.timeseries import ChunkedChain
 from contactkit.features.windows import WindowSearch, WindowSpec
 from contactkit.recorder.spill import RowSpill
+from contactkit.robots import get_robot
 from contactkit.schemas import InputError, SessionMeta
 from contactkit.schemas.session import (
     REQUIRED_COLUMNS,
@@ -194,7 +195,7 @@ def _summary(path: Path, meta: SessionMeta, rows: int) -> dict:
     window = search.finish() if search is not None else None
     onset = None if window is None else (window.onset_s if window.found else planned)
     profile = _Profile(onset + PROFILE_T) if onset is not None else None
-    chain = ChunkedChain(None, meta.with_hand, ["r", "fm_norm"])
+    chain = ChunkedChain(None, meta.robot_setup(path), ["r", "fm_norm"])
     peak_residual = peak_force = -math.inf
     settled = RowSpill(7)
     try:
@@ -229,7 +230,10 @@ def _summary(path: Path, meta: SessionMeta, rows: int) -> dict:
         out.update({"window_found": None, "onset_delay_s": None,
                     "short_for_window": bool(duration < 0.5),
                     "force_profile_n": None})
-    limits = PandaModel(meta.with_hand).limits
+    robot = meta.robot_setup(path).robot
+    out["robot"] = robot
+    out["residual_agreement"] = session_residual_agreement(path, meta)
+    limits = get_robot(robot).limits
     out["limit_margin_rad"] = np.minimum(q_low - limits.q_min, limits.q_max - q_high).tolist()
     out["max_speed_fraction"] = (dq_peak / limits.dq_max).tolist()
     out["max_torque_fraction"] = (tau_peak / limits.tau_max).tolist()

@@ -71,7 +71,8 @@ def make_plots(report: dict) -> list[tuple[str, str, bytes]]:
     if counts.height:
         fig, (ax, balance) = plt.subplots(1, 2, figsize=(11, 3.8),
                                           gridspec_kw={"width_ratios": [3, 1]})
-        poses = sorted(set(counts["pose"].to_list()))
+        # imported sessions may name no pose (None), listed last
+        poses = sorted(set(counts["pose"].to_list()), key=lambda p: (p is None, p or ""))
         x = np.arange(len(poses))
         conditions = [c for c in ("static", "dynamic") if (counts["condition"] == c).any()]
         width = 0.8 / len(conditions)
@@ -79,14 +80,15 @@ def make_plots(report: dict) -> list[tuple[str, str, bytes]]:
             part = counts.filter(pl.col("condition") == condition)
             bottom = np.zeros(len(poses))
             for action in ACTIONS:
-                values = np.array([part.filter((pl.col("pose") == p)
+                values = np.array([part.filter(pl.col("pose").eq_missing(p)
                                                & (pl.col("action") == action))["sessions"].sum()
                                    for p in poses])
                 ax.bar(x + i * width, values, width, bottom=bottom, color=_color(action),
                        label=action if i == 0 else None,
                        hatch="//" if condition == "dynamic" else None)
                 bottom += values
-        ax.set_xticks(x + width * (len(conditions) - 1) / 2, poses)
+        ax.set_xticks(x + width * (len(conditions) - 1) / 2,
+                      ["no pose" if p is None else p for p in poses])
         ax.set_title("sessions by pose (hatched: dynamic, by target pose)")
         ax.set_ylabel("sessions")
         ax.legend(fontsize=8)
@@ -206,7 +208,8 @@ def _tables(report: dict) -> list[tuple[str, pl.DataFrame]]:
               ("Class balance", pl.DataFrame(report["counts"]["by_action"]).rename(
                   {"share": "share [%]"}, strict=False)),
               ("Sources", pl.DataFrame(report["sources"])),
-              ("Operators", pl.DataFrame(report["operators"]))]
+              ("Operators", pl.DataFrame(report["operators"])),
+              ("Robots", pl.DataFrame(report["robots"]))]
     deep = report["deep"]
     if deep:
         rows = [{"action": p["action"], "sessions": p["sessions"],
@@ -220,6 +223,13 @@ def _tables(report: dict) -> list[tuple[str, pl.DataFrame]]:
             tables.append(("Torque noise of no-contact sessions", pl.DataFrame({
                 "joint": list(range(1, 8)), "std over session (thesis 5.3.5) [Nm]":
                 noise["tau_std_nm"], "white-noise sigma [Nm]": noise["tau_sigma_nm"]})))
+        for agreement in deep["residual_agreement"]:
+            tables.append((f"Observer residual against the robot's own estimate "
+                           f"(-tau_ext_hat), {agreement['robot']}, median over "
+                           f"{agreement['sessions']} sessions", pl.DataFrame({
+                               "joint": list(range(1, 8)),
+                               "correlation": agreement["correlation"],
+                               "RMS difference [Nm]": agreement["rms_difference_nm"]})))
         limits = deep["joint_limits"]
         tables.append(("Joint-limit proximity", pl.DataFrame({
             "joint": list(range(1, 8)), "min margin [rad]": limits["min_margin_rad"],
@@ -241,6 +251,10 @@ def _summary_lines(report: dict) -> list[str]:
                      f"{1e3 * s['jitter_s']['median']:.3f} ms, {s['gaps']} gaps in "
                      f"{s['sessions_with_gaps']} sessions (~{s['dropped_estimate']} samples "
                      "missing)")
+        for agreement in deep["residual_agreement"]:
+            corr = " ".join("-" if c is None else f"{c:.2f}" for c in agreement["correlation"])
+            lines.append(f"residual vs the robot's own estimate ({agreement['robot']}, "
+                         f"{agreement['sessions']} sessions): correlation per joint {corr}")
         delay = deep["onset_delay_s"]
         if delay["n"]:
             lines.append(f"onset delay (detected - planned): median {delay['median']:.3f} s "

@@ -24,7 +24,7 @@ from contactkit.replay.session_replay import (
     session_inputs,
 )
 from contactkit.schemas import InputError
-from contactkit.util.cli import new_app, run_app
+from contactkit.util.cli import RobotOpt, new_app, run_app
 from contactkit.util.progress import err_console, labelled_progress, progress_bar
 from contactkit.util.viewer import has_display, start_web_viewer
 
@@ -84,6 +84,7 @@ def replay_command(
     decide_after: Annotated[float | None, typer.Option(
         help="Time after a contact's onset at which its intent is decided [s] (default: "
              "the model's).")] = None,
+    robot: RobotOpt = None,
     build_default_model_: Annotated[bool, typer.Option(
         "--build-default-model", help="(Re)build the default model from its recipe "
                                       "(see replay/default_model.py) and exit.")] = False,
@@ -137,7 +138,7 @@ def replay_command(
         summaries, problems = replay_sessions(
             paths, classifier, save=save, connect=connect, spawn=viewer is Viewer.rerun,
             rate=speed, hop_s=hop, detector=detector, decide_after_s=decide_after,
-            log_rate_hz=log_rate, on_done=report)
+            log_rate_hz=log_rate, robot=robot, on_done=report)
     written = [s.saved for s in summaries if s.saved is not None]
     if len(written) == 1:
         err_console.print(f"saved {written[0]}; open it with `rerun {written[0]}`")

@@ -38,9 +38,11 @@ import pyarrow.parquet as pq
 
 from contactkit.classify.events import NONE, ContactEvent, EventPipeline
 from contactkit.classify.modelfile import ModelFile
+from contactkit.features.agreement import ResidualAgreement
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.timeseries import ChainConfig, ChunkedChain, columns_of, expand
 from contactkit.features.windows import Window
+from contactkit.robots import get_robot
 from contactkit.schemas import InputError, Session
 from contactkit.schemas.session import (
     complete_table,
@@ -69,7 +71,9 @@ class Block:
     residual ``r`` [Nm] (n, 7), ``force`` [N] and ``moment`` [Nm] (n, 3), their
     ``norms`` (n, 2), the ground truth where the session has it (``true_force`` [N]
     (n, 3), ``contact`` (n,)), the samples ``robot`` (indices into the block) where the
-    3-D robot is drawn with its end effector at ``ee_position`` [m], the event
+    3-D robot is drawn with its end effector at ``ee_position`` [m], the robot's own
+    external-torque estimate with the residual's sign (``robot_estimate``, -tau_ext_hat
+    [Nm] (n, 7), where the session has it), the event
     pipeline's per-sample ``event_label`` and ``score`` (None without a detector),
     and the predictions made among these samples: ``pred_t`` [s], ``pred_sample``,
     ``pred_proba`` (m, classes) and ``pred_label``."""
@@ -88,6 +92,7 @@ class Block:
     ee_position: np.ndarray
     true_force: np.ndarray | None = None
     contact: np.ndarray | None = None
+    robot_estimate: np.ndarray | None = None
     event_label: np.ndarray | None = None
     score: np.ndarray | None = None
     pred_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -128,12 +133,14 @@ class ReplayStream:
     ``detector`` overrides the model's detector settings; ``decide_after_s`` its
     decision delay [s]; ``detector`` holds the settings in use (None without one).
     ``batch_rows`` is the number of samples read and computed at a time (default
-    ``BATCH_ROWS``).
+    ``BATCH_ROWS``); ``robot`` names the arm's model instead of the session's own
+    (:mod:`contactkit.robots`).
     """
 
     def __init__(self, session: Session | str | Path, model: ModelFile,
                  hop_s: float = DEFAULT_HOP_S, detector: DetectorConfig | None = None,
-                 decide_after_s: float | None = None, batch_rows: int | None = None) -> None:
+                 decide_after_s: float | None = None, batch_rows: int | None = None,
+                 robot: str | None = None) -> None:
         if hop_s <= 0:
             raise InputError(f"the prediction hop must be positive, got {hop_s} s")
         if isinstance(session, Session):
@@ -143,6 +150,10 @@ class ReplayStream:
             self.session = None
             self.path = Path(session)
             self.meta, _ = read_session_meta(self.path)
+        try:
+            self.meta = self.meta.with_robot(robot)
+        except InputError as err:
+            raise InputError(err.problem, self.path) from err
         self.model = model
         self.hop_s = hop_s
         self.batch_rows = batch_rows or BATCH_ROWS
@@ -160,7 +171,9 @@ class ReplayStream:
         self.pred_proba: list[np.ndarray] = []
         self.pred_window_proba: list[np.ndarray] = []
         self.pred_label: list[str] = []
-        self.detector = detector = detector or model.detector_config()
+        detector = detector or model.detector_config()
+        self.detector = detector = None if detector is None else detector.for_robot(
+            get_robot(self.meta.robot_setup(self.path).robot))
         self.pipeline = None if detector is None else EventPipeline(
             detector, model.event_model(), decide_after_s)
         self.event_samples: dict[float, int] = {}
@@ -168,6 +181,9 @@ class ReplayStream:
         decided or ended, and of the first and last sample."""
         self.n_samples = 0
         self.planned_sample: int | None = None
+        self.agreement = ResidualAgreement()
+        """The residual's agreement with the robot's own estimate (sessions with
+        ``tau_ext_hat``), accumulated as the session streams."""
 
     @property
     def events(self) -> list[ContactEvent]:
@@ -201,7 +217,7 @@ class ReplayStream:
     def blocks(self, every_hop: bool = False) -> Iterator[Block]:
         """Stream the session; yield a :class:`Block` per batch read, or with
         ``every_hop`` after every prediction (and at the end of each batch)."""
-        chain = ChunkedChain(self.chain_config, self.meta.with_hand,
+        chain = ChunkedChain(self.chain_config, self.chain_config.robot_setup(self.meta, self.path),
                              list(dict.fromkeys([*self.names, "r", "f", "m", "fm_norm"])))
         model, ee = chain.model, chain.model.end_effector
         history_t, history_v = np.zeros(0), np.zeros((0, len(self.channels)))
@@ -237,8 +253,13 @@ class ReplayStream:
                 if all(c in table.column_names for c in TRUTH_FORCE) else None
             contact = table.column("contact").to_numpy(zero_copy_only=False) \
                 if "contact" in table.column_names else None
+            estimate = -_joints(table, "tau_ext_hat") if all(
+                c in table.column_names for c in joint_columns("tau_ext_hat")) else None
+            if estimate is not None:
+                self.agreement.update(t, out["r"], -estimate)
             whole = Block(start, start + n, t, q, dq, tau, out["r"], out["f"], out["m"],
-                          out["fm_norm"], robot, ee_position, truth, contact, labels, scores)
+                          out["fm_norm"], robot, ee_position, truth, contact, estimate,
+                          labels, scores)
             first, predictions = 0, []
             for k in range(n):
                 if self.pipeline is not None:
@@ -346,7 +367,8 @@ def _part(block: Block, first: int, stop: int,
     part = Block(block.start + first, block.start + stop, block.t[s], block.q[s],
                  block.dq[s], block.tau[s], block.r[s], block.force[s], block.moment[s],
                  block.norms[s], robot - first, ee, rows(block.true_force),
-                 rows(block.contact), rows(block.event_label), rows(block.score))
+                 rows(block.contact), rows(block.robot_estimate), rows(block.event_label),
+                 rows(block.score))
     if predictions:
         part.pred_t = np.array([p[0] for p in predictions])
         part.pred_sample = np.array([p[1] for p in predictions], dtype=np.int64)

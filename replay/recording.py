@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from contactkit.features.dynamics import viewer_urdf_file
 from contactkit.replay.engine import ROBOT_VIEW_HZ, Block, OfflineAnswer, ReplayStream
+from contactkit.robots.surfaces import viewer_urdf_file
 from contactkit.schemas import rerun_layout as layout
 from contactkit.util.paths import inside
 
@@ -49,7 +49,7 @@ def log_static(rec: rr.RecordingStream, stream: ReplayStream) -> rr.urdf.UrdfTre
     action (at ``t0``, the first sample's time [s])."""
     meta = stream.meta
     layout.log_series_styles(rec, stream.classes)
-    tree = layout.log_robot_model(rec, viewer_urdf_file(meta.with_hand))
+    tree = layout.log_robot_model(rec, viewer_urdf_file(meta.robot_setup()))
     layout.log_force_arrow_style(rec)
     log_session_properties(rec, stream)
     t0, _ = stream.time_span()
@@ -112,6 +112,9 @@ class BlockLogger:
             layout.log_joint_columns(rec, t, sample, block.q[keep], block.dq[keep],
                                      block.tau[keep])
             layout.log_scalar_columns(rec, layout.RESIDUAL, t, sample, block.r[keep])
+            if block.robot_estimate is not None:
+                layout.log_scalar_columns(rec, layout.ROBOT_ESTIMATE, t, sample,
+                                          block.robot_estimate[keep])
             layout.log_scalar_columns(rec, layout.FORCE, t, sample, block.force[keep])
             layout.log_scalar_columns(rec, layout.MOMENT, t, sample, block.moment[keep])
             layout.log_scalar_columns(rec, layout.FORCE_NORM, t, sample, block.norms[keep, :1])

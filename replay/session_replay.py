@@ -51,6 +51,9 @@ class ReplaySummary:
     pred_label: list[str]
     saved: Path | None
     events: list[ContactEvent] | None = None
+    agreement: dict | None = None
+    """The residual's agreement with the robot's own estimate
+    (:class:`~contactkit.features.agreement.ResidualAgreement`), where recorded."""
 
     def line(self) -> str:
         """Return a one-line summary for a terminal."""
@@ -68,8 +71,13 @@ class ReplaySummary:
         events = "" if self.events is None else (
             f"; {len(self.events)} contact events"
             + "".join(f", {e.label} at {e.onset_s:.2f} s" for e in self.events[:5]))
+        agreement = "" if self.agreement is None else (
+            "; residual vs robot estimate: correlation "
+            + " ".join("-" if c is None else f"{c:.2f}" for c in self.agreement["correlation"])
+            + ", RMS difference max "
+            + f"{max(v for v in self.agreement['rms_difference_nm'] if v is not None):.2f} Nm")
         return (f"{self.path.name}: recorded {self.recorded}, {offline}; {online}; "
-                f"{len(self.pred_t)} online predictions{events}")
+                f"{len(self.pred_t)} online predictions{events}{agreement}")
 
 
 def session_inputs(inputs: Sequence[Path]) -> list[Path]:
@@ -101,7 +109,8 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
                    connect: str | None = None, spawn: bool = False, rate: float | None = None,
                    hop_s: float = DEFAULT_HOP_S, detector: DetectorConfig | None = None,
                    decide_after_s: float | None = None,
-                   log_rate_hz: float | None = None) -> ReplaySummary:
+                   log_rate_hz: float | None = None, robot: str | None = None
+                   ) -> ReplaySummary:
     """Replay one session into its own recording; return its summary.
 
     The session is read, computed and logged batch by batch, so memory stays bounded
@@ -111,7 +120,8 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
     ``hop_s`` [s] is the time between online predictions. ``log_rate_hz`` [Hz] thins
     the series sent to Rerun (None: every sample; the chain, the events and the
     predictions still see every sample). ``detector`` overrides the model's contact
-    detector settings and ``decide_after_s`` [s] its decision delay. The session's
+    detector settings and ``decide_after_s`` [s] its decision delay; ``robot`` names the
+    arm's model instead of the session's own. The session's
     metadata and the model are checked before any file is created, and a replay that
     fails (also on a bad row found late in the file) leaves no file.
     """
@@ -119,7 +129,7 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
         raise InputError(f"the replay rate must be positive, got {rate}")
     if log_rate_hz is not None and not log_rate_hz > 0:
         raise InputError(f"the log rate must be positive, got {log_rate_hz} Hz")
-    stream = ReplayStream(Path(path), model, hop_s, detector, decide_after_s)
+    stream = ReplayStream(Path(path), model, hop_s, detector, decide_after_s, robot=robot)
     t0, t_end = stream.time_span()
     rec = new_recording(Path(path).stem, stream.meta.session_id)
     blueprint = layout.replay_blueprint(t_end)
@@ -152,7 +162,8 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
     rec.disconnect()
     return ReplaySummary(Path(path), stream.meta.action, answer, list(stream.pred_t),
                          list(stream.pred_label), save,
-                         None if stream.pipeline is None else stream.events)
+                         None if stream.pipeline is None else stream.events,
+                         stream.agreement.result())
 
 
 def replay_sessions(paths: Sequence[Path], model: ModelFile, *, save: Path | None = None,
@@ -160,13 +171,14 @@ def replay_sessions(paths: Sequence[Path], model: ModelFile, *, save: Path | Non
                     rate: float | None = None, hop_s: float = DEFAULT_HOP_S,
                     detector: DetectorConfig | None = None,
                     decide_after_s: float | None = None, log_rate_hz: float | None = None,
+                    robot: str | None = None,
                     on_done: Callable[[ReplaySummary | InputError], None] | None = None
                     ) -> tuple[list[ReplaySummary], list[InputError]]:
     """Replay each session into its own recording (with several sessions and ``save``,
     one file each, see :func:`contactkit.replay.recording.save_path_for`); return the
     summaries and the sessions refused, which do not stop the others. ``detector``,
-    ``decide_after_s`` and ``log_rate_hz`` are as for :func:`replay_session`. ``on_done`` is
-    called after each session with its summary or its error."""
+    ``decide_after_s``, ``log_rate_hz`` and ``robot`` are as for :func:`replay_session`.
+    ``on_done`` is called after each session with its summary or its error."""
     many = len(paths) > 1
     summaries, problems = [], []
     for path in paths:
@@ -175,7 +187,7 @@ def replay_sessions(paths: Sequence[Path], model: ModelFile, *, save: Path | Non
             result = replay_session(path, model, save=target, connect=connect, spawn=spawn,
                                     rate=rate, hop_s=hop_s, detector=detector,
                                     decide_after_s=decide_after_s,
-                                    log_rate_hz=log_rate_hz)
+                                    log_rate_hz=log_rate_hz, robot=robot)
             summaries.append(result)
         except InputError as err:
             result = err

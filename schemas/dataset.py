@@ -15,6 +15,7 @@ from pathlib import Path
 import pyarrow as pa
 
 from contactkit.errors import InputError
+from contactkit.robots import canonical_robot_name
 from contactkit.schemas.session import SessionMeta, atomic_write_parquet, read_session_meta
 
 INDEX_NAME = "index.parquet"
@@ -37,6 +38,7 @@ INDEX_SCHEMA = pa.schema([
     pa.field("t_end_s", pa.float64()),
     pa.field("duration_s", pa.float64()),
     pa.field("operator", pa.string()),
+    pa.field("robot", pa.string()),
     pa.field("with_hand", pa.bool_()),
     pa.field("recovered", pa.bool_()),
     pa.field("created_utc", pa.string()),
@@ -94,6 +96,7 @@ def index_row(path: Path, meta: SessionMeta, footer) -> dict:
         "t_end_s": t1,
         "duration_s": t1 - t0,
         "operator": meta.operator,
+        "robot": canonical_robot_name(meta.robot),
         "with_hand": meta.with_hand,
         "recovered": meta.recovered,
         "created_utc": meta.created_utc,

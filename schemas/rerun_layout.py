@@ -55,6 +55,8 @@ SAMPLE = "sample"
 JOINT_NAMES = [f"joint {i}" for i in range(1, 8)]
 Q, DQ, TAU = "joints/q", "joints/dq", "joints/tau"
 RESIDUAL = "observer/residual"
+ROBOT_ESTIMATE = "observer/robot_estimate"
+"""The robot's own external-torque estimate with the residual's sign (-tau_ext_hat)."""
 FORCE, MOMENT = "wrench/force", "wrench/moment"
 FORCE_NORM, MOMENT_NORM = "wrench/force_magnitude", "wrench/moment_magnitude"
 THRESHOLD = "observer/threshold"
@@ -68,7 +70,6 @@ ROBOT = "robot"
 EE_FORCE = "ee_force"
 BASE_FRAME = "panda_link0"
 JOINT_TRANSFORMS = "robot/joint_transforms"
-ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
 FORCE_ARROW_M_PER_N = 0.01
 FORCE_ARROW_RADIUS_M = 0.006
 CLASS_COLORS = {"none": (160, 160, 160), "bump": (66, 135, 245), "adjust": (60, 180, 75),
@@ -100,6 +101,9 @@ def log_series_styles(rec: rr.RecordingStream, classes: list[str] | None = None)
     """Log static names and colours of every series and state lane (once per recording)."""
     for path in (Q, DQ, TAU, RESIDUAL):
         rec.log(path, rr.SeriesLines(names=JOINT_NAMES, colors=JOINT_COLORS), static=True)
+    rec.log(ROBOT_ESTIMATE, rr.SeriesLines(names=[f"robot -tau_ext_hat {n}" for n in JOINT_NAMES],
+                                           colors=JOINT_COLORS, widths=[0.75] * 7),
+            static=True)
     for path, names in ((FORCE, ["f_x", "f_y", "f_z"]), (MOMENT, ["m_x", "m_y", "m_z"]),
                         (TRUE_FORCE, ["applied f_x", "applied f_y", "applied f_z"])):
         rec.log(path, rr.SeriesLines(names=names, colors=AXIS_COLORS), static=True)
@@ -182,9 +186,11 @@ def log_force_arrow_style(rec: rr.RecordingStream) -> None:
 
 def log_joint_transforms(rec: rr.RecordingStream, tree: rr.urdf.UrdfTree, t: np.ndarray,
                          sample: np.ndarray, q: np.ndarray) -> None:
-    """Animate the 7 arm joints from q [rad] (N, 7) as transform columns."""
+    """Animate the 7 arm joints (the tree's first 7 revolute joints from its root, whatever
+    the robot names them) from q [rad] (N, 7) as transform columns."""
     index = time_columns(t, sample)
-    for j, name in enumerate(ARM_JOINTS):
+    arm = [j.name for j in tree.joints() if j.joint_type in ("revolute", "continuous")][:7]
+    for j, name in enumerate(arm):
         joint = tree.get_joint_by_name(name)
         columns = joint.compute_transform_columns(q[:, j].tolist(), clamp=False)
         rec.send_columns(f"{JOINT_TRANSFORMS}/{name}", indexes=index, columns=columns)
@@ -241,8 +247,10 @@ def replay_blueprint(duration_s: float | None = None) -> rrb.Blueprint:
     on one time axis of ``duration_s`` [s] (None: each fits its data)."""
     right = rrb.Vertical(
         series_view(TAU, "joint torque tau [Nm]", duration_s),
-        series_view("observer", "observer residual r [Nm] (joint colours as above)",
-                    duration_s, contents=[f"+ {RESIDUAL}", f"+ {THRESHOLD}"], legend=False),
+        series_view("observer", "observer residual r [Nm] (joint colours as above; thin: "
+                    "the robot's own estimate, -tau_ext_hat, where recorded)",
+                    duration_s, contents=[f"+ {RESIDUAL}", f"+ {ROBOT_ESTIMATE}",
+                                          f"+ {THRESHOLD}"], legend=False),
         series_view("/", "estimated |f| and applied force [N]", duration_s,
                     contents=[f"+ {FORCE_NORM}", f"+ {TRUE_FORCE}"]),
         series_view(PROBABILITY, "class probability", duration_s,

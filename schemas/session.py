@@ -40,7 +40,7 @@ import os
 import re
 import uuid
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +49,13 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from contactkit.errors import InputError
+from contactkit.robots import (
+    DEFAULT_ROBOT,
+    URDF_PREFIX,
+    RobotSetup,
+    canonical_robot_name,
+    get_robot,
+)
 
 SCHEMA_VERSION = 1
 N_JOINTS = 7
@@ -122,8 +129,15 @@ class SessionMeta:
     operator: str = ""
     notes: str = ""
     created_utc: str = ""
-    robot: str = "franka_panda"
+    robot: str = DEFAULT_ROBOT
+    """The arm's registry name (:mod:`contactkit.robots`): ``panda``, ``fr3``, a plugin's
+    name or ``urdf:PATH``; sessions written before robots were chosen say
+    ``franka_panda``, read as ``panda``."""
     with_hand: bool = True
+    payload_kg: float = 0.0
+    """Mass on the flange besides the hand [kg] (libfranka's configured load)."""
+    payload_com_m: list[float] | None = None
+    """The payload's centre of mass in the flange frame [m]."""
     urdf_sha256: str = ""
     simulator: dict[str, Any] | None = None
     source_info: dict[str, Any] = field(default_factory=dict)
@@ -131,12 +145,47 @@ class SessionMeta:
     recovered_samples: int | None = None
     events: list[dict[str, Any]] | None = None
     """Contact events found while recording (a live event pipeline), one dict each."""
+    residual_agreement: dict[str, Any] | None = None
+    """For a session with the robot's own estimate (``tau_ext_hat``): how well the
+    observer residual agreed with it, measured at import or capture
+    (:mod:`contactkit.features.agreement`)."""
     tool_version: str = ""
     schema_version: int = SCHEMA_VERSION
 
     def to_json(self) -> str:
         """Return the metadata as one compact JSON document."""
         return json.dumps(asdict(self), sort_keys=True, separators=(",", ":"))
+
+    def robot_setup(self, path: str | Path | None = None) -> RobotSetup:
+        """Return the arm this session was recorded on (robot, hand, payload).
+
+        Raises :class:`InputError` naming ``path`` for an unknown robot, and for a
+        ``urdf:PATH`` robot whose file's SHA-256 differs from the one stored.
+        """
+        try:
+            name = canonical_robot_name(self.robot)
+            if name.startswith(URDF_PREFIX) and self.urdf_sha256:
+                found = get_robot(name).urdf_sha256(self.with_hand)
+                if found != self.urdf_sha256:
+                    raise InputError(f"the URDF at {name[len(URDF_PREFIX):]} is not the one "
+                                     f"the session was recorded with (SHA-256 {found[:12]}, "
+                                     f"stored {self.urdf_sha256[:12]}); pass --robot to "
+                                     "choose the model")
+        except InputError as err:
+            raise InputError(err.problem, path or err.path) from err
+        com = self.payload_com_m or (0.0, 0.0, 0.0)
+        return RobotSetup(robot=name, with_hand=self.with_hand,
+                          payload_kg=float(self.payload_kg),
+                          payload_com_m=(float(com[0]), float(com[1]), float(com[2])))
+
+    def with_robot(self, robot: str | None) -> SessionMeta:
+        """Return a copy that names ``robot`` (the session's own when None), with the
+        URDF hash of that robot's model: how ``--robot`` overrides a session's arm."""
+        if robot is None:
+            return self
+        name = canonical_robot_name(robot)
+        return replace(self, robot=name,
+                       urdf_sha256=get_robot(name).urdf_sha256(self.with_hand))
 
     @classmethod
     def from_dict(cls, doc: Mapping[str, Any], path: str | Path | None = None) -> SessionMeta:
@@ -171,6 +220,17 @@ class SessionMeta:
             if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):
                 raise InputError(f"metadata {name} has the wrong type "
                                  f"({type(value).__name__}: {_short(value)})", path)
+        try:
+            canonical_robot_name(self.robot)
+        except InputError as err:
+            raise InputError(f"metadata {err.problem}", path) from err
+        if not (_finite(self.payload_kg) and 0.0 <= self.payload_kg <= MAX_PAYLOAD_KG):
+            raise InputError(f"metadata payload_kg {_short(self.payload_kg)} is outside "
+                             f"0..{MAX_PAYLOAD_KG:g} kg", path)
+        com = self.payload_com_m
+        if com is not None and (len(com) != 3 or not all(
+                _finite(v) and abs(v) <= 1.0 for v in com)):
+            raise InputError("metadata payload_com_m is not 3 coordinates within 1 m", path)
         if self.action not in ACTIONS:
             raise InputError(f"unknown action {_short(self.action)} (expected one of "
                              f"{', '.join(ACTIONS)})", path)
@@ -206,6 +266,8 @@ class SessionMeta:
                              "is not a count", path)
 
 
+MAX_PAYLOAD_KG = 100.0
+"""Heaviest payload [kg] the metadata may describe."""
 MAX_SESSION_S = 86_400.0
 """Longest session [s] the metadata may describe (one day): bounds planned times."""
 SESSION_ID = re.compile(r"[A-Za-z0-9_-]{1,64}")
@@ -219,9 +281,10 @@ _FIELD_TYPES: dict[str, tuple[type, ...]] = {
     "speed_rad_s": _OPTIONAL_NUMBER, "link": (int, type(None)),
     "planned_at_s": _OPTIONAL_NUMBER, "nominal_rate_hz": _OPTIONAL_NUMBER,
     "operator": (str,), "notes": (str,), "created_utc": (str,), "robot": (str,),
-    "with_hand": (bool,), "urdf_sha256": (str,), "simulator": (dict, type(None)),
+    "with_hand": (bool,), "payload_kg": _NUMBER, "payload_com_m": (list, type(None)),
+    "urdf_sha256": (str,), "simulator": (dict, type(None)),
     "source_info": (dict,), "recovered": (bool,), "recovered_samples": (int, type(None)),
-    "events": (list, type(None)),
+    "events": (list, type(None)), "residual_agreement": (dict, type(None)),
     "tool_version": (str,), "schema_version": (int,),
 }
 _BOUNDS = (("planned_at_s", 0.0, MAX_SESSION_S), ("speed_rad_s", 1e-6, 100.0),

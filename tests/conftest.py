@@ -32,6 +32,7 @@ settings.load_profile(os.environ.get("CONTACTKIT_FUZZ_PROFILE", "ci"))
 
 REFERENCE = Path(__file__).resolve().parents[2] / "shared" / "reference" / "gaz2019-exciting-traj"
 MINDLAB = REFERENCE.parent / "mindlab-contact"
+FR3_REFERENCE = REFERENCE.parent / "fr3-teleop-follower"
 MINDLAB_FILES = ("a4", "b8", "c2", "d3", "f2")
 BIN = Path(sys.executable).parent
 
@@ -44,11 +45,14 @@ def simulate_columns(spec, config) -> dict[str, np.ndarray]:
 
 def make_session(directory: Path, *, seed: int = 3, action: str = "shove", pose: str = "B",
                  link: int | None = 7, duration_s: float = 3.0, planned_at_s: float = 1.5,
-                 rate_hz: float = 500.0, **kwargs) -> Path:
-    """Simulate and write a short session; return its path."""
-    config = SimConfig(rate_hz=rate_hz)
+                 rate_hz: float = 500.0, robot: str = "panda", with_hand: bool = True,
+                 **kwargs) -> Path:
+    """Simulate and write a short session; return its path. ``robot`` (default panda) and
+    ``with_hand`` choose the simulated arm."""
+    config = SimConfig(rate_hz=rate_hz, robot=robot, with_hand=with_hand)
     spec = plan_session(seed=seed, condition="static", action=action, pose=pose, link=link,
-                        duration_s=duration_s, planned_at_s=planned_at_s, **kwargs)
+                        duration_s=duration_s, planned_at_s=planned_at_s, robot=config.setup,
+                        **kwargs)
     meta = SimSource(spec, config).session_meta()
     path = directory / f"{action}_{seed}.parquet"
     write_session(path, simulate_columns(spec, config), meta)
@@ -69,6 +73,16 @@ def reference_dir() -> Path:
             pytest.fail(f"reference recording missing at {REFERENCE} (CI must have ../shared)")
         pytest.skip(f"reference recording not found at {REFERENCE}")
     return REFERENCE
+
+
+@pytest.fixture(scope="session")
+def fr3_dir() -> Path:
+    """The two real FR3 recordings in teleoperated free motion (no contact)."""
+    if not FR3_REFERENCE.is_dir():
+        if os.environ.get("CI"):
+            pytest.fail(f"FR3 recordings missing at {FR3_REFERENCE} (CI must have ../shared)")
+        pytest.skip(f"FR3 recordings not found at {FR3_REFERENCE}")
+    return FR3_REFERENCE
 
 
 @pytest.fixture(scope="session")

@@ -17,7 +17,7 @@ def test_cached_chain_equals_the_chain_and_is_computed_once(session_path, tmp_pa
     monkeypatch.setenv("CONTACTKIT_CACHE", str(tmp_path / "cache"))
     session = read_session(session_path)
     names = ["dq", "tau", "r", "f"]
-    direct = TimeseriesChain(ChainConfig(), session.meta.with_hand).compute(
+    direct = TimeseriesChain.for_session(session.meta).compute(
         session.t, session.q, session.dq, session.tau, names)
     first = chain_series(session, ChainConfig(), names)
     assert len(list((tmp_path / "cache" / "chain").glob("*/r.parquet"))) == 1

@@ -23,6 +23,7 @@ from contactkit.features.detector import (
 )
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.recorder.arrays import load_joint_arrays
+from contactkit.robots import RobotSetup
 from contactkit.schemas import InputError
 from tests.conftest import MINDLAB_FILES, load_mindlab
 
@@ -160,14 +161,14 @@ def test_motion_margin_widens_only_the_growth_with_motion() -> None:
 def gaz(reference_dir: Path) -> dict[str, np.ndarray]:
     data = load_joint_arrays(*(reference_dir / f for f in ("time.txt", "positions.txt",
                                                            "velocity.txt", "torques.txt")))
-    chain = TimeseriesChain(with_hand=False)
+    chain = TimeseriesChain(robot=RobotSetup(with_hand=False))
     data["r"] = chain.compute(data["t"], data["q"], data["dq"], data["tau"], ["r"])["r"]
     return data
 
 
 @pytest.fixture(scope="module")
 def mindlab(mindlab_dir: Path) -> dict[str, dict[str, np.ndarray]]:
-    chain = TimeseriesChain(with_hand=True)
+    chain = TimeseriesChain()
     out = {}
     for name in MINDLAB_FILES:
         data = load_mindlab(mindlab_dir / f"{name}.csv")

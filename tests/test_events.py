@@ -43,12 +43,12 @@ def shove(tmp_path_factory) -> dict[str, np.ndarray]:
                         duration_s=4.0, planned_at_s=1.5)
     session = read_session(path)
     t, q, dq, tau = session.t, session.q, session.dq, session.tau
-    r = TimeseriesChain(with_hand=True).compute(t, q, dq, tau, ["r"])["r"]
+    r = TimeseriesChain().compute(t, q, dq, tau, ["r"])["r"]
     return {"t": t, "q": q, "dq": dq, "tau": tau, "r": r, "contact": session.column("contact")}
 
 
 def _streamed(data, model, decide_after_s=None, stop=None):
-    chain = OnlineChain(with_hand=True)
+    chain = OnlineChain()
     pipeline = EventPipeline(DETECTOR, model, decide_after_s)
     labels = []
     for k in range(len(data["t"]) if stop is None else stop):

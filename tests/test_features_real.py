@@ -13,6 +13,7 @@ from contactkit.features.timeseries import ALL_TIMESERIES, ChainConfig, OnlineCh
 from contactkit.features.windows import WindowSpec, find_window
 from contactkit.recorder.arrays import load_joint_arrays
 from contactkit.recorder.sim import SimConfig, TrackingSimulator, plan_session
+from contactkit.robots import RobotSetup
 from contactkit.schemas import read_session
 from tests.conftest import make_session
 
@@ -28,13 +29,14 @@ def _rms(x: np.ndarray) -> np.ndarray:
 
 
 def test_residual_at_the_level_of_model_error(real) -> None:
-    chain = TimeseriesChain(with_hand=False)
+    chain = TimeseriesChain(robot=RobotSetup(with_hand=False))
     r = chain.compute(real["t"], real["q"], real["dq"], real["tau"], ["r"])["r"]
     settled = real["t"] > 1.0
     rms = _rms(r[settled])
     assert 0.5 < rms[1] < 1.5, rms
     assert (np.delete(rms, 1) < 0.8).all(), rms
-    no_friction = TimeseriesChain(ChainConfig(ObserverConfig(friction=False)), with_hand=False)
+    no_friction = TimeseriesChain(ChainConfig(ObserverConfig(friction=False)),
+                                  robot=RobotSetup(with_hand=False))
     r_raw = no_friction.compute(real["t"], real["q"], real["dq"], real["tau"], ["r"])["r"]
     assert (_rms(r_raw[settled]) > rms).sum() >= 5
 
@@ -49,8 +51,8 @@ def test_window_methods_find_no_interaction_in_free_motion(real, planned_at: flo
 
 
 def _assert_stream_equals_batch(t, q, dq, tau, with_hand: bool) -> None:
-    batch = TimeseriesChain(with_hand=with_hand).compute(t, q, dq, tau)
-    online = OnlineChain(with_hand=with_hand)
+    batch = TimeseriesChain(robot=RobotSetup(with_hand=with_hand)).compute(t, q, dq, tau)
+    online = OnlineChain(robot=RobotSetup(with_hand=with_hand))
     stream = {name: [] for name in ALL_TIMESERIES}
     for k in range(len(t)):
         sample = online.update(t[k], q[k], dq[k], tau[k])
@@ -71,7 +73,7 @@ def test_batch_and_streaming_agree_on_simulated_session(tmp_path) -> None:
 
 def test_simulated_free_motion_residuals_are_the_size_of_real_ones(real) -> None:
     duration = 6.0
-    chain = TimeseriesChain(with_hand=False)
+    chain = TimeseriesChain(robot=RobotSetup(with_hand=False))
     keep = real["t"] < duration
     r_real = chain.compute(real["t"][keep], real["q"][keep], real["dq"][keep],
                            real["tau"][keep], ["r"])["r"]
@@ -80,7 +82,7 @@ def test_simulated_free_motion_residuals_are_the_size_of_real_ones(real) -> None
     for robot_seed in (0, 1):
         config = SimConfig(rate_hz=1000.0, with_hand=False, robot_seed=robot_seed)
         spec = plan_session(seed=1, condition="static", action="none", pose="A",
-                            duration_s=duration, planned_at_s=3.0, with_hand=False)
+                            duration_s=duration, planned_at_s=3.0, robot=config.setup)
         spec = dataclasses.replace(spec, q_start=tuple(real["q"][0]))
         sim = TrackingSimulator(config, real["t"], real["q"], real["dq"])
         chunks = [c for _, c, _ in sim.run([spec])]

@@ -14,8 +14,10 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-BASE = {"contactkit", "contactkit.errors", "contactkit.util"}
-# Subpackage -> the contactkit subpackages its library modules may import.
+BASE = {"contactkit", "contactkit.errors", "contactkit.util", "contactkit.robots"}
+# Subpackage -> the contactkit subpackages its library modules may import. The robot
+# models (contactkit.robots) sit beside util at the bottom: everything may use them,
+# and they import only util and errors.
 ALLOWED = {
     "contactkit": set(),
     "schemas": set(),

@@ -15,6 +15,7 @@ from contactkit.recorder.capture import record_session
 from contactkit.recorder.sources import ProtocolChoices, open_source
 from contactkit.replay.default_model import build_default_model
 from contactkit.replay.engine import ReplayStream
+from contactkit.robots import RobotSetup
 from contactkit.schemas import joint_columns, read_session
 from tests.conftest import run_cli
 
@@ -38,7 +39,8 @@ def captured(tmp_path_factory, model_path) -> tuple[Path, str]:
 
 def _listener(model_path: Path, with_hand: bool = True, report=None) -> LiveEvents:
     model = load_model(model_path)
-    return LiveEvents(model.transformer().chain_config(), with_hand, model.detector_config(),
+    return LiveEvents(model.transformer().chain_config(), RobotSetup(with_hand=with_hand),
+                      model.detector_config(),
                       model.event_model(), report=report)
 
 

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from contactkit.features.dynamics import PandaModel
 from contactkit.features.observer import RecurrenceStep, observer_coefficients, solve_recurrence
 from contactkit.features.timeseries import TimeseriesChain
+from contactkit.robots import RobotSetup
+from contactkit.robots.model import RobotModel
 from contactkit.schemas import read_session
 from tests.conftest import make_session
 
@@ -27,10 +28,10 @@ def test_blocked_scan_equals_sample_loop_on_irregular_steps() -> None:
 def test_residual_estimates_the_applied_joint_torque(tmp_path) -> None:
     session = read_session(make_session(tmp_path, seed=4, action="adjust", link=4,
                                         duration_s=6.0, planned_at_s=2.0, rate_hz=1000.0))
-    r = TimeseriesChain(with_hand=True).compute(session.t, session.q, session.dq, session.tau,
+    r = TimeseriesChain().compute(session.t, session.q, session.dq, session.tau,
                                                 ["r"])["r"]
     spec = session.meta.simulator["session"]["contact"]
-    model = PandaModel(True)
+    model = RobotModel(RobotSetup(with_hand=True))
     t = session.t
     hold = (t > spec["onset_s"] + spec["rise_s"] + 0.1) & \
            (t < spec["onset_s"] + spec["rise_s"] + spec["hold_s"] - 0.05)

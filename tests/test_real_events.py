@@ -16,6 +16,7 @@ from contactkit.features.timeseries import TimeseriesChain
 from contactkit.recorder.arrays import load_joint_arrays
 from contactkit.replay.default_model import build_default_model
 from contactkit.replay.engine import ReplayStream
+from contactkit.robots import RobotSetup
 from contactkit.schemas import SessionMeta, joint_columns, read_session, write_session
 from tests.conftest import MINDLAB_FILES, load_mindlab
 
@@ -29,7 +30,7 @@ def default_model():
 
 
 def _events(model, t, q, dq, tau, with_hand: bool):
-    r = TimeseriesChain(with_hand=with_hand).compute(t, q, dq, tau, ["r"])["r"]
+    r = TimeseriesChain(robot=RobotSetup(with_hand=with_hand)).compute(t, q, dq, tau, ["r"])["r"]
     detection = detect(t, r, dq, model.detector_config())
     return batch_events(t, r, detection, model.event_model())
 

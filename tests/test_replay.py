@@ -17,13 +17,14 @@ from contactkit.classify.data import load_features
 from contactkit.classify.modelfile import load_model, save_model
 from contactkit.classify.registry import get_kind, make_estimator
 from contactkit.errors import InputError
-from contactkit.features.dynamics import viewer_urdf_file
 from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import scalar_features
 from contactkit.features.timeseries import TimeseriesChain, columns_of
 from contactkit.replay import cli as replay_cli
 from contactkit.replay.recording import ContactEvent, log_contact_events
 from contactkit.replay.session_replay import replay_sessions
+from contactkit.robots import RobotSetup
+from contactkit.robots.surfaces import viewer_urdf_file
 from contactkit.schemas import read_session
 from contactkit.schemas import rerun_layout as layout
 from contactkit.schemas.session import METADATA_KEY
@@ -100,7 +101,7 @@ def test_every_entity_exists_with_one_row_per_sample(replayed, session) -> None:
 
 def test_logged_residual_equals_the_feature_chain(replayed, session) -> None:
     s = read_session(session)
-    expected = TimeseriesChain(with_hand=True).compute(s.t, s.q, s.dq, s.tau, ["r"])["r"]
+    expected = TimeseriesChain().compute(s.t, s.q, s.dq, s.tau, ["r"])["r"]
     t, logged = series(read_rrd(replayed)[layout.RESIDUAL])
     assert np.allclose(t, s.t, atol=1e-9)
     assert np.abs(logged - expected).max() <= 1e-9
@@ -119,7 +120,7 @@ def test_predictions_sit_at_window_ends_without_look_ahead(replayed, session,
     for k in (0, len(t_pred) // 2, len(t_pred) - 1):
         end = int(np.searchsorted(s.t, t_pred[k] + 1e-9))
         past = slice(0, end)
-        chain = TimeseriesChain(with_hand=True).compute(s.t[past], s.q[past], s.dq[past],
+        chain = TimeseriesChain().compute(s.t[past], s.q[past], s.dq[past],
                                                         s.tau[past], names)
         inside = s.t[past] > t_pred[k] - window
         values = np.column_stack([chain[n] for n in names])[inside]
@@ -241,7 +242,7 @@ def test_directory_replay_without_hand_has_sound_frames(tmp_path, model_path) ->
 def test_frame_check_finds_what_the_viewer_reports(tmp_path) -> None:
     rec = rr.RecordingStream("frames-test")
     rec.save(tmp_path / "bad.rrd")
-    tree = layout.log_robot_model(rec, viewer_urdf_file(True))
+    tree = layout.log_robot_model(rec, viewer_urdf_file(RobotSetup()))
     finger = tree.get_joint_by_name("panda_finger_joint1")
     rec.log(f"{layout.JOINT_TRANSFORMS}/panda_finger_joint1", finger.compute_transform(0.02),
             static=True)

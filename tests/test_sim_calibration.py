@@ -19,7 +19,8 @@ from contactkit.recorder.csv_import import read_csv_columns
 from contactkit.recorder.csv_map import load_csv_map, mindlab_map_path
 from contactkit.recorder.dataset import PRESETS, preset_specs
 from contactkit.recorder.noise import away_from_contact
-from contactkit.recorder.sim import PandaSimulator, SimConfig, plan_free_session, plan_session
+from contactkit.recorder.sim import ArmSimulator, SimConfig, plan_free_session, plan_session
+from contactkit.robots import RobotSetup
 from tests.conftest import MINDLAB_FILES
 
 
@@ -28,7 +29,7 @@ def _joints(columns: dict[str, np.ndarray], prefix: str) -> np.ndarray:
 
 
 def _residual(columns: dict[str, np.ndarray], with_hand: bool = True) -> np.ndarray:
-    return TimeseriesChain(with_hand=with_hand).compute(
+    return TimeseriesChain(robot=RobotSetup(with_hand=with_hand)).compute(
         columns["t"], _joints(columns, "q"), _joints(columns, "dq"), _joints(columns, "tau"),
         ["r"])["r"]
 
@@ -36,7 +37,7 @@ def _residual(columns: dict[str, np.ndarray], with_hand: bool = True) -> np.ndar
 def simulate(specs, config: SimConfig) -> list[dict[str, np.ndarray]]:
     """Run specs through the simulator; return each session's columns."""
     parts: dict[int, list] = {}
-    for index, columns, _ in PandaSimulator(config).run(specs):
+    for index, columns, _ in ArmSimulator(config).run(specs):
         parts.setdefault(index, []).append(columns)
     return [{k: np.concatenate([c[k] for c in parts[i]]) for k in parts[i][0]}
             for i in sorted(parts)]
@@ -80,7 +81,8 @@ def test_free_motion_residual_matches_the_real_log(reference_dir: Path) -> None:
         real.update({f"{prefix}_{j}": values[:, j - 1] for j in range(1, 8)})
     real_rms = _moving_rms(real)
     specs = [plan_free_session(seed=100 + k, action="none", pose="ABCDEFGH"[k],
-                               duration_s=8.0, pose_jitter_rad=0.1, with_hand=False)
+                               duration_s=8.0, pose_jitter_rad=0.1,
+                               robot=RobotSetup(with_hand=False))
              for k in range(8)]
     # Two robot instances (each has its own true inertia and friction), four sessions each.
     sims = [c for robot in (0, 1) for c in simulate(

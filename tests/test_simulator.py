@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from contactkit.features.dynamics import PandaModel
 from contactkit.recorder.forces import PROFILE_RANGES
 from contactkit.recorder.protocol import MAX_ONSET_DELAY_S, pose_q
-from contactkit.recorder.sim import PandaSimulator, SimConfig, plan_session
+from contactkit.recorder.sim import ArmSimulator, SimConfig, plan_session
+from contactkit.robots import RobotSetup
+from contactkit.robots.model import RobotModel
 from contactkit.schemas import InputError
 from tests.conftest import simulate_columns
 
@@ -31,7 +32,7 @@ def test_same_seed_same_data_and_batch_independence() -> None:
     alone = simulate_columns(specs[0], CONFIG)
     again = simulate_columns(_spec("shove", seed=0), CONFIG)
     parts: dict[int, list] = {}
-    for index, cols, _ in PandaSimulator(CONFIG).run(specs, chunk=37):
+    for index, cols, _ in ArmSimulator(CONFIG).run(specs, chunk=37):
         parts.setdefault(index, []).append(cols)
     batched = {k: np.concatenate([c[k] for c in parts[0]]) for k in alone}
     for name in alone:
@@ -77,7 +78,7 @@ def test_force_ground_truth_matches_action(action: str) -> None:
 def test_arm_holds_against_a_slow_push_and_torque_shows_it() -> None:
     spec = _spec("adjust", seed=5, link=4)
     cols = simulate_columns(spec, CONFIG)
-    model = PandaModel(True)
+    model = RobotModel(RobotSetup(with_hand=True))
     t = cols["t"]
     tau = np.column_stack([cols[f"tau_{i}"] for i in range(1, 8)])
     q = np.column_stack([cols[f"q_{i}"] for i in range(1, 8)])
@@ -143,7 +144,7 @@ def test_a_hard_shove_that_saturates_the_motors_does_not_diverge() -> None:
 
     preset = PRESETS["aug-sim"]
     config = SimConfig(rate_hz=preset.rate_hz, robot_seed=preset.robot_seed)
-    spec = preset_specs(preset, 64, 0, config.with_hand)[63]
+    spec = preset_specs(preset, 64, 0, config.setup)[63]
     assert spec.contact.peak_n > 130 and spec.contact.link == 7
     cols = simulate_columns(spec, config)
     dq = np.column_stack([cols[f"dq_{i}"] for i in range(1, 8)])

@@ -110,18 +110,24 @@ def test_under_represented_class_warns() -> None:
              "condition": "static", "pose": "A", "target_pose": None,
              "action": "shove" if i < 2 else ("none", "bump", "adjust")[i % 3], "link": 3,
              "speed_rad_s": None, "planned_at_s": 5.0, "duration_s": 12.0, "t_end_s": 12.0,
-             "operator": "x", "recovered": False, "file_bytes": 100, "n_samples": 12001}
+             "operator": "x", "robot": "panda", "recovered": False, "file_bytes": 100,
+             "n_samples": 12001}
             for i in range(30)]
     stats = index_stats(pl.LazyFrame(rows))
     assert any("'shove' is under-represented" in w for w in stats["class_balance_warnings"])
+    assert stats["robots"] == [{"robot": "panda", "sessions": 30}]
+    mixed = index_stats(pl.LazyFrame([{**row, "robot": ("panda", "fr3")[i % 2]}
+                                      for i, row in enumerate(rows)]))
+    assert any("sessions of 2 robots (fr3, panda)" in w
+               for w in mixed["class_balance_warnings"])
 
 
 def test_slow_sessions_are_problems() -> None:
     rows = [{"file": f"{i}.parquet", "session_id": str(i), "source": "ros-bag",
              "condition": "static", "pose": "A", "target_pose": None, "action": "none",
              "link": None, "speed_rad_s": None, "planned_at_s": 5.0, "duration_s": 12.0,
-             "t_end_s": 12.0, "operator": "x", "recovered": False, "file_bytes": 100,
-             "n_samples": n} for i, n in enumerate((361, 12001))]
+             "t_end_s": 12.0, "operator": "x", "robot": "panda", "recovered": False,
+             "file_bytes": 100, "n_samples": n} for i, n in enumerate((361, 12001))]
     problems = index_stats(pl.LazyFrame(rows))["problems"]
     slow = [p for p in problems if "too slow for the feature chain" in p["problem"]]
     assert [p["file"] for p in slow] == ["0.parquet"]

@@ -11,11 +11,12 @@ import pyarrow.parquet as pq
 import pytest
 
 from contactkit.features import chain_cache
-from contactkit.features.dynamics import PandaModel
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.features.windows import WindowSpec, find_window
 from contactkit.recorder import stats_deep
 from contactkit.recorder.noise import robust_noise_sigma
+from contactkit.robots import RobotSetup
+from contactkit.robots.model import RobotModel
 from contactkit.schemas import read_session, write_session
 from contactkit.schemas.session import table_from_columns
 from contactkit.schemas.timing import sampling_stats, streamed_sampling_stats
@@ -28,7 +29,7 @@ def _whole_session_summary(path: Path) -> dict:
     """The summary as computed before streaming: the whole session in memory."""
     session = read_session(path).complete()
     meta, t = session.meta, session.t
-    series = TimeseriesChain(with_hand=meta.with_hand).compute(
+    series = TimeseriesChain(robot=RobotSetup(with_hand=meta.with_hand)).compute(
         t, session.q, session.dq, session.tau, ["r", "fm_norm"])
     force = series["fm_norm"][:, 0]
     settled = t > t[0] + 1.0
@@ -49,7 +50,7 @@ def _whole_session_summary(path: Path) -> dict:
                 "short_for_window": bool(t[-1] < meta.planned_at_s + 0.5),
                 "force_profile_n": np.interp(onset + stats_deep.PROFILE_T, t, force,
                                              left=np.nan, right=np.nan).tolist()})
-    limits = PandaModel(meta.with_hand).limits
+    limits = RobotModel(RobotSetup(with_hand=meta.with_hand)).limits
     out["limit_margin_rad"] = np.minimum(session.q.min(axis=0) - limits.q_min,
                                          limits.q_max - session.q.max(axis=0)).tolist()
     out["max_speed_fraction"] = (np.abs(session.dq).max(axis=0) / limits.dq_max).tolist()

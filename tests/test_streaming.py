@@ -42,8 +42,8 @@ def shove(tmp_path_factory) -> Path:
 @pytest.mark.parametrize("size", [1, 7, 333, 1000, 1999, 5000])
 def test_chunked_chain_equals_the_whole_session_chain(shove, size) -> None:
     s = read_session(shove)
-    whole = TimeseriesChain(with_hand=True).compute(s.t, s.q, s.dq, s.tau)
-    chain = ChunkedChain(with_hand=True)
+    whole = TimeseriesChain().compute(s.t, s.q, s.dq, s.tau)
+    chain = ChunkedChain()
     parts = [chain.compute(s.t[i:i + size], s.q[i:i + size], s.dq[i:i + size],
                            s.tau[i:i + size]) for i in range(0, s.n_samples, size)]
     for name in ALL_TIMESERIES:
@@ -54,11 +54,11 @@ def test_chunked_chain_equals_the_whole_session_chain(shove, size) -> None:
 
 def test_an_empty_chunk_changes_nothing(shove) -> None:
     s = read_session(shove)
-    chain = ChunkedChain(with_hand=True, names=["r"])
+    chain = ChunkedChain(names=["r"])
     first = chain.compute(s.t[:10], s.q[:10], s.dq[:10], s.tau[:10])["r"]
     assert chain.compute(s.t[:0], s.q[:0], s.dq[:0], s.tau[:0])["r"].shape == (0, 7)
     rest = chain.compute(s.t[10:], s.q[10:], s.dq[10:], s.tau[10:])["r"]
-    whole = TimeseriesChain(with_hand=True).compute(s.t, s.q, s.dq, s.tau, ["r"])["r"]
+    whole = TimeseriesChain().compute(s.t, s.q, s.dq, s.tau, ["r"])["r"]
     assert np.abs(np.vstack([first, rest]) - whole).max() <= 1e-9
 
 
@@ -68,7 +68,7 @@ def test_chain_cache_written_in_row_groups_equals_the_chain(shove, tmp_path,
     monkeypatch.setattr(chain_cache, "BATCH_ROWS", 333)
     s = read_session(shove)
     cached = chain_cache.chain_series(s, ChainConfig(), ["tau", "r", "f"])
-    whole = TimeseriesChain(with_hand=True).compute(s.t, s.q, s.dq, s.tau, ["tau", "r", "f"])
+    whole = TimeseriesChain().compute(s.t, s.q, s.dq, s.tau, ["tau", "r", "f"])
     for name, values in whole.items():
         assert np.abs(cached[name] - values).max() <= 1e-9, name
     (stored,) = (tmp_path / "cache" / "chain").glob("*/r.parquet")
@@ -183,7 +183,7 @@ def test_replay_streamed_in_small_batches_logs_the_chain(tmp_path, shove, quick_
     assert summary.pred_t == whole.pred_t and summary.pred_label == whole.pred_label
     assert summary.offline.label == whole.offline.label
     s = read_session(shove)
-    expected = TimeseriesChain(with_hand=True).compute(s.t, s.q, s.dq, s.tau, ["r"])["r"]
+    expected = TimeseriesChain().compute(s.t, s.q, s.dq, s.tau, ["r"])["r"]
     logged = [b for c in rc.RrdReader(out).stream() if not c.is_static
               and c.entity_path.lstrip("/") == layout.RESIDUAL for b in [c.to_record_batch()]]
     t = np.concatenate([b.column("time").cast("int64").to_numpy() for b in logged]) / 1e9

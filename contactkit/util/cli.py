@@ -20,6 +20,13 @@ SchedulerOpt = Annotated[str | None, typer.Option(
 """The ``--scheduler`` option of every app whose commands run parallel jobs: pass its
 value to :func:`contactkit.util.parallel.use_scheduler` in the app's callback."""
 
+RobotOpt = Annotated[str | None, typer.Option(
+    help="The arm's model to use instead of the one each session names: panda, fr3, a "
+         "plugin's name or urdf:PATH (`recorder robots` lists them). For sessions "
+         "recorded before sessions named their arm; `recorder set-robot` corrects a file "
+         "for good.")]
+"""The ``--robot`` override of the commands that run the feature chain on sessions."""
+
 
 def new_app(name: str | None = None, help: str | None = None, **settings) -> typer.Typer:
     """Return a Typer app with contactkit's settings: plain help text (rich markup off, so

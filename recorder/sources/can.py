@@ -173,4 +173,5 @@ class CanSource(Source):
             info["cue_id"] = self.cue.can_id
             info["cue_bus_time_s"] = None if self.cue_time_s is None or \
                 np.isnan(self.cue_time_s) else self.cue_time_s
-        return {"source": self.name, "source_info": info}
+        robot = {} if self.fmap.robot is None else {"robot": self.fmap.robot}
+        return {"source": self.name, "source_info": info, **robot}

@@ -19,12 +19,14 @@ import numpy as np
 
 from contactkit.recorder.sources.base import ProtocolChoices, Source
 from contactkit.recorder.sources.franka_backends import (
+    BACKEND_CLASSES,
     ROW_WIDTH,
     Backend,
     ConnectionLost,
     open_backend,
     state_row,
 )
+from contactkit.robots import DEFAULT_ROBOT
 from contactkit.schemas import joint_columns
 from contactkit.schemas.session import WRENCH_HAT_COLUMNS
 
@@ -47,6 +49,9 @@ class FrankaConfig:
     realtime_kernel: bool = field(default=False, metadata={
         "help": "Enforce libfranka's real-time check (default: ignored; the recorder only "
                 "reads)."})
+    robot: str | None = field(default=None, metadata={
+        "help": "The arm's model (panda, fr3, ...; default: from the backend that "
+                "connects: pylibfranka means an FR3, panda-python a Panda)."})
 
 
 @dataclass
@@ -160,4 +165,12 @@ class FrankaSource(Source):
                 "states": self.counts.states, "states_lost": self.counts.states_lost,
                 "gaps": self.counts.gaps, "max_gap_s": self.counts.max_gap_s,
                 "end": self.end_reason}
-        return {"source": self.name, "source_info": info}
+        return {"source": self.name, "source_info": info, "robot": self.robot_name()}
+
+    def robot_name(self) -> str:
+        """Return the arm's registry name: the ``robot`` option, else the one of the
+        backend that connected (or was asked for): pylibfranka talks to an FR3,
+        panda-python to a Panda; before ``--backend auto`` connects, ``panda``."""
+        backend = self.backend_info.get("backend", self.config.backend)
+        known = BACKEND_CLASSES.get(backend)
+        return self.config.robot or (known.robot if known else DEFAULT_ROBOT)

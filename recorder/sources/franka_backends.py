@@ -84,6 +84,7 @@ class PylibfrankaBackend:
     """The official libfranka bindings (FR3, robot system 5.9 or newer)."""
 
     name = "pylibfranka"
+    robot = "fr3"
 
     def __init__(self, host: str, realtime_kernel: bool, module: Any = None) -> None:
         self.lib = module or _import(self.name)
@@ -115,6 +116,7 @@ class PandaPyBackend:
     """
 
     name = "panda-python"
+    robot = "panda"
 
     def __init__(self, host: str, realtime_kernel: bool, module: Any = None) -> None:
         self.lib = module or _import(self.name)

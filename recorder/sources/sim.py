@@ -14,7 +14,7 @@ import numpy as np
 
 from contactkit.recorder.metadata import session_meta
 from contactkit.recorder.noise import SensorNoise, default_noise
-from contactkit.recorder.sim import PandaSimulator, SessionSpec, SimConfig, plan_session
+from contactkit.recorder.sim import ArmSimulator, SessionSpec, SimConfig, plan_session
 from contactkit.recorder.sources.base import ProtocolChoices, Source
 from contactkit.schemas import InputError, SessionMeta, joint_columns
 
@@ -39,8 +39,11 @@ class SimSource(Source):
 
     @dataclass(frozen=True)
     class Config:
-        """Options of the simulated Panda."""
+        """Options of the simulated arm."""
 
+        robot: str = field(default="panda", metadata={
+            "help": "The simulated arm: panda, fr3, or another registered robot "
+                    "(recorder robots lists them)."})
         rate: float = field(default=1000.0, metadata={
             "help": "Sample rate (the thesis recorded at ~600).", "unit": "Hz"})
         seed: int | None = field(default=None, metadata={
@@ -79,7 +82,8 @@ class SimSource(Source):
             raise InputError("the simulator needs a start pose")
         noise = default_noise() if config.noise_file is None else \
             SensorNoise.from_file(config.noise_file)
-        sim_config = SimConfig(rate_hz=config.rate, with_hand=choices.with_hand,
+        sim_config = SimConfig(rate_hz=config.rate, robot=config.robot,
+                               with_hand=choices.with_hand,
                                robot_seed=config.robot_seed, noise=noise,
                                noise_scale=config.noise_scale,
                                jitter_s=config.jitter_ms / 1000.0, drop_prob=config.drop_prob)
@@ -88,17 +92,17 @@ class SimSource(Source):
                             pose=choices.pose, target_pose=choices.target_pose,
                             speed_rad_s=choices.speed_rad_s, link=choices.link,
                             planned_at_s=choices.planned_at_s, duration_s=choices.duration_s,
-                            operator=choices.operator or "sim", with_hand=choices.with_hand)
+                            operator=choices.operator or "sim", robot=sim_config.setup)
         return cls(spec, sim_config, choices=choices)
 
     def stream(self) -> Iterator[dict[str, np.ndarray]]:
         """Yield the session's rows, ``chunk`` samples at a time."""
-        for _, columns, _ in PandaSimulator(self.config).run([self.spec], chunk=self.chunk):
+        for _, columns, _ in ArmSimulator(self.config).run([self.spec], chunk=self.chunk):
             yield columns
 
     def metadata(self) -> dict[str, Any]:
         """Return source, simulator parameters and seed for the session metadata."""
-        return {"source": self.name,
+        return {"source": self.name, "robot": self.config.robot,
                 "simulator": {"seed": self.spec.seed, "config": self.config.to_dict(),
                               "session": self.spec.as_dict()}}
 

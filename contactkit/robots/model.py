@@ -1,0 +1,143 @@
+"""Rigid-body dynamics of a session's arm through pinocchio: M(q), C(q, dq), g(q),
+Jacobians, inverse and forward dynamics.
+
+The model has the 7 arm joints: any other joint of the URDF (a hand's fingers) is
+locked with ``pin.buildReducedModel`` (its inertia merges into link 7). A session without
+the hand has its links stripped from the URDF before parsing; a payload is added
+to link 7's inertia at its centre of mass (flange frame).
+
+Units: q [rad], dq [rad/s], ddq [rad/s^2], torques [Nm], forces [N], lengths [m].
+Joint vectors are numpy arrays of shape (7,), joint 1 first.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+
+import numpy as np
+import pinocchio as pin
+
+from contactkit.errors import InputError
+from contactkit.robots.registry import get_robot
+from contactkit.robots.spec import N_JOINTS, RobotSetup, RobotSpec
+
+
+@cache
+def _nominal_model(setup: RobotSetup) -> pin.Model:
+    spec = get_robot(setup.robot)
+    try:
+        full = pin.buildModelFromXML(spec.urdf_text(setup.with_hand))
+    except (RuntimeError, ValueError) as err:
+        raise InputError(f"robot {setup.robot!r}: pinocchio cannot build its URDF: {err}"
+                         ) from err
+    # every joint beyond the 7 arm joints (a hand's fingers, a gripper) is locked at rest
+    locked = [full.getJointId(n) for n in full.names[1:] if n not in spec.joint_names]
+    model = full if not locked else pin.buildReducedModel(full, locked, pin.neutral(full))
+    if model.nq != N_JOINTS:
+        raise InputError(f"robot {setup.robot!r} has {model.nq} joints, not {N_JOINTS}")
+    if setup.payload_kg:
+        flange = model.frames[model.getFrameId(spec.flange)]
+        payload = pin.Inertia(setup.payload_kg, np.array(setup.payload_com_m, dtype=float),
+                              np.zeros((3, 3)))
+        model.inertias[flange.parentJoint] += flange.placement.act(payload)
+    return model
+
+
+class RobotModel:
+    """An arm's dynamics through pinocchio, for one :class:`RobotSetup`.
+
+    Each instance owns its pinocchio ``Data``, so it is not shared between threads.
+    ``spec`` is the robot's registry entry, ``limits`` its joint limits,
+    ``end_effector`` the frame of the workspace wrench (hand TCP or flange).
+    """
+
+    def __init__(self, setup: RobotSetup | None = None, model: pin.Model | None = None) -> None:
+        self.setup = setup or RobotSetup()
+        self.spec: RobotSpec = get_robot(self.setup.robot)
+        self.model = pin.Model(_nominal_model(self.setup)) if model is None else model
+        self.data = self.model.createData()
+        self.end_effector = self.spec.end_effector_frame(self.setup.with_hand)
+        self._frame_ids: dict[str, int] = {}
+        self.limits = self.spec.limits
+
+    @property
+    def with_hand(self) -> bool:
+        """Whether the model carries the robot's hand."""
+        return self.setup.with_hand and self.spec.has_hand
+
+    @property
+    def urdf_sha256(self) -> str:
+        """SHA-256 of the URDF text this model was built from."""
+        return self.spec.urdf_sha256(self.setup.with_hand)
+
+    def perturbed(self, rng: np.random.Generator, mass_rel: float = 0.05,
+                  com_m: float = 0.005) -> RobotModel:
+        """Return a copy whose link masses and inertias are scaled by 1 + U(-mass_rel,
+        mass_rel) and whose centres of mass move by up to ``com_m`` [m] per axis.
+
+        This is how the simulator's plant differs from the nominal model the
+        observer uses, as a real robot's true parameters differ from identified ones.
+        """
+        model = pin.Model(self.model)
+        for j in range(1, model.njoints):
+            inertia = model.inertias[j]
+            scale = 1.0 + rng.uniform(-mass_rel, mass_rel)
+            lever = inertia.lever + rng.uniform(-com_m, com_m, 3)
+            model.inertias[j] = pin.Inertia(inertia.mass * scale, lever,
+                                            inertia.inertia * scale)
+        return RobotModel(self.setup, model)
+
+    def frame_id(self, link: int | str) -> int:
+        """Return the pinocchio frame id of link 1..7, or of a frame given by name."""
+        name = self.spec.link_frames[link - 1] if isinstance(link, int) else link
+        if name not in self._frame_ids:
+            if not self.model.existFrame(name):
+                raise InputError(f"robot {self.setup.robot!r} has no frame {name!r}")
+            self._frame_ids[name] = self.model.getFrameId(name)
+        return self._frame_ids[name]
+
+    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        """Return the joint-space inertia matrix M(q) [kg m^2], shape (7, 7), symmetric."""
+        m = pin.crba(self.model, self.data, q)
+        return np.triu(m) + np.triu(m, 1).T
+
+    def coriolis_matrix(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        """Return C(q, dq) [Nm s/rad] with dM/dt - 2C skew-symmetric, shape (7, 7)."""
+        return pin.computeCoriolisMatrix(self.model, self.data, q, dq).copy()
+
+    def gravity(self, q: np.ndarray) -> np.ndarray:
+        """Return the gravity torque g(q) [Nm], shape (7,)."""
+        return pin.computeGeneralizedGravity(self.model, self.data, q).copy()
+
+    def inverse_dynamics(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+        """Return M ddq + C dq + g [Nm]: the joint torque for ``ddq`` with no external force."""
+        return pin.rnea(self.model, self.data, q, dq, ddq).copy()
+
+    def forward_dynamics(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """Return ddq [rad/s^2] = M^-1 (tau - C dq - g) (articulated-body algorithm)."""
+        return pin.aba(self.model, self.data, q, dq, tau).copy()
+
+    def frame_placement(self, q: np.ndarray, link: int | str) -> pin.SE3:
+        """Return the world placement of link 1..7 (or a named frame) at ``q``."""
+        pin.framesForwardKinematics(self.model, self.data, q)
+        return self.data.oMf[self.frame_id(link)].copy()
+
+    def point_jacobian(self, q: np.ndarray, link: int | str,
+                       point_local: np.ndarray | None = None) -> np.ndarray:
+        """Return the 6x7 Jacobian of a point fixed on a link, world-aligned axes.
+
+        Rows 0-2 map dq to the point's linear velocity [m/s], rows 3-5 to the link's
+        angular velocity [rad/s]. ``point_local`` is the point in the link frame [m]
+        (the frame origin when omitted). J^T [f; m] is the joint torque [Nm] produced
+        by a force f [N] and moment m [Nm] acting at that point.
+        """
+        fid = self.frame_id(link)
+        pin.computeJointJacobians(self.model, self.data, q)
+        pin.updateFramePlacements(self.model, self.data)
+        jac = pin.getFrameJacobian(self.model, self.data, fid, pin.LOCAL_WORLD_ALIGNED)
+        if point_local is not None:
+            offset = self.data.oMf[fid].rotation @ np.asarray(point_local, dtype=float)
+            jac = jac.copy()
+            jac[:3] -= np.cross(offset, jac[3:].T).T
+        return jac
+

@@ -1,0 +1,143 @@
+"""Robot models chosen by name, like python-can's interfaces.
+
+A session names its robot in its metadata (``robot``). The name is looked up here:
+
+* the built-in ``panda`` and ``fr3`` (:mod:`contactkit.robots.builtin`); sessions
+  written before robots were chosen per session say ``franka_panda``, an alias of
+  ``panda``;
+* robots that installed packages declare in the ``contactkit.robots`` entry-point
+  group, each pointing at a :class:`~contactkit.robots.spec.RobotSpec` (or a
+  function returning one)::
+
+      [project.entry-points."contactkit.robots"]
+      myarm = "mylab.myarm:MYARM"
+
+  Listing the names reads the entry points' names only; a plugin is imported when
+  its robot is used;
+* ``urdf:PATH``: any 7-joint serial arm described by a URDF file
+  (:func:`urdf_robot`). A session stores the URDF's SHA-256, and reading it on a
+  machine whose file at PATH differs is an error, since a stored path does not
+  travel.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.metadata
+import xml.etree.ElementTree as ET
+from functools import cache
+from pathlib import Path
+
+from contactkit.errors import InputError
+from contactkit.robots.builtin import BUILTIN
+from contactkit.robots.spec import N_JOINTS, RobotSpec
+
+ENTRY_POINT_GROUP = "contactkit.robots"
+URDF_PREFIX = "urdf:"
+DEFAULT_ROBOT = "panda"
+_BUILTIN = {spec.name: spec for spec in BUILTIN}
+_ALIASES = {alias: spec.name for spec in BUILTIN for alias in spec.aliases}
+
+
+def _plugins() -> dict[str, importlib.metadata.EntryPoint]:
+    return {e.name: e for e in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
+            if e.name not in _BUILTIN and e.name not in _ALIASES}
+
+
+def robot_names() -> list[str]:
+    """Return the names of every known robot: built-in first, then plugins (names only,
+    nothing is imported)."""
+    return [*_BUILTIN, *sorted(_plugins())]
+
+
+def canonical_robot_name(name: str) -> str:
+    """Return the registry name of ``name`` (an alias such as ``franka_panda`` becomes
+    ``panda``; ``urdf:PATH`` stays as it is). Raises InputError listing the known
+    robots for an unknown name."""
+    if not isinstance(name, str) or not name:
+        raise InputError(f"robot name {name!r} is not a name")
+    name = _ALIASES.get(name, name)
+    if name in _BUILTIN or name.startswith(URDF_PREFIX) or name in _plugins():
+        return name
+    shown = name if len(name) <= 60 else name[:57] + "..."
+    raise InputError(f"unknown robot {shown!r} (known: {', '.join(robot_names())}, or "
+                     f"{URDF_PREFIX}PATH for a 7-joint arm's URDF)")
+
+
+def get_robot(name: str) -> RobotSpec:
+    """Return the :class:`RobotSpec` registered under ``name`` (or an alias, or
+    ``urdf:PATH``). Raises InputError for an unknown name or a plugin that cannot load."""
+    name = canonical_robot_name(name)
+    if name in _BUILTIN:
+        return _BUILTIN[name]
+    if name.startswith(URDF_PREFIX):
+        return urdf_robot(name[len(URDF_PREFIX):])
+    return _plugin_robot(name)
+
+
+@cache
+def _plugin_robot(name: str) -> RobotSpec:
+    entry = _plugins()[name]
+    try:
+        target = entry.load()
+    except (ImportError, AttributeError) as err:
+        raise InputError(f"robot {name!r} ({entry.value}) cannot be loaded: {err}") from err
+    spec = target() if callable(target) and not isinstance(target, RobotSpec) else target
+    if not isinstance(spec, RobotSpec) or len(spec.joint_names) != N_JOINTS:
+        raise InputError(f"robot {name!r} ({entry.value}) is not a 7-joint RobotSpec")
+    return spec
+
+
+@cache
+def urdf_robot(path: str) -> RobotSpec:
+    """Return a spec for the 7-joint serial arm in the URDF file at ``path``.
+
+    The arm's joints are the first 7 revolute (or continuous) joints along the chain
+    from the root link; links 1..7 are their child links and the flange is the last
+    link of the chain. No hand, friction or armature. Raises InputError for a file
+    that cannot be read or holds no such chain.
+    """
+    file = Path(path).expanduser()
+    try:
+        root = ET.fromstring(file.read_text())
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError(f"cannot read the robot's URDF: {err.strerror or err}", file) from err
+    except ET.ParseError as err:
+        raise InputError(f"the robot's URDF is not XML: {err}", file) from err
+    children: dict[str, list[ET.Element]] = {}
+    child_links = set()
+    for joint in root.iter("joint"):
+        parent, child = joint.find("parent"), joint.find("child")
+        if parent is None or child is None:
+            raise InputError(f"joint {joint.get('name')!r} lacks a parent or child", file)
+        children.setdefault(parent.get("link"), []).append(joint)
+        child_links.add(child.get("link"))
+    roots = [link.get("name") for link in root.iter("link")
+             if link.get("name") not in child_links]
+    joints, links = [], []
+    link = roots[0] if len(roots) == 1 else None
+    while link is not None:
+        following = children.get(link, [])
+        if len(following) > 1 and len(joints) < N_JOINTS:
+            raise InputError(f"the URDF branches at link {link!r} before its 7th joint", file)
+        if not following:
+            break
+        joint = following[0]
+        link = joint.find("child").get("link")
+        if joint.get("type") in ("revolute", "continuous") and len(joints) < N_JOINTS:
+            joints.append(joint.get("name"))
+            links.append(link)
+        elif len(joints) == N_JOINTS:
+            break
+    if len(joints) != N_JOINTS:
+        raise InputError(f"the URDF has no serial chain of {N_JOINTS} revolute joints "
+                         f"(found {len(joints)})", file)
+    resolved = file.resolve()
+    spec = RobotSpec(name=f"{URDF_PREFIX}{path}", description=f"7-joint arm from {resolved}",
+                     urdf_file=lambda: resolved, joint_names=tuple(joints),
+                     link_frames=tuple(links), flange=link, provenance=str(resolved))
+    try:
+        spec.limits  # noqa: B018 - checks the joints' limits once, here
+    except ValueError as err:
+        raise InputError(str(err), file) from err
+    return spec

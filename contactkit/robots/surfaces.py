@@ -1,0 +1,150 @@
+"""A robot's collision surfaces: the triangles a hand can touch, per link.
+
+The simulator draws its contact points on them, contact isolation searches them,
+and the viewer draws the links with them (coarse collision meshes: about 150 kB
+for a Franka arm, against about 10 MB of visual meshes that every recording would
+carry). Meshes are binary STL files named by the URDF's ``<collision>`` elements:
+``package://PKG/PATH`` is looked up in the folders above the URDF (as
+example-robot-data installs it), a relative name beside the URDF.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+
+from contactkit.robots.model import RobotModel
+from contactkit.robots.registry import get_robot
+from contactkit.robots.spec import RobotSetup, RobotSpec
+from contactkit.util.cache import cache_dir
+from contactkit.util.paths import atomic_write_text
+
+STL_TRIANGLE = np.dtype([("normal", "<f4", 3), ("vertices", "<f4", (3, 3)), ("attr", "<u2")])
+
+
+@dataclass(frozen=True)
+class LinkSurface:
+    """Triangles of a link's collision mesh in the link frame: vertices [m] (n, 3, 3),
+    unit outward normals (n, 3) and areas [m^2] (n,). Empty (n = 0) for a link without
+    a collision mesh."""
+
+    vertices: np.ndarray
+    normals: np.ndarray
+    areas: np.ndarray
+
+    @property
+    def empty(self) -> bool:
+        """Whether the link has no collision surface."""
+        return len(self.areas) == 0
+
+
+def read_stl(path: Path) -> np.ndarray:
+    """Return the triangles of a binary STL file as an (n, 3, 3) array [file units]."""
+    raw = path.read_bytes()
+    count = int(np.frombuffer(raw, "<u4", 1, 80)[0])
+    return np.frombuffer(raw, STL_TRIANGLE, count, 84)["vertices"].astype(float)
+
+
+def resolve_mesh(urdf_file: Path, filename: str) -> Path:
+    """Return the file a URDF mesh name refers to: ``package://PKG/PATH`` found in a folder
+    above the URDF (``PKG/PATH`` below it, or a folder named PKG holding PATH),
+    ``file://`` and absolute names as they are, other names beside the URDF."""
+    if filename.startswith("file://"):
+        return Path(filename[len("file://"):])
+    if not filename.startswith("package://"):
+        return urdf_file.parent / filename
+    package, _, rest = filename[len("package://"):].partition("/")
+    for folder in urdf_file.parents:
+        if (folder / package / rest).exists():
+            return folder / package / rest
+        if folder.name == package and (folder / rest).exists():
+            return folder / rest
+    raise FileNotFoundError(f"mesh {filename} not found above {urdf_file}")
+
+
+def _rpy_matrix(rpy: np.ndarray) -> np.ndarray:
+    (cr, cp, cy), (sr, sp, sy) = np.cos(rpy), np.sin(rpy)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def _collision_meshes(spec: RobotSpec, with_hand: bool, link_name: str
+                      ) -> list[tuple[Path, np.ndarray, np.ndarray, np.ndarray]]:
+    """Return (file, rotation, translation, scale) of each collision mesh of a link."""
+    root = ET.fromstring(spec.urdf_text(with_hand))
+    found = []
+    for link in root.iter("link"):
+        if link.get("name") != link_name:
+            continue
+        for collision in link.findall("collision"):
+            mesh = collision.find("geometry/mesh")
+            if mesh is None:
+                continue
+            origin = collision.find("origin")
+            xyz = np.zeros(3) if origin is None else np.array(
+                origin.get("xyz", "0 0 0").split(), dtype=float)
+            rpy = np.zeros(3) if origin is None else np.array(
+                origin.get("rpy", "0 0 0").split(), dtype=float)
+            scale = np.array(mesh.get("scale", "1 1 1").split(), dtype=float)
+            found.append((resolve_mesh(spec.urdf_file(), mesh.get("filename")),
+                          _rpy_matrix(rpy), xyz, scale))
+    return found
+
+
+def _mesh_triangles(spec: RobotSpec, with_hand: bool, link_name: str) -> list[np.ndarray]:
+    return [(read_stl(path) * scale) @ rotation.T + xyz
+            for path, rotation, xyz, scale in _collision_meshes(spec, with_hand, link_name)]
+
+
+@cache
+def link_surface(setup: RobotSetup, link: int) -> LinkSurface:
+    """Return the collision surface of link 1..7 of ``setup`` in the link's frame (link 7
+    includes the hand when it is mounted). A link without a collision mesh gives an
+    empty surface."""
+    spec = get_robot(setup.robot)
+    triangles = _mesh_triangles(spec, setup.with_hand, spec.link_frames[link - 1])
+    if link == 7 and setup.with_hand and spec.hand_frame:
+        model = RobotModel(setup)
+        hand = model.model.frames[model.frame_id(spec.hand_frame)].placement
+        to_link7 = model.model.frames[model.frame_id(7)].placement.actInv(hand)
+        triangles += [tri @ to_link7.rotation.T + to_link7.translation
+                      for tri in _mesh_triangles(spec, True, spec.hand_frame)]
+    if not triangles:
+        empty = np.zeros((0, 3))
+        return LinkSurface(vertices=np.zeros((0, 3, 3)), normals=empty, areas=np.zeros(0))
+    tri = np.concatenate(triangles)
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    areas = 0.5 * np.linalg.norm(cross, axis=1)
+    keep = areas > 1e-10
+    return LinkSurface(vertices=tri[keep], normals=cross[keep] / (2 * areas[keep, None]),
+                       areas=areas[keep])
+
+
+def viewer_urdf_file(setup: RobotSetup) -> Path:
+    """Return a URDF file of ``setup``'s arm for viewers (Rerun), written once into the
+    cache: links drawn with their collision meshes, mesh names made absolute paths."""
+    spec = get_robot(setup.robot)
+    root = ET.fromstring(spec.urdf_text(setup.with_hand))
+    for link in root.iter("link"):
+        for visual in link.findall("visual"):
+            link.remove(visual)
+        for collision in link.findall("collision"):
+            collision.tag = "visual"
+            mesh = collision.find("geometry/mesh")
+            if mesh is not None:
+                mesh.set("filename", str(resolve_mesh(spec.urdf_file(), mesh.get("filename"))))
+    text = ET.tostring(root, encoding="unicode")
+    digest = hashlib.sha256(text.encode()).hexdigest()[:12]
+    stem = re.sub(r"[^A-Za-z0-9_-]", "_", spec.name)[:40]
+    variant = "hand" if setup.with_hand and spec.has_hand else "nohand"
+    path = cache_dir() / f"{stem}_{variant}_{digest}.urdf"
+    if not path.exists():
+        atomic_write_text(path, text)
+    return path
