@@ -277,16 +277,24 @@ def predict_command(
 
 def _print_events(model, source: Path, detector: DetectorConfig, decide_after: float | None,
                   as_json: bool) -> None:
+    from contactkit.classify.event_listener import contact_text
+    from contactkit.recorder.isolator import panda_isolator
+
     events_model = model.event_model()
+    isolators = {}
     for path in session_paths(source):
         session = read_session(path)
-        for event in session_events(session, detector, events_model, decide_after):
+        with_hand = session.meta.with_hand
+        isolator = isolators.setdefault(with_hand, panda_isolator(with_hand))
+        for event in session_events(session, detector, events_model, decide_after, isolator):
             if as_json:
                 print(json.dumps({"session": str(path), "event": event.to_dict()}))
             else:
                 release = "open" if event.release_s is None else f"{event.release_s:.2f} s"
                 print(f"{path}: contact {event.label} onset {event.onset_s:.2f} s, "
-                      f"release {release}")
+                      f"release {release}; at the decision "
+                      f"{contact_text(event.contact_at_decision)}; at the peak "
+                      f"{contact_text(event.contact_at_peak)}")
 
 
 @app.command("calibrate")

@@ -87,8 +87,10 @@ def _start_events(values: dict[str, Any], meta: SessionMeta) -> Any:
     def report(kind: str, event: Any) -> None:
         err_console.print(f"  [bold]event[/] {describe(kind, event)}")
 
+    from contactkit.recorder.isolator import panda_isolator
+
     return LiveEvents(chain, meta.with_hand, detector, model.event_model(),
-                      values["decide_after"], report)
+                      values["decide_after"], report, panda_isolator(meta.with_hand))
 
 
 EVENTS = CaptureExtension((

@@ -41,6 +41,7 @@ from contactkit.classify.modelfile import ModelFile
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.timeseries import ChainConfig, ChunkedChain, columns_of, expand
 from contactkit.features.windows import Window
+from contactkit.recorder.isolator import panda_isolator
 from contactkit.schemas import InputError, Session
 from contactkit.schemas.session import (
     complete_table,
@@ -162,7 +163,7 @@ class ReplayStream:
         self.pred_label: list[str] = []
         self.detector = detector = detector or model.detector_config()
         self.pipeline = None if detector is None else EventPipeline(
-            detector, model.event_model(), decide_after_s)
+            detector, model.event_model(), decide_after_s, panda_isolator(self.meta.with_hand))
         self.event_samples: dict[float, int] = {}
         """Session time [s] -> sample index of every sample where an event began, was
         decided or ended, and of the first and last sample."""
@@ -243,7 +244,7 @@ class ReplayStream:
             for k in range(n):
                 if self.pipeline is not None:
                     labels[k], scores[k] = self._event_step(float(t[k]), out["r"][k], dq[k],
-                                                            start + k)
+                                                            q[k], start + k)
                 if t[k] >= next_hop - 1e-12:
                     in_contact = labels is None or labels[k] != NONE
                     predictions.append(self._predict(buffer_t, buffer_v, offset + k,
@@ -264,11 +265,11 @@ class ReplayStream:
         if start == 0:
             raise InputError("session has no complete samples", self.path)
 
-    def _event_step(self, t: float, r: np.ndarray, dq: np.ndarray, sample: int
-                    ) -> tuple[str, float]:
+    def _event_step(self, t: float, r: np.ndarray, dq: np.ndarray, q: np.ndarray,
+                    sample: int) -> tuple[str, float]:
         """Feed one sample to the event pipeline; return its label and detector score."""
         before = self.pipeline.current
-        state = self.pipeline.update(t, r, dq)
+        state = self.pipeline.update(t, r, dq, q)
         if (before is None and self.pipeline.current is not None) or state.decided \
                 or state.released:
             self.event_samples[t] = sample

@@ -71,6 +71,12 @@ def test_predict_events_with_the_models_detector(model_path, sessions) -> None:
     assert len(events) == 1
     assert events[0]["label"] in ("adjust", "bump", "shove")
     assert events[0]["decision_s"] == pytest.approx(events[0]["onset_s"] + 0.15, abs=0.003)
+    peak = events[0]["contact_at_peak"]
+    assert peak["status"] == "ok" and peak["link"] in range(1, 8)
+    assert len(peak["point_link_m"]) == len(peak["point_base_m"]) == len(peak["force_n"]) == 3
+    assert 0.0 <= peak["confidence"] <= 1.0
+    text = run_cli("classify", "predict", str(model_path), str(sessions["shove"]), "--events")
+    assert "at the peak link " in text.stdout
 
 
 def test_decide_after_moves_the_decision(model_path, sessions) -> None:
