@@ -72,8 +72,10 @@ class Block:
     (n, 3), ``contact`` (n,)), the samples ``robot`` (indices into the block) where the
     3-D robot is drawn with its end effector at ``ee_position`` [m], the event
     pipeline's per-sample ``event_label`` and ``score`` (None without a detector),
-    and the predictions made among these samples: ``pred_t`` [s], ``pred_sample``,
-    ``pred_proba`` (m, classes) and ``pred_label``."""
+    the simulated contact's true point [m] (base frame) at the ``robot`` samples
+    (``true_point``, None without one), and the predictions made among these
+    samples: ``pred_t`` [s], ``pred_sample``, ``pred_proba`` (m, classes) and
+    ``pred_label``."""
 
     start: int
     stop: int
@@ -91,6 +93,7 @@ class Block:
     contact: np.ndarray | None = None
     event_label: np.ndarray | None = None
     score: np.ndarray | None = None
+    true_point: np.ndarray | None = None
     pred_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
     pred_sample: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     pred_proba: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
@@ -167,6 +170,13 @@ class ReplayStream:
         self.event_samples: dict[float, int] = {}
         """Session time [s] -> sample index of every sample where an event began, was
         decided or ended, and of the first and last sample."""
+        self.estimate_samples: dict[float, int] = {}
+        """Session time [s] -> sample index of every contact estimate of an event's
+        track (:class:`contactkit.features.isolation.EventTrack`)."""
+        truth = ((self.meta.simulator or {}).get("session") or {}).get("contact")
+        self.true_contact = (int(truth["link"]), np.asarray(truth["point_local"], float)) \
+            if isinstance(truth, dict) else None
+        """The simulated contact's link and point [m] (link frame), None without one."""
         self.n_samples = 0
         self.planned_sample: int | None = None
 
@@ -238,8 +248,15 @@ class ReplayStream:
                 if all(c in table.column_names for c in TRUTH_FORCE) else None
             contact = table.column("contact").to_numpy(zero_copy_only=False) \
                 if "contact" in table.column_names else None
+            true_point = None
+            if self.true_contact is not None:
+                link, point = self.true_contact
+                placements = [model.frame_placement(q[k], link) for k in robot]
+                true_point = np.array([p.rotation @ point + p.translation
+                                       for p in placements]).reshape(-1, 3)
             whole = Block(start, start + n, t, q, dq, tau, out["r"], out["f"], out["m"],
-                          out["fm_norm"], robot, ee_position, truth, contact, labels, scores)
+                          out["fm_norm"], robot, ee_position, truth, contact, labels, scores,
+                          true_point)
             first, predictions = 0, []
             for k in range(n):
                 if self.pipeline is not None:
@@ -273,6 +290,9 @@ class ReplayStream:
         if (before is None and self.pipeline.current is not None) or state.decided \
                 or state.released:
             self.event_samples[t] = sample
+        event = self.pipeline.current or state.released
+        if event is not None and event.contact_track and event.contact_track[-1].t_s == t:
+            self.estimate_samples[t] = sample
         return state.label, state.score
 
     def _predict(self, t: np.ndarray, values: np.ndarray, k: int, sample: int,
@@ -338,8 +358,10 @@ def _part(block: Block, first: int, stop: int,
     """Return rows ``[first, stop)`` of a batch's block with the given predictions."""
     s = slice(first, stop)
     robot = block.robot[(block.robot >= first) & (block.robot < stop)]
-    ee = block.ee_position[np.searchsorted(block.robot, robot)] if len(robot) else \
-        np.zeros((0, 3))
+    at = np.searchsorted(block.robot, robot)
+    ee = block.ee_position[at] if len(robot) else np.zeros((0, 3))
+    true_point = None if block.true_point is None else \
+        block.true_point[at] if len(robot) else np.zeros((0, 3))
 
     def rows(x: np.ndarray | None) -> np.ndarray | None:
         return None if x is None else x[s]
@@ -347,7 +369,7 @@ def _part(block: Block, first: int, stop: int,
     part = Block(block.start + first, block.start + stop, block.t[s], block.q[s],
                  block.dq[s], block.tau[s], block.r[s], block.force[s], block.moment[s],
                  block.norms[s], robot - first, ee, rows(block.true_force),
-                 rows(block.contact), rows(block.event_label), rows(block.score))
+                 rows(block.contact), rows(block.event_label), rows(block.score), true_point)
     if predictions:
         part.pred_t = np.array([p[0] for p in predictions])
         part.pred_sample = np.array([p[1] for p in predictions], dtype=np.int64)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rerun.chunk as rc
 
 from contactkit.classify.events import EVENT_FEATURES, EventModel
 from contactkit.classify.kind import ModelOptions
@@ -16,7 +17,9 @@ from contactkit.classify.models import svm_pipeline
 from contactkit.classify.training import train
 from contactkit.features.detector import DetectorConfig, load_calibration
 from contactkit.schemas import read_session, write_session
+from contactkit.schemas import rerun_layout as layout
 from tests.conftest import make_dataset, make_session, run_cli
+from tests.rrd_frames import assert_frames_ok
 
 DETECTOR = DetectorConfig(noise=(1.0,) * 7, speed=(0.5,) * 7, accel=(0.02,) * 7)
 
@@ -110,3 +113,20 @@ def test_replay_runs_without_planned_time_and_reports_events(tmp_path, model_pat
     summary = result.stdout + result.stderr
     assert "no planned time" in summary
     assert "1 contact events" in summary
+
+
+def test_replay_draws_the_isolated_and_the_true_contact(tmp_path, model_path, sessions) -> None:
+    out = tmp_path / "s.rrd"
+    result = run_cli("replay", str(sessions["shove"]), "--model", str(model_path),
+                     "--viewer", "none", "--save", str(out))
+    assert result.returncode == 0, result.stderr
+    assert_frames_ok(out)
+    rows: dict[str, int] = {}
+    for chunk in rc.RrdReader(out).stream():
+        if not chunk.is_static:
+            path = chunk.entity_path.lstrip("/")
+            rows[path] = rows.get(path, 0) + chunk.to_record_batch().num_rows
+    for entity in (layout.CONTACT_POINT, layout.CONTACT_FORCE, layout.TRUE_POINT,
+                   layout.TRUE_ARROW):
+        assert rows.get(entity, 0) > 0, entity
+    assert any(path.startswith(layout.CONTACT_LINK) for path in rows)
