@@ -13,12 +13,16 @@ link accuracy over detected events (confusion matrix), missed contacts separatel
 point error [cm] on the right link, force direction error [deg] and magnitude error
 [%], with 95 % bootstrap intervals over sessions. Then isolates the touches of the
 real MindLab recordings (no location labels): links and force directions per file,
-and how consistent they are from touch to touch.
+and how consistent they are from touch to touch. With ``--intent`` it also measures
+whether the estimate at the decision helps the intent classifier: leave one pose out
+on the default model's simulated sessions, decided 150 ms after true onsets, with
+and without the isolated link (one-hot) and force direction (base and link frame).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import re
 import tempfile
@@ -166,6 +170,62 @@ def simulated_figures(rows: list[dict]) -> list[str]:
     return lines
 
 
+def intent_events(path: str) -> list:
+    """Return a session's true-onset events at 150 ms (docs/real.py's
+    ``true_onset_events``) twice: as they are, and with the decision's isolated link
+    (one-hot, 7) and force direction in the base and link frames (3 + 3) appended to
+    each event's features (zeros without an estimate)."""
+    from real import true_onset_events  # docs/real.py, beside this script
+
+    plain = true_onset_events(path, (0.15,))[0]
+    session = read_session(path).complete()
+    t, q, dq = session.t, session.q, session.dq
+    r = TimeseriesChain(with_hand=session.meta.with_hand).compute(t, q, dq, session.tau,
+                                                                  ["r"])["r"]
+    model = _isolator(session.meta.with_hand)
+    extended = []
+    for event in plain.events:
+        extra = np.zeros(13)
+        if event.decision_s is not None:
+            k = int(np.searchsorted(t, event.decision_s))
+            touched = (t >= plain.contact[0] - 0.5) & (t < plain.contact[0])
+            estimate = model.estimate(float(t[k]), q[k], r[k] - r[touched].mean(axis=0))
+            if estimate.force is not None:
+                base = estimate.force / np.linalg.norm(estimate.force)
+                rotation = _frame_rotation(session.meta.with_hand, q[k], estimate.link)
+                extra[estimate.link - 1] = 1.0
+                extra[7:10], extra[10:] = base, rotation.T @ base
+        copy = dataclasses.replace(event)
+        copy.features = None if event.features is None else np.r_[event.features, extra]
+        extended.append(copy)
+    return [plain, dataclasses.replace(plain, events=extended)]
+
+
+def _frame_rotation(with_hand: bool, q: np.ndarray, link: int) -> np.ndarray:
+    """Return link ``link``'s rotation (base frame) at ``q``."""
+    from contactkit.features.dynamics import PandaModel
+
+    return PandaModel(with_hand).frame_placement(q, link).rotation
+
+
+def intent_figures(workers: int) -> list[str]:
+    """Return the markdown lines of the intent measurement (see the module docstring)."""
+    from real import leave_one_pose_out
+
+    from contactkit.replay.default_model import RECIPE, recipe_dir
+
+    paths = [str(p) for preset in RECIPE["presets"]
+             for p in session_files(recipe_dir() / preset)]
+    pairs = list(map_ordered(intent_events, paths, workers=workers))
+    rng = np.random.default_rng(0)
+    lines = ["| event features | balanced accuracy, 150 ms, true onsets |", "|---|---|"]
+    for name, i in (("as today", 0), ("with isolated link and force direction", 1)):
+        value, low, high, _ = leave_one_pose_out([p[i] for p in pairs], 0.15, rng)
+        lines.append(f"| {name} | {100 * value:.1f} % [{100 * low:.1f}, {100 * high:.1f}] |")
+    return [f"Leave one pose out on the default model's {len(paths)} simulated sessions "
+            "(95 % cluster-bootstrap interval over poses):", "", *lines]
+
+
 def mindlab_figures(directory: Path) -> list[str]:
     """Return the markdown lines of the isolated MindLab touches."""
     from real import real_sessions  # docs/real.py, beside this script
@@ -201,6 +261,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--quick", action="store_true", help="fewer sessions (minutes)")
+    parser.add_argument("--intent", action="store_true",
+                        help="also measure the isolation features as intent inputs")
     parser.add_argument("--data", type=Path, default=None,
                         help="directory for the simulated sessions (default: a temporary one)")
     args = parser.parse_args()
@@ -215,12 +277,14 @@ def main() -> None:
         rows = [r for r in map_ordered(score_session, paths, workers=args.workers)
                 if r is not None]
         real = mindlab_figures(Path(tmp))
+    intent = intent_figures(args.workers) if args.intent else []
     text = "\n".join([BEGIN, "## Where and how hard: contact isolation", "",
                       "Generated by `docs/isolation.py`"
                       + (" --quick" if args.quick else "") + "; method in "
                       "[isolation.md](isolation.md).", "",
                       *simulated_figures(rows), "", "### Real MindLab touches (no location "
-                      "labels)", "", *real, END])
+                      "labels)", "", *real,
+                      *(["", "### As intent inputs", "", *intent] if intent else []), END])
     results = ROOT / "docs" / "results.md"
     old = results.read_text()
     results.write_text(SECTION.sub(lambda _: text, old) if SECTION.search(old)
