@@ -77,11 +77,10 @@ SurfaceProvider = Callable[[int], Surface | None]
 
 
 class ArmModel(Protocol):
-    """What the estimator needs of a robot model: pinocchio ``model`` and ``data`` and
-    the frame id of link 1..7."""
+    """What the estimator needs of a robot model: its pinocchio ``model`` and the frame
+    id of link 1..7."""
 
     model: pin.Model
-    data: pin.Data
 
     def frame_id(self, link: int) -> int:
         """Return the pinocchio frame id of link 1..7."""
@@ -92,14 +91,12 @@ class SurfaceSamples:
     """Sample points (n, 3) [m] on a link's surface, their unit outward normals (n, 3)
     and two unit tangents (n, 3) each; per point the unit force directions on the
     boundary of its friction cone and the inward normal, ``rays`` (3, n, CONE_RAYS +
-    1) (components first); the cosine of the cone's half-angle. All in the link
-    frame."""
+    1) (components first). All in the link frame."""
 
     points: np.ndarray
     normals: np.ndarray
     tangents: tuple[np.ndarray, np.ndarray]
     rays: np.ndarray
-    cone_cos: float
 
 
 @dataclass(frozen=True)
@@ -217,7 +214,7 @@ def sample_surface(surface: Surface, spacing_m: float = DEFAULT_SPACING_M,
     side = np.cos(phi)[None, :, None] * u[:, None] + np.sin(phi)[None, :, None] * v[:, None]
     rays = -np.cos(half) * nrm[:, None] + np.sin(half) * side
     rays = np.concatenate([rays, -nrm[:, None]], axis=1).transpose(2, 0, 1).copy()
-    return SurfaceSamples(pts, nrm.copy(), (u, v), rays, float(np.cos(half)))
+    return SurfaceSamples(pts, nrm.copy(), (u, v), rays)
 
 
 def _thin(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
