@@ -60,6 +60,7 @@ GRID_POINTS = GRID_SIDE * GRID_SIDE
 DEFAULT_SPACING_M = 0.03
 DEFAULT_CONE_DEG = 60.0
 RIDGE = 1e-9
+TINY = 1e-12  # m^2, keeps a point whose Jacobian vanishes (on joint 1's axis) finite
 OK, NO_SURFACE, TOO_SMALL = "ok", "no-surface", "too-small"
 
 
@@ -147,7 +148,7 @@ def _fit(a: np.ndarray, c: np.ndarray, coeffs: np.ndarray, rr: float, points: Po
     for i in range(len(coeffs)):
         s = slice(starts[i], starts[i + 1])
         g[:, s] = np.einsum("me,mn->en", coeffs[i], points.monomials[:, s])
-    ridge = RIDGE * (g[0] + g[1] + g[2])
+    ridge = RIDGE * (g[0] + g[1] + g[2]) + TINY
     g00, g11, g22, g01, g02, g12 = g[0] + ridge, g[1] + ridge, g[2] + ridge, g[3], g[4], g[5]
     c00, c11, c22 = g11 * g22 - g12 * g12, g00 * g22 - g02 * g02, g00 * g11 - g01 * g01
     c01, c02, c12 = g02 * g12 - g01 * g22, g01 * g12 - g02 * g11, g01 * g02 - g00 * g12
@@ -180,7 +181,8 @@ def _fit(a: np.ndarray, c: np.ndarray, coeffs: np.ndarray, rr: float, points: Po
     rest = ~feasible
     rest[outside] = False
     gain[rest] = np.minimum(gain[rest], bound[owner[rest]])
-    return np.sqrt(np.maximum(rr - gain, 0.0)), np.stack([fx, fy, fz], axis=1)
+    err = np.sqrt(np.maximum(rr - gain, 0.0))
+    return np.where(np.isfinite(err), err, np.inf), np.stack([fx, fy, fz], axis=1)
 
 
 def sample_surface(surface: Surface, spacing_m: float = DEFAULT_SPACING_M,

@@ -161,3 +161,9 @@ def test_simulated_sessions_name_the_touched_link(isolator) -> None:
     for link, links in found.items():
         rate = np.mean([x == link for x in links])
         assert len(links) == 5 and rate >= SIM_RATE[link], (link, links)
+
+
+def test_a_torque_on_joint_1_alone_is_link_1_and_ambiguous(isolator) -> None:
+    est = isolator.estimate(0.0, pose_q("B"), np.array([2.0, 0, 0, 0, 0, 0, 0]))
+    assert est.status == OK and est.link == 1 and est.ambiguous
+    assert np.isfinite(est.error_nm) and np.all(np.isfinite(est.force))
