@@ -344,7 +344,8 @@ class ContactIsolator:
         fits = self._refine(terms, rr, err, force, errors)
         last = int(np.argmin(errors))
         allowance = self.config.tie_nm ** 2 * (last - np.arange(N_JOINTS))
-        link = int(np.flatnonzero(errors ** 2 <= errors[last] ** 2 + allowance)[0]) + 1
+        squared = errors * errors
+        link = int(np.flatnonzero(squared <= squared[last] + allowance)[0]) + 1
         others = np.delete(errors, link - 1)
         other = int(np.argmin(others))
         e_link, e_other = float(errors[link - 1]), float(others[other])
