@@ -1,6 +1,6 @@
 """Write the section "Where and how hard: contact isolation" into docs/results.md.
 
-    .venv/bin/python docs/isolation.py --workers 2            # about 15 min on 2 cores
+    .venv/bin/python docs/isolation.py --workers 2            # about 15-20 min on 2 cores
     .venv/bin/python docs/isolation.py --quick --workers 2    # fewer sessions, minutes
 
 Simulates sessions of the thesis sets (``thesis-static``, ``thesis-dynamic``) and of
@@ -43,7 +43,7 @@ from contactkit.schemas.dataset import session_files
 from contactkit.util.parallel import map_ordered
 
 ROOT = Path(__file__).resolve().parents[1]
-SETS = {"thesis-static": (240, 56), "thesis-dynamic": (120, 28), "mixed-motion": (128, 32)}
+SETS = {"thesis-static": (112, 56), "thesis-dynamic": (56, 28), "mixed-motion": (64, 32)}
 """Preset -> sessions simulated (full run, --quick); a quarter have no contact."""
 SEED = 24
 BOOTSTRAP = 2000
