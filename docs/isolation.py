@@ -1,6 +1,6 @@
 """Write the section "Where and how hard: contact isolation" into docs/results.md.
 
-    .venv/bin/python docs/isolation.py --workers 2            # about 15-20 min on 2 cores
+    .venv/bin/python docs/isolation.py --workers 2            # about 10-15 min on 2 cores
     .venv/bin/python docs/isolation.py --quick --workers 2    # fewer sessions, minutes
 
 Simulates sessions of the thesis sets (``thesis-static``, ``thesis-dynamic``) and of
