@@ -281,6 +281,8 @@ def predict_command(
 
 def _print_events(model, source: Path, detector: DetectorConfig, decide_after: float | None,
                   as_json: bool, robot: str | None) -> None:
+    from contactkit.classify.event_listener import contact_text
+
     events_model = model.event_model()
     for path in session_paths(source):
         session = read_session(path)
@@ -290,7 +292,9 @@ def _print_events(model, source: Path, detector: DetectorConfig, decide_after: f
             else:
                 release = "open" if event.release_s is None else f"{event.release_s:.2f} s"
                 print(f"{path}: contact {event.label} onset {event.onset_s:.2f} s, "
-                      f"release {release}")
+                      f"release {release}; at the decision "
+                      f"{contact_text(event.contact_at_decision)}; at the peak "
+                      f"{contact_text(event.contact_at_peak)}")
 
 
 @app.command("calibrate")

@@ -19,6 +19,7 @@ import numpy as np
 
 from contactkit.classify.events import ContactEvent, EventModel, EventPipeline
 from contactkit.features.detector import DetectorConfig
+from contactkit.features.isolation import OK, ContactEstimate, ContactIsolator
 from contactkit.features.timeseries import ChainConfig, OnlineChain
 from contactkit.robots import RobotSetup
 from contactkit.schemas import joint_columns
@@ -27,17 +28,36 @@ Report = Callable[[str, ContactEvent], None]
 """Called with ("onset" | "decision" | "release", the event) as each happens."""
 
 
+def contact_text(estimate: ContactEstimate | None) -> str:
+    """Return a short text for a contact estimate: link, point (base frame, m), force
+    (base frame, N) and confidence, or why there is none."""
+    if estimate is None:
+        return "no contact estimate"
+    if estimate.status != OK:
+        return (f"link {estimate.link}, no point ({estimate.status})" if estimate.link
+                else f"no contact estimate ({estimate.status})")
+    point = ", ".join(f"{v:.3f}" for v in estimate.point_base)
+    force = ", ".join(f"{v:.1f}" for v in estimate.force)
+    return (f"link {estimate.link} at ({point}) m, force ({force}) N, confidence "
+            f"{estimate.confidence:.2f}" + (", ambiguous" if estimate.ambiguous else ""))
+
+
 def describe(kind: str, event: ContactEvent) -> str:
-    """Return a one-line text for an event report: times in s, probability of the label."""
+    """Return a one-line text for an event report: times in s, probability of the label,
+    and the contact estimate at the decision and (at the release) at the peak."""
     if kind == "onset":
         return f"contact onset at {event.onset_s:.3f} s"
     if kind == "decision":
         p = event.probabilities.get(event.label)
         return (f"contact decided at {event.decision_s:.3f} s: {event.label}"
                 + ("" if p is None else f" (p = {p:.2f})")
-                + (" (outside the training range)" if event.out_of_range else ""))
+                + (" (outside the training range)" if event.out_of_range else "")
+                + ("" if event.contact_at_decision is None
+                   else f"; {contact_text(event.contact_at_decision)}"))
     return (f"contact released at {event.release_s:.3f} s: {event.label}, "
-            f"{event.release_s - event.onset_s:.3f} s long")
+            f"{event.release_s - event.onset_s:.3f} s long"
+            + ("" if event.contact_at_peak is None
+               else f"; at the peak {contact_text(event.contact_at_peak)}"))
 
 
 class LiveEvents:
@@ -47,15 +67,16 @@ class LiveEvents:
     ``robot`` the arm being recorded, ``detector`` and ``model`` the
     contact detector settings and intent classifier, ``decide_after_s`` [s] the
     decision delay (None: the model's), ``report`` receives every onset, decision
-    and release as it happens.
+    and release as it happens, ``isolator`` estimates the touched link, point and force.
     """
 
     def __init__(self, chain: ChainConfig, robot: RobotSetup, detector: DetectorConfig,
                  model: EventModel | None = None, decide_after_s: float | None = None,
-                 report: Report | None = None) -> None:
+                 report: Report | None = None,
+                 isolator: ContactIsolator | None = None) -> None:
         self.chain = OnlineChain(chain, robot)
         self.pipeline = EventPipeline(detector.for_robot(self.chain.model.spec), model,
-                                      decide_after_s)
+                                      decide_after_s, isolator)
         self.report = report
         self.samples = 0
         self._columns = [joint_columns(prefix) for prefix in ("q", "dq", "tau")]
@@ -68,7 +89,7 @@ class LiveEvents:
         keep = np.isfinite(np.column_stack([q, dq, tau])).all(axis=1)
         for k in np.flatnonzero(keep):
             out = self.chain.update(float(t[k]), q[k], dq[k], tau[k])
-            state = self.pipeline.update(float(t[k]), out["r"], dq[k])
+            state = self.pipeline.update(float(t[k]), out["r"], dq[k], q[k])
             self.samples += 1
             if self.report is None:
                 continue

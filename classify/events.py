@@ -30,7 +30,7 @@ sessions, decided at 150 ms: balanced accuracy 86.8 -> 90.8 %).
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -42,6 +42,12 @@ from contactkit.features.detector import (
     Detector,
     DetectorConfig,
     detect,
+)
+from contactkit.features.isolation import (
+    ContactEstimate,
+    ContactIsolator,
+    EventTrack,
+    robot_isolator,
 )
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain
 from contactkit.schemas import Session
@@ -113,7 +119,11 @@ class EventModel:
 class ContactEvent:
     """One detected contact: onset, decision and release times [s] (release None while
     it lasts), the held label, the class probabilities at the decision, whether its
-    features were out of the training range, and its peak detector score."""
+    features were out of the training range, and its peak detector score. With contact
+    isolation (:mod:`contactkit.features.isolation`): the touched link, point and force
+    at the decision (``contact_at_decision``) and at the peak of the residual
+    (``contact_at_peak``, so far while the event lasts), and the estimates during the
+    event (``contact_track``, at 50 Hz)."""
 
     onset_s: float
     decision_s: float | None = None
@@ -122,12 +132,19 @@ class ContactEvent:
     probabilities: dict[str, float] = field(default_factory=dict)
     out_of_range: bool = False
     peak_score: float = 0.0
+    contact_at_decision: ContactEstimate | None = None
+    contact_at_peak: ContactEstimate | None = None
     features: np.ndarray | None = field(default=None, repr=False)
+    contact_track: list[ContactEstimate] = field(default_factory=list, repr=False)
 
     def to_dict(self) -> dict:
-        """Return the event as a JSON-ready dict (without its feature vector)."""
-        out = asdict(self)
-        del out["features"]
+        """Return the event as a JSON-ready dict (without its feature vector and its
+        track of estimates)."""
+        out = {f.name: getattr(self, f.name) for f in fields(self)
+               if f.name not in ("features", "contact_track")}
+        out["probabilities"] = dict(self.probabilities)
+        for name in ("contact_at_decision", "contact_at_peak"):
+            out[name] = None if out[name] is None else out[name].to_dict()
         return out
 
 
@@ -149,8 +166,11 @@ class EventPipeline:
     """Streaming detect -> decide -> hold (see the module docstring)."""
 
     def __init__(self, detector: DetectorConfig | None = None, model: EventModel | None = None,
-                 decide_after_s: float | None = None) -> None:
+                 decide_after_s: float | None = None,
+                 isolator: ContactIsolator | None = None) -> None:
         self.detector = Detector(detector)
+        self.isolator = isolator
+        self._track: EventTrack | None = None
         self.model = model
         self.decide_after_s = (decide_after_s if decide_after_s is not None else
                                model.decide_after_s if model is not None else
@@ -180,8 +200,24 @@ class EventPipeline:
         event.label = UNKNOWN if event.out_of_range else self.model.classes[int(np.argmax(proba))]
         return event
 
-    def update(self, t: float, r: np.ndarray, dq: np.ndarray) -> EventOutput:
-        """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,)."""
+    def _isolate(self, t: float, q: np.ndarray | None, r: np.ndarray, decided: bool,
+                 released: bool) -> None:
+        """Feed one sample of the current event to its isolation track; store the
+        estimate at the decision and at the peak."""
+        if self._track is None or q is None:
+            return
+        e = r - self._baseline
+        self._track.update(t, q, e)
+        event = self.current
+        if decided:
+            event.contact_at_decision = self._track.at(t, q, e)
+        event.contact_track = self._track.track
+        event.contact_at_peak = self._track.finish() if released else self._track.peak
+
+    def update(self, t: float, r: np.ndarray, dq: np.ndarray,
+               q: np.ndarray | None = None) -> EventOutput:
+        """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,)
+        and, for contact isolation, joint position q [rad] (7,)."""
         state = self.detector.update(t, r, dq)
         sample = (t, np.array(r, dtype=float))
         out = EventOutput(NONE, state.score, state.contact)
@@ -189,6 +225,7 @@ class EventPipeline:
             self.current = out.started = ContactEvent(onset_s=t)
             self._baseline = self.detector.baseline.copy()
             self._window = [s for s in self._recent if s[0] >= t - PRE_S]
+            self._track = None if self.isolator is None else EventTrack(self.isolator, t)
         self._recent.append(sample)
         while self._recent and self._recent[0][0] < t - PRE_S:
             self._recent.popleft()
@@ -200,6 +237,7 @@ class EventPipeline:
             self._window.append(sample)
             if t - event.onset_s >= self.decide_after_s - 1e-12 or state.release:
                 out.decided = self._decide(t)
+        self._isolate(t, q, sample[1], out.decided is not None, state.release)
         out.label = event.label
         if state.release:
             event.release_s = t
@@ -208,16 +246,22 @@ class EventPipeline:
         return out
 
     def finish(self) -> list[ContactEvent]:
-        """Return every event, including one still open at the end of the stream."""
+        """Return every event, including one still open at the end of the stream (its
+        estimate at the peak so far)."""
+        if self.current is not None and self._track is not None:
+            self.current.contact_at_peak = self._track.finish()
         return self.events + ([self.current] if self.current is not None else [])
 
 
 def batch_events(t: np.ndarray, r: np.ndarray, detection: Detection,
-                 model: EventModel | None = None,
-                 decide_after_s: float | None = None) -> list[ContactEvent]:
+                 model: EventModel | None = None, decide_after_s: float | None = None,
+                 q: np.ndarray | None = None,
+                 isolator: ContactIsolator | None = None) -> list[ContactEvent]:
     """Return the events of a whole stream from its detector output (one detector run
-    serves any decision delay), the same events :class:`EventPipeline` gives."""
-    pipeline = EventPipeline(None, model, decide_after_s)
+    serves any decision delay), the same events :class:`EventPipeline` gives; with
+    joint positions ``q`` [rad] (N, 7) and an ``isolator``, with their contact
+    estimates."""
+    pipeline = EventPipeline(None, model, decide_after_s, isolator)
     events = []
     for onset, release in detection.intervals:
         last = len(t) - 1 if release is None else release
@@ -227,9 +271,16 @@ def batch_events(t: np.ndarray, r: np.ndarray, detection: Detection,
         pipeline.current = ContactEvent(onset_s=float(t[onset]))
         pipeline._baseline = detection.baseline[onset]
         pipeline._window = list(zip(t[start:decision + 1], r[start:decision + 1], strict=True))
-        if release is not None or stop <= last:
+        decided = release is not None or stop <= last
+        if decided:
             pipeline._decide(float(t[decision]))
-        event = pipeline.current
+        pipeline._track = None
+        if isolator is not None and q is not None:
+            pipeline._track = EventTrack(isolator, float(t[onset]))
+            for k in range(onset, last + 1):
+                pipeline._isolate(float(t[k]), q[k], np.asarray(r[k], dtype=float),
+                                  decided and k == decision, k == release)
+        event = pipeline.finish()[-1]
         event.release_s = None if release is None else float(t[release])
         event.peak_score = float(detection.score[onset:last + 1].max())
         events.append(event)
@@ -238,23 +289,29 @@ def batch_events(t: np.ndarray, r: np.ndarray, detection: Detection,
 
 def stream_events(t: np.ndarray, r: np.ndarray, dq: np.ndarray,
                   detector: DetectorConfig | None = None, model: EventModel | None = None,
-                  decide_after_s: float | None = None) -> tuple[list[ContactEvent], list[str]]:
-    """Run the pipeline over whole arrays (t (N,) [s], r and dq (N, 7)); return the
-    events and the per-sample label, exactly as the streaming path gives them."""
-    pipeline = EventPipeline(detector, model, decide_after_s)
-    labels = [pipeline.update(float(t[k]), r[k], dq[k]).label for k in range(len(t))]
+                  decide_after_s: float | None = None, q: np.ndarray | None = None,
+                  isolator: ContactIsolator | None = None
+                  ) -> tuple[list[ContactEvent], list[str]]:
+    """Run the pipeline over whole arrays (t (N,) [s], r and dq (N, 7), and for contact
+    isolation q (N, 7) [rad] and an isolator); return the events and the per-sample
+    label, exactly as the streaming path gives them."""
+    pipeline = EventPipeline(detector, model, decide_after_s, isolator)
+    labels = [pipeline.update(float(t[k]), r[k], dq[k], None if q is None else q[k]).label
+              for k in range(len(t))]
     return pipeline.finish(), labels
 
 
 def session_events(session: Session, detector: DetectorConfig, model: EventModel | None = None,
-                   decide_after_s: float | None = None, robot: str | None = None
-                   ) -> list[ContactEvent]:
-    """Return the contact events of a whole session (observer, detector, pipeline);
-    ``robot`` names the arm's model instead of the session's own. The detector is
-    adapted to the arm (:meth:`DetectorConfig.for_robot`)."""
+                   decide_after_s: float | None = None, robot: str | None = None,
+                   isolate: bool = True) -> list[ContactEvent]:
+    """Return the contact events of a whole session (observer, detector, pipeline, and
+    with ``isolate`` contact isolation on the session's arm); ``robot`` names the arm's
+    model instead of the session's own. The detector is adapted to the arm
+    (:meth:`DetectorConfig.for_robot`)."""
     session = session.complete()
-    t, dq = session.t, session.dq
+    t, dq, q = session.t, session.dq, session.q
     chain = TimeseriesChain.for_session(session.meta, ChainConfig(robot=robot), session.path)
-    r = chain.compute(t, session.q, dq, session.tau, ["r"])["r"]
+    r = chain.compute(t, q, dq, session.tau, ["r"])["r"]
     detector = detector.for_robot(chain.model.spec)
-    return batch_events(t, r, detect(t, r, dq, detector), model, decide_after_s)
+    isolator = robot_isolator(chain.model.setup) if isolate else None
+    return batch_events(t, r, detect(t, r, dq, detector), model, decide_after_s, q, isolator)

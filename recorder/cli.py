@@ -89,8 +89,11 @@ def _start_events(values: dict[str, Any], meta: SessionMeta) -> Any:
     def report(kind: str, event: Any) -> None:
         err_console.print(f"  [bold]event[/] {describe(kind, event)}")
 
-    return LiveEvents(chain, chain.robot_setup(meta), detector, model.event_model(),
-                      values["decide_after"], report)
+    from contactkit.features.isolation import robot_isolator
+
+    robot = chain.robot_setup(meta)
+    return LiveEvents(chain, robot, detector, model.event_model(), values["decide_after"],
+                      report, robot_isolator(robot))
 
 
 EVENTS = CaptureExtension((

@@ -91,7 +91,28 @@ def event_line(event: dict) -> str:
     return (f"{label}" + ("" if not isinstance(p, int | float) else f" (p = {p:.2f})")
             + f", onset {at('onset_s')}, decided {at('decision_s')}, "
               f"released {at('release_s')}"
-            + (", outside the training range" if event.get("out_of_range") else ""))
+            + (", outside the training range" if event.get("out_of_range") else "")
+            + "".join(f"; {when} {contact_line(event[key])}"
+                      for when, key in (("at the decision", "contact_at_decision"),
+                                        ("at the peak", "contact_at_peak"))
+                      if isinstance(event.get(key), dict)))
+
+
+def contact_line(estimate: dict) -> str:
+    """Return one line for a stored contact estimate: link, point (base frame, m),
+    force (base frame, N, and its magnitude) and confidence, or why there is none."""
+    link, point, force = estimate.get("link"), estimate.get("point_base_m"), \
+        estimate.get("force_n")
+    if not (isinstance(point, list) and isinstance(force, list)):
+        why = estimate.get("status", "?")
+        return f"link {link}, no point ({why})" if link else f"no contact estimate ({why})"
+    confidence = estimate.get("confidence")
+    return (f"link {link} at ({', '.join(f'{v:.3f}' for v in point)}) m, force "
+            f"({', '.join(f'{v:.1f}' for v in force)}) N "
+            f"|{float(np.linalg.norm(force)):.1f} N|"
+            + ("" if not isinstance(confidence, int | float)
+               else f", confidence {confidence:.2f}")
+            + (", ambiguous" if estimate.get("ambiguous") else ""))
 
 
 def agreement_line(agreement: dict) -> str:

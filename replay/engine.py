@@ -40,6 +40,7 @@ from contactkit.classify.events import NONE, ContactEvent, EventPipeline
 from contactkit.classify.modelfile import ModelFile
 from contactkit.features.agreement import ResidualAgreement
 from contactkit.features.detector import DetectorConfig
+from contactkit.features.isolation import robot_isolator
 from contactkit.features.timeseries import ChainConfig, ChunkedChain, columns_of, expand
 from contactkit.features.windows import Window
 from contactkit.robots import get_robot
@@ -75,8 +76,10 @@ class Block:
     external-torque estimate with the residual's sign (``robot_estimate``, -tau_ext_hat
     [Nm] (n, 7), where the session has it), the event
     pipeline's per-sample ``event_label`` and ``score`` (None without a detector),
-    and the predictions made among these samples: ``pred_t`` [s], ``pred_sample``,
-    ``pred_proba`` (m, classes) and ``pred_label``."""
+    the simulated contact's true point [m] (base frame) at the ``robot`` samples
+    (``true_point``, None without one), and the predictions made among these
+    samples: ``pred_t`` [s], ``pred_sample``, ``pred_proba`` (m, classes) and
+    ``pred_label``."""
 
     start: int
     stop: int
@@ -95,6 +98,7 @@ class Block:
     robot_estimate: np.ndarray | None = None
     event_label: np.ndarray | None = None
     score: np.ndarray | None = None
+    true_point: np.ndarray | None = None
     pred_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
     pred_sample: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     pred_proba: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
@@ -175,10 +179,18 @@ class ReplayStream:
         self.detector = detector = None if detector is None else detector.for_robot(
             get_robot(self.meta.robot_setup(self.path).robot))
         self.pipeline = None if detector is None else EventPipeline(
-            detector, model.event_model(), decide_after_s)
+            detector, model.event_model(), decide_after_s,
+            robot_isolator(self.meta.robot_setup(self.path)))
         self.event_samples: dict[float, int] = {}
         """Session time [s] -> sample index of every sample where an event began, was
         decided or ended, and of the first and last sample."""
+        self.estimate_samples: dict[float, int] = {}
+        """Session time [s] -> sample index of every contact estimate of an event's
+        track (:class:`contactkit.features.isolation.EventTrack`)."""
+        truth = ((self.meta.simulator or {}).get("session") or {}).get("contact")
+        self.true_contact = (int(truth["link"]), np.asarray(truth["point_local"], float)) \
+            if isinstance(truth, dict) else None
+        """The simulated contact's link and point [m] (link frame), None without one."""
         self.n_samples = 0
         self.planned_sample: int | None = None
         self.agreement = ResidualAgreement()
@@ -257,14 +269,20 @@ class ReplayStream:
                 c in table.column_names for c in joint_columns("tau_ext_hat")) else None
             if estimate is not None:
                 self.agreement.update(t, out["r"], -estimate)
+            true_point = None
+            if self.true_contact is not None:
+                link, point = self.true_contact
+                placements = [model.frame_placement(q[k], link) for k in robot]
+                true_point = np.array([p.rotation @ point + p.translation
+                                       for p in placements]).reshape(-1, 3)
             whole = Block(start, start + n, t, q, dq, tau, out["r"], out["f"], out["m"],
                           out["fm_norm"], robot, ee_position, truth, contact, estimate,
-                          labels, scores)
+                          labels, scores, true_point)
             first, predictions = 0, []
             for k in range(n):
                 if self.pipeline is not None:
                     labels[k], scores[k] = self._event_step(float(t[k]), out["r"][k], dq[k],
-                                                            start + k)
+                                                            q[k], start + k)
                 if t[k] >= next_hop - 1e-12:
                     in_contact = labels is None or labels[k] != NONE
                     predictions.append(self._predict(buffer_t, buffer_v, offset + k,
@@ -285,14 +303,17 @@ class ReplayStream:
         if start == 0:
             raise InputError("session has no complete samples", self.path)
 
-    def _event_step(self, t: float, r: np.ndarray, dq: np.ndarray, sample: int
-                    ) -> tuple[str, float]:
+    def _event_step(self, t: float, r: np.ndarray, dq: np.ndarray, q: np.ndarray,
+                    sample: int) -> tuple[str, float]:
         """Feed one sample to the event pipeline; return its label and detector score."""
         before = self.pipeline.current
-        state = self.pipeline.update(t, r, dq)
+        state = self.pipeline.update(t, r, dq, q)
         if (before is None and self.pipeline.current is not None) or state.decided \
                 or state.released:
             self.event_samples[t] = sample
+        event = self.pipeline.current or state.released
+        if event is not None and event.contact_track and event.contact_track[-1].t_s == t:
+            self.estimate_samples[t] = sample
         return state.label, state.score
 
     def _predict(self, t: np.ndarray, values: np.ndarray, k: int, sample: int,
@@ -358,8 +379,10 @@ def _part(block: Block, first: int, stop: int,
     """Return rows ``[first, stop)`` of a batch's block with the given predictions."""
     s = slice(first, stop)
     robot = block.robot[(block.robot >= first) & (block.robot < stop)]
-    ee = block.ee_position[np.searchsorted(block.robot, robot)] if len(robot) else \
-        np.zeros((0, 3))
+    at = np.searchsorted(block.robot, robot)
+    ee = block.ee_position[at] if len(robot) else np.zeros((0, 3))
+    true_point = None if block.true_point is None else \
+        block.true_point[at] if len(robot) else np.zeros((0, 3))
 
     def rows(x: np.ndarray | None) -> np.ndarray | None:
         return None if x is None else x[s]
@@ -368,7 +391,7 @@ def _part(block: Block, first: int, stop: int,
                  block.dq[s], block.tau[s], block.r[s], block.force[s], block.moment[s],
                  block.norms[s], robot - first, ee, rows(block.true_force),
                  rows(block.contact), rows(block.robot_estimate), rows(block.event_label),
-                 rows(block.score))
+                 rows(block.score), true_point)
     if predictions:
         part.pred_t = np.array([p[0] for p in predictions])
         part.pred_sample = np.array([p[1] for p in predictions], dtype=np.int64)

@@ -51,6 +51,7 @@ def log_static(rec: rr.RecordingStream, stream: ReplayStream) -> rr.urdf.UrdfTre
     layout.log_series_styles(rec, stream.classes)
     tree = layout.log_robot_model(rec, viewer_urdf_file(meta.robot_setup()))
     layout.log_force_arrow_style(rec)
+    layout.log_contact_styles(rec)
     log_session_properties(rec, stream)
     t0, _ = stream.time_span()
     layout.text_event(rec, layout.TRUE_ACTION, t0, 0, f"recorded action: {meta.action}"
@@ -132,6 +133,10 @@ class BlockLogger:
             t, sample = block.t[rows], block.sample[rows]
             layout.log_joint_transforms(rec, self.tree, t, sample, block.q[rows])
             layout.log_force_arrows(rec, t, sample, block.ee_position[at], block.force[rows])
+            if block.true_point is not None and block.true_force is not None:
+                applied = block.true_force[rows]
+                layout.log_contact_columns(rec, t, sample, block.true_point[at], applied,
+                                           np.linalg.norm(applied, axis=1) > 0, truth=True)
         if len(block.pred_t):
             pt, ps = block.pred_t, block.pred_sample
             layout.log_scalar_columns(rec, layout.PROBABILITY, pt, ps, block.pred_proba)
@@ -201,6 +206,51 @@ def log_contact_events(rec: rr.RecordingStream, t: np.ndarray,
         ends = np.array([t[0], t[-1]])
         layout.log_scalar_columns(rec, layout.THRESHOLD, ends, index[[0, -1]],
                                   np.tile([thresholds[n] for n in names], (2, 1)))
+
+
+def log_contact_estimates(rec: rr.RecordingStream, stream: ReplayStream) -> None:
+    """Log each event's isolated contact: its track of points and force arrows (50 Hz,
+    cleared where an estimate has no point and at the release) and, while the event
+    lasts, its link (the one named at the peak) highlighted."""
+    isolator = None if stream.pipeline is None else stream.pipeline.isolator
+    if isolator is None:
+        return
+    times, samples, points, forces, present = [], [], [], [], []
+    shown: dict[int, list[tuple[float, int, bool]]] = {}
+    ends = dict(stream.event_samples)
+    for event in stream.events:
+        for estimate in event.contact_track:
+            if estimate.t_s not in stream.estimate_samples:
+                continue
+            ok = estimate.point_base is not None
+            times.append(estimate.t_s)
+            samples.append(stream.estimate_samples[estimate.t_s])
+            points.append(estimate.point_base if ok else np.zeros(3))
+            forces.append(estimate.force if ok else np.zeros(3))
+            present.append(ok)
+        end = event.release_s if event.release_s is not None else max(ends)
+        if end in ends and times and times[-1] < end:
+            times.append(end)
+            samples.append(ends[end])
+            points.append(np.zeros(3))
+            forces.append(np.zeros(3))
+            present.append(False)
+        peak = event.contact_at_peak
+        if peak is not None and peak.link is not None and event.onset_s in ends \
+                and end in ends and isolator.samples[peak.link - 1] is not None:
+            shown.setdefault(peak.link, []).extend(
+                [(event.onset_s, ends[event.onset_s], True), (end, ends[end], False)])
+    if times:
+        order = np.argsort(times, kind="stable")
+        layout.log_contact_columns(rec, np.array(times)[order], np.array(samples)[order],
+                                   np.array(points)[order], np.array(forces)[order],
+                                   np.array(present)[order])
+    for link, rows in shown.items():
+        rows.sort()
+        layout.log_link_highlight(rec, link, isolator.samples[link - 1].points,
+                                  np.array([r[0] for r in rows]),
+                                  np.array([r[1] for r in rows]),
+                                  np.array([r[2] for r in rows]))
 
 
 def save_path_for(save: Path, session_path: Path, many: bool) -> Path:

@@ -24,6 +24,7 @@ from contactkit.replay.default_model import build_default_model, default_model_p
 from contactkit.replay.engine import DEFAULT_HOP_S, OfflineAnswer, ReplayStream
 from contactkit.replay.recording import (
     BlockLogger,
+    log_contact_estimates,
     log_contact_events,
     log_offline,
     log_planned,
@@ -150,6 +151,7 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
             log_contact_events(rec, np.array(times), stream.events, {
                 f"joint {j} at rest": v for j, v in enumerate(stream.detector.noise, 1)},
                 samples=np.array([stream.event_samples[t] for t in times]))
+            log_contact_estimates(rec, stream)
         answer = stream.offline()
         if answer is not None:
             log_offline(rec, stream, answer)

@@ -26,6 +26,13 @@ entity                                content
 ``robot/...``                         the Panda from its URDF, joints animated
 ``ee_force``                          arrow: estimated end-effector force (1 cm/N),
                                       in the base frame ``panda_link0``
+``contact/point``, ``contact/force``  isolated contact during each event (50 Hz):
+                                      point and force arrow (1 cm/N) on the touched
+                                      link, base frame
+``contact/link<k>``                   the touched link highlighted (its surface
+                                      samples, link frame) while the event lasts
+``ground_truth/contact_point``,       the applied contact's true point and force
+``ground_truth/contact_force``        (simulated sessions), base frame
 ====================================  ==========================================
 
 Session metadata goes into the recording properties (``session``).
@@ -68,6 +75,8 @@ TRUE_FORCE, TRUE_CONTACT, TRUE_ACTION = ("ground_truth/force", "ground_truth/con
 CUE = "capture/cue"
 ROBOT = "robot"
 EE_FORCE = "ee_force"
+CONTACT_POINT, CONTACT_FORCE, CONTACT_LINK = "contact/point", "contact/force", "contact/link"
+TRUE_POINT, TRUE_ARROW = "ground_truth/contact_point", "ground_truth/contact_force"
 BASE_FRAME = "panda_link0"
 JOINT_TRANSFORMS = "robot/joint_transforms"
 FORCE_ARROW_M_PER_N = 0.01
@@ -79,6 +88,9 @@ JOINT_COLORS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40),
                 (148, 103, 189), (140, 86, 75), (227, 119, 194)]
 AXIS_COLORS = [(200, 70, 50), (60, 150, 60), (50, 100, 200)]  # x, y, z
 ESTIMATE_COLOR = (20, 20, 20)
+CONTACT_COLOR = (150, 80, 200)
+TRUTH_COLOR = (40, 170, 90)
+CONTACT_POINT_RADIUS_M = 0.012
 THRESHOLD_COLOR = (120, 120, 120)
 CONTACT_COLORS = {"contact": (230, 140, 40), "free": (205, 205, 205)}
 WINDOW_COLOR = (90, 170, 200)
@@ -184,6 +196,56 @@ def log_force_arrow_style(rec: rr.RecordingStream) -> None:
             static=True)
 
 
+def log_contact_styles(rec: rr.RecordingStream) -> None:
+    """Log that the isolated and the true contact live in the base frame, with their
+    colours and sizes (estimate purple, truth green)."""
+    for point, arrow, color in ((CONTACT_POINT, CONTACT_FORCE, CONTACT_COLOR),
+                                (TRUE_POINT, TRUE_ARROW, TRUTH_COLOR)):
+        rec.log(point, rr.CoordinateFrame(BASE_FRAME),
+                rr.Points3D.from_fields(colors=[color], radii=[CONTACT_POINT_RADIUS_M]),
+                static=True)
+        rec.log(arrow, rr.CoordinateFrame(BASE_FRAME),
+                rr.Arrows3D.from_fields(colors=[color], radii=[FORCE_ARROW_RADIUS_M]),
+                static=True)
+
+
+def _partitioned(points: np.ndarray, present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the rows of ``points`` (N, 3) that are ``present`` and the partition
+    lengths (1 or 0 per row: an empty row clears the entity from that time on)."""
+    present = np.asarray(present, dtype=bool)
+    return np.asarray(points, dtype=float).reshape(-1, 3)[present], present.astype(np.int32)
+
+
+def log_contact_columns(rec: rr.RecordingStream, t: np.ndarray, sample: np.ndarray,
+                        points: np.ndarray, forces: np.ndarray, present: np.ndarray,
+                        truth: bool = False) -> None:
+    """Send contact points [m] and force arrows [N] (N, 3 each, base frame) at times
+    ``t`` [s]: one per row where ``present``, none (cleared) elsewhere. ``truth``: the
+    simulator's applied contact instead of the estimate."""
+    index = time_columns(t, sample)
+    positions, lengths = _partitioned(points, present)
+    vectors, _ = _partitioned(forces, present)
+    point, arrow = (TRUE_POINT, TRUE_ARROW) if truth else (CONTACT_POINT, CONTACT_FORCE)
+    rec.send_columns(point, indexes=index,
+                     columns=rr.Points3D.columns(positions=positions).partition(lengths))
+    rec.send_columns(arrow, indexes=index, columns=rr.Arrows3D.columns(
+        origins=positions, vectors=vectors * FORCE_ARROW_M_PER_N).partition(lengths))
+
+
+def log_link_highlight(rec: rr.RecordingStream, link: int, surface_points: np.ndarray,
+                       t: np.ndarray, sample: np.ndarray, shown: np.ndarray) -> None:
+    """Highlight link ``link`` by its surface points [m] (n, 3, link frame) at the
+    times [s] where ``shown``, and clear it at the others."""
+    path = f"{CONTACT_LINK}{link}"
+    rec.log(path, rr.CoordinateFrame(f"panda_link{link}"),
+            rr.Points3D.from_fields(colors=[CONTACT_COLOR], radii=[0.006]), static=True)
+    shown = np.asarray(shown, dtype=bool)
+    lengths = np.where(shown, len(surface_points), 0).astype(np.int32)
+    positions = np.tile(surface_points, (int(shown.sum()), 1))
+    rec.send_columns(path, indexes=time_columns(t, sample),
+                     columns=rr.Points3D.columns(positions=positions).partition(lengths))
+
+
 def log_joint_transforms(rec: rr.RecordingStream, tree: rr.urdf.UrdfTree, t: np.ndarray,
                          sample: np.ndarray, q: np.ndarray) -> None:
     """Animate the 7 arm joints (the tree's first 7 revolute joints from its root, whatever
@@ -262,8 +324,10 @@ def replay_blueprint(duration_s: float | None = None) -> rrb.Blueprint:
         row_shares=[4.8, 2.8, 3.3, 3.3, 3.8],  # room for 7 legend rows and 4 state lanes
     )
     left = rrb.Vertical(
-        robot_view("Panda and estimated end-effector force (1 cm per N)",
-                   [f"+ {ROBOT}/**", f"+ {EE_FORCE}"]),
+        robot_view("Panda, end-effector force, isolated contact (purple) and true "
+                   "contact (green), 1 cm per N",
+                   [f"+ {ROBOT}/**", f"+ {EE_FORCE}", "+ contact/**", f"+ {TRUE_POINT}",
+                    f"+ {TRUE_ARROW}"]),
         rrb.TextLogView(origin="events", name="events"),
         row_shares=[4, 1],
     )

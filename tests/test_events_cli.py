@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rerun.chunk as rc
 
 from contactkit.classify.events import EVENT_FEATURES, EventModel
 from contactkit.classify.kind import ModelOptions
@@ -16,7 +17,9 @@ from contactkit.classify.models import svm_pipeline
 from contactkit.classify.training import train
 from contactkit.features.detector import DetectorConfig, load_calibration
 from contactkit.schemas import read_session, write_session
+from contactkit.schemas import rerun_layout as layout
 from tests.conftest import make_dataset, make_session, run_cli
+from tests.rrd_frames import assert_frames_ok
 
 DETECTOR = DetectorConfig(noise=(1.0,) * 7, speed=(0.5,) * 7, accel=(0.02,) * 7)
 
@@ -71,6 +74,12 @@ def test_predict_events_with_the_models_detector(model_path, sessions) -> None:
     assert len(events) == 1
     assert events[0]["label"] in ("adjust", "bump", "shove")
     assert events[0]["decision_s"] == pytest.approx(events[0]["onset_s"] + 0.15, abs=0.003)
+    peak = events[0]["contact_at_peak"]
+    assert peak["status"] == "ok" and peak["link"] in range(1, 8)
+    assert len(peak["point_link_m"]) == len(peak["point_base_m"]) == len(peak["force_n"]) == 3
+    assert 0.0 <= peak["confidence"] <= 1.0
+    text = run_cli("classify", "predict", str(model_path), str(sessions["shove"]), "--events")
+    assert "at the peak link " in text.stdout
 
 
 def test_decide_after_moves_the_decision(model_path, sessions) -> None:
@@ -104,3 +113,20 @@ def test_replay_runs_without_planned_time_and_reports_events(tmp_path, model_pat
     summary = result.stdout + result.stderr
     assert "no planned time" in summary
     assert "1 contact events" in summary
+
+
+def test_replay_draws_the_isolated_and_the_true_contact(tmp_path, model_path, sessions) -> None:
+    out = tmp_path / "s.rrd"
+    result = run_cli("replay", str(sessions["shove"]), "--model", str(model_path),
+                     "--viewer", "none", "--save", str(out))
+    assert result.returncode == 0, result.stderr
+    assert_frames_ok(out)
+    rows: dict[str, int] = {}
+    for chunk in rc.RrdReader(out).stream():
+        if not chunk.is_static:
+            path = chunk.entity_path.lstrip("/")
+            rows[path] = rows.get(path, 0) + chunk.to_record_batch().num_rows
+    for entity in (layout.CONTACT_POINT, layout.CONTACT_FORCE, layout.TRUE_POINT,
+                   layout.TRUE_ARROW):
+        assert rows.get(entity, 0) > 0, entity
+    assert any(path.startswith(layout.CONTACT_LINK) for path in rows)

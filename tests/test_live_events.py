@@ -53,13 +53,27 @@ def test_capture_reports_one_event_as_replay_does(captured, model_path) -> None:
     # the live chain runs sample by sample, replay batch by batch: equal to 1e-9
     assert len(replayed) == len(stored)
     for live, batch in zip(stored, (e.to_dict() for e in replayed), strict=True):
-        assert batch.keys() == live.keys()
-        for key, value in live.items():
-            expected = value if isinstance(value, str | bool) else pytest.approx(value, rel=1e-9)
-            assert batch[key] == expected, key
+        _same_values(batch, live)
+    # the contact estimates (link, point, force) travel with the stored event
+    for key in ("contact_at_decision", "contact_at_peak"):
+        assert stored[0][key]["link"] in range(1, 8)
+        assert len(stored[0][key]["point_base_m"]) == len(stored[0][key]["force_n"]) == 3
     # which contact class is the model's quality (docs/results.md), not this test's
     assert stored[0]["label"] in {"bump", "adjust", "shove"}
     assert stored[0]["decision_s"] - stored[0]["onset_s"] == pytest.approx(0.15, abs=0.003)
+
+
+def _same_values(batch: dict, live: dict) -> None:
+    """Assert two event dicts agree: strings, flags and None exactly, numbers to 1e-9
+    relative, nested dicts (contact estimates) and lists value by value."""
+    assert batch.keys() == live.keys()
+    for key, value in live.items():
+        if isinstance(value, dict) and not all(isinstance(v, float) for v in value.values()):
+            _same_values(batch[key], value)
+        elif value is None or isinstance(value, str | bool):
+            assert batch[key] == value, key
+        else:
+            assert batch[key] == pytest.approx(value, rel=1e-9), key
 
 
 def test_info_shows_the_stored_events(captured) -> None:
@@ -70,6 +84,7 @@ def test_info_shows_the_stored_events(captured) -> None:
     assert events == read_session(path).meta.events
     table = run_cli("recorder", "info", str(path)).stdout
     assert "event 1" in table and f"{events[0]['label']} (p = " in table
+    assert f"at the peak link {events[0]['contact_at_peak']['link']} at (" in table
 
 
 def _chunks(path: Path, size: int) -> list[dict[str, np.ndarray]]:

@@ -1,0 +1,169 @@
+"""Contact isolation and identification: synthetic residuals, simulated sessions,
+batch = streaming, and estimates without a point (no surface, too small)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from contactkit.classify.events import batch_events, stream_events
+from contactkit.features.detector import DetectorConfig, detect
+from contactkit.features.isolation import NO_SURFACE, OK, TOO_SMALL, ContactIsolator, robot_isolator
+from contactkit.features.timeseries import TimeseriesChain
+from contactkit.recorder.protocol import pose_q
+from contactkit.recorder.sim import ArmSimulator, SimConfig, plan_session
+from contactkit.robots import RobotSetup
+from contactkit.robots.model import RobotModel
+from contactkit.robots.surfaces import link_surface
+from contactkit.schemas import read_session
+from tests.conftest import make_session
+
+DETECTOR = DetectorConfig(noise=(0.5,) * 7, speed=(0.5,) * 7, accel=(0.02,) * 7)
+# Tolerances on noise-free residuals of well-conditioned contacts (the last loaded
+# joint carries at least 1 Nm). Links 6-7 load six or more joints: the wrench, hence
+# the force's line of action, is determined and the point is where it enters the
+# surface; each contact's point within 1.5 cm, direction within 12 degrees and
+# magnitude within 8 % (a refinement that must cross to another face of the coarse
+# mesh stops short), median direction within 1 degree. Link 5 loads five joints for
+# five unknowns: finitely many solutions, so the median over its contacts is held to
+# those tolerances. Links 1-4 load fewer joints than the five unknowns (point on the
+# surface, force): the link is recovered and the fit reproduces the residual within
+# 2 % of its norm, but the point is only known to lie on a curve.
+POINT_M, DIRECTION_DEG, MEDIAN_DEG, MAGNITUDE = 0.015, 12.0, 1.0, 0.08
+FIT_SHARE = 0.02
+
+
+@pytest.fixture(scope="module")
+def isolator() -> ContactIsolator:
+    return robot_isolator(RobotSetup(with_hand=True))
+
+
+@pytest.fixture(scope="module")
+def model() -> RobotModel:
+    return RobotModel(RobotSetup())
+
+
+def _contacts(model: RobotModel, link: int, count: int, seed: int
+              ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """Return ``count`` well-conditioned contacts on ``link``: (q, point [m] link frame,
+    force [N] world, residual [Nm])."""
+    rng = np.random.default_rng([seed, link])
+    surface = link_surface(RobotSetup(), link)
+    out = []
+    while len(out) < count:
+        q = pose_q("ABCDEFGH"[int(rng.integers(8))]) + rng.normal(0, 0.1, 7)
+        i = rng.choice(len(surface.areas), p=surface.areas / surface.areas.sum())
+        a, b = rng.random(2)
+        a, b = (1 - a, 1 - b) if a + b > 1 else (a, b)
+        tri = surface.vertices[i]
+        point = tri[0] + a * (tri[1] - tri[0]) + b * (tri[2] - tri[0])
+        inward = -surface.normals[i] + 0.4 * rng.normal(size=3)
+        inward /= np.linalg.norm(inward)
+        if inward @ -surface.normals[i] < np.cos(np.radians(40)):
+            continue
+        force = 30.0 * model.frame_placement(q, link).rotation @ inward
+        r = model.point_jacobian(q, link, point)[:3].T @ force
+        if abs(r[link - 1]) >= 1.0:
+            out.append((q, point, force, r))
+    return out
+
+
+@pytest.mark.parametrize("link", range(1, 8))
+def test_synthetic_residuals_give_back_link_point_and_force(isolator, model, link) -> None:
+    misses, angles, sizes = [], [], []
+    for q, point, force, r in _contacts(model, link, 4, seed=1):
+        est = isolator.estimate(0.0, q, r)
+        assert est.status == OK and est.link == link
+        assert est.error_nm <= FIT_SHARE * np.linalg.norm(r)
+        placement = model.frame_placement(q, link)
+        np.testing.assert_allclose(est.point_base, placement.rotation @ est.point_link
+                                   + placement.translation, atol=1e-9)
+        misses.append(np.linalg.norm(est.point_link - point))
+        cos = est.force @ force / np.linalg.norm(est.force) / np.linalg.norm(force)
+        angles.append(np.degrees(np.arccos(min(cos, 1.0))))
+        sizes.append(abs(np.linalg.norm(est.force) / np.linalg.norm(force) - 1))
+    if link >= 6:
+        assert max(misses) <= POINT_M and max(angles) <= DIRECTION_DEG
+        assert max(sizes) <= MAGNITUDE
+    if link >= 5:
+        assert np.median(misses) <= POINT_M and np.median(angles) <= MEDIAN_DEG
+        assert np.median(sizes) <= MAGNITUDE
+
+
+def test_a_link_without_surface_gives_no_point_and_no_error(model) -> None:
+    bare = ContactIsolator(model, lambda k: None if k == 5 else link_surface(RobotSetup(), k))
+    q, _, _, r = _contacts(model, 5, 1, seed=2)[0]
+    est = bare.estimate(1.0, q, r)
+    assert est.status == NO_SURFACE and est.link == 5
+    assert est.point_link is None and est.point_base is None and est.force is None
+    doc = json.loads(json.dumps(est.to_dict()))
+    assert doc["status"] == NO_SURFACE and doc["point_base_m"] is None
+
+
+def test_a_small_residual_is_too_small_to_isolate(isolator) -> None:
+    est = isolator.estimate(0.0, pose_q("B"), np.full(7, 0.1))
+    assert est.status == TOO_SMALL and est.link is None and est.force is None
+    assert est.to_dict()["link"] is None
+
+
+def test_batch_and_streaming_give_the_same_estimates(tmp_path, isolator) -> None:
+    session = read_session(make_session(tmp_path, action="adjust", link=6, seed=5,
+                                        duration_s=3.5, planned_at_s=1.0))
+    t, q, dq, tau = session.t, session.q, session.dq, session.tau
+    r = TimeseriesChain().compute(t, q, dq, tau, ["r"])["r"]
+    batch = batch_events(t, r, detect(t, r, dq, DETECTOR), None, 0.15, q, isolator)
+    streamed, _ = stream_events(t, r, dq, DETECTOR, None, 0.15, q, isolator)
+    assert len(batch) == len(streamed) >= 1
+    for a, b in zip(batch, streamed, strict=True):
+        assert a.to_dict() == b.to_dict()
+        assert [e.to_dict() for e in a.contact_track] == [e.to_dict() for e in b.contact_track]
+    event = batch[0]
+    assert event.contact_at_decision is not None and event.contact_at_peak is not None
+    assert event.contact_at_peak.link == 6
+    steps = np.diff([e.t_s for e in event.contact_track])
+    assert steps.max() <= 0.02 + 0.002 + 1e-9  # 50 Hz, at the 500 Hz samples
+    doc = json.loads(json.dumps(event.to_dict()))
+    assert doc["contact_at_peak"]["link"] == 6 and len(doc["contact_at_peak"]["force_n"]) == 3
+
+
+# Rate per link at which a simulated static shove's event (at its peak) names the true
+# link, 5 sessions per link, with the simulator's sensor noise and model error: links
+# 3-7 at least 4 of 5, links 1-2 at least 3 of 5 (link 1 loads one joint, link 2
+# two: a push near their axes leaves too little to isolate). Measured: 32 of 35, one
+# miss each on links 1 (twice: too small) and 3 (named 4).
+SIM_RATE = {1: 0.6, 2: 0.6, 3: 0.8, 4: 0.8, 5: 0.8, 6: 0.8, 7: 0.8}
+
+
+def test_simulated_sessions_name_the_touched_link(isolator) -> None:
+    config = SimConfig(rate_hz=500.0)
+    specs = [plan_session(seed=100 * link + k, condition="static", action="shove",
+                          pose="ABCDEFGH"[(link + k) % 8], link=link, duration_s=2.0,
+                          planned_at_s=0.8, pose_jitter_rad=0.1)
+             for link in range(1, 8) for k in range(5)]
+    parts: dict[int, list[dict[str, np.ndarray]]] = {}
+    found: dict[int, list[int | None]] = {link: [] for link in range(1, 8)}
+    for index, columns, finished in ArmSimulator(config).run(specs):
+        parts.setdefault(index, []).append(columns)
+        if not finished:
+            continue
+        chunks = parts.pop(index)
+        data = {k: np.concatenate([c[k] for c in chunks]) for k in columns}
+        t = data["t"]
+        q, dq, tau = (np.column_stack([data[f"{p}_{j}"] for j in range(1, 8)])
+                      for p in ("q", "dq", "tau"))
+        r = TimeseriesChain().compute(t, q, dq, tau, ["r"])["r"]
+        events = batch_events(t, r, detect(t, r, dq, DETECTOR), None, 0.15, q, isolator)
+        peaks = [e.contact_at_peak for e in events if e.contact_at_peak is not None]
+        best = max(peaks, key=lambda e: e.residual_nm, default=None)
+        found[specs[index].link].append(None if best is None else best.link)
+    for link, links in found.items():
+        rate = np.mean([x == link for x in links])
+        assert len(links) == 5 and rate >= SIM_RATE[link], (link, links)
+
+
+def test_a_torque_on_joint_1_alone_is_link_1_and_ambiguous(isolator) -> None:
+    est = isolator.estimate(0.0, pose_q("B"), np.array([2.0, 0, 0, 0, 0, 0, 0]))
+    assert est.status == OK and est.link == 1 and est.ambiguous
+    assert np.isfinite(est.error_nm) and np.all(np.isfinite(est.force))
