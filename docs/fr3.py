@@ -28,7 +28,6 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
 
 from contactkit.classify.calibrate import calibrate_sessions
 from contactkit.classify.events import session_events
@@ -38,15 +37,13 @@ from contactkit.features.timeseries import ChainConfig
 from contactkit.recorder.capture import record_session
 from contactkit.recorder.csv_import import import_csv
 from contactkit.recorder.csv_map import load_csv_map
-from contactkit.recorder.forces import Persona, contact_torque, sample_contact
+from contactkit.recorder.forces import Contact, add_synthetic_touches
 from contactkit.recorder.importer import import_arrays
 from contactkit.recorder.metadata import session_meta
 from contactkit.recorder.sim import SimConfig, plan_session
 from contactkit.recorder.sources.sim import SimSource
 from contactkit.replay.default_model import build_default_model
-from contactkit.robots.model import RobotModel
-from contactkit.robots.surfaces import link_surface
-from contactkit.schemas import Session, joint_columns, read_session
+from contactkit.schemas import Session, read_session
 
 ROOT = Path(__file__).resolve().parents[1]
 FR3 = ROOT.parent / "shared" / "reference" / "fr3-teleop-follower"
@@ -63,31 +60,10 @@ def _numbers(values: list, digits: int = 2) -> str:
     return " ".join("-" if v is None else f"{v:.{digits}f}" for v in values)
 
 
-def touched(session: Session, rng: np.random.Generator
-            ) -> tuple[Session, list[tuple[float, float, int, str]]]:
-    """Return ``session`` with synthetic touches and their (onset, end [s], link, action)."""
-    session = session.complete()
-    setup = session.meta.robot_setup()
-    model = RobotModel(setup)
-    tau = session.tau.copy()
-    truth = []
-    for at in TOUCH_TIMES_S:
-        link = int(rng.integers(1, 8))
-        action = ("bump", "adjust", "shove")[int(rng.integers(3))]
-        rotation = model.frame_placement(session.q[np.searchsorted(session.t, at)],
-                                         link).rotation
-        contact = sample_contact(rng, action, at, link, link_surface(setup, link), rotation,
-                                 Persona("synthetic", 1.0, 1.0))
-        tau -= contact_torque(model, session.t, session.q, contact)
-        truth.append((contact.onset_s, contact.onset_s + contact.duration_s, link, action))
-    table = session.table
-    for j, name in enumerate(joint_columns("tau")):
-        table = table.set_column(table.column_names.index(name), name, pa.array(tau[:, j]))
-    return Session(session.meta, table, None), truth
-
-
-def _overlaps(event, onset: float, end: float) -> bool:
-    return event.onset_s <= end + 0.2 and (event.release_s or np.inf) >= onset
+def _overlaps(event, touch: Contact) -> bool:
+    """Whether a contact event overlaps a touch (its onset up to 0.2 s after the touch)."""
+    end = touch.onset_s + touch.duration_s
+    return event.onset_s <= end + 0.2 and (event.release_s or np.inf) >= touch.onset_s
 
 
 def synthetic_touches(sessions: list[Session], detector, events_model
@@ -98,12 +74,12 @@ def synthetic_touches(sessions: list[Session], detector, events_model
     found, missed, false = Counter(), Counter(), 0
     for _ in range(VARIANTS):
         for session in sessions:
-            with_touches, truth = touched(session, rng)
+            with_touches, touches = add_synthetic_touches(session, rng, TOUCH_TIMES_S)
             events = session_events(with_touches, detector, events_model)
-            for onset, end, link, _action in truth:
-                hit = any(_overlaps(e, onset, end) for e in events)
-                (found if hit else missed)[link] += 1
-            false += sum(not any(_overlaps(e, a, b) for a, b, _, _ in truth) for e in events)
+            for touch in touches:
+                hit = any(_overlaps(e, touch) for e in events)
+                (found if hit else missed)[touch.link] += 1
+            false += sum(not any(_overlaps(e, touch) for touch in touches) for e in events)
     return found, missed, false
 
 

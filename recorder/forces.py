@@ -35,13 +35,16 @@ their own strength and tempo.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
+import pyarrow as pa
 
 from contactkit.recorder.protocol import MAX_ONSET_DELAY_S
 from contactkit.robots.model import RobotModel
-from contactkit.robots.surfaces import LinkSurface
+from contactkit.robots.surfaces import LinkSurface, link_surface
+from contactkit.schemas import Session, joint_columns
 
 PROFILE_RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "bump": {"peak_n": (8.0, 30.0), "rise_s": (0.025, 0.075)},
@@ -183,3 +186,34 @@ def contact_torque(model: RobotModel, t: np.ndarray, q: np.ndarray, contact: Con
         jac = model.point_jacobian(q[k], contact.link, point)
         out[k] = jac[:3].T @ (magnitude[k] * direction)
     return out
+
+
+def add_synthetic_touches(session: Session, rng: np.random.Generator,
+                          onsets_s: Sequence[float]) -> tuple[Session, list[Contact]]:
+    """Return a copy of ``session`` (its complete samples) with a synthetic touch planned
+    at each of ``onsets_s`` [s], and the touches.
+
+    Each touch is drawn as the simulator draws one (a random link 1-7, bump, adjust or
+    shove, a point of the link's collision surface and a direction that pushes into it,
+    :func:`sample_contact`), and its joint torque (:func:`contact_torque`) is subtracted
+    from the measured torque, as the motors of a stiffly held arm push back: a check of
+    a detector on a real robot's free-motion recording with touches whose truth is known.
+    """
+    session = session.complete()
+    robot = session.meta.robot_setup(session.path)
+    model = RobotModel(robot)
+    tau = session.tau.copy()
+    contacts = []
+    for at in onsets_s:
+        link = int(rng.integers(1, 8))
+        action = ("bump", "adjust", "shove")[int(rng.integers(3))]
+        rotation = model.frame_placement(session.q[np.searchsorted(session.t, at)],
+                                         link).rotation
+        contact = sample_contact(rng, action, at, link, link_surface(robot, link), rotation,
+                                 Persona("synthetic", 1.0, 1.0))
+        tau -= contact_torque(model, session.t, session.q, contact)
+        contacts.append(contact)
+    table = session.table
+    for j, name in enumerate(joint_columns("tau")):
+        table = table.set_column(table.column_names.index(name), name, pa.array(tau[:, j]))
+    return Session(session.meta, table, None), contacts

@@ -65,34 +65,31 @@ def session_path(tmp_path: Path) -> Path:
     return make_session(tmp_path)
 
 
+def _shared(path: Path, what: str) -> Path:
+    """Return a reference folder of ../shared: CI must have it, elsewhere its tests skip."""
+    if not path.is_dir():
+        if os.environ.get("CI"):
+            pytest.fail(f"{what} missing at {path} (CI must have ../shared)")
+        pytest.skip(f"{what} not found at {path}")
+    return path
+
+
 @pytest.fixture(scope="session")
 def reference_dir() -> Path:
     """The real Panda recording beside the project (always present in CI)."""
-    if not REFERENCE.is_dir():
-        if os.environ.get("CI"):
-            pytest.fail(f"reference recording missing at {REFERENCE} (CI must have ../shared)")
-        pytest.skip(f"reference recording not found at {REFERENCE}")
-    return REFERENCE
+    return _shared(REFERENCE, "reference recording")
 
 
 @pytest.fixture(scope="session")
 def fr3_dir() -> Path:
     """The two real FR3 recordings in teleoperated free motion (no contact)."""
-    if not FR3_REFERENCE.is_dir():
-        if os.environ.get("CI"):
-            pytest.fail(f"FR3 recordings missing at {FR3_REFERENCE} (CI must have ../shared)")
-        pytest.skip(f"FR3 recordings not found at {FR3_REFERENCE}")
-    return FR3_REFERENCE
+    return _shared(FR3_REFERENCE, "FR3 recordings")
 
 
 @pytest.fixture(scope="session")
 def mindlab_dir() -> Path:
     """The five real Panda CSV recordings with labelled touches (MindLab ZHAW)."""
-    if not MINDLAB.is_dir():
-        if os.environ.get("CI"):
-            pytest.fail(f"MindLab recordings missing at {MINDLAB} (CI must have ../shared)")
-        pytest.skip(f"MindLab recordings not found at {MINDLAB}")
-    return MINDLAB
+    return _shared(MINDLAB, "MindLab recordings")
 
 
 def load_mindlab(path: Path) -> dict[str, np.ndarray]:

@@ -7,20 +7,18 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
 import pytest
 
 from contactkit.classify.events import session_events
 from contactkit.classify.modelfile import load_model
 from contactkit.recorder.csv_import import import_csv
 from contactkit.recorder.csv_map import load_csv_map
-from contactkit.recorder.forces import Persona, contact_torque, sample_contact
+from contactkit.recorder.forces import add_synthetic_touches
 from contactkit.recorder.metadata import session_meta, set_session_robot
 from contactkit.replay.default_model import build_default_model
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
-from contactkit.robots.surfaces import link_surface
-from contactkit.schemas import Session, joint_columns, read_session
+from contactkit.schemas import read_session
 from tests.conftest import make_session, run_cli
 
 FR3_MAP = Path(__file__).resolve().parents[1] / "recorder" / "data" / "fr3_teleop_csv_map.toml"
@@ -73,38 +71,16 @@ def test_fr3_free_motion_has_no_contact_events(default_model, fr3_sessions) -> N
         assert session_events(read_session(path), detector, events_model) == []
 
 
-def _with_touches(session: Session, seed: int) -> tuple[Session, list[tuple[float, float]]]:
-    """Return ``session`` with hand-like touches' torque subtracted from its measured torque
-    (the motors hold the arm against the push), and the touches' (onset, end) [s]."""
-    session = session.complete()
-    rng = np.random.default_rng(seed)
-    setup = session.meta.robot_setup()
-    model = RobotModel(setup)
-    tau = session.tau.copy()
-    spans = []
-    for at in TOUCH_TIMES_S:
-        link = int(rng.integers(1, 8))
-        action = ("bump", "adjust", "shove")[int(rng.integers(3))]
-        rotation = model.frame_placement(session.q[np.searchsorted(session.t, at)],
-                                         link).rotation
-        contact = sample_contact(rng, action, at, link, link_surface(setup, link), rotation,
-                                 Persona("synthetic", 1.0, 1.0))
-        tau -= contact_torque(model, session.t, session.q, contact)
-        spans.append((contact.onset_s, contact.onset_s + contact.duration_s))
-    table = session.table
-    for j, name in enumerate(joint_columns("tau")):
-        table = table.set_column(table.column_names.index(name), name, pa.array(tau[:, j]))
-    return Session(session.meta, table, None), spans
-
-
 def test_synthetic_touches_on_the_real_fr3_recordings_are_found(default_model,
                                                                 fr3_sessions) -> None:
     detector, events_model = default_model.detector_config(), default_model.event_model()
     found = total = false = 0
     for seed in range(SYNTHETIC_VARIANTS):
         for path in fr3_sessions:
-            touched, spans = _with_touches(read_session(path), seed)
+            touched, touches = add_synthetic_touches(read_session(path),
+                                                     np.random.default_rng(seed), TOUCH_TIMES_S)
             events = session_events(touched, detector, events_model)
+            spans = [(c.onset_s, c.onset_s + c.duration_s) for c in touches]
             hits = [any(e.onset_s <= end + 0.2 and (e.release_s or np.inf) >= onset
                         for e in events) for onset, end in spans]
             found, total = found + sum(hits), total + len(spans)
