@@ -49,6 +49,7 @@ from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS
 from contactkit.features.windows import METHODS
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.features import write_feature_table
+from contactkit.util.atomic import check_target, write_text
 from contactkit.util.cli import SchedulerOpt, new_app, run_app
 from contactkit.util.parallel import available_cpus, use_scheduler
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar
@@ -82,8 +83,7 @@ def _split(value: str | None) -> tuple[str, ...] | None:
 
 
 def _refuse_existing(out: Path, overwrite: bool) -> None:
-    if out.exists() and not overwrite:
-        raise InputError("output file already exists (pass --overwrite to replace it)", out)
+    check_target(out, overwrite=overwrite)
 
 
 def _skipped(problems) -> None:
@@ -116,7 +116,7 @@ def features_command(
     with progress_bar("per-sample features" if per_sample else "features") as bar:
         progress = bar_callback(bar, "sessions")
         if per_sample:
-            _, problems = write_per_sample_table(files, out, progress)
+            _, problems = write_per_sample_table(files, out, progress, overwrite=overwrite)
             _skipped(problems)
             print(out)
             return
@@ -126,7 +126,8 @@ def features_command(
     _skipped(result.problems)
     if not result.rows:
         raise InputError("no session could be processed", source)
-    write_feature_table(out, result.rows, result.names, extractor.config())
+    write_feature_table(out, result.rows, result.names, extractor.config(),
+                        overwrite=overwrite)
     err_console.print(f"{len(result.rows)} sessions x {len(result.names)} features")
     print(out)
 
@@ -219,9 +220,12 @@ def evaluate_command(
         "--json", help="Also write the report as JSON.")] = None,
     epochs: EpochsOpt = 100, steps: StepsOpt = 300, depth: DepthOpt = None,
     width: WidthOpt = 2.0, dropout: DropoutOpt = 0.02, device: DeviceOpt = "cpu",
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing --json file.")] = False,
 ) -> None:
     """Evaluate a classifier honestly and print accuracy, balanced accuracy, macro-F1,
     per-class recall with 95 % confidence intervals, and the confusion matrix."""
+    if json_out is not None:
+        check_target(json_out, overwrite=overwrite)
     options = _options(model, features, scalars, window, window_s, c, seed, epochs, steps,
                        depth, width, dropout, device)
     with progress_bar("evaluate") as bar:
@@ -232,7 +236,7 @@ def evaluate_command(
     _skipped(problems)
     print(report_markdown(report))
     if json_out is not None:
-        json_out.write_text(json.dumps(report.as_dict(), indent=2))
+        write_text(json_out, json.dumps(report.as_dict(), indent=2), overwrite=overwrite)
 
 
 @app.command("predict")
@@ -302,10 +306,12 @@ def calibrate_command(
              "--margin). Wider when calibrating on another arm than the one it runs on, "
              "such as a simulated one.")] = None,
     workers: Annotated[int, typer.Option(help="Parallel worker processes.")] = 1,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing --out file.")] = False,
 ) -> None:
     """Calibrate the contact detector on a robot's no-contact sessions: record a minute
     of free motion and holds, calibrate, then pass --calibration robot.json to replay
     and predict."""
+    check_target(out, overwrite=overwrite)
     if margin < 1:
         raise InputError(f"--margin must be at least 1, got {margin}")
     if motion_margin is not None and motion_margin < 1:
@@ -315,7 +321,7 @@ def calibrate_command(
         config = calibrate_sessions(paths, margin=margin, workers=workers,
                                     progress=bar_callback(bar, "sessions"),
                                     motion_margin=motion_margin)
-    save_calibration(out, config)
+    save_calibration(out, config, overwrite=overwrite)
     print(f"{out}: thresholds at rest {[round(v, 2) for v in config.noise]} Nm, "
           f"per rad/s {[round(v, 2) for v in config.speed]}, "
           f"per rad/s^2 {[round(v, 3) for v in config.accel]}")

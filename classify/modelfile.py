@@ -34,6 +34,7 @@ from sklearn.pipeline import Pipeline
 
 from contactkit.classify.kind import ModelFormat, ModelKind
 from contactkit.schemas import InputError
+from contactkit.util.atomic import atomic_write, check_target
 
 META_MEMBER = "contactkit.json"
 EVENTS_MEMBER = "events.skops"
@@ -160,8 +161,7 @@ def save_model(path: str | Path, estimator: object, *, kind: ModelKind, transfor
     if path.suffix.lower() != suffix:
         raise InputError(f"a {kind.name} model is saved as {kind.file_format.name}: the file "
                          f"name must end in {suffix}", path)
-    if path.exists() and not overwrite:
-        raise InputError("output file already exists (it is replaced only with overwrite)", path)
+    check_target(path, overwrite=overwrite)
     meta = model_meta(kind=kind, transformer=transformer, feature_names=feature_names,
                       scheme=scheme, classes=classes, fingerprint=fingerprint,
                       training=training)
@@ -186,12 +186,11 @@ def write_skops(path: Path, estimator: object, meta: dict, sample_shape: tuple[i
         members = {name: archive.read(name) for name in archive.namelist()}
     members |= extra or {}
     meta = meta | {"members_sha256": _digest(members)}
-    tmp = path.with_name(f".{path.name}.tmp")
-    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as out:
+    with atomic_write(path, overwrite=overwrite) as tmp, \
+            zipfile.ZipFile(tmp.file, "w", compression=zipfile.ZIP_DEFLATED) as out:
         for name, data in members.items():
             out.writestr(name, data)
         out.writestr(META_MEMBER, json.dumps(meta, indent=2))
-    tmp.replace(path)
     return path
 
 

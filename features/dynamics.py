@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import hashlib
 import importlib.metadata
-import os
 import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -24,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from contactkit.util.atomic import any_regular_file, write_text
 from contactkit.util.cache import cache_dir
 
 N_JOINTS = 7
@@ -250,7 +250,5 @@ def viewer_urdf_file(with_hand: bool) -> Path:
     variant = "hand" if with_hand else "nohand"
     path = cache_dir() / f"panda_{variant}_{urdf_sha256(with_hand)[:12]}.urdf"
     if not path.exists():
-        tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
-        tmp.write_text(text)
-        tmp.replace(path)
+        write_text(path, text, owned=any_regular_file)
     return path

@@ -26,6 +26,7 @@ from contactkit.recorder.can_map import FrameMap
 from contactkit.recorder.importer import write_imported_session
 from contactkit.recorder.sources.can import BusConfig
 from contactkit.schemas import InputError, Session, SessionMeta
+from contactkit.util.atomic import atomic_write
 from contactkit.util.pacing import paced
 
 LOG_SUFFIXES = (".asc", ".blf", ".trc", ".csv", ".log", ".mf4", ".db")
@@ -89,12 +90,15 @@ def decoding_summary(stats: dict) -> str:
 
 
 def bridge_session(session: Session, fmap: FrameMap, *, bus: BusConfig | None = None,
-                   log: Path | None = None, rate: float | None = None) -> int:
+                   log: Path | None = None, rate: float | None = None,
+                   overwrite: bool = False) -> int:
     """Send a session's frames onto a bus, or write them to ``log``; return the count.
 
     On a bus the frames are paced at ``rate`` x real time (default 1). Into a log
     they are written as fast as possible unless ``rate`` is given, time-stamped as
-    they would be on the bus.
+    they would be on the bus, into a temporary file renamed into place at the end (a
+    failure or kill leaves no partial log); an existing ``log`` is replaced only with
+    ``overwrite``.
     """
     if (bus is None) == (log is None):
         raise InputError("publishing needs either a bus or a log file, not both")
@@ -106,15 +110,16 @@ def bridge_session(session: Session, fmap: FrameMap, *, bus: BusConfig | None = 
         if log.suffix.lower() not in LOG_SUFFIXES:
             raise InputError(f"unknown log format {log.suffix!r}", log)
         start = time.time()
-        writer = can.Logger(log)
         sent = 0
-        try:
-            for msg in _paced(session_frames(fmap, session.t, values, start), rate):
-                writer.on_message_received(msg)
-                sent += 1
-        finally:
-            _drain(writer)
-            writer.stop()
+        with atomic_write(log, overwrite=overwrite, suffix=log.suffix.lower()) as tmp:
+            writer = can.Logger(tmp.path)
+            try:
+                for msg in _paced(session_frames(fmap, session.t, values, start), rate):
+                    writer.on_message_received(msg)
+                    sent += 1
+            finally:
+                _drain(writer)
+                writer.stop()
         return sent
     channel = bus.open(fmap.fd)
     sent = 0

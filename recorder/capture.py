@@ -102,14 +102,14 @@ def capture(source: Source, meta: SessionMeta, out_path: Path, *, realtime: bool
     ``listeners``, whose :meth:`CaptureListener.session_fields` go into the session
     metadata, written with the session (atomically). If the capture is interrupted,
     the journal stays for ``recorder recover`` (without the listeners' fields). An
-    existing file at ``out_path`` is replaced only with ``overwrite``.
+    existing file at ``out_path`` is replaced only with ``overwrite`` (and only when the
+    new session is complete).
     """
-    if overwrite and out_path.exists():
-        out_path.unlink()
     rate = 1.0 if realtime and not source.live else None
     listeners = list(listeners or ())
     callbacks = list(on_chunk or ()) + [listener.on_chunk for listener in listeners]
-    with SessionWriter(out_path, meta, source.columns, flush_interval_s) as writer:
+    with SessionWriter(out_path, meta, source.columns, flush_interval_s,
+                       overwrite=overwrite) as writer:
         for chunk in paced(source.stream(), lambda c: c["t"][-1], rate, origin_s=0.0):
             writer.append(chunk)
             for callback in callbacks:

@@ -55,8 +55,8 @@ from contactkit.recorder.sim import (
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
 from contactkit.schemas import ACTIONS, InputError, write_session
 from contactkit.schemas.dataset import IndexResult, rebuild_index
+from contactkit.util.atomic import remove_stale_temporaries
 from contactkit.util.parallel import map_ordered
-from contactkit.util.paths import remove_stale_temporaries
 
 OPERATORS = tuple(f"sim-op-{i}" for i in range(1, 6))
 MAX_BATCH = 32

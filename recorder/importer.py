@@ -14,6 +14,7 @@ from contactkit.recorder.arrays import spill_joint_arrays
 from contactkit.recorder.metadata import session_filename, session_meta
 from contactkit.recorder.spill import spilled_session_chunks, spilled_times
 from contactkit.schemas import InputError, SessionMeta, write_session
+from contactkit.schemas.dataset import INDEX_NAME
 from contactkit.schemas.session import table_from_columns, write_session_batches
 from contactkit.schemas.timing import chunked_steps
 from contactkit.util.exact_median import exact_medians
@@ -48,6 +49,15 @@ def parse_meta(pairs: list[str]) -> dict:
     return doc
 
 
+def output_name(name: str) -> str:
+    """Return a session file name the user gave (``--name``) after checking it: a safe
+    file name, and not a name the tool keeps for itself (``index.parquet``)."""
+    safe_name(name, "output name")
+    if name.lower() == INDEX_NAME:
+        raise InputError(f"{INDEX_NAME} is the dataset index's name; choose another --name")
+    return name
+
+
 def write_imported_session(columns: dict[str, np.ndarray], meta: SessionMeta, out_dir: Path,
                            name: str | None = None) -> Path:
     """Write an imported recording as a validated session; return its path.
@@ -66,15 +76,17 @@ def write_imported_session(columns: dict[str, np.ndarray], meta: SessionMeta, ou
     steps = np.diff(t)
     if meta.nominal_rate_hz is None and steps.size and (steps > 0).all():
         meta.nominal_rate_hz = float(round(1.0 / np.median(steps), 3))
-    filename = session_filename(meta) if name is None else safe_name(name, "output name")
+    filename = session_filename(meta) if name is None else output_name(name)
     return write_session(inside(out_dir, filename), columns, meta)
 
 
 def write_imported_chunks(times: Callable[[], Iterable[np.ndarray]],
                           chunks: Callable[[], Iterable[Mapping[str, np.ndarray]]],
-                          meta: SessionMeta, out_dir: Path, name: str | None = None) -> Path:
+                          meta: SessionMeta, out_dir: Path, name: str | None = None,
+                          overwrite: bool = False) -> Path:
     """Write an imported recording streamed in chunks, as :func:`write_imported_session`
-    writes it whole; return the path. Memory holds one Parquet row group however long
+    writes it whole; return the path. An existing file is replaced only with
+    ``overwrite``. Memory holds one Parquet row group however long
     the recording is.
 
     ``times()`` and ``chunks()`` each return a fresh iterable over the recording from
@@ -95,7 +107,7 @@ def write_imported_chunks(times: Callable[[], Iterable[np.ndarray]],
     if meta.nominal_rate_hz is None and samples > 1 and rising:
         median = exact_medians(lambda: (s[:, None] for s in chunked_steps(times())))[0]
         meta.nominal_rate_hz = float(round(1.0 / median, 3))
-    filename = session_filename(meta) if name is None else safe_name(name, "output name")
+    filename = session_filename(meta) if name is None else output_name(name)
 
     def batches() -> Iterator[pa.RecordBatch]:
         for chunk in chunks():
@@ -104,15 +116,18 @@ def write_imported_chunks(times: Callable[[], Iterable[np.ndarray]],
             yield from table_from_columns(columns, meta).to_batches()
 
     path = inside(out_dir, filename)
-    write_session_batches(path, batches(), meta)
+    write_session_batches(path, batches(), meta, overwrite=overwrite)
     return path
 
 
 def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out_dir: Path,
-                  meta_pairs: list[str], name: str | None = None) -> Path:
+                  meta_pairs: list[str], name: str | None = None,
+                  overwrite: bool = False) -> Path:
     """Write a validated session from array files; return its path. The files are read a
     block at a time into temporary files and the session written a row group at a time
     (:func:`contactkit.recorder.arrays.spill_joint_arrays`), in bounded memory."""
+    if name is not None:
+        output_name(name)
     spills = spill_joint_arrays(t_path, q_path, dq_path, tau_path)
     try:
         doc = {"action": "none", "source": "arrays", **parse_meta(meta_pairs)}
@@ -129,7 +144,7 @@ def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out
 
         return write_imported_chunks(lambda: spilled_times(spills["t"], BLOCK_ROWS),
                                      lambda: spilled_session_chunks(spills, BLOCK_ROWS),
-                                     meta, out_dir, name)
+                                     meta, out_dir, name, overwrite)
     finally:
         for spill in spills.values():
             spill.close()

@@ -33,7 +33,8 @@ import pyarrow as pa
 
 from contactkit.schemas import InputError, SessionMeta
 from contactkit.schemas.session import METADATA_KEY, session_schema, write_session_batches
-from contactkit.util.paths import inside, remove_stale_temporaries
+from contactkit.util.atomic import check_target, remove_stale_temporaries
+from contactkit.util.paths import inside
 
 JOURNAL_SUFFIX = ".journal"
 
@@ -65,13 +66,13 @@ class SessionWriter:
     """
 
     def __init__(self, out_path: str | Path, meta: SessionMeta, columns: list[str],
-                 flush_interval_s: float = 0.1) -> None:
+                 flush_interval_s: float = 0.1, overwrite: bool = False) -> None:
         self.out_path = Path(out_path)
+        self.overwrite = overwrite
         self.meta = meta
         self.flush_interval_s = flush_interval_s
         self.journal = journal_path(self.out_path)
-        if self.out_path.exists():
-            raise InputError("output file already exists (nothing was written)", self.out_path)
+        check_target(self.out_path, overwrite=overwrite)
         if self.journal.exists():
             if journal_in_use(self.journal):
                 raise InputError("another capture is writing this session", self.journal)
@@ -152,7 +153,8 @@ class SessionWriter:
             if self.samples_written == 0:
                 self.journal.unlink()
                 raise InputError("no samples were recorded; nothing written", self.out_path)
-            write_session_batches(self.out_path, journal_batches(self.journal), self.meta)
+            write_session_batches(self.out_path, journal_batches(self.journal), self.meta,
+                                  overwrite=self.overwrite)
             self.journal.unlink()
             return self.out_path
         finally:

@@ -36,8 +36,8 @@ from contactkit.recorder.stats_deep import session_summary
 from contactkit.schemas import ACTIONS, InputError
 from contactkit.schemas.dataset import INDEX_NAME, INDEX_SCHEMA, rebuild_index, session_files
 from contactkit.schemas.timing import rate_warning
+from contactkit.util.atomic import owned_by_marker, write_text
 from contactkit.util.parallel import map_ordered
-from contactkit.util.paths import atomic_write_text
 
 SCHEMA_ID = "contactkit.schemas/stats_report/1"
 WINDOW_S = 0.5
@@ -221,15 +221,19 @@ def file_fingerprint(summaries: list[dict]) -> str:
     return hashlib.sha256("\n".join(pairs).encode()).hexdigest()
 
 
-def write_noise_file(path: Path, noise: dict, dataset: Path) -> Path:
-    """Write the no-contact noise baseline as a simulator noise file (--noise-file)."""
+def write_noise_file(path: Path, noise: dict, dataset: Path, *, overwrite: bool = False,
+                     default: bool = False) -> Path:
+    """Write the no-contact noise baseline as a simulator noise file (--noise-file);
+    return its path. An existing file is replaced only with ``overwrite``, or for the
+    ``default`` report's noise file when ``stats`` wrote it."""
     sensor = SensorNoise(tau_sigma_nm=noise["tau_sigma_nm"],
                          dq_sigma_rad_s=noise["dq_sigma_rad_s"],
                          q_sigma_rad=noise["q_sigma_rad"], tau_bias_nm=noise["tau_bias_nm"],
                          source=f"recorder stats --deep {dataset} ({noise['sessions']} "
                                 "no-contact sessions)")
     doc = json.loads(sensor.to_json()) | {"thesis_tau_std_nm": noise["tau_std_nm"]}
-    return atomic_write_text(path, json.dumps(doc, indent=2))
+    return write_text(path, json.dumps(doc, indent=2), overwrite=overwrite,
+                      owned=owned_by_marker(b"recorder stats --deep") if default else None)
 
 
 def build_report(directory: Path, deep: bool, workers: int,

@@ -24,6 +24,7 @@ import rerun as rr
 from contactkit.features.dynamics import viewer_urdf_file
 from contactkit.replay.engine import ROBOT_VIEW_HZ, Block, OfflineAnswer, ReplayStream
 from contactkit.schemas import rerun_layout as layout
+from contactkit.util.atomic import Owned, owned_by_marker
 from contactkit.util.paths import inside
 
 
@@ -198,6 +199,13 @@ def log_contact_events(rec: rr.RecordingStream, t: np.ndarray,
         ends = np.array([t[0], t[-1]])
         layout.log_scalar_columns(rec, layout.THRESHOLD, ends, index[[0, -1]],
                                   np.tile([thresholds[n] for n in names], (2, 1)))
+
+
+RRD_MAGIC = b"RRF"
+"""How every .rrd file starts (``RRF2`` and a version): the test for a recording."""
+owned_recording: Owned = owned_by_marker(RRD_MAGIC, within=len(RRD_MAGIC))
+"""The default ``replay.rrd`` is replaced only when it is a recording (see
+:mod:`contactkit.util.atomic`)."""
 
 
 def save_path_for(save: Path, session_path: Path, many: bool) -> Path:

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pyarrow as pa
+import pyarrow.parquet as pq
 
 from contactkit.errors import InputError
 from contactkit.schemas.session import SessionMeta, atomic_write_parquet, read_session_meta
@@ -122,10 +123,19 @@ def build_index(directory: str | Path, files: Iterable[Path] | None = None) -> I
     return IndexResult(table=table, problems=problems)
 
 
+def is_index_file(path: Path) -> bool:
+    """Return whether ``path`` is an index contactkit wrote (its schema says so)."""
+    try:
+        return b"contactkit.index" in (pq.read_schema(path).metadata or {})
+    except (OSError, ValueError, pa.ArrowException):
+        return False
+
+
 def write_index(directory: str | Path, table: pa.Table) -> Path:
-    """Write ``index.parquet`` into ``directory`` atomically (replacing the old index)."""
+    """Write ``index.parquet`` into ``directory`` atomically; return its path. An old
+    index is replaced; any other file of that name (a session, a link) is refused."""
     path = Path(directory) / INDEX_NAME
-    atomic_write_parquet(table, path, overwrite=True)
+    atomic_write_parquet(table, path, overwrite=False, owned=is_index_file)
     return path
 
 

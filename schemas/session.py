@@ -36,10 +36,9 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
 import uuid
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -49,6 +48,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from contactkit.errors import InputError
+from contactkit.util.atomic import Owned, atomic_write, check_target
 
 SCHEMA_VERSION = 1
 N_JOINTS = 7
@@ -345,51 +345,17 @@ def write_session(path: str | Path, columns: Mapping[str, np.ndarray] | pa.Table
     else:
         table = table_from_columns(columns, meta)
     validate_table(table, path, allows_gaps(meta))
-    if path.exists() and not overwrite:
-        raise InputError("output file already exists (nothing was written)", path)
+    check_target(path, overwrite=overwrite)
     atomic_write_parquet(table, path, overwrite=overwrite)
     return path
 
 
-def atomic_write_parquet(table: pa.Table, path: Path, *, overwrite: bool) -> None:
-    """Write ``table`` to ``path`` through a temporary file and a link or rename."""
-    atomic_write(path, lambda tmp: pq.write_table(table, tmp, compression="zstd"),
-                 overwrite=overwrite)
-
-
-def atomic_write(path: Path, write: Callable[[Path], None], *, overwrite: bool) -> None:
-    """Call ``write(tmp)`` to fill a temporary file beside ``path``, force it to disk,
-    then link (or with ``overwrite`` rename) it into place; remove it on any error."""
-    if not path.parent.is_dir():
-        raise InputError("output directory does not exist", path.parent)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        write(tmp)
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        if overwrite:
-            os.replace(tmp, path)
-        else:
-            try:
-                os.link(tmp, path)
-            except FileExistsError as err:
-                raise InputError("output file already exists (nothing was written)",
-                                 path) from err
-    except PermissionError as err:
-        raise InputError("cannot write here (permission denied)", path.parent) from err
-    except OSError as err:
-        raise InputError(f"cannot write the file ({err.strerror or err})", path) from err
-    finally:
-        tmp.unlink(missing_ok=True)
-    _fsync_dir(path.parent)
-
-
-def _fsync_dir(directory: Path) -> None:
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+def atomic_write_parquet(table: pa.Table, path: Path, *, overwrite: bool,
+                         owned: Owned | None = None) -> None:
+    """Write ``table`` to ``path`` with :func:`contactkit.util.atomic.atomic_write`
+    (``overwrite`` and ``owned`` are its overwrite policy)."""
+    with atomic_write(path, overwrite=overwrite, owned=owned) as tmp:
+        pq.write_table(table, tmp.file, compression="zstd")
 
 
 def read_session_meta(path: str | Path) -> tuple[SessionMeta, pq.FileMetaData]:
@@ -583,13 +549,11 @@ def write_session_batches(path: str | Path, batches: Iterable[pa.RecordBatch],
     """
     path = Path(path)
     meta.check(path)
-    if path.exists() and not overwrite:
-        raise InputError("output file already exists (nothing was written)", path)
+    check_target(path, overwrite=overwrite)
     gaps = allows_gaps(meta)
     written = 0
 
-    def write(tmp: Path) -> None:
-        nonlocal written
+    with atomic_write(path, overwrite=overwrite) as tmp:
         writer, last_t = None, -math.inf
         try:
             for group in _row_groups(batches, row_group_rows):
@@ -597,7 +561,7 @@ def write_session_batches(path: str | Path, batches: Iterable[pa.RecordBatch],
                 group = group.select(schema.names).cast(schema)
                 _validate_chunk(group, path, gaps, written, last_t)
                 if writer is None:
-                    writer = pq.ParquetWriter(tmp, schema, compression="zstd")
+                    writer = pq.ParquetWriter(tmp.file, schema, compression="zstd")
                 writer.write_table(group, row_group_size=row_group_rows)
                 written += group.num_rows
                 last_t = float(group.column("t")[-1].as_py())
@@ -606,8 +570,6 @@ def write_session_batches(path: str | Path, batches: Iterable[pa.RecordBatch],
                 writer.close()
         if written == 0:
             raise InputError("session has no samples", path)
-
-    atomic_write(path, write, overwrite=overwrite)
     return written
 
 
