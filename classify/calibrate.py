@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.detector import (
     CalibrationData,
     DetectorConfig,
@@ -66,20 +67,31 @@ def session_calibration_data(path: str | Path, template: DetectorConfig | None =
 def calibrate_sessions(paths: Sequence[str | Path], template: DetectorConfig | None = None,
                        margin: float = 1.5, workers: int = 1,
                        progress: ProgressCallback | None = None,
-                       motion_margin: float | None = None) -> DetectorConfig:
+                       motion_margin: float | None = None,
+                       problems: list[tuple[str, str]] | None = None) -> DetectorConfig:
     """Calibrate the detector on the no-contact samples of ``paths`` (``margin`` and
     ``motion_margin`` as in :func:`~contactkit.features.detector.calibrate`); return
-    its settings, with the session count in ``source``."""
+    its settings, with the session count in ``source``. A session that cannot be read
+    is left out and, when ``problems`` is given, appended to it as ``(file, problem)``
+    (without it, the first such session raises its InputError)."""
     template = template or DetectorConfig()
-    parts = [part for parts in map_ordered(_job, [(str(p), template) for p in paths],
-                                           workers=workers, progress=progress)
-             for part in parts]
+    results = list(map_ordered(_job, [(str(p), template) for p in paths], workers=workers,
+                               progress=progress))
+    bad = [(name, problem) for name, _, problem in results if problem is not None]
+    if bad and problems is None:
+        raise InputError(bad[0][1], bad[0][0])
+    if problems is not None:
+        problems += bad
+    parts = [part for _, parts, problem in results if problem is None for part in parts]
     if not parts:
         raise InputError("no no-contact stretch of at least "
                          f"{MIN_STRETCH_S} s in the given sessions")
-    return calibrate(parts, template, margin, source={"sessions": len(paths)},
-                     motion_margin=motion_margin)
+    return calibrate(parts, template, margin,
+                     source={"sessions": len(paths) - len(bad)}, motion_margin=motion_margin)
 
 
-def _job(item: tuple[str, DetectorConfig]) -> list[CalibrationData]:
-    return session_calibration_data(*item)
+def _job(item: tuple[str, DetectorConfig]) -> tuple[str, list[CalibrationData], str | None]:
+    try:
+        return item[0], session_calibration_data(*item), None
+    except DATA_ERRORS as err:
+        return item[0], [], problem_text(err)

@@ -41,6 +41,7 @@ from contactkit.classify.prediction import predict_sources, session_paths
 from contactkit.classify.registry import get_kind, kind_names
 from contactkit.classify.schemes import SCHEMES
 from contactkit.classify.training import evaluate_kind, train
+from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.detector import DetectorConfig, load_calibration, save_calibration
 from contactkit.features.extract import SessionFeatures, feature_rows
 from contactkit.features.per_sample import write_per_sample_table
@@ -50,7 +51,7 @@ from contactkit.features.windows import METHODS
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.features import write_feature_table
 from contactkit.util.atomic import check_target, write_text
-from contactkit.util.cli import SchedulerOpt, new_app, run_app
+from contactkit.util.cli import SchedulerOpt, exit_if_failed, new_app, run_app
 from contactkit.util.parallel import available_cpus, use_scheduler
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar
 
@@ -119,6 +120,7 @@ def features_command(
             _, problems = write_per_sample_table(files, out, progress, overwrite=overwrite)
             _skipped(problems)
             print(out)
+            exit_if_failed(problems)
             return
         extractor = SessionFeatures(timeseries=list(_split(timeseries)), scalars=list(
             _split(scalars)), window=Method(window).value, window_s=window_s).fit(None)
@@ -130,6 +132,7 @@ def features_command(
                         overwrite=overwrite)
     err_console.print(f"{len(result.rows)} sessions x {len(result.names)} features")
     print(out)
+    exit_if_failed(result.problems)
 
 
 ModelOpt = Annotated[Kind, typer.Option(help="Classifier (networks need the nn extra).")]
@@ -203,6 +206,7 @@ def train_command(
     err_console.print(f"trained {trained.kind} on {trained.sessions} sessions, classes "
                       f"{', '.join(trained.classes)}")
     print(trained.path)
+    exit_if_failed(trained.problems)
 
 
 @app.command("evaluate")
@@ -237,6 +241,7 @@ def evaluate_command(
     print(report_markdown(report))
     if json_out is not None:
         write_text(json_out, json.dumps(report.as_dict(), indent=2), overwrite=overwrite)
+    exit_if_failed(problems)
 
 
 @app.command("predict")
@@ -262,8 +267,11 @@ def predict_command(
         if detector is None:
             raise InputError("model carries no contact detector; give --calibration",
                              model_path)
+        problems = []
         for source in sessions:
-            _print_events(model, source, detector, decide_after, as_json)
+            problems += _print_events(model, source, detector, decide_after, as_json)
+        _skipped(problems)
+        exit_if_failed(problems)
         return
     predictions, problems = predict_sources(model, sessions)
     _skipped(problems)
@@ -277,20 +285,30 @@ def predict_command(
         else:
             probs = " ".join(f"{c}={v:.2f}" for c, v in p.probabilities.items())
             print(f"{p.source}: {p.predicted} ({probs}; recorded action {p.recorded})")
+    exit_if_failed(problems)
 
 
 def _print_events(model, source: Path, detector: DetectorConfig, decide_after: float | None,
-                  as_json: bool) -> None:
+                  as_json: bool) -> list[tuple[str, str]]:
+    """Print the contact events of each session of ``source``; return the sessions that
+    failed as ``(path, problem)``."""
     events_model = model.event_model()
+    problems = []
     for path in session_paths(source):
-        session = read_session(path)
-        for event in session_events(session, detector, events_model, decide_after):
+        try:
+            session = read_session(path)
+            found = session_events(session, detector, events_model, decide_after)
+        except DATA_ERRORS as err:
+            problems.append((str(path), problem_text(err)))
+            continue
+        for event in found:
             if as_json:
                 print(json.dumps({"session": str(path), "event": event.to_dict()}))
             else:
                 release = "open" if event.release_s is None else f"{event.release_s:.2f} s"
                 print(f"{path}: contact {event.label} onset {event.onset_s:.2f} s, "
                       f"release {release}")
+    return problems
 
 
 @app.command("calibrate")
@@ -317,14 +335,17 @@ def calibrate_command(
     if motion_margin is not None and motion_margin < 1:
         raise InputError(f"--motion-margin must be at least 1, got {motion_margin}")
     paths = [p for source in sessions for p in session_paths(source)]
+    problems: list[tuple[str, str]] = []
     with progress_bar("calibrating") as bar:
         config = calibrate_sessions(paths, margin=margin, workers=workers,
                                     progress=bar_callback(bar, "sessions"),
-                                    motion_margin=motion_margin)
+                                    motion_margin=motion_margin, problems=problems)
+    _skipped(problems)
     save_calibration(out, config, overwrite=overwrite)
     print(f"{out}: thresholds at rest {[round(v, 2) for v in config.noise]} Nm, "
           f"per rad/s {[round(v, 2) for v in config.speed]}, "
           f"per rad/s^2 {[round(v, 3) for v in config.accel]}")
+    exit_if_failed(problems)
 
 
 @app.command("experiment")

@@ -65,12 +65,16 @@ def write_per_sample_table(files: Sequence[Path], out: Path,
         try:
             for i, path in enumerate(files):
                 try:
-                    tables = per_sample_tables(path)
-                    for table in tables:
+                    rows = 0
+                    for table in per_sample_tables(path):
                         if writer is None:
                             writer = pq.ParquetWriter(tmp.file, table.schema,
                                                       compression="zstd")
                         writer.write_table(table)
+                        rows += table.num_rows
+                    if rows == 0:
+                        raise InputError("no complete sample: every sample lacks a joint "
+                                         "value", path)
                     written += 1
                 except InputError as err:
                     problems.append(err)

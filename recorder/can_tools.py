@@ -77,8 +77,19 @@ def import_can_log(path: Path, fmap: FrameMap, meta: SessionMeta, out_dir: Path,
                    name: str) -> Path:
     """Write the session decoded from a CAN log; return its path."""
     columns, assembler = read_log(path, fmap)
+    if not complete_rows(columns).any():
+        summary = decoding_summary(assembler.stats.as_dict())
+        raise InputError(f"no complete sample in this log ({summary}): do the CAN ids and "
+                         "SYNC of the map match the log?", path)
     meta.source_info = {"log": str(path), "map": fmap.describe(), **assembler.stats.as_dict()}
     return write_imported_session(columns, meta, out_dir, name)
+
+
+def complete_rows(columns: dict[str, np.ndarray]) -> np.ndarray:
+    """Return which samples hold every joint value (q, dq and tau of all joints)."""
+    names = [n for n in columns if n.split("_")[0] in ("q", "dq", "tau")
+             and n.split("_")[-1].isdigit()]
+    return np.all(np.isfinite(np.column_stack([columns[n] for n in names])), axis=1)
 
 
 def decoding_summary(stats: dict) -> str:

@@ -37,7 +37,7 @@ from contactkit.recorder.stats_report import OWNED_REPORT, print_summary, report
 from contactkit.schemas import InputError, SessionMeta, read_session
 from contactkit.schemas.dataset import rebuild_index
 from contactkit.util.atomic import check_target
-from contactkit.util.cli import SchedulerOpt, new_app, run_app
+from contactkit.util.cli import SchedulerOpt, exit_if_failed, new_app, run_app
 from contactkit.util.parallel import available_cpus, use_scheduler
 from contactkit.util.progress import (
     bar_callback,
@@ -236,15 +236,24 @@ def import_csv_command(
     """
     cmap = load_csv_map(column_map)
     directory = output_directory(out)
+    problems = []
     for csv_file in csv_files:
         meta = session_meta(source="csv", action=action, condition=condition, pose=pose,
                             link=link, planned_at_s=planned_at, operator=operator,
                             with_hand=hand, notes=notes)
-        path = import_csv(csv_file, cmap, meta, directory)
+        try:
+            path = import_csv(csv_file, cmap, meta, directory)
+        except InputError as err:
+            if len(csv_files) == 1:
+                raise
+            problems.append((str(csv_file), err.problem))
+            continue
         info = read_session(path).meta.source_info
         err_console.print(f"{csv_file}: {info['samples']} samples from {info['rows']} rows, "
                           f"{info['repeated_rows']} repeated rows dropped")
         print(path)
+    _print_problems(problems)
+    exit_if_failed(problems)
 
 
 @app.command("stats")
@@ -355,6 +364,7 @@ def import_bag_command(
         _report_bag(session)
     err_console.print(f"{len(sessions)} of {len(paths)} bags imported")
     _print_problems(problems)
+    exit_if_failed(problems)
 
 
 def _report_bag(session: Path) -> None:

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features import chain_cache
 from contactkit.features.dynamics import PandaModel
 from contactkit.features.timeseries import ChunkedChain
@@ -163,8 +164,8 @@ def session_summary(path: str) -> dict:
     try:
         meta, footer = read_session_meta(path)
         return _summary(Path(path), meta, footer.num_rows)
-    except InputError as err:
-        return {"file": name, "problem": err.problem}
+    except DATA_ERRORS as err:
+        return {"file": name, "problem": problem_text(err)}
 
 
 def _summary(path: Path, meta: SessionMeta, rows: int) -> dict:

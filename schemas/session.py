@@ -291,6 +291,9 @@ class Session:
         table = complete_table(self.table)
         if table is self.table:
             return self
+        if table.num_rows == 0:
+            raise InputError(f"no complete sample: each of the {self.table.num_rows} samples "
+                             "lacks a joint value", self.path)
         return Session(meta=self.meta, table=table, path=self.path)
 
     @property
@@ -440,11 +443,46 @@ def validate_table(table: pa.Table, path: str | Path | None = None,
     t = table.column("t").to_numpy()
     if len(t) == 0:
         raise InputError("session has no samples", path)
-    steps = np.diff(t)
+    check_times(t, path)
+
+
+MAX_STEP_S = 10.0
+"""The longest step between two samples [s] a session may hold. Real recordings step
+0.35-8.8 ms (host-stamped FR3 logs 0.35-5 ms, the Gaz log 0.7-8.8 ms, MindLab 5 ms); a
+longer step is a time jump (a clock switched from sim time to wall time, a log
+restarted, a corrupt stamp), refused where data enter rather than read as one
+session of years. Steps above 3x the median but within this bound are gaps, counted
+by :func:`contactkit.schemas.timing.sampling_stats`."""
+MAX_ABS_T_S = 1e10
+"""The largest time stamp [s] a session may hold (about 300 years; sessions start at
+0 s, epoch stamps are 1.7e9 s): larger values overflow time arithmetic."""
+
+
+def check_times(t: np.ndarray, path: str | Path | None = None, offset: int = 0,
+                last_t: float | None = None) -> None:
+    """Check the time rule on time stamps ``t`` [s]: finite, within
+    :data:`MAX_ABS_T_S`, strictly increasing, no step longer than :data:`MAX_STEP_S`.
+    ``last_t`` is the stamp before ``t[0]`` (chunked reading) and ``offset`` the row of
+    ``t[0]`` in the file. Raises one :class:`InputError` line naming the row."""
+    t = np.asarray(t, dtype=float)
+    big = np.abs(t) > MAX_ABS_T_S
+    if big.any():
+        row = int(np.argmax(big))
+        raise InputError(f"time stamp {t[row]:.6g} s at row {offset + row} is beyond "
+                         f"{MAX_ABS_T_S:.0e} s", path)
+    steps = np.diff(t) if last_t is None else np.diff(t, prepend=last_t)
+    first = offset if last_t is None else offset - 1
     if (steps <= 0).any():
         row = int(np.argmax(steps <= 0)) + 1
-        raise InputError(f"t is not strictly increasing at row {row} "
-                         f"(t={t[row]:.6f} s after {t[row - 1]:.6f} s)", path)
+        before = t[row - 1] if last_t is None else np.r_[last_t, t][row - 1]
+        here = t[row] if last_t is None else t[row - 1]
+        raise InputError(f"t is not strictly increasing at row {first + row} "
+                         f"(t={here:.6f} s after {before:.6f} s)", path)
+    if (steps > MAX_STEP_S).any():
+        row = int(np.argmax(steps > MAX_STEP_S)) + 1
+        raise InputError(f"time jumps by {steps[row - 1]:.6g} s at row {first + row} (more "
+                         f"than {MAX_STEP_S:g} s between samples: a clock switch or a "
+                         "restarted log; split the recording there)", path)
 
 
 def _check_joint_count(names: list[str], path: str | Path | None) -> None:
@@ -532,10 +570,8 @@ def _validate_chunk(table: pa.Table, path: Path, gaps_allowed: bool, offset: int
         if offset == 0:
             raise
         raise InputError(f"{err.problem} (counted from row {offset})", path) from err
-    first_t = float(table.column("t")[0].as_py())
-    if first_t <= last_t:
-        raise InputError(f"t is not strictly increasing at row {offset} "
-                         f"(t={first_t:.6f} s after {last_t:.6f} s)", path)
+    if math.isfinite(last_t):
+        check_times(table.column("t").to_numpy()[:1], path, offset, last_t)
 
 
 def write_session_batches(path: str | Path, batches: Iterable[pa.RecordBatch],
