@@ -178,12 +178,17 @@ def index_command(
 def recover_command(
     directory: Annotated[Path, typer.Argument(help="Directory with leftover journals.")],
 ) -> None:
-    """Turn every leftover capture journal in DIR into a valid session marked as recovered."""
+    """Turn every leftover capture journal in DIR into a valid session marked as recovered.
+
+    Each journal is handled and reported on its own; a journal is removed only after its
+    session was read back and verified. Exit code 2 when some journal was left in place
+    because it could not be recovered."""
     recoveries = recover_directory(directory)
     if not recoveries:
         err_console.print("no journals to recover")
     for rec in recoveries:
         print(f"{rec.session or rec.journal}: {rec.note}")
+    exit_if_failed([rec for rec in recoveries if rec.failed])
 
 
 @app.command("import-arrays")
