@@ -19,6 +19,7 @@ from contactkit.schemas.session import table_from_columns, write_session_batches
 from contactkit.schemas.timing import chunked_steps
 from contactkit.util.exact_median import exact_medians
 from contactkit.util.paths import inside, safe_name
+from contactkit.util.text import quote
 
 BLOCK_ROWS = 16_384
 """Samples of array files written at a time."""
@@ -36,17 +37,39 @@ def parse_meta(pairs: list[str]) -> dict:
         key = key.strip()
         if not sep or key not in _FIELDS or key in _NOT_SETTABLE:
             settable = sorted(set(_FIELDS) - _NOT_SETTABLE)
-            raise InputError(f"bad metadata pair {pair!r} (expected KEY=VALUE with KEY one of "
-                             f"{', '.join(settable)})")
+            raise InputError(f"bad metadata pair {quote(pair)} (expected KEY=VALUE with KEY "
+                             f"one of {', '.join(settable)})")
+        if len(raw) > MAX_META_CHARS:
+            raise InputError(f"metadata value of {key} has {len(raw)} characters (at most "
+                             f"{MAX_META_CHARS})")
+        if key in BOOLEAN_FIELDS:
+            doc[key] = parse_bool(raw, key)
+            continue
         try:
             value = json.loads(raw)
-        except json.JSONDecodeError:
+        except (ValueError, RecursionError):  # not JSON, or a 5000-digit number
             value = raw
         if key in ("operator", "notes", "pose", "target_pose", "action", "condition",
                    "session_id", "source"):
             value = raw
         doc[key] = value
     return doc
+
+
+MAX_META_CHARS = 10_000
+"""The longest ``--meta`` value [characters]."""
+BOOLEAN_FIELDS = ("with_hand",)
+_TRUE, _FALSE = ("true", "1"), ("false", "0")
+
+
+def parse_bool(raw: str, key: str) -> bool:
+    """Return the boolean ``raw`` spells (true/false or 1/0, any case); anything else
+    (no, maybe, yes, an empty value) is an InputError rather than a guess."""
+    word = raw.strip().lower()
+    if word in _TRUE or word in _FALSE:
+        return word in _TRUE
+    raise InputError(f"{key} must be true or false (or 1 or 0), got {quote(raw)}")
+
 
 
 def output_name(name: str) -> str:
@@ -134,7 +157,7 @@ def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out
         for key, argument in (("pose_q", "pose_q_rad"), ("target_q", "target_q_rad")):
             if key in doc:
                 doc[argument] = doc.pop(key)
-        doc["with_hand"] = bool(doc.get("with_hand", True))
+        doc.setdefault("with_hand", True)
         try:
             meta = session_meta(**doc, source_info={
                 "imported_from": [str(p) for p in (t_path, q_path, dq_path, tau_path)]})

@@ -4,6 +4,7 @@ against the allowed ones."""
 
 from __future__ import annotations
 
+import difflib
 import tomllib
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -26,16 +27,34 @@ def load_map_file(path: Path, what: str, parse: Callable[[dict, str], Parsed]) -
         doc = tomllib.loads(path.read_text())
     except FileNotFoundError as err:
         raise InputError(f"no such {what}", path) from err
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise InputError(f"not a valid TOML {what} ({err})", path) from err
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as err:
+        raise InputError(f"not a valid TOML {what} ({type(err).__name__}: "
+                         f"{str(err)[:200]})", path) from err
     except OSError as err:
         raise InputError(f"cannot read the {what} ({err.strerror or err})", path) from err
     try:
         return parse(doc, str(path))
     except KeyError as err:
         raise InputError(f"bad {what}: missing key {err}", path) from err
-    except (TypeError, ValueError, AttributeError, ArithmeticError) as err:
-        raise InputError(f"bad {what}: {err}", path) from err
+    except (TypeError, ValueError, AttributeError, ArithmeticError, RecursionError) as err:
+        raise InputError(f"bad {what}: {str(err)[:300]}", path) from err
+
+
+def known_keys(table: object, allowed: Iterable[str], where: str) -> dict:
+    """Return ``table`` when it is a TOML table whose keys are all in ``allowed``; else
+    raise ValueError naming the first unknown key in ``where`` with a "did you mean"
+    (:func:`load_map_file` turns it into an InputError). A typo such as ``units`` for
+    ``unit`` or ``byte_oder`` would otherwise be ignored and import wrong values."""
+    if not isinstance(table, dict):
+        raise TypeError(f"{where} must be a table, got {type(table).__name__}")
+    allowed = sorted(allowed)
+    for key in table:
+        if key not in allowed:
+            close = difflib.get_close_matches(str(key), allowed, n=1, cutoff=0.6)
+            hint = f" (did you mean {close[0]!r}?)" if close else \
+                f" (known: {', '.join(allowed)})"
+            raise ValueError(f"unknown key {str(key)[:80]!r} in {where}{hint}")
+    return table
 
 
 def one_of(value: object, allowed: Iterable, what: str) -> object:
