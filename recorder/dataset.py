@@ -43,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
+from contactkit.features.limits import limit_violation, robot_limits
 from contactkit.recorder.metadata import session_filename
 from contactkit.recorder.protocol import POSES, START_POSE
 from contactkit.recorder.sim import (
@@ -190,6 +191,15 @@ def _spec_name(spec: SessionSpec, config: SimConfig) -> str:
         return f"session with seed {spec.seed}"
 
 
+def simulated_violation(data: dict[str, np.ndarray], with_hand: bool) -> str | None:
+    """Return why simulated columns are beyond the robot's limits (a blow-up), or None."""
+    def joints(prefix: str) -> np.ndarray:
+        return np.column_stack([data[f"{prefix}_{j}"] for j in range(1, 8)])
+
+    return limit_violation(data["t"], joints("q"), joints("dq"), joints("tau"),
+                           robot_limits(with_hand))
+
+
 def _write_simulated(spec: SessionSpec, config: SimConfig, data: dict[str, np.ndarray],
                      out_dir: Path) -> tuple[str, str, str | None]:
     """Write one simulated session unless its file exists; return (name, path, problem)."""
@@ -197,6 +207,9 @@ def _write_simulated(spec: SessionSpec, config: SimConfig, data: dict[str, np.nd
         meta = SimSource(spec, config).session_meta()
         name = session_filename(meta)
         path = out_dir / name
+        unstable = simulated_violation(data, config.with_hand)
+        if unstable is not None:
+            raise InputError(f"simulation unstable, session not written: {unstable}")
         if not path.exists():
             write_session(path, data, meta)
     except InputError as err:

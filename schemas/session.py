@@ -440,10 +440,34 @@ def validate_table(table: pa.Table, path: str | Path | None = None,
             row = int(np.argmax(bad))
             kind = "NaN" if math.isnan(values[row]) else "infinite value"
             raise InputError(f"{kind} in column {name!r} at row {row}", path)
+        bound = hard_limit(name)
+        if bound is not None:
+            with np.errstate(invalid="ignore"):
+                beyond = np.abs(values) > bound
+            if beyond.any():
+                row = int(np.argmax(beyond))
+                raise InputError(f"impossible value {values[row]:.6g} in column {name!r} at "
+                                 f"row {row} (beyond the hard limit {bound:g}: a corrupt "
+                                 "file or a unit error)", path)
     t = table.column("t").to_numpy()
     if len(t) == 0:
         raise InputError("session has no samples", path)
     check_times(t, path)
+
+
+HARD_LIMITS = {"q": 100.0, "q_d": 100.0, "dq": 1000.0, "dq_d": 1000.0, "tau": 1e4,
+               "tau_ext_hat": 1e4, "f_ext": 1e5, "f_ext_hat": 1e5, "m_ext_hat": 1e4}
+"""Bounds no robot arm's measurement reaches, per column prefix (q [rad], dq [rad/s],
+tau [Nm], forces [N], moments [Nm]): a value beyond one is refused where data enter
+and on read, naming the column and row. The session robot's own limits (with a
+margin) are far lower; values beyond those are flagged by ``recorder stats --deep``
+and refused by the simulator."""
+
+
+def hard_limit(column: str) -> float | None:
+    """Return the hard bound on ``|value|`` of a session column (None: no bound)."""
+    prefix = column.rsplit("_", 1)[0]
+    return HARD_LIMITS.get(prefix)
 
 
 MAX_STEP_S = 10.0
