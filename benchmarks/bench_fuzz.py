@@ -1,4 +1,5 @@
 """The long fuzz run: every reader of tests/test_fuzz.py, tests/test_fuzz_imports.py and
+tests/test_fuzz_inputs.py
 under the ``long`` Hypothesis profile (2000 examples each, random seeds, instead of 30
 fixed ones in ``make test``).
 
