@@ -181,6 +181,11 @@ def _session_feature_row(job: tuple[str, dict]) -> tuple[str, dict | None, str |
         values, names, window = extractor.session_row(path)
     except DATA_ERRORS as err:
         return Path(path).name, None, problem_text(err)
+    bad = ~np.isfinite(np.asarray(values, dtype=float))
+    if bad.any():
+        return Path(path).name, None, (
+            f"feature {names[int(np.argmax(bad))]} is not finite ({int(bad.sum())} of "
+            f"{bad.size} features): values beyond what the robot can do?")
     row = {"file": Path(path).name, "session_id": meta.session_id, "action": meta.action,
            "condition": meta.condition, "pose": meta.pose, "target_pose": meta.target_pose,
            "link": meta.link, "operator": meta.operator, "speed_rad_s": meta.speed_rad_s,

@@ -31,6 +31,7 @@ import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from contactkit.features.limits import POSITION_SLACK_RAD, SPEED_MARGIN, TORQUE_MARGIN
 from contactkit.recorder.noise import SensorNoise
 from contactkit.recorder.stats_deep import session_summary
 from contactkit.schemas import ACTIONS, InputError
@@ -149,6 +150,26 @@ def index_stats(index: pl.LazyFrame) -> dict:
     }
 
 
+def beyond_limits(summary: dict) -> str | None:
+    """Return one line when a session's peaks are beyond the robot's limits with their
+    margins (see :mod:`contactkit.features.limits`): an unstable simulation or a corrupt
+    recording, to be left out of training. None when within."""
+    for key, margin, what in (("max_torque_fraction", TORQUE_MARGIN, "torque"),
+                              ("max_speed_fraction", SPEED_MARGIN, "speed")):
+        fractions = np.asarray(summary.get(key) or [0.0], dtype=float)
+        if np.nanmax(fractions) > margin:
+            joint = int(np.nanargmax(fractions)) + 1
+            return (f"beyond the robot's limits: {what} of joint {joint} reaches "
+                    f"{np.nanmax(fractions):.3g} x its limit (unstable simulation or corrupt "
+                    "recording?)")
+    margins = np.asarray(summary.get("limit_margin_rad") or [0.0], dtype=float)
+    if np.nanmin(margins) < -POSITION_SLACK_RAD:
+        joint = int(np.nanargmin(margins)) + 1
+        return (f"beyond the robot's limits: joint {joint} leaves its range by "
+                f"{-np.nanmin(margins):.3g} rad")
+    return None
+
+
 def deep_stats(paths: list[Path], workers: int,
                progress: Callable[[int, int], None] | None = None) -> dict:
     """Read every session in ``workers`` processes and aggregate the summaries."""
@@ -157,6 +178,8 @@ def deep_stats(paths: list[Path], workers: int,
     good = [s for s in summaries if "problem" not in s]
     problems = [{"file": s["file"], "problem": s["problem"]} for s in summaries
                 if "problem" in s]
+    problems += [{"file": s["file"], "problem": why} for s in good
+                 if (why := beyond_limits(s)) is not None]
     return _aggregate(good) | {"problems": problems, "_summaries": good}
 
 

@@ -32,7 +32,7 @@ import pyarrow as pa
 
 from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features import chain_cache
-from contactkit.features.dynamics import PandaModel
+from contactkit.features.limits import robot_limits
 from contactkit.features.timeseries import ChunkedChain
 from contactkit.features.windows import WindowSearch, WindowSpec
 from contactkit.recorder.spill import RowSpill
@@ -230,7 +230,7 @@ def _summary(path: Path, meta: SessionMeta, rows: int) -> dict:
         out.update({"window_found": None, "onset_delay_s": None,
                     "short_for_window": bool(duration < 0.5),
                     "force_profile_n": None})
-    limits = PandaModel(meta.with_hand).limits
+    limits = robot_limits(meta.with_hand)
     out["limit_margin_rad"] = np.minimum(q_low - limits.q_min, limits.q_max - q_high).tolist()
     out["max_speed_fraction"] = (dq_peak / limits.dq_max).tolist()
     out["max_torque_fraction"] = (tau_peak / limits.tau_max).tolist()
