@@ -87,7 +87,7 @@ def load_csv_map(path: str | Path) -> CsvMap:
 def _parse(doc: dict, source: str) -> CsvMap:
     known_keys(doc, KNOWN_KEYS, "the map")
     base = one_of(doc.get("index_base", 1), (0, 1), "index_base")
-    time = known_keys(doc["time"], ("column", "unit"), "[time]")
+    time = known_keys(doc["time"], ("column", "unit"), "[time]", required=("column",))
     time_unit = one_of(time.get("unit", "s"), TIME_UNITS, "time unit")
     joints = {}
     for prefix in (*REQUIRED, *OPTIONAL):
@@ -97,7 +97,7 @@ def _parse(doc: dict, source: str) -> CsvMap:
             raise ValueError(f"no columns for {prefix}")
     contact = doc.get("contact")
     if contact is not None:
-        contact = str(known_keys(contact, ("column",), "[contact]")["column"])
+        contact = str(known_keys(contact, ("column",), "[contact]", ("column",))["column"])
     delimiter = str(doc.get("delimiter", ","))
     if len(delimiter) != 1:
         raise ValueError(f"delimiter must be one character, got {delimiter!r}")
@@ -107,7 +107,7 @@ def _parse(doc: dict, source: str) -> CsvMap:
 
 
 def _joint_columns(prefix: str, spec: dict, base: int) -> JointColumns:
-    known_keys(spec, ("columns", "unit", "sign"), f"[{prefix}]")
+    known_keys(spec, ("columns", "unit", "sign"), f"[{prefix}]", required=("columns",))
     columns = spec["columns"]
     if isinstance(columns, str):
         if "{j}" not in columns:

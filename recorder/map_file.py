@@ -40,20 +40,30 @@ def load_map_file(path: Path, what: str, parse: Callable[[dict, str], Parsed]) -
         raise InputError(f"bad {what}: {str(err)[:300]}", path) from err
 
 
-def known_keys(table: object, allowed: Iterable[str], where: str) -> dict:
-    """Return ``table`` when it is a TOML table whose keys are all in ``allowed``; else
-    raise ValueError naming the first unknown key in ``where`` with a "did you mean"
-    (:func:`load_map_file` turns it into an InputError). A typo such as ``units`` for
-    ``unit`` or ``byte_oder`` would otherwise be ignored and import wrong values."""
+def known_keys(table: object, allowed: Iterable[str], where: str,
+               required: Iterable[str] = ()) -> dict:
+    """Return ``table`` when it is a TOML table that holds the ``required`` keys and no
+    key outside ``allowed``; else raise ValueError naming the missing or first unknown key
+    in ``where`` with a "did you mean" (:func:`load_map_file` turns it into an
+    InputError). A typo such as ``units`` for ``unit`` or ``byte_oder`` would otherwise
+    be ignored and import wrong values."""
     if not isinstance(table, dict):
         raise TypeError(f"{where} must be a table, got {type(table).__name__}")
     allowed = sorted(allowed)
-    for key in table:
-        if key not in allowed:
-            close = difflib.get_close_matches(str(key), allowed, n=1, cutoff=0.6)
-            hint = f" (did you mean {close[0]!r}?)" if close else \
-                f" (known: {', '.join(allowed)})"
-            raise ValueError(f"unknown key {str(key)[:80]!r} in {where}{hint}")
+    unknown = [str(key) for key in table if key not in allowed]
+
+    def hint(key: str, among: list[str]) -> str:
+        close = difflib.get_close_matches(key, among, n=1, cutoff=0.6)
+        return f" (did you mean {close[0]!r}?)" if close else f" (known: {', '.join(among)})"
+
+    for key in required:
+        if key not in table:
+            found = difflib.get_close_matches(key, unknown, n=1, cutoff=0.6)
+            also = f" (found {found[0][:80]!r}: a typo?)" if found else ""
+            raise ValueError(f"missing key {key!r} in {where}{also}")
+    if unknown:
+        raise ValueError(f"unknown key {unknown[0][:80]!r} in {where}"
+                         f"{hint(unknown[0], allowed)}")
     return table
 
 

@@ -23,7 +23,8 @@ CAN_MAP = Path(load_map().source)
 
 @pytest.mark.parametrize(("text", "old", "new", "hint"), [
     ("csv", '[q]\ncolumns = "q{j}"\nunit', '[q]\ncolumns = "q{j}"\nunits', "did you mean 'unit'"),
-    ("csv", '[time]\ncolumn', '[time]\ncolum', "did you mean 'column'"),
+    ("csv", '[time]\ncolumn', '[time]\ncolum',
+     r"missing key 'column' in \[time\] \(found 'colum'"),
     ("csv", '\nindex_base', '\nindex_bse', "did you mean 'index_base'"),
     ("can", 'start = 0, type = "int32"', 'start = 0, byte_oder = "big", type = "int32"',
      "did you mean 'byte_order'"),
