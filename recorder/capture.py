@@ -16,6 +16,7 @@ from contactkit.recorder.journal import SessionWriter
 from contactkit.recorder.metadata import session_filename
 from contactkit.recorder.sources.base import Source
 from contactkit.schemas import InputError, SessionMeta
+from contactkit.util.atomic import remove_stale_temporaries
 from contactkit.util.pacing import paced
 
 ChunkCallback = Callable[[dict[str, np.ndarray]], None]
@@ -35,7 +36,9 @@ class CaptureListener(Protocol):
 def output_directory(path: Path) -> Path:
     """Return ``path`` after creating it if needed and proving it writable (a read-only
     mount, missing permission, a full disk), before any source, robot or bus is started;
-    raise InputError when it cannot be created or written to."""
+    raise InputError when it cannot be created or written to. Temporary files that
+    killed writers left there are removed (only those whose writer is gone, see
+    :func:`contactkit.util.atomic.remove_stale_temporaries`)."""
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as err:
@@ -47,6 +50,7 @@ def output_directory(path: Path) -> Path:
             os.fsync(probe.fileno())
     except OSError as err:
         raise InputError(f"cannot write here ({err.strerror or err})", path) from err
+    remove_stale_temporaries(path)
     return path
 
 

@@ -291,3 +291,28 @@ def test_every_writer_on_a_hostile_file_system(condition, sessions, tmp_path, ca
             assert {p.name for p in target_dir.iterdir()} == before, writer
     finally:
         subprocess.run(["umount", str(target_dir)], check=False)
+
+
+def test_a_killed_importer_leaves_nothing_a_rerun_does_not_clean(tmp_path, capsys) -> None:
+    """A temporary of a writer that was killed (its pid gone) is removed by the next
+    import into that directory; one of a live writer stays."""
+    out = tmp_path / "out"
+    out.mkdir()
+    proc = subprocess.Popen(["true"])
+    proc.wait()
+    dead = out / f".s.parquet.contactkit-{proc.pid}-abc.tmp"
+    live = out / f".t.parquet.contactkit-{os.getppid()}-abc.tmp"
+    dead.write_bytes(b"x" * 1000)
+    live.write_bytes(b"x")
+    rows = 50
+    args = []
+    for key, values in {"t": 0.001 * np.arange(rows)[:, None], "q": np.zeros((rows, 7)),
+                        "dq": np.zeros((rows, 7)), "tau": np.ones((rows, 7))}.items():
+        np.savetxt(tmp_path / f"{key}.txt", values)
+        args += [f"--{key}", tmp_path / f"{key}.txt"]
+    code, _, err = recorder(capsys, "import-arrays", *args, "--out", out, "--name", "s.parquet")
+    assert code == 0, err
+    assert not dead.exists() and live.exists()
+    code, _, err = recorder(capsys, "import-arrays", *args, "--out", out, "--name", "s.parquet")
+    one_line(code, err, "s.parquet", "--overwrite")  # no duplicate, no second file
+    assert sorted(p.name for p in out.iterdir()) == sorted([live.name, "s.parquet"])
