@@ -16,7 +16,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from contactkit.errors import InputError
-from contactkit.schemas.session import SessionMeta, atomic_write_parquet, read_session_meta
+from contactkit.schemas.session import (
+    METADATA_KEY,
+    SessionMeta,
+    atomic_write_parquet,
+    read_session_meta,
+)
 
 INDEX_NAME = "index.parquet"
 SESSION_GLOB = "*.parquet"
@@ -124,11 +129,15 @@ def build_index(directory: str | Path, files: Iterable[Path] | None = None) -> I
 
 
 def is_index_file(path: Path) -> bool:
-    """Return whether ``path`` is an index contactkit wrote (its schema says so)."""
+    """Return whether ``path`` (a regular file named ``index.parquet``) may be replaced
+    by a rebuilt index: an index contactkit wrote, or a damaged file under the name the
+    tool reserves for its index; never a session (``import-arrays --name
+    index.parquet`` is refused, but an older version accepted it)."""
     try:
-        return b"contactkit.index" in (pq.read_schema(path).metadata or {})
+        metadata = pq.read_schema(path).metadata or {}
     except (OSError, ValueError, pa.ArrowException):
-        return False
+        return True
+    return b"contactkit.index" in metadata or METADATA_KEY not in metadata
 
 
 def write_index(directory: str | Path, table: pa.Table) -> Path:

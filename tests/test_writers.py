@@ -316,3 +316,20 @@ def test_a_killed_importer_leaves_nothing_a_rerun_does_not_clean(tmp_path, capsy
     code, _, err = recorder(capsys, "import-arrays", *args, "--out", out, "--name", "s.parquet")
     one_line(code, err, "s.parquet", "--overwrite")  # no duplicate, no second file
     assert sorted(p.name for p in out.iterdir()) == sorted([live.name, "s.parquet"])
+
+
+def test_the_index_never_replaces_a_session_or_a_link(sessions, tmp_path, capsys) -> None:
+    data = tmp_path / "data"
+    data.mkdir()
+    shutil.copy(sessions / "none_3.parquet", data / "none_3.parquet")
+    shutil.copy(sessions / "none_3.parquet", data / "index.parquet")  # an old --name
+    code, _, err = recorder(capsys, "index", data)
+    one_line(code, err, "index.parquet", "not a file contactkit wrote")
+    assert (data / "index.parquet").read_bytes() == (sessions / "none_3.parquet").read_bytes()
+    (data / "index.parquet").unlink()
+    victim = tmp_path / "victim.txt"
+    victim.write_bytes(VICTIM_TEXT)
+    (data / "index.parquet").symlink_to(victim)
+    code, _, err = recorder(capsys, "index", data)
+    one_line(code, err, "index.parquet", "symbolic link")
+    assert victim.read_bytes() == VICTIM_TEXT
