@@ -84,7 +84,10 @@ def _split(value: str | None) -> tuple[str, ...] | None:
 
 
 def _refuse_existing(out: Path, overwrite: bool) -> None:
-    check_target(out, overwrite=overwrite)
+    """Refuse an existing ``out`` without ``--overwrite`` (a directory that does not
+    exist yet holds nothing to refuse; commands that write results create it)."""
+    if out.parent.is_dir():
+        check_target(out, overwrite=overwrite)
 
 
 def _skipped(problems) -> None:
