@@ -43,7 +43,7 @@ demo: $(STAMP)
 	    --out $(DEMO) --overwrite) \
 	  && echo "recorded $$session" \
 	  && $(VENV)/bin/recorder info $$session \
-	  && $(VENV)/bin/replay $$session --viewer rerun --save demo.rrd
+	  && $(VENV)/bin/replay $$session --viewer rerun --save demo.rrd --overwrite
 
 # Open the demo replay, a replay of the real Gaz et al. log (imported as a session) and a
 # stats report in headless Chromium; fail on any viewer error. Screenshots in $(CHECK)/.
@@ -52,8 +52,8 @@ viewer-check: demo chromium
 	@real=$$($(VENV)/bin/recorder import-arrays --t $(GAZ)/time.txt --q $(GAZ)/positions.txt \
 	    --dq $(GAZ)/velocity.txt --tau $(GAZ)/torques.txt --meta with_hand=false \
 	    --meta planned_at_s=10 --out $(CHECK)/real) \
-	  && $(VENV)/bin/replay $$real --viewer none --save $(CHECK)/real.rrd \
-	  && $(VENV)/bin/recorder stats $(DEMO) --out $(CHECK)/report \
+	  && $(VENV)/bin/replay $$real --viewer none --save $(CHECK)/real.rrd --overwrite \
+	  && $(VENV)/bin/recorder stats $(DEMO) --out $(CHECK)/report --overwrite \
 	  && $(PY) tools/viewer_check.py demo.rrd $(CHECK)/real.rrd \
 	       --report $(CHECK)/report.html --out $(CHECK)
 

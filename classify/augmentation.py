@@ -36,6 +36,7 @@ from contactkit.classify.grids import GRIDS, Augmentation, GridSpec, load_grids
 from contactkit.classify.kind import ModelKind, ModelOptions
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.dataset import session_files
+from contactkit.util.atomic import owned_result, write_figure, write_text
 
 FRACTIONS = (0.5, 0.75, 1.0)
 NOISE_LEVELS = (1, 5, 10)
@@ -165,8 +166,8 @@ def _write(out_dir: Path, cells: dict, conditions: list[str], model: str, spec: 
             row.append(f"{100 * mean:.1f} [{100 * lo:.1f}, {100 * hi:.1f}]")
         lines.append(f"| {int(fraction * 100)} % | " + " | ".join(row) + " |")
     md, js, png = (out_dir / f"augmentation.{ext}" for ext in ("md", "json", "png"))
-    md.write_text("\n".join(lines) + "\n")
-    js.write_text(json.dumps({"model": model, "grid": spec.as_dict(), "repeats": repeats,
+    write_text(md, "\n".join(lines) + "\n", owned=owned_result)
+    write_text(js, json.dumps({"model": model, "grid": spec.as_dict(), "repeats": repeats,
                               "noise_baseline_nm": baseline.tolist(),
                               "cells": [{"fraction": c.fraction, "condition": c.condition,
                                          "balanced_accuracy": c.scores,
@@ -188,6 +189,6 @@ def _write(out_dir: Path, cells: dict, conditions: list[str], model: str, spec: 
     for ax in (left, right):
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(png, dpi=120)
+    write_figure(png, fig, owned=owned_result, dpi=120)
     plt.close(fig)
     return [md, js, png]

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.detector import (
     CalibrationData,
     DetectorConfig,
@@ -71,24 +72,38 @@ def calibrate_sessions(paths: Sequence[str | Path], template: DetectorConfig | N
                        margin: float = 1.5, workers: int = 1,
                        progress: ProgressCallback | None = None,
                        motion_margin: float | None = None,
-                       robot: str | None = None) -> DetectorConfig:
+                       robot: str | None = None,
+                       problems: list[tuple[str, str]] | None = None) -> DetectorConfig:
     """Calibrate the detector on the no-contact samples of ``paths`` (``margin`` and
     ``motion_margin`` as in :func:`~contactkit.features.detector.calibrate`; ``robot``
     the arm's model instead of each session's own); return its settings, with the
     session count in ``source`` and, when every session is of one arm, its name in
-    ``robot`` (the settings then apply to that arm as they are)."""
+    ``robot`` (the settings then apply to that arm as they are). A session that cannot
+    be read is left out and, when ``problems`` is given, appended to it as ``(file,
+    problem)`` (without it, the first such session raises its InputError)."""
     template = template or DetectorConfig()
-    parts = [part for parts in map_ordered(_job, [(str(p), template, robot) for p in paths],
-                                           workers=workers, progress=progress)
-             for part in parts]
+    results = list(map_ordered(_job, [(str(p), template, robot) for p in paths],
+                               workers=workers, progress=progress))
+    bad = [(name, problem) for name, _, problem in results if problem is not None]
+    if bad and problems is None:
+        raise InputError(bad[0][1], bad[0][0])
+    if problems is not None:
+        problems += bad
+    parts = [part for _, parts, problem in results if problem is None for part in parts]
     if not parts:
         raise InputError("no no-contact stretch of at least "
                          f"{MIN_STRETCH_S} s in the given sessions")
-    robots = {canonical_robot_name(robot or read_session_meta(p)[0].robot) for p in paths}
-    config = calibrate(parts, template, margin, source={"sessions": len(paths)},
-                       motion_margin=motion_margin)
+    failed = {name for name, _ in bad}
+    robots = {canonical_robot_name(robot or read_session_meta(p)[0].robot) for p in paths
+              if str(p) not in failed}
+    config = calibrate(parts, template, margin,
+                       source={"sessions": len(paths) - len(bad)}, motion_margin=motion_margin)
     return replace(config, robot=robots.pop() if len(robots) == 1 else None)
 
 
-def _job(item: tuple[str, DetectorConfig, str | None]) -> list[CalibrationData]:
-    return session_calibration_data(*item)
+def _job(item: tuple[str, DetectorConfig, str | None]
+         ) -> tuple[str, list[CalibrationData], str | None]:
+    try:
+        return item[0], session_calibration_data(*item), None
+    except DATA_ERRORS as err:
+        return item[0], [], problem_text(err)

@@ -41,6 +41,7 @@ from contactkit.classify.prediction import predict_sources, session_paths
 from contactkit.classify.registry import get_kind, kind_names
 from contactkit.classify.schemes import SCHEMES
 from contactkit.classify.training import evaluate_kind, train
+from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.detector import DetectorConfig, load_calibration, save_calibration
 from contactkit.features.extract import SessionFeatures, feature_rows
 from contactkit.features.per_sample import write_per_sample_table
@@ -49,7 +50,8 @@ from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS, ChainConfig
 from contactkit.features.windows import METHODS
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.features import write_feature_table
-from contactkit.util.cli import RobotOpt, SchedulerOpt, new_app, run_app
+from contactkit.util.atomic import check_target, write_text
+from contactkit.util.cli import RobotOpt, SchedulerOpt, exit_if_failed, new_app, run_app
 from contactkit.util.parallel import available_cpus, use_scheduler
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar
 
@@ -82,8 +84,10 @@ def _split(value: str | None) -> tuple[str, ...] | None:
 
 
 def _refuse_existing(out: Path, overwrite: bool) -> None:
-    if out.exists() and not overwrite:
-        raise InputError("output file already exists (pass --overwrite to replace it)", out)
+    """Refuse an existing ``out`` without ``--overwrite`` (a directory that does not
+    exist yet holds nothing to refuse; commands that write results create it)."""
+    if out.parent.is_dir():
+        check_target(out, overwrite=overwrite)
 
 
 def _skipped(problems) -> None:
@@ -118,9 +122,10 @@ def features_command(
         progress = bar_callback(bar, "sessions")
         if per_sample:
             _, problems = write_per_sample_table(files, out, progress,
-                                                 ChainConfig(robot=robot))
+                                                 ChainConfig(robot=robot), overwrite=overwrite)
             _skipped(problems)
             print(out)
+            exit_if_failed(problems)
             return
         extractor = SessionFeatures(timeseries=list(_split(timeseries)), scalars=list(
             _split(scalars)), window=Method(window).value, window_s=window_s,
@@ -129,9 +134,11 @@ def features_command(
     _skipped(result.problems)
     if not result.rows:
         raise InputError("no session could be processed", source)
-    write_feature_table(out, result.rows, result.names, extractor.config())
+    write_feature_table(out, result.rows, result.names, extractor.config(),
+                        overwrite=overwrite)
     err_console.print(f"{len(result.rows)} sessions x {len(result.names)} features")
     print(out)
+    exit_if_failed(result.problems)
 
 
 ModelOpt = Annotated[Kind, typer.Option(help="Classifier (networks need the nn extra).")]
@@ -205,6 +212,7 @@ def train_command(
     err_console.print(f"trained {trained.kind} on {trained.sessions} sessions, classes "
                       f"{', '.join(trained.classes)}")
     print(trained.path)
+    exit_if_failed(trained.problems)
 
 
 @app.command("evaluate")
@@ -222,9 +230,12 @@ def evaluate_command(
         "--json", help="Also write the report as JSON.")] = None,
     epochs: EpochsOpt = 100, steps: StepsOpt = 300, depth: DepthOpt = None,
     width: WidthOpt = 2.0, dropout: DropoutOpt = 0.02, device: DeviceOpt = "cpu",
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing --json file.")] = False,
 ) -> None:
     """Evaluate a classifier honestly and print accuracy, balanced accuracy, macro-F1,
     per-class recall with 95 % confidence intervals, and the confusion matrix."""
+    if json_out is not None:
+        check_target(json_out, overwrite=overwrite)
     options = _options(model, features, scalars, window, window_s, c, seed, epochs, steps,
                        depth, width, dropout, device)
     with progress_bar("evaluate") as bar:
@@ -235,7 +246,8 @@ def evaluate_command(
     _skipped(problems)
     print(report_markdown(report))
     if json_out is not None:
-        json_out.write_text(json.dumps(report.as_dict(), indent=2))
+        write_text(json_out, json.dumps(report.as_dict(), indent=2), overwrite=overwrite)
+    exit_if_failed(problems)
 
 
 @app.command("predict")
@@ -262,8 +274,11 @@ def predict_command(
         if detector is None:
             raise InputError("model carries no contact detector; give --calibration",
                              model_path)
+        problems = []
         for source in sessions:
-            _print_events(model, source, detector, decide_after, as_json, robot)
+            problems += _print_events(model, source, detector, decide_after, as_json, robot)
+        _skipped(problems)
+        exit_if_failed(problems)
         return
     predictions, problems = predict_sources(model, sessions, robot)
     _skipped(problems)
@@ -277,16 +292,26 @@ def predict_command(
         else:
             probs = " ".join(f"{c}={v:.2f}" for c, v in p.probabilities.items())
             print(f"{p.source}: {p.predicted} ({probs}; recorded action {p.recorded})")
+    exit_if_failed(problems)
 
 
 def _print_events(model, source: Path, detector: DetectorConfig, decide_after: float | None,
-                  as_json: bool, robot: str | None) -> None:
+                  as_json: bool, robot: str | None) -> list[tuple[str, str]]:
+    """Print the contact events of each session of ``source``, with the arm's model
+    ``robot`` instead of each session's own when given; return the sessions that failed
+    as ``(path, problem)``."""
     from contactkit.classify.event_listener import contact_text
 
     events_model = model.event_model()
+    problems = []
     for path in session_paths(source):
-        session = read_session(path)
-        for event in session_events(session, detector, events_model, decide_after, robot):
+        try:
+            session = read_session(path)
+            found = session_events(session, detector, events_model, decide_after, robot)
+        except DATA_ERRORS as err:
+            problems.append((str(path), problem_text(err)))
+            continue
+        for event in found:
             if as_json:
                 print(json.dumps({"session": str(path), "event": event.to_dict()}))
             else:
@@ -295,6 +320,7 @@ def _print_events(model, source: Path, detector: DetectorConfig, decide_after: f
                       f"release {release}; at the decision "
                       f"{contact_text(event.contact_at_decision)}; at the peak "
                       f"{contact_text(event.contact_at_peak)}")
+    return problems
 
 
 @app.command("calibrate")
@@ -311,23 +337,29 @@ def calibrate_command(
              "such as a simulated one.")] = None,
     workers: Annotated[int, typer.Option(help="Parallel worker processes.")] = 1,
     robot: RobotOpt = None,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing --out file.")] = False,
 ) -> None:
     """Calibrate the contact detector on a robot's no-contact sessions: record a minute
     of free motion and holds, calibrate, then pass --calibration robot.json to replay
     and predict."""
+    check_target(out, overwrite=overwrite)
     if margin < 1:
         raise InputError(f"--margin must be at least 1, got {margin}")
     if motion_margin is not None and motion_margin < 1:
         raise InputError(f"--motion-margin must be at least 1, got {motion_margin}")
     paths = [p for source in sessions for p in session_paths(source)]
+    problems: list[tuple[str, str]] = []
     with progress_bar("calibrating") as bar:
         config = calibrate_sessions(paths, margin=margin, workers=workers,
                                     progress=bar_callback(bar, "sessions"),
-                                    motion_margin=motion_margin, robot=robot)
-    save_calibration(out, config)
+                                    motion_margin=motion_margin, robot=robot,
+                                    problems=problems)
+    _skipped(problems)
+    save_calibration(out, config, overwrite=overwrite)
     print(f"{out}: thresholds at rest {[round(v, 2) for v in config.noise]} Nm, "
           f"per rad/s {[round(v, 2) for v in config.speed]}, "
           f"per rad/s^2 {[round(v, 3) for v in config.accel]}")
+    exit_if_failed(problems)
 
 
 @app.command("experiment")

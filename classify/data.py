@@ -25,6 +25,7 @@ from contactkit.schemas import InputError
 from contactkit.schemas.dataset import session_files
 from contactkit.schemas.features import feature_table_schema, read_feature_table
 from contactkit.schemas.session import atomic_write_parquet
+from contactkit.util.atomic import any_regular_file
 
 GROUP_KEYS = ("pose", "session", "operator", "condition")
 CACHE_DIR = ".cache"
@@ -152,7 +153,7 @@ def _load_one(source: Path, extractor: SessionFeatures, workers: int,
     table = pa.Table.from_pylist(result.rows, schema=feature_table_schema(result.names, config))
     if cache:
         cache_path.parent.mkdir(exist_ok=True)
-        atomic_write_parquet(table, cache_path, overwrite=True)
+        atomic_write_parquet(table, cache_path, overwrite=False, owned=any_regular_file)
     return _from_table(table, {"config": config, "features": result.names}, result.problems)
 
 

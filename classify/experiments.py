@@ -42,6 +42,7 @@ from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import SCALARS
 from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS, columns_of
 from contactkit.schemas import InputError
+from contactkit.util.atomic import owned_result, write_figure, write_text
 
 EXPERIMENTS = ("features", "rfe", "speed", "window")
 MVR = ("mean", "variance", "range")
@@ -240,7 +241,7 @@ def _plot(path: Path, title: str, rows: list[Row], series_key: bool = False) -> 
     ax.set_title(title)
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    write_figure(path, fig, owned=owned_result, dpi=120)
     plt.close(fig)
 
 
@@ -274,8 +275,8 @@ def run_experiment(name: str, sources: Sequence[Path], out_dir: Path, setting: S
         rows = window_lengths(sources, setting, progress)
         title, series = "Accuracy against window length", True
     md, js, png = (out_dir / f"{name}.{ext}" for ext in ("md", "json", "png"))
-    md.write_text(_markdown(title, rows, setting, extra))
-    js.write_text(json.dumps({"experiment": name, "setting": vars(setting),
+    write_text(md, _markdown(title, rows, setting, extra), owned=owned_result)
+    write_text(js, json.dumps({"experiment": name, "setting": vars(setting),
                               "sources": [str(s) for s in sources],
                               "rows": [{"label": r.label, "detail": r.detail,
                                         "report": r.report.as_dict()} for r in rows],

@@ -32,6 +32,7 @@ from sklearn.base import BaseEstimator, TransformerMixin
 
 from contactkit.classify.data import FeatureSet
 from contactkit.classify.kind import InputKind, ModelKind, ModelOptions
+from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.chain_cache import chain_series
 from contactkit.features.observer import DEFAULT_GAIN, ObserverConfig
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
@@ -225,8 +226,8 @@ def _grid_job(job: tuple[str, GridSpec, Augmentation | None]
                 "operator": meta.operator,
                 "speed_rad_s": np.nan if meta.speed_rad_s is None else meta.speed_rad_s}
         return Path(path).name, (session_grid(session, spec, augmentation), info), None
-    except InputError as err:
-        return Path(path).name, None, err.problem
+    except DATA_ERRORS as err:
+        return Path(path).name, None, problem_text(err)
 
 
 def session_paths(sources: Sequence[Path]) -> list[str]:

@@ -29,6 +29,7 @@ from contactkit.classify.registry import get_kind
 from contactkit.classify.schemes import check_scheme, scheme_classes
 from contactkit.classify.training import TrainedModel, train, training_set
 from contactkit.schemas import InputError
+from contactkit.util.atomic import owned_result, write_text
 from contactkit.util.parallel import map_ordered
 from contactkit.util.progress import LabelledProgress
 
@@ -243,8 +244,9 @@ def write_results(out_dir: Path, results: Sequence[TrialResult], protocol: Proto
     """Write ``gridsearch.md`` and ``gridsearch.json`` into ``out_dir``; return both paths."""
     out_dir.mkdir(parents=True, exist_ok=True)
     md, js = out_dir / "gridsearch.md", out_dir / "gridsearch.json"
-    md.write_text(results_markdown(results, protocol))
-    js.write_text(json.dumps(results_json(results, protocol), indent=1) + "\n")
+    write_text(md, results_markdown(results, protocol), owned=owned_result)
+    write_text(js, json.dumps(results_json(results, protocol), indent=1) + "\n",
+               owned=owned_result)
     return md, js
 
 

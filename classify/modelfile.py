@@ -34,10 +34,19 @@ from sklearn.pipeline import Pipeline
 
 from contactkit.classify.kind import ModelFormat, ModelKind
 from contactkit.schemas import InputError
+from contactkit.util.atomic import atomic_write, check_target
 
 META_MEMBER = "contactkit.json"
 EVENTS_MEMBER = "events.skops"
-FORMAT = "contactkit-model/1"
+FORMAT = "contactkit-model/2"
+"""Version 2: the digest covers every member, contactkit.json included (version 1 left
+it out, so its classes could be swapped unnoticed); version 1 files are refused."""
+MAX_MEMBER_BYTES = 256 << 20
+"""The largest member [bytes, uncompressed] a model file may hold; checked from the
+archive's directory before anything is decompressed (a zip bomb is refused unread)."""
+MAX_MODEL_BYTES = 512 << 20
+"""The largest model file, and the most its members may add up to uncompressed [bytes]."""
+MAX_MEMBERS = 10_000
 TRUSTED_TYPES = [
     "sklearn.model_selection._split.StratifiedKFold",
     "sklearn.calibration._CalibratedClassifier",
@@ -56,17 +65,41 @@ def _versions() -> dict[str, str]:
     return out
 
 
-def _members_digest(archive: zipfile.ZipFile) -> str:
-    return _digest({name: archive.read(name) for name in archive.namelist()})
+def _members_digest(archive: zipfile.ZipFile, meta: dict) -> str:
+    return _digest({name: archive.read(name) for name in archive.namelist()}, meta)
 
 
-def _digest(members: dict[str, bytes]) -> str:
+def _digest(members: dict[str, bytes], meta: dict) -> str:
+    """Return the SHA-256 over every member (name and bytes, in name order) and over the
+    metadata document itself (canonical JSON, without the digest)."""
     digest = hashlib.sha256()
     for name in sorted(members):
         if name == META_MEMBER:
             continue
         digest.update(name.encode() + b"\0" + members[name] + b"\0")
+    doc = {k: v for k, v in meta.items() if k != "members_sha256"}
+    digest.update(META_MEMBER.encode() + b"\0"
+                  + json.dumps(doc, sort_keys=True).encode() + b"\0")
     return digest.hexdigest()
+
+
+def check_archive_sizes(archive: zipfile.ZipFile, path: Path) -> None:
+    """Refuse an archive whose members would decompress beyond the bounds
+    (:data:`MAX_MEMBER_BYTES` each, :data:`MAX_MODEL_BYTES` in all, :data:`MAX_MEMBERS`),
+    from its directory alone, before any member is decompressed."""
+    infos = archive.infolist()
+    if len(infos) > MAX_MEMBERS:
+        raise InputError(f"model file has {len(infos)} members (at most {MAX_MEMBERS})", path)
+    total = 0
+    for info in infos:
+        if info.file_size > MAX_MEMBER_BYTES:
+            raise InputError(f"model file member {info.filename[:80]!r} would decompress to "
+                             f"{info.file_size} bytes (at most {MAX_MEMBER_BYTES}); "
+                             "refusing it", path)
+        total += info.file_size
+    if total > MAX_MODEL_BYTES:
+        raise InputError(f"model file members would decompress to {total} bytes (at most "
+                         f"{MAX_MODEL_BYTES}); refusing it", path)
 
 
 @dataclass
@@ -160,8 +193,7 @@ def save_model(path: str | Path, estimator: object, *, kind: ModelKind, transfor
     if path.suffix.lower() != suffix:
         raise InputError(f"a {kind.name} model is saved as {kind.file_format.name}: the file "
                          f"name must end in {suffix}", path)
-    if path.exists() and not overwrite:
-        raise InputError("output file already exists (it is replaced only with overwrite)", path)
+    check_target(path, overwrite=overwrite)
     meta = model_meta(kind=kind, transformer=transformer, feature_names=feature_names,
                       scheme=scheme, classes=classes, fingerprint=fingerprint,
                       training=training)
@@ -185,34 +217,42 @@ def write_skops(path: Path, estimator: object, meta: dict, sample_shape: tuple[i
     with zipfile.ZipFile(io.BytesIO(payload)) as archive:
         members = {name: archive.read(name) for name in archive.namelist()}
     members |= extra or {}
-    meta = meta | {"members_sha256": _digest(members)}
-    tmp = path.with_name(f".{path.name}.tmp")
-    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as out:
+    meta = meta | {"members_sha256": _digest(members, meta)}
+    with atomic_write(path, overwrite=overwrite) as tmp, \
+            zipfile.ZipFile(tmp.file, "w", compression=zipfile.ZIP_DEFLATED) as out:
         for name, data in members.items():
             out.writestr(name, data)
         out.writestr(META_MEMBER, json.dumps(meta, indent=2))
-    tmp.replace(path)
     return path
 
 
 def read_skops(path: Path) -> tuple[object, dict]:
     """Read a skops model file safely (see the module docstring); return the estimator
     and its metadata, or raise InputError."""
+    if path.stat().st_size > MAX_MODEL_BYTES:
+        raise InputError(f"model file is larger than {MAX_MODEL_BYTES} bytes", path)
     data = path.read_bytes()
     try:
         with zipfile.ZipFile(io.BytesIO(data)) as archive:
+            check_archive_sizes(archive, path)
             if META_MEMBER not in archive.namelist():
                 raise InputError("not a contactkit model file (no contactkit.json)", path)
             meta = json.loads(archive.read(META_MEMBER))
-            digest = _members_digest(archive)
-    except (zipfile.BadZipFile, ValueError, RecursionError, OSError, EOFError) as err:
-        raise InputError(f"not a contactkit model file ({type(err).__name__}: "
-                         f"{str(err)[:80]})", path) from err
-    if not isinstance(meta, dict):
-        raise InputError("not a contactkit model file (contactkit.json is not an object)",
-                         path)
+            if not isinstance(meta, dict):
+                raise InputError("not a contactkit model file (contactkit.json is not an "
+                                 "object)", path)
+            digest = _members_digest(archive, meta)
+    except InputError:
+        raise
+    except Exception as err:  # zipfile, zlib, json and struct all raise on corrupt bytes
+        raise InputError(f"not a contactkit model file, or a damaged one "
+                         f"({type(err).__name__}: {' '.join(str(err).split())[:80]})",
+                         path) from err
     if meta.get("format") != FORMAT:
-        raise InputError(f"unknown model format {meta.get('format')!r}", path)
+        old = meta.get("format") == "contactkit-model/1"
+        raise InputError("model file of an older contactkit whose digest leaves out its "
+                         "metadata; train it again" if old else
+                         f"unknown model format {str(meta.get('format'))[:80]!r}", path)
     if digest != meta.get("members_sha256"):
         raise InputError("model file was modified after it was written (digest mismatch); "
                          "refusing to load it", path)
@@ -223,7 +263,10 @@ def read_skops(path: Path) -> tuple[object, dict]:
         raise InputError(f"unreadable model archive ({type(err).__name__})", path) from err
     if untrusted:
         raise InputError(f"model file would build untrusted types {untrusted}; refusing", path)
-    return sio.loads(data, trusted=trusted), meta
+    try:
+        return sio.loads(data, trusted=trusted), meta
+    except Exception as err:  # skops raises many kinds on a malformed archive
+        raise InputError(f"unreadable model ({type(err).__name__})", path) from err
 
 
 def _load_event_estimator(path: Path, meta: dict) -> object | None:
@@ -231,10 +274,17 @@ def _load_event_estimator(path: Path, meta: dict) -> object | None:
     none), refusing untrusted types as for the main model."""
     if "events" not in meta:
         return None
-    with zipfile.ZipFile(path) as archive:
-        if EVENTS_MEMBER not in archive.namelist():
-            raise InputError(f"model file lacks its event classifier ({EVENTS_MEMBER})", path)
-        data = archive.read(EVENTS_MEMBER)
+    try:
+        with zipfile.ZipFile(path) as archive:
+            check_archive_sizes(archive, path)
+            if EVENTS_MEMBER not in archive.namelist():
+                raise InputError(f"model file lacks its event classifier ({EVENTS_MEMBER})",
+                                 path)
+            data = archive.read(EVENTS_MEMBER)
+    except InputError:
+        raise
+    except Exception as err:  # the file changed since it was checked, or is damaged
+        raise InputError(f"damaged model file ({type(err).__name__})", path) from err
     from contactkit.classify.registry import get_kind
 
     trusted = TRUSTED_TYPES + list(get_kind("svm").trusted_types)
@@ -245,7 +295,10 @@ def _load_event_estimator(path: Path, meta: dict) -> object | None:
     if untrusted:
         raise InputError(f"event classifier would build untrusted types {untrusted}; "
                          "refusing", path)
-    return sio.loads(data, trusted=trusted)
+    try:
+        return sio.loads(data, trusted=trusted)
+    except Exception as err:  # skops raises many kinds on a malformed archive
+        raise InputError(f"unreadable event classifier ({type(err).__name__})", path) from err
 
 
 def _kind_of(meta: dict, path: Path) -> ModelKind:

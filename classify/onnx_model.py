@@ -18,6 +18,7 @@ from sklearn.base import BaseEstimator, ClassifierMixin
 
 from contactkit.classify.kind import ModelFormat
 from contactkit.schemas import InputError
+from contactkit.util.atomic import atomic_write
 
 META_KEY = "contactkit"
 
@@ -33,14 +34,15 @@ def save_onnx_model(path: Path, network, meta: dict, sample_shape: tuple[int, ..
     import onnx
 
     channels, steps = sample_shape
-    tmp = path.with_name(f".{path.name}.tmp")
-    network.export_onnx(tmp, channels, steps)
-    model = onnx.load(str(tmp))
-    doc = {**meta, "graph_sha256": _graph_digest(model)}
-    entry = model.metadata_props.add()
-    entry.key, entry.value = META_KEY, json.dumps(doc)
-    onnx.save(model, str(tmp))
-    tmp.replace(path)
+    with atomic_write(path, overwrite=overwrite, suffix=".onnx") as tmp:
+        network.export_onnx(tmp.path, channels, steps)
+        model = onnx.load(str(tmp.path))
+        doc = {**meta, "graph_sha256": _graph_digest(model)}
+        entry = model.metadata_props.add()
+        entry.key, entry.value = META_KEY, json.dumps(doc)
+        tmp.file.seek(0)
+        tmp.file.write(model.SerializeToString())
+        tmp.file.truncate()
     return path
 
 

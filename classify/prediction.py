@@ -14,6 +14,7 @@ import pyarrow.parquet as pq
 
 from contactkit.classify.data import load_features
 from contactkit.classify.modelfile import ModelFile
+from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.dataset import session_files
 from contactkit.schemas.features import FEATURES_KEY
@@ -90,8 +91,9 @@ def predict_sources(model: ModelFile, sources: Sequence[Path], robot: str | None
                 session = read_session(path)
                 session.meta = session.meta.with_robot(robot)
                 proba = pipeline.predict_proba([session])
-            except InputError as err:
-                problems.append(err)
+            except DATA_ERRORS as err:
+                problems.append(err if isinstance(err, InputError)
+                                else InputError(problem_text(err), path))
                 continue
             predictions += _rows(model, proba, [str(path)], [session.meta.action])
     return predictions, problems

@@ -18,6 +18,7 @@ from contactkit.classify.modelfile import save_model
 from contactkit.classify.registry import get_kind
 from contactkit.classify.schemes import check_scheme, scheme_classes
 from contactkit.schemas import InputError
+from contactkit.util.atomic import check_target
 from contactkit.util.progress import LabelledProgress
 
 
@@ -66,8 +67,7 @@ def train(datasets: Sequence[Path], out: Path, options: ModelOptions, *, scheme:
     travel in the model file (see :func:`contactkit.classify.modelfile.save_model`)."""
     check_scheme(scheme)
     out = Path(out)
-    if out.exists() and not overwrite:
-        raise InputError("output file already exists (it is replaced only with overwrite)", out)
+    check_target(out, overwrite=overwrite)
     kind = get_kind(options.kind)
     if out.suffix.lower() != kind.file_format.suffix:
         raise InputError(f"a {kind.name} model is saved as {kind.file_format.name}: the file "

@@ -44,6 +44,7 @@ from contactkit.replay.default_model import RECIPE, build_default_model, recipe_
 from contactkit.replay.engine import ReplayStream
 from contactkit.schemas import SessionMeta, joint_columns, read_session, write_session
 from contactkit.schemas.dataset import session_files
+from contactkit.util.atomic import write_text
 from contactkit.util.parallel import map_ordered
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -392,7 +393,7 @@ def main() -> None:
     page = args.out.read_text() if args.out.exists() else ""
     page = SECTION.sub(lambda _: text, page) if SECTION.search(page) else \
         page.rstrip() + "\n\n" + text + "\n"
-    args.out.write_text(page)
+    write_text(args.out, page, overwrite=True)
     print(text)
 
 

@@ -32,6 +32,7 @@ from contactkit.classify.evaluate import Report, evaluate
 from contactkit.classify.registry import make_estimator
 from contactkit.classify.schemes import scheme_classes
 from contactkit.features.extract import SessionFeatures
+from contactkit.util.atomic import write_text
 
 ROOT = Path(__file__).resolve().parents[1]
 CLASSES = scheme_classes("full")
@@ -131,7 +132,7 @@ def main() -> None:
         kept = generated_elsewhere.search(previous)
         if kept:
             sections.append(kept.group(0))
-    args.out.write_text(header + "\n\n" + "\n\n".join(sections) + footer)
+    write_text(args.out, header + "\n\n" + "\n\n".join(sections) + footer, overwrite=True)
     print(args.out)
 
 

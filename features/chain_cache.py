@@ -22,6 +22,7 @@ import hashlib
 import json
 import os
 from collections.abc import Iterator, Sequence
+from contextlib import ExitStack
 from dataclasses import asdict
 from pathlib import Path
 
@@ -41,6 +42,7 @@ from contactkit.features.timeseries import (
 from contactkit.robots import RobotSetup
 from contactkit.schemas import Session
 from contactkit.schemas.session import complete_table, joint_columns
+from contactkit.util.atomic import any_regular_file, atomic_write
 from contactkit.util.cache import cache_dir
 
 CACHED = frozenset(MODEL + WORKSPACE)
@@ -88,30 +90,26 @@ def write_chain_files(tables: Iterator[pa.Table], robot: RobotSetup, config: Cha
     chunk, each file atomically."""
     chain = ChunkedChain(config, robot, list(targets))
     writers: dict[str, pq.ParquetWriter] = {}
-    temps = {name: path.with_name(f".{path.name}.{os.getpid()}.tmp")
-             for name, path in targets.items()}
-    try:
-        for table in tables:
-            if table.num_rows == 0:
-                continue
-            out = chain.compute(table.column("t").to_numpy(), _joints(table, "q"),
-                                _joints(table, "dq"), _joints(table, "tau"))
-            for name, values in out.items():
-                group = pa.table({c: np.ascontiguousarray(v) for c, v in
-                                  zip(columns_of(name), values.T, strict=True)})
-                if name not in writers:
-                    writers[name] = pq.ParquetWriter(temps[name], group.schema)
-                writers[name].write_table(group)
-        for writer in writers.values():
-            writer.close()
+    with ExitStack() as stack:
+        temps = {name: stack.enter_context(atomic_write(path, owned=any_regular_file))
+                 for name, path in targets.items()}
+        try:
+            for table in tables:
+                if table.num_rows == 0:
+                    continue
+                out = chain.compute(table.column("t").to_numpy(), _joints(table, "q"),
+                                    _joints(table, "dq"), _joints(table, "tau"))
+                for name, values in out.items():
+                    group = pa.table({c: np.ascontiguousarray(v) for c, v in
+                                      zip(columns_of(name), values.T, strict=True)})
+                    if name not in writers:
+                        writers[name] = pq.ParquetWriter(temps[name].file, group.schema)
+                    writers[name].write_table(group)
+        finally:
+            for writer in writers.values():
+                writer.close()
         for name, tmp in temps.items():
-            if name in writers:
-                tmp.replace(targets[name])
-    finally:
-        for writer in writers.values():
-            writer.close()
-        for tmp in temps.values():
-            tmp.unlink(missing_ok=True)
+            tmp.keep = name in writers
 
 
 def _session_tables(session: Session) -> Iterator[pa.Table]:

@@ -52,6 +52,7 @@ from scipy.optimize import linprog
 
 from contactkit.errors import InputError
 from contactkit.robots import RobotSpec
+from contactkit.util.atomic import write_text
 
 N_JOINTS = 7
 FORMAT = "contactkit-detector/1"
@@ -147,11 +148,12 @@ class DetectorConfig:
             raise InputError(f"invalid detector calibration: {str(err)[:200]}", where) from err
 
 
-def save_calibration(path: str | Path, config: DetectorConfig) -> Path:
-    """Write ``config`` as JSON to ``path``; return the path."""
-    path = Path(path)
-    path.write_text(json.dumps(config.to_dict(), indent=2) + "\n")
-    return path
+def save_calibration(path: str | Path, config: DetectorConfig, *,
+                     overwrite: bool = False) -> Path:
+    """Write ``config`` as JSON to ``path`` atomically; return the path. An existing file
+    is replaced only with ``overwrite``."""
+    return write_text(path, json.dumps(config.to_dict(), indent=2) + "\n",
+                      overwrite=overwrite)
 
 
 def load_calibration(path: str | Path) -> DetectorConfig:

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 from sklearn.base import BaseEstimator, TransformerMixin
 
+from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.chain_cache import chain_series
 from contactkit.features.observer import ObserverConfig
 from contactkit.features.scalars import SCALARS, scalar_features
@@ -181,8 +182,13 @@ def _session_feature_row(job: tuple[str, dict]) -> tuple[str, dict | None, str |
     try:
         meta, _ = read_session_meta(path)
         values, names, window = extractor.session_row(path)
-    except InputError as err:
-        return Path(path).name, None, err.problem
+    except DATA_ERRORS as err:
+        return Path(path).name, None, problem_text(err)
+    bad = ~np.isfinite(np.asarray(values, dtype=float))
+    if bad.any():
+        return Path(path).name, None, (
+            f"feature {names[int(np.argmax(bad))]} is not finite ({int(bad.sum())} of "
+            f"{bad.size} features): values beyond what the robot can do?")
     row = {"file": Path(path).name, "session_id": meta.session_id, "action": meta.action,
            "condition": meta.condition, "pose": meta.pose, "target_pose": meta.target_pose,
            "link": meta.link, "operator": meta.operator, "speed_rad_s": meta.speed_rad_s,

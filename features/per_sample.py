@@ -21,6 +21,7 @@ from contactkit.schemas.session import (
     iter_session_batches,
     read_session_meta,
 )
+from contactkit.util.atomic import atomic_write
 from contactkit.util.progress import ProgressCallback
 
 
@@ -53,36 +54,39 @@ def per_sample_tables(path: str | Path, config: ChainConfig | None = None
 
 def write_per_sample_table(files: Sequence[Path], out: Path,
                            progress: ProgressCallback | None = None,
-                           config: ChainConfig | None = None
-                           ) -> tuple[int, list[InputError]]:
+                           config: ChainConfig | None = None, *,
+                           overwrite: bool = False) -> tuple[int, list[InputError]]:
     """Write one row per sample of every readable session (``session_id`` and the
     columns of :func:`contactkit.features.extract.timeseries_columns`, computed with
     ``config``) to ``out`` atomically, one row group per batch of a session; return the
-    number of sessions written and the ones refused."""
+    number of sessions written and the ones refused. An existing ``out`` is replaced
+    only with ``overwrite``."""
     out = Path(out)
-    tmp = out.with_name(f".{out.name}.tmp")
     writer = None
     written, problems = 0, []
-    try:
-        for i, path in enumerate(files):
-            try:
-                tables = per_sample_tables(path, config)
-                for table in tables:
-                    if writer is None:
-                        writer = pq.ParquetWriter(tmp, table.schema, compression="zstd")
-                    writer.write_table(table)
-                written += 1
-            except InputError as err:
-                problems.append(err)
-            finally:
-                if progress:
-                    progress(i + 1, len(files))
-        if writer is None:
-            raise InputError("no session could be processed", Path(files[0]).parent)
-        writer.close()
-        tmp.replace(out)
-    finally:
-        if writer is not None:
-            writer.close()
-        tmp.unlink(missing_ok=True)
+    with atomic_write(out, overwrite=overwrite) as tmp:
+        try:
+            for i, path in enumerate(files):
+                try:
+                    rows = 0
+                    for table in per_sample_tables(path, config):
+                        if writer is None:
+                            writer = pq.ParquetWriter(tmp.file, table.schema,
+                                                      compression="zstd")
+                        writer.write_table(table)
+                        rows += table.num_rows
+                    if rows == 0:
+                        raise InputError("no complete sample: every sample lacks a joint "
+                                         "value", path)
+                    written += 1
+                except InputError as err:
+                    problems.append(err)
+                finally:
+                    if progress:
+                        progress(i + 1, len(files))
+            if writer is None:
+                raise InputError("no session could be processed", Path(files[0]).parent)
+        finally:
+            if writer is not None:
+                writer.close()
     return written, problems

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from contactkit.recorder.map_file import load_map_file, one_of
+from contactkit.recorder.map_file import known_keys, load_map_file, one_of
 from contactkit.robots import canonical_robot_name
 from contactkit.schemas import N_JOINTS
 
@@ -79,7 +79,11 @@ def load_map(path: str | Path | None = None) -> FrameMap:
                          _parse)
 
 
+SIGNAL_KEYS = ("quantity", "type", "start", "byte_order", "factor", "multiply_by", "divide_by")
+
+
 def _parse(doc: dict, source: str) -> FrameMap:
+    known_keys(doc, ("name", "fd", "sync_id", "joint", "pdo"), "the map")
     joints = {int(j["node"]): (i + 1, j) for i, j in enumerate(doc["joint"])}
     if len(joints) != N_JOINTS:
         raise ValueError(f"needs {N_JOINTS} joints, found {len(joints)}")
@@ -87,13 +91,17 @@ def _parse(doc: dict, source: str) -> FrameMap:
     max_length = 64 if fd else 8
     frames: dict[int, FrameLayout] = {}
     covered = set()
+    used = {"node"}
     for pdo in doc["pdo"]:
+        known_keys(pdo, ("name", "base_id", "length", "signals"), "[[pdo]]")
         length = int(pdo["length"])
         if not 0 < length <= max_length:
             raise ValueError(f"PDO {pdo.get('name')} length {length} exceeds {max_length}")
         for node, (joint, params) in joints.items():
             signals = []
             for sig in pdo["signals"]:
+                known_keys(sig, SIGNAL_KEYS, "a signal")
+                used.update(sig[k] for k in ("multiply_by", "divide_by") if k in sig)
                 quantity = one_of(sig["quantity"], QUANTITIES, "quantity")
                 order = one_of(sig.get("byte_order", "little"), BYTE_ORDERS, "byte_order")
                 codec = struct.Struct(BYTE_ORDERS[order] + TYPES[one_of(sig["type"], TYPES,
@@ -115,6 +123,8 @@ def _parse(doc: dict, source: str) -> FrameMap:
             if can_id in frames or can_id == int(doc["sync_id"]):
                 raise ValueError(f"frame id {can_id:#x} used twice")
             frames[can_id] = FrameLayout(can_id, length, tuple(signals))
+    for _, params in joints.values():
+        known_keys(params, used, "[[joint]] (a parameter no signal uses)")
     missing = {(q, j) for q in QUANTITIES for j in range(1, N_JOINTS + 1)} - covered
     if missing:
         raise ValueError(f"no signal carries {sorted(missing)[0]}")

@@ -26,6 +26,7 @@ from contactkit.recorder.can_map import FrameMap
 from contactkit.recorder.importer import write_imported_session
 from contactkit.recorder.sources.can import BusConfig
 from contactkit.schemas import InputError, Session, SessionMeta
+from contactkit.util.atomic import atomic_write
 from contactkit.util.pacing import paced
 
 LOG_SUFFIXES = (".asc", ".blf", ".trc", ".csv", ".log", ".mf4", ".db")
@@ -76,8 +77,19 @@ def import_can_log(path: Path, fmap: FrameMap, meta: SessionMeta, out_dir: Path,
                    name: str) -> Path:
     """Write the session decoded from a CAN log; return its path."""
     columns, assembler = read_log(path, fmap)
+    if not complete_rows(columns).any():
+        summary = decoding_summary(assembler.stats.as_dict())
+        raise InputError(f"no complete sample in this log ({summary}): do the CAN ids and "
+                         "SYNC of the map match the log?", path)
     meta.source_info = {"log": str(path), "map": fmap.describe(), **assembler.stats.as_dict()}
     return write_imported_session(columns, meta, out_dir, name)
+
+
+def complete_rows(columns: dict[str, np.ndarray]) -> np.ndarray:
+    """Return which samples hold every joint value (q, dq and tau of all joints)."""
+    names = [n for n in columns if n.split("_")[0] in ("q", "dq", "tau")
+             and n.split("_")[-1].isdigit()]
+    return np.all(np.isfinite(np.column_stack([columns[n] for n in names])), axis=1)
 
 
 def decoding_summary(stats: dict) -> str:
@@ -89,12 +101,15 @@ def decoding_summary(stats: dict) -> str:
 
 
 def bridge_session(session: Session, fmap: FrameMap, *, bus: BusConfig | None = None,
-                   log: Path | None = None, rate: float | None = None) -> int:
+                   log: Path | None = None, rate: float | None = None,
+                   overwrite: bool = False) -> int:
     """Send a session's frames onto a bus, or write them to ``log``; return the count.
 
     On a bus the frames are paced at ``rate`` x real time (default 1). Into a log
     they are written as fast as possible unless ``rate`` is given, time-stamped as
-    they would be on the bus.
+    they would be on the bus, into a temporary file renamed into place at the end (a
+    failure or kill leaves no partial log); an existing ``log`` is replaced only with
+    ``overwrite``.
     """
     if (bus is None) == (log is None):
         raise InputError("publishing needs either a bus or a log file, not both")
@@ -106,15 +121,16 @@ def bridge_session(session: Session, fmap: FrameMap, *, bus: BusConfig | None = 
         if log.suffix.lower() not in LOG_SUFFIXES:
             raise InputError(f"unknown log format {log.suffix!r}", log)
         start = time.time()
-        writer = can.Logger(log)
         sent = 0
-        try:
-            for msg in _paced(session_frames(fmap, session.t, values, start), rate):
-                writer.on_message_received(msg)
-                sent += 1
-        finally:
-            _drain(writer)
-            writer.stop()
+        with atomic_write(log, overwrite=overwrite, suffix=log.suffix.lower()) as tmp:
+            writer = can.Logger(tmp.path)
+            try:
+                for msg in _paced(session_frames(fmap, session.t, values, start), rate):
+                    writer.on_message_received(msg)
+                    sent += 1
+            finally:
+                _drain(writer)
+                writer.stop()
         return sent
     channel = bus.open(fmap.fd)
     sent = 0

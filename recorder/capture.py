@@ -18,6 +18,7 @@ from contactkit.recorder.metadata import session_filename
 from contactkit.recorder.sources.base import Source
 from contactkit.robots import get_robot
 from contactkit.schemas import InputError, SessionMeta, joint_columns
+from contactkit.util.atomic import remove_stale_temporaries
 from contactkit.util.pacing import paced
 
 ChunkCallback = Callable[[dict[str, np.ndarray]], None]
@@ -37,7 +38,9 @@ class CaptureListener(Protocol):
 def output_directory(path: Path) -> Path:
     """Return ``path`` after creating it if needed and proving it writable (a read-only
     mount, missing permission, a full disk), before any source, robot or bus is started;
-    raise InputError when it cannot be created or written to."""
+    raise InputError when it cannot be created or written to. Temporary files that
+    killed writers left there are removed (only those whose writer is gone, see
+    :func:`contactkit.util.atomic.remove_stale_temporaries`)."""
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as err:
@@ -49,6 +52,7 @@ def output_directory(path: Path) -> Path:
             os.fsync(probe.fileno())
     except OSError as err:
         raise InputError(f"cannot write here ({err.strerror or err})", path) from err
+    remove_stale_temporaries(path)
     return path
 
 
@@ -128,16 +132,16 @@ def capture(source: Source, meta: SessionMeta, out_path: Path, *, realtime: bool
     own estimate (``tau_ext_hat``) gets the residual's agreement with it measured as it
     goes (:class:`AgreementListener`). If the capture is interrupted,
     the journal stays for ``recorder recover`` (without the listeners' fields). An
-    existing file at ``out_path`` is replaced only with ``overwrite``.
+    existing file at ``out_path`` is replaced only with ``overwrite`` (and only when the
+    new session is complete).
     """
-    if overwrite and out_path.exists():
-        out_path.unlink()
     rate = 1.0 if realtime and not source.live else None
     listeners = list(listeners or ())
     if all(c in source.columns for c in joint_columns("tau_ext_hat")):
         listeners.append(AgreementListener(meta, source))
     callbacks = list(on_chunk or ()) + [listener.on_chunk for listener in listeners]
-    with SessionWriter(out_path, meta, source.columns, flush_interval_s) as writer:
+    with SessionWriter(out_path, meta, source.columns, flush_interval_s,
+                       overwrite=overwrite) as writer:
         for chunk in paced(source.stream(), lambda c: c["t"][-1], rate, origin_s=0.0):
             writer.append(chunk)
             for callback in callbacks:

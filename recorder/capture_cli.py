@@ -100,7 +100,8 @@ def _protocol_parameters(source_names: list[str]) -> list[inspect.Parameter]:
         ("out", Path, Path("sessions"), typer.Option(
             help="Output directory (created if needed).")),
         ("overwrite", bool, False, typer.Option(
-            help="Replace an existing session file with the same name.")),
+            help="Replace an existing session file with the same name (and the --save-rrd "
+                 "file).")),
         ("realtime", bool, False, typer.Option(
             help="Pace the capture at wall-clock speed and show the operator cue "
                  "(countdown, then a bell at the planned time).")),
@@ -223,7 +224,20 @@ def _record(source: Source, values: dict[str, Any],
     listeners = [listener for extension in extensions
                  if (listener := extension.start(values, meta)) is not None]
     live = open_live_view(values["viewer"], values["save_rrd"], meta, source.nominal_rate_hz,
-                          err_console.print)
+                          err_console.print, overwrite=values["overwrite"])
+    try:
+        result = _capture(source, values, meta, out, listeners, live)
+    except BaseException:
+        if live is not None:
+            live.abort()
+        raise
+    if live is not None:
+        live.close()
+    print(result.path)
+
+
+def _capture(source: Source, values: dict[str, Any], meta, out: Path, listeners: list,
+             live) -> Any:
     cue = None
     if values["realtime"] or live is not None or source.live:
         err_console.print(f"[bold]Recording[/] {meta.condition} pose {meta.pose}, "
@@ -234,6 +248,4 @@ def _record(source: Source, values: dict[str, Any],
     result = record_session(source, out, meta=meta, realtime=values["realtime"], cue=cue,
                             on_chunk=None if live is None else [live.on_chunk],
                             listeners=listeners, overwrite=values["overwrite"])
-    if live is not None:
-        live.close()
-    print(result.path)
+    return result

@@ -34,11 +34,12 @@ from contactkit.recorder.metadata import session_filename, session_meta, set_ses
 from contactkit.recorder.sim import SimConfig
 from contactkit.recorder.sources.can import BusConfig
 from contactkit.recorder.stats import build_report, write_noise_file
-from contactkit.recorder.stats_report import print_summary, write_report
+from contactkit.recorder.stats_report import OWNED_REPORT, print_summary, report_path, write_report
 from contactkit.robots import DEFAULT_ROBOT, URDF_PREFIX, get_robot, robot_names
 from contactkit.schemas import InputError, SessionMeta, read_session
 from contactkit.schemas.dataset import rebuild_index
-from contactkit.util.cli import SchedulerOpt, new_app, run_app
+from contactkit.util.atomic import check_target
+from contactkit.util.cli import SchedulerOpt, exit_if_failed, new_app, run_app
 from contactkit.util.parallel import available_cpus, use_scheduler
 from contactkit.util.progress import (
     bar_callback,
@@ -226,12 +227,17 @@ def index_command(
 def recover_command(
     directory: Annotated[Path, typer.Argument(help="Directory with leftover journals.")],
 ) -> None:
-    """Turn every leftover capture journal in DIR into a valid session marked as recovered."""
+    """Turn every leftover capture journal in DIR into a valid session marked as recovered.
+
+    Each journal is handled and reported on its own; a journal is removed only after its
+    session was read back and verified. Exit code 2 when some journal was left in place
+    because it could not be recovered."""
     recoveries = recover_directory(directory)
     if not recoveries:
         err_console.print("no journals to recover")
     for rec in recoveries:
         print(f"{rec.session or rec.journal}: {rec.note}")
+    exit_if_failed([rec for rec in recoveries if rec.failed])
 
 
 @app.command("import-arrays")
@@ -247,6 +253,8 @@ def import_arrays_command(
     name: Annotated[str | None, typer.Option(help="Output file name (default from the "
                                                    "metadata).")] = None,
     robot: RobotOption = None,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing session file.")
+                         ] = False,
 ) -> None:
     """Turn plain arrays (text, CSV or .npy) into a validated session; print its path.
 
@@ -254,7 +262,7 @@ def import_arrays_command(
     file one value per line. Time is shifted to start at 0 s.
     """
     pairs = [*(meta or []), *([] if robot is None else [f"robot={robot}"])]
-    print(import_arrays(t, q, dq, tau, output_directory(out), pairs, name))
+    print(import_arrays(t, q, dq, tau, output_directory(out), pairs, name, overwrite))
 
 
 @app.command("import-csv")
@@ -285,16 +293,25 @@ def import_csv_command(
     """
     cmap = load_csv_map(column_map)
     directory = output_directory(out)
+    problems = []
     for csv_file in csv_files:
         meta = session_meta(source="csv", action=action, condition=condition, pose=pose,
                             link=link, planned_at_s=planned_at, operator=operator,
                             with_hand=hand, notes=notes,
                             robot=robot or cmap.robot or DEFAULT_ROBOT)
-        path = import_csv(csv_file, cmap, meta, directory)
+        try:
+            path = import_csv(csv_file, cmap, meta, directory)
+        except InputError as err:
+            if len(csv_files) == 1:
+                raise
+            problems.append((str(csv_file), err.problem))
+            continue
         info = read_session(path).meta.source_info
         err_console.print(f"{csv_file}: {info['samples']} samples from {info['rows']} rows, "
                           f"{info['repeated_rows']} repeated rows dropped")
         print(path)
+    _print_problems(problems)
+    exit_if_failed(problems)
 
 
 @app.command("stats")
@@ -311,22 +328,25 @@ def stats_command(
                     ] = False,
     workers: Annotated[int, typer.Option(help="Parallel processes for --deep.")
                        ] = DEFAULT_WORKERS,
+    overwrite: Annotated[bool, typer.Option(
+        help="Replace an existing --out report (the default report is replaced only "
+             "when stats wrote it).")] = False,
 ) -> None:
     """Summarise a dataset on the terminal and write a report of what it holds and of
     its problems (bad files, duplicates, sessions too short)."""
-    out = out or Path(f"report.{fmt}")
-    if not out.parent.is_dir():
-        raise InputError("output directory does not exist", out.parent)
+    default = out is None
+    out = report_path(out or Path(f"report.{fmt}"), fmt)
+    check_target(out, overwrite=overwrite, owned=OWNED_REPORT if default else None)
     with progress_bar("reading", disable=not deep) as bar:
         report = build_report(directory, deep, workers, bar_callback(bar, "sessions"))
     print_summary(report, err_console)
     noise = report["deep"] and report["deep"]["noise_baseline"]
     if noise:
         noise_path = write_noise_file(out.with_name(f"{out.stem}_noise.json"), noise,
-                                      directory)
+                                      directory, overwrite=overwrite, default=default)
         err_console.print(f"noise baseline for the simulator: {noise_path} "
                           "(recorder capture --noise-file)")
-    print(write_report(report, out, fmt))
+    print(write_report(report, out, fmt, overwrite=overwrite, default=default))
 
 
 @app.command("import-can")
@@ -405,6 +425,7 @@ def import_bag_command(
         _report_bag(session)
     err_console.print(f"{len(sessions)} of {len(paths)} bags imported")
     _print_problems(problems)
+    exit_if_failed(problems)
 
 
 def _report_bag(session: Path) -> None:
@@ -425,10 +446,12 @@ def export_mcap_command(
     session: Annotated[Path, typer.Argument(help="Session file (.parquet).")],
     out: Annotated[Path | None, typer.Option(
         help="ROS 2 bag directory to write (default: the session's name beside it).")] = None,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing bag directory.")
+                         ] = False,
 ) -> None:
     """Write a session as a ROS 2 MCAP bag (JointState, WrenchStamped) for Foxglove or
     the Rerun viewer; print the .mcap file's path. `import-bag` reads it back."""
-    print(export_mcap(session, out or session.with_suffix("")))
+    print(export_mcap(session, out or session.with_suffix(""), overwrite=overwrite))
 
 
 @app.command("can-bridge")
@@ -444,14 +467,18 @@ def can_bridge_command(
     log: Annotated[Path | None, typer.Option(
         help="Write the frames to this log (.asc, .blf, .trc, .csv, .log, .db) instead "
              "of a bus.")] = None,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing --log file.")] = False,
 ) -> None:
     """Publish a recorded or simulated session onto a CAN bus per the frame map (or into
     a CAN log), to test a CAN setup end to end without a robot."""
     if log is None and not channel:
         raise InputError("give --channel (and --interface) for a bus, or --log FILE")
+    if log is not None:
+        check_target(log, overwrite=overwrite)
     recorded = read_session(session)
     bus = None if log is not None else BusConfig(interface, channel)
-    sent = bridge_session(recorded, load_map(can_map), bus=bus, log=log, rate=rate)
+    sent = bridge_session(recorded, load_map(can_map), bus=bus, log=log, rate=rate,
+                          overwrite=overwrite)
     err_console.print(f"{sent} frames ({recorded.n_samples} samples) sent"
                       + (f" to {log}" if log else f" on {interface}:{channel}"))
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from contactkit.recorder.map_file import load_map_file, one_of
+from contactkit.recorder.map_file import known_keys, load_map_file, one_of
 from contactkit.robots import canonical_robot_name
 from contactkit.schemas import N_JOINTS
 
@@ -88,11 +88,9 @@ def load_csv_map(path: str | Path) -> CsvMap:
 
 
 def _parse(doc: dict, source: str) -> CsvMap:
-    unknown = set(doc) - KNOWN_KEYS
-    if unknown:
-        raise ValueError(f"unknown key {sorted(unknown)[0]!r}")
+    known_keys(doc, KNOWN_KEYS, "the map")
     base = one_of(doc.get("index_base", 1), (0, 1), "index_base")
-    time = doc["time"]
+    time = known_keys(doc["time"], ("column", "unit"), "[time]", required=("column",))
     time_unit = one_of(time.get("unit", "s"), TIME_UNITS, "time unit")
     joints = {}
     for prefix in (*REQUIRED, *OPTIONAL):
@@ -102,7 +100,7 @@ def _parse(doc: dict, source: str) -> CsvMap:
             raise ValueError(f"no columns for {prefix}")
     contact = doc.get("contact")
     if contact is not None:
-        contact = str(contact["column"])
+        contact = str(known_keys(contact, ("column",), "[contact]", ("column",))["column"])
     delimiter = str(doc.get("delimiter", ","))
     if len(delimiter) != 1:
         raise ValueError(f"delimiter must be one character, got {delimiter!r}")
@@ -114,6 +112,7 @@ def _parse(doc: dict, source: str) -> CsvMap:
 
 
 def _joint_columns(prefix: str, spec: dict, base: int) -> JointColumns:
+    known_keys(spec, ("columns", "unit", "sign"), f"[{prefix}]", required=("columns",))
     columns = spec["columns"]
     if isinstance(columns, str):
         if "{j}" not in columns:

@@ -43,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
+from contactkit.features.limits import limit_violation
 from contactkit.recorder.metadata import session_filename
 from contactkit.recorder.protocol import POSES, START_POSE
 from contactkit.recorder.sim import (
@@ -53,11 +54,11 @@ from contactkit.recorder.sim import (
     plan_session,
 )
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
-from contactkit.robots import DEFAULT_ROBOT, RobotSetup
+from contactkit.robots import DEFAULT_ROBOT, RobotSetup, get_robot
 from contactkit.schemas import ACTIONS, InputError, write_session
 from contactkit.schemas.dataset import IndexResult, rebuild_index
+from contactkit.util.atomic import remove_stale_temporaries
 from contactkit.util.parallel import map_ordered
-from contactkit.util.paths import remove_stale_temporaries
 
 OPERATORS = tuple(f"sim-op-{i}" for i in range(1, 6))
 MAX_BATCH = 32
@@ -191,6 +192,15 @@ def _spec_name(spec: SessionSpec, config: SimConfig) -> str:
         return f"session with seed {spec.seed}"
 
 
+def simulated_violation(data: dict[str, np.ndarray], robot: str) -> str | None:
+    """Return why simulated columns are beyond the robot's limits (a blow-up), or None."""
+    def joints(prefix: str) -> np.ndarray:
+        return np.column_stack([data[f"{prefix}_{j}"] for j in range(1, 8)])
+
+    return limit_violation(data["t"], joints("q"), joints("dq"), joints("tau"),
+                           get_robot(robot).limits)
+
+
 def _write_simulated(spec: SessionSpec, config: SimConfig, data: dict[str, np.ndarray],
                      out_dir: Path) -> tuple[str, str, str | None]:
     """Write one simulated session unless its file exists; return (name, path, problem)."""
@@ -198,6 +208,9 @@ def _write_simulated(spec: SessionSpec, config: SimConfig, data: dict[str, np.nd
         meta = SimSource(spec, config).session_meta()
         name = session_filename(meta)
         path = out_dir / name
+        unstable = simulated_violation(data, config.robot)
+        if unstable is not None:
+            raise InputError(f"simulation unstable, session not written: {unstable}")
         if not path.exists():
             write_session(path, data, meta)
     except InputError as err:

@@ -15,10 +15,12 @@ from contactkit.recorder.arrays import spill_joint_arrays
 from contactkit.recorder.metadata import session_filename, session_meta
 from contactkit.recorder.spill import spilled_session_chunks, spilled_times
 from contactkit.schemas import InputError, SessionMeta, write_session
+from contactkit.schemas.dataset import INDEX_NAME
 from contactkit.schemas.session import table_from_columns, write_session_batches
 from contactkit.schemas.timing import chunked_steps
 from contactkit.util.exact_median import exact_medians
 from contactkit.util.paths import inside, safe_name
+from contactkit.util.text import quote
 
 BLOCK_ROWS = 16_384
 """Samples of array files written at a time."""
@@ -36,17 +38,48 @@ def parse_meta(pairs: list[str]) -> dict:
         key = key.strip()
         if not sep or key not in _FIELDS or key in _NOT_SETTABLE:
             settable = sorted(set(_FIELDS) - _NOT_SETTABLE)
-            raise InputError(f"bad metadata pair {pair!r} (expected KEY=VALUE with KEY one of "
-                             f"{', '.join(settable)})")
+            raise InputError(f"bad metadata pair {quote(pair)} (expected KEY=VALUE with KEY "
+                             f"one of {', '.join(settable)})")
+        if len(raw) > MAX_META_CHARS:
+            raise InputError(f"metadata value of {key} has {len(raw)} characters (at most "
+                             f"{MAX_META_CHARS})")
+        if key in BOOLEAN_FIELDS:
+            doc[key] = parse_bool(raw, key)
+            continue
         try:
             value = json.loads(raw)
-        except json.JSONDecodeError:
+        except (ValueError, RecursionError):  # not JSON, or a 5000-digit number
             value = raw
         if key in ("operator", "notes", "pose", "target_pose", "action", "condition",
                    "session_id", "source"):
             value = raw
         doc[key] = value
     return doc
+
+
+MAX_META_CHARS = 10_000
+"""The longest ``--meta`` value [characters]."""
+BOOLEAN_FIELDS = ("with_hand",)
+_TRUE, _FALSE = ("true", "1"), ("false", "0")
+
+
+def parse_bool(raw: str, key: str) -> bool:
+    """Return the boolean ``raw`` spells (true/false or 1/0, any case); anything else
+    (no, maybe, yes, an empty value) is an InputError rather than a guess."""
+    word = raw.strip().lower()
+    if word in _TRUE or word in _FALSE:
+        return word in _TRUE
+    raise InputError(f"{key} must be true or false (or 1 or 0), got {quote(raw)}")
+
+
+
+def output_name(name: str) -> str:
+    """Return a session file name the user gave (``--name``) after checking it: a safe
+    file name, and not a name the tool keeps for itself (``index.parquet``)."""
+    safe_name(name, "output name")
+    if name.lower() == INDEX_NAME:
+        raise InputError(f"{INDEX_NAME} is the dataset index's name; choose another --name")
+    return name
 
 
 def write_imported_session(columns: dict[str, np.ndarray], meta: SessionMeta, out_dir: Path,
@@ -67,15 +100,17 @@ def write_imported_session(columns: dict[str, np.ndarray], meta: SessionMeta, ou
     steps = np.diff(t)
     if meta.nominal_rate_hz is None and steps.size and (steps > 0).all():
         meta.nominal_rate_hz = float(round(1.0 / np.median(steps), 3))
-    filename = session_filename(meta) if name is None else safe_name(name, "output name")
+    filename = session_filename(meta) if name is None else output_name(name)
     return write_session(inside(out_dir, filename), columns, meta)
 
 
 def write_imported_chunks(times: Callable[[], Iterable[np.ndarray]],
                           chunks: Callable[[], Iterable[Mapping[str, np.ndarray]]],
-                          meta: SessionMeta, out_dir: Path, name: str | None = None) -> Path:
+                          meta: SessionMeta, out_dir: Path, name: str | None = None,
+                          overwrite: bool = False) -> Path:
     """Write an imported recording streamed in chunks, as :func:`write_imported_session`
-    writes it whole; return the path. Memory holds one Parquet row group however long
+    writes it whole; return the path. An existing file is replaced only with
+    ``overwrite``. Memory holds one Parquet row group however long
     the recording is.
 
     ``times()`` and ``chunks()`` each return a fresh iterable over the recording from
@@ -100,7 +135,7 @@ def write_imported_chunks(times: Callable[[], Iterable[np.ndarray]],
     if meta.nominal_rate_hz is None and samples > 1 and rising:
         median = exact_medians(lambda: (s[:, None] for s in chunked_steps(times())))[0]
         meta.nominal_rate_hz = float(round(1.0 / median, 3))
-    filename = session_filename(meta) if name is None else safe_name(name, "output name")
+    filename = session_filename(meta) if name is None else output_name(name)
     meta.residual_agreement = stream_residual_agreement(chunks(), meta.robot_setup())
 
     def batches() -> Iterator[pa.RecordBatch]:
@@ -110,22 +145,25 @@ def write_imported_chunks(times: Callable[[], Iterable[np.ndarray]],
             yield from table_from_columns(columns, meta).to_batches()
 
     path = inside(out_dir, filename)
-    write_session_batches(path, batches(), meta)
+    write_session_batches(path, batches(), meta, overwrite=overwrite)
     return path
 
 
 def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out_dir: Path,
-                  meta_pairs: list[str], name: str | None = None) -> Path:
+                  meta_pairs: list[str], name: str | None = None,
+                  overwrite: bool = False) -> Path:
     """Write a validated session from array files; return its path. The files are read a
     block at a time into temporary files and the session written a row group at a time
     (:func:`contactkit.recorder.arrays.spill_joint_arrays`), in bounded memory."""
+    if name is not None:
+        output_name(name)
     spills = spill_joint_arrays(t_path, q_path, dq_path, tau_path)
     try:
         doc = {"action": "none", "source": "arrays", **parse_meta(meta_pairs)}
         for key, argument in (("pose_q", "pose_q_rad"), ("target_q", "target_q_rad")):
             if key in doc:
                 doc[argument] = doc.pop(key)
-        doc["with_hand"] = bool(doc.get("with_hand", True))
+        doc.setdefault("with_hand", True)
         try:
             meta = session_meta(**doc, source_info={
                 "imported_from": [str(p) for p in (t_path, q_path, dq_path, tau_path)]})
@@ -135,7 +173,7 @@ def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out
 
         return write_imported_chunks(lambda: spilled_times(spills["t"], BLOCK_ROWS),
                                      lambda: spilled_session_chunks(spills, BLOCK_ROWS),
-                                     meta, out_dir, name)
+                                     meta, out_dir, name, overwrite)
     finally:
         for spill in spills.values():
             spill.close()

@@ -6,10 +6,12 @@ from pathlib import Path
 
 import numpy as np
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from contactkit.schemas import Session, validate_session
 from contactkit.schemas.timing import rate_warning, sampling_stats
+from contactkit.util.text import printable
 
 
 def contact_interval(session: Session) -> tuple[float, float] | None:
@@ -50,12 +52,12 @@ def session_info(path: str | Path) -> dict:
 def print_info(info: dict, console: Console) -> None:
     """Print what :func:`session_info` returns as a table: metadata, sampling, contact."""
     meta, s = info["metadata"], info["sampling"]
-    table = Table(title=info["file"], show_header=False, title_justify="left")
+    table = Table(title=_shown(info["file"]), show_header=False, title_justify="left")
     for key in ("session_id", "source", "condition", "pose", "target_pose", "speed_rad_s",
                 "action", "link", "planned_at_s", "operator", "robot", "with_hand", "recovered",
                 "recovered_samples", "created_utc", "notes"):
         if meta.get(key) not in (None, ""):
-            table.add_row(key, str(meta[key]))
+            table.add_row(key, _shown(meta[key]))
     table.add_row("samples", str(s["samples"]))
     table.add_row("duration", f"{s['duration_s']:.3f} s")
     table.add_row("rate", f"{s['rate_hz']:.1f} Hz (median step {s['median_step_s'] * 1e3:.3f} "
@@ -73,10 +75,18 @@ def print_info(info: dict, console: Console) -> None:
         table.add_row("contact", "none")
     agreement = meta.get("residual_agreement")
     if isinstance(agreement, dict) and isinstance(agreement.get("correlation"), list):
-        table.add_row("residual vs robot", agreement_line(agreement))
-    for number, event in enumerate(meta.get("events") or (), 1):
-        table.add_row(f"event {number}", event_line(event))
+        table.add_row("residual vs robot", _shown(agreement_line(agreement)))
+    events = meta.get("events") or ()
+    for number, event in enumerate(events if isinstance(events, list) else [events], 1):
+        table.add_row(f"event {number}", _shown(event_line(event) if isinstance(event, dict)
+                                                else event))
     console.print(table)
+
+
+def _shown(value: object) -> str:
+    """Return a value from a file as table text: control characters escaped (no escape
+    sequence reaches the terminal), Rich markup shown as written."""
+    return escape(printable(value))
 
 
 def event_line(event: dict) -> str:

@@ -31,9 +31,17 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.schemas import InputError, SessionMeta
-from contactkit.schemas.session import METADATA_KEY, session_schema, write_session_batches
-from contactkit.util.paths import inside, remove_stale_temporaries
+from contactkit.schemas.session import (
+    METADATA_KEY,
+    iter_session_batches,
+    read_session_meta,
+    session_schema,
+    write_session_batches,
+)
+from contactkit.util.atomic import check_target, remove_stale_temporaries
+from contactkit.util.paths import inside
 
 JOURNAL_SUFFIX = ".journal"
 
@@ -65,13 +73,13 @@ class SessionWriter:
     """
 
     def __init__(self, out_path: str | Path, meta: SessionMeta, columns: list[str],
-                 flush_interval_s: float = 0.1) -> None:
+                 flush_interval_s: float = 0.1, overwrite: bool = False) -> None:
         self.out_path = Path(out_path)
+        self.overwrite = overwrite
         self.meta = meta
         self.flush_interval_s = flush_interval_s
         self.journal = journal_path(self.out_path)
-        if self.out_path.exists():
-            raise InputError("output file already exists (nothing was written)", self.out_path)
+        check_target(self.out_path, overwrite=overwrite)
         if self.journal.exists():
             if journal_in_use(self.journal):
                 raise InputError("another capture is writing this session", self.journal)
@@ -152,7 +160,8 @@ class SessionWriter:
             if self.samples_written == 0:
                 self.journal.unlink()
                 raise InputError("no samples were recorded; nothing written", self.out_path)
-            write_session_batches(self.out_path, journal_batches(self.journal), self.meta)
+            write_session_batches(self.out_path, journal_batches(self.journal), self.meta,
+                                  overwrite=self.overwrite)
             self.journal.unlink()
             return self.out_path
         finally:
@@ -255,13 +264,18 @@ class Recovery:
     session: Path | None
     samples: int
     note: str
+    failed: bool = False
+    """True when the journal could not be recovered (it is left in place)."""
 
 
 def recover_journal(journal: Path) -> Recovery:
     """Turn one journal into a session marked as recovered; remove the journal after.
 
-    If the session file already exists (the capture died after writing it but before
-    removing its journal), the journal is removed and the file left as it is.
+    The journal is removed only once the session it wrote has been read back and
+    verified (valid, the journal's session id, at least the journal's samples). If the
+    session file already exists (the capture died after writing it but before removing
+    its journal), the journal is removed only when that file passes the same check; any
+    other file there is left alone, and so is the journal.
     """
     out_path = inside(journal.parent, journal.name[: -len(JOURNAL_SUFFIX)])
     try:
@@ -279,22 +293,46 @@ def recover_journal(journal: Path) -> Recovery:
         return _recover_locked(journal, out_path)
 
 
+def _verified(session: Path, session_id: str | None, samples: int) -> str | None:
+    """Return why ``session`` is not the verified session of a journal (its id, unless
+    None, and at least ``samples`` valid rows), or None when it is."""
+    try:
+        meta, _ = read_session_meta(session)
+        if session_id is not None and meta.session_id != session_id:
+            return f"{session.name} holds another session ({meta.session_id[:40]!r})"
+        rows = sum(batch.num_rows for batch in iter_session_batches(session))
+    except InputError as err:
+        return f"{session.name} is not a valid session ({err.problem[:200]})"
+    if rows < samples:
+        return f"{session.name} holds {rows} samples, the journal {samples}"
+    return None
+
+
 def _recover_locked(journal: Path, out_path: Path) -> Recovery:
     """Recover a journal whose lock this process holds."""
-    if out_path.exists():
-        journal.unlink()
-        return Recovery(journal, out_path, 0, "session already complete; stale journal removed")
     try:
         reader, meta = _open_journal(journal)
     except InputError as err:
-        return Recovery(journal, None, 0, f"left in place: {err.problem}")
+        if not os.path.lexists(out_path):
+            return Recovery(journal, None, 0, f"left in place: {err.problem}", failed=True)
+        reader = meta = None  # an unreadable journal beside a valid session: stale
+    if os.path.lexists(out_path):
+        samples = 0 if reader is None else sum(
+            b.num_rows for b in _complete_batches(reader, [False]))
+        problem = _verified(out_path, None if meta is None else meta.session_id, samples)
+        if problem is not None:
+            return Recovery(journal, None, 0, f"left in place: {problem}; move that file "
+                                              "away and run recover again", failed=True)
+        journal.unlink()
+        return Recovery(journal, out_path, 0, "session already complete; stale journal removed")
     n = gaps = 0
     torn = [False]
     for batch in _complete_batches(reader, torn):  # first pass: count, one batch at a time
         n += batch.num_rows
         gaps += _incomplete_samples(batch)
     if n == 0:
-        return Recovery(journal, None, 0, "journal holds no complete sample; left in place")
+        return Recovery(journal, None, 0, "journal holds no complete sample; left in place",
+                        failed=True)
     if gaps:
         meta.source_info = {**meta.source_info, "incomplete_samples": gaps}
     meta.recovered = True
@@ -302,6 +340,10 @@ def _recover_locked(journal: Path, out_path: Path) -> Recovery:
     note = f"recovered {n} samples" + (" (torn last batch dropped)" if torn[0] else "")
     meta.notes = (meta.notes + "; " if meta.notes else "") + note
     write_session_batches(out_path, journal_batches(journal), meta)
+    problem = _verified(out_path, meta.session_id, n)
+    if problem is not None:
+        return Recovery(journal, out_path, n, f"journal left in place: written session "
+                                              f"failed its check ({problem})", failed=True)
     journal.unlink()
     return Recovery(journal, out_path, n, note)
 
@@ -320,4 +362,12 @@ def recover_directory(directory: str | Path) -> list[Recovery]:
     if not directory.is_dir():
         raise InputError("not a directory", directory)
     remove_stale_temporaries(directory)
-    return [recover_journal(p) for p in sorted(directory.glob("*" + JOURNAL_SUFFIX))]
+    return [_recover_one(p) for p in sorted(directory.glob("*" + JOURNAL_SUFFIX))]
+
+
+def _recover_one(journal: Path) -> Recovery:
+    """Recover one journal of a directory; a failure is its Recovery, not the end."""
+    try:
+        return recover_journal(journal)
+    except (*DATA_ERRORS, OSError) as err:
+        return Recovery(journal, None, 0, f"left in place: {problem_text(err)}", failed=True)

@@ -8,15 +8,18 @@ operator cue (countdown and the planned time) as text events.
 from __future__ import annotations
 
 from collections.abc import Callable
+from contextlib import ExitStack
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
 
+from contactkit.errors import InputError
 from contactkit.robots.surfaces import viewer_urdf_file
 from contactkit.schemas import SessionMeta, joint_columns
 from contactkit.schemas import rerun_layout as layout
 from contactkit.schemas.rerun_layout import capture_blueprint
+from contactkit.util.atomic import atomic_write
 from contactkit.util.viewer import has_display, start_web_viewer
 
 ROBOT_VIEW_HZ = 60.0
@@ -29,6 +32,7 @@ class CaptureViewer:
     def __init__(self, rec: rr.RecordingStream, meta: SessionMeta,
                  rate_hz: float | None) -> None:
         self.rec = rec
+        self.files = ExitStack()
         self.sample = 0
         self.stride = max(1, round((rate_hz or PANDA_RATE_HZ) / ROBOT_VIEW_HZ))
         layout.log_series_styles(rec)
@@ -62,29 +66,53 @@ class CaptureViewer:
             layout.log_joint_transforms(self.rec, self.tree, t[keep], sample[keep], q[keep])
 
     def close(self) -> None:
-        """Flush the recording and disconnect from the viewer."""
-        self.rec.flush()
+        """Flush the recording, disconnect from the viewer and move a saved .rrd into
+        place."""
+        try:
+            self.rec.flush()
+        finally:
+            self.rec.disconnect()
+            self.files.close()
+
+    def abort(self) -> None:
+        """Disconnect and drop a saved .rrd (the capture failed); nothing is left."""
         self.rec.disconnect()
+        self.files.__exit__(InputError, InputError("capture failed"), None)
 
 
 def open_live_view(viewer: str, save_rrd: Path | None, meta: SessionMeta,
-                   rate_hz: float | None, say: Callable[[str], None]) -> CaptureViewer | None:
+                   rate_hz: float | None, say: Callable[[str], None],
+                   overwrite: bool = False) -> CaptureViewer | None:
     """Return a live Rerun view of a capture at ``rate_hz`` [Hz] (None: the Panda's 1 kHz)
     in ``viewer`` (rerun, web or none) and/or saved to ``save_rrd``; None when neither
-    is asked for. ``say`` receives notes for the person (the web viewer's address)."""
+    is asked for. ``say`` receives notes for the person (the web viewer's address).
+
+    The .rrd goes to a temporary file that :meth:`CaptureViewer.close` renames into
+    place (:meth:`CaptureViewer.abort` drops it); an existing ``save_rrd`` is replaced
+    only with ``overwrite``."""
     if viewer == "none" and save_rrd is None:
         return None
     rec = rr.RecordingStream("contactkit-capture", recording_id=meta.session_id)
     blueprint = capture_blueprint()
+    files = ExitStack()
     if save_rrd is not None:
-        rec.save(save_rrd, default_blueprint=blueprint)
-    if viewer == "rerun":
-        if has_display():
-            rec.spawn(default_blueprint=blueprint)
-        else:
-            say("no display for the native viewer: use the web viewer or save an .rrd file")
-    elif viewer == "web":
-        _, url, page = start_web_viewer()
-        say(f"web viewer: {page}")
-        rec.connect_grpc(url, default_blueprint=blueprint)
-    return CaptureViewer(rec, meta, rate_hz)
+        tmp = files.enter_context(atomic_write(save_rrd, overwrite=overwrite, suffix=".rrd"))
+        rec.save(tmp.path, default_blueprint=blueprint)
+    try:
+        if viewer == "rerun":
+            if has_display():
+                rec.spawn(default_blueprint=blueprint)
+            else:
+                say("no display for the native viewer: use the web viewer or save an .rrd "
+                    "file")
+        elif viewer == "web":
+            _, url, page = start_web_viewer()
+            say(f"web viewer: {page}")
+            rec.connect_grpc(url, default_blueprint=blueprint)
+        live = CaptureViewer(rec, meta, rate_hz)
+    except BaseException as err:
+        rec.disconnect()
+        files.__exit__(type(err), err, err.__traceback__)
+        raise
+    live.files = files
+    return live

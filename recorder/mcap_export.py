@@ -21,27 +21,37 @@ import numpy as np
 
 from contactkit.recorder.bags import BOOL, EXPORT_TOPICS, JOINT_STATE, STRING, WRENCH_STAMPED
 from contactkit.robots import get_robot
-from contactkit.schemas import InputError, Session, joint_columns, read_session
+from contactkit.schemas import Session, joint_columns, read_session
 from contactkit.schemas.session import FORCE_COLUMNS, WRENCH_HAT_COLUMNS
+from contactkit.util.atomic import atomic_directory
 
 
 def _stamps_ns(t: np.ndarray, start_ns: int) -> np.ndarray:
     return start_ns + np.round(np.asarray(t) * 1e9).astype(np.int64)
 
 
-def export_mcap(session_path: Path, out: Path, *, start_ns: int = 0) -> Path:
+def export_mcap(session_path: Path, out: Path, *, start_ns: int = 0,
+                overwrite: bool = False) -> Path:
     """Write the session at ``session_path`` as a ROS 2 bag directory ``out`` with one
     MCAP file; return the MCAP file's path. Time stamps are ``start_ns`` plus the
-    session time [ns]. Raises InputError when ``out`` exists."""
+    session time [ns]. The bag is written into a temporary directory and renamed into
+    place at the end (a failure leaves nothing); an existing ``out`` is replaced only
+    with ``overwrite``."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
     session = read_session(session_path)
-    if out.exists():
-        raise InputError("output exists already (choose another --out)", out)
     store = get_typestore(Stores.ROS2_HUMBLE)
     stamps = _stamps_ns(session.t, start_ns)
-    with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+    with atomic_directory(out, overwrite=overwrite) as bag:
+        _write_bag(Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP), session,
+                   store, stamps)
+    return next(out.glob("*.mcap"))
+
+
+def _write_bag(bag: Any, session: Session, store: Any, stamps: np.ndarray) -> None:
+    """Write the session's messages through the rosbags writer ``bag``."""
+    with bag as writer:
         streams = _message_streams(session, store)
         connections = {topic: writer.add_connection(topic, msgtype, typestore=store)
                        for topic, (msgtype, _) in streams.items()}
@@ -53,7 +63,6 @@ def export_mcap(session_path: Path, out: Path, *, start_ns: int = 0) -> Path:
             for topic, (msgtype, make) in streams.items():
                 writer.write(connections[topic], int(stamp),
                              store.serialize_cdr(make(i, header), msgtype))
-    return next(out.glob("*.mcap"))
 
 
 def _header(store: Any, stamp_ns: int) -> Any:

@@ -31,13 +31,14 @@ import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from contactkit.features.limits import POSITION_SLACK_RAD, SPEED_MARGIN, TORQUE_MARGIN
 from contactkit.recorder.noise import SensorNoise
 from contactkit.recorder.stats_deep import session_summary
 from contactkit.schemas import ACTIONS, InputError
 from contactkit.schemas.dataset import INDEX_NAME, INDEX_SCHEMA, rebuild_index, session_files
 from contactkit.schemas.timing import rate_warning
+from contactkit.util.atomic import owned_by_marker, write_text
 from contactkit.util.parallel import map_ordered
-from contactkit.util.paths import atomic_write_text
 
 SCHEMA_ID = "contactkit.schemas/stats_report/1"
 WINDOW_S = 0.5
@@ -156,6 +157,26 @@ def index_stats(index: pl.LazyFrame) -> dict:
     }
 
 
+def beyond_limits(summary: dict) -> str | None:
+    """Return one line when a session's peaks are beyond the robot's limits with their
+    margins (see :mod:`contactkit.features.limits`): an unstable simulation or a corrupt
+    recording, to be left out of training. None when within."""
+    for key, margin, what in (("max_torque_fraction", TORQUE_MARGIN, "torque"),
+                              ("max_speed_fraction", SPEED_MARGIN, "speed")):
+        fractions = np.asarray(summary.get(key) or [0.0], dtype=float)
+        if np.nanmax(fractions) > margin:
+            joint = int(np.nanargmax(fractions)) + 1
+            return (f"beyond the robot's limits: {what} of joint {joint} reaches "
+                    f"{np.nanmax(fractions):.3g} x its limit (unstable simulation or corrupt "
+                    "recording?)")
+    margins = np.asarray(summary.get("limit_margin_rad") or [0.0], dtype=float)
+    if np.nanmin(margins) < -POSITION_SLACK_RAD:
+        joint = int(np.nanargmin(margins)) + 1
+        return (f"beyond the robot's limits: joint {joint} leaves its range by "
+                f"{-np.nanmin(margins):.3g} rad")
+    return None
+
+
 def deep_stats(paths: list[Path], workers: int,
                progress: Callable[[int, int], None] | None = None) -> dict:
     """Read every session in ``workers`` processes and aggregate the summaries."""
@@ -164,6 +185,8 @@ def deep_stats(paths: list[Path], workers: int,
     good = [s for s in summaries if "problem" not in s]
     problems = [{"file": s["file"], "problem": s["problem"]} for s in summaries
                 if "problem" in s]
+    problems += [{"file": s["file"], "problem": why} for s in good
+                 if (why := beyond_limits(s)) is not None]
     return _aggregate(good) | {"problems": problems, "_summaries": good}
 
 
@@ -251,15 +274,19 @@ def file_fingerprint(summaries: list[dict]) -> str:
     return hashlib.sha256("\n".join(pairs).encode()).hexdigest()
 
 
-def write_noise_file(path: Path, noise: dict, dataset: Path) -> Path:
-    """Write the no-contact noise baseline as a simulator noise file (--noise-file)."""
+def write_noise_file(path: Path, noise: dict, dataset: Path, *, overwrite: bool = False,
+                     default: bool = False) -> Path:
+    """Write the no-contact noise baseline as a simulator noise file (--noise-file);
+    return its path. An existing file is replaced only with ``overwrite``, or for the
+    ``default`` report's noise file when ``stats`` wrote it."""
     sensor = SensorNoise(tau_sigma_nm=noise["tau_sigma_nm"],
                          dq_sigma_rad_s=noise["dq_sigma_rad_s"],
                          q_sigma_rad=noise["q_sigma_rad"], tau_bias_nm=noise["tau_bias_nm"],
                          source=f"recorder stats --deep {dataset} ({noise['sessions']} "
                                 "no-contact sessions)")
     doc = json.loads(sensor.to_json()) | {"thesis_tau_std_nm": noise["tau_std_nm"]}
-    return atomic_write_text(path, json.dumps(doc, indent=2))
+    return write_text(path, json.dumps(doc, indent=2), overwrite=overwrite,
+                      owned=owned_by_marker(b"recorder stats --deep") if default else None)
 
 
 def build_report(directory: Path, deep: bool, workers: int,

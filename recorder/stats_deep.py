@@ -30,12 +30,13 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features import chain_cache
 from contactkit.features.agreement import session_residual_agreement
+from contactkit.features.limits import robot_limits
 from contactkit.features.timeseries import ChunkedChain
 from contactkit.features.windows import WindowSearch, WindowSpec
 from contactkit.recorder.spill import RowSpill
-from contactkit.robots import get_robot
 from contactkit.schemas import InputError, SessionMeta
 from contactkit.schemas.session import (
     REQUIRED_COLUMNS,
@@ -164,8 +165,8 @@ def session_summary(path: str) -> dict:
     try:
         meta, footer = read_session_meta(path)
         return _summary(Path(path), meta, footer.num_rows)
-    except InputError as err:
-        return {"file": name, "problem": err.problem}
+    except DATA_ERRORS as err:
+        return {"file": name, "problem": problem_text(err)}
 
 
 def _summary(path: Path, meta: SessionMeta, rows: int) -> dict:
@@ -233,7 +234,7 @@ def _summary(path: Path, meta: SessionMeta, rows: int) -> dict:
     robot = meta.robot_setup(path).robot
     out["robot"] = robot
     out["residual_agreement"] = session_residual_agreement(path, meta)
-    limits = get_robot(robot).limits
+    limits = robot_limits(meta)
     out["limit_margin_rad"] = np.minimum(q_low - limits.q_min, limits.q_max - q_high).tolist()
     out["max_speed_fraction"] = (dq_peak / limits.dq_max).tolist()
     out["max_torque_fraction"] = (tau_peak / limits.tau_max).tolist()

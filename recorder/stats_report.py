@@ -27,7 +27,7 @@ from rich.table import Table
 from contactkit.recorder.stats_deep import PROFILE_T
 from contactkit.schemas import ACTIONS
 from contactkit.schemas.rerun_layout import CLASS_COLORS, JOINT_COLORS
-from contactkit.util.paths import atomic_write_bytes, atomic_write_text
+from contactkit.util.atomic import Owned, owned_by_marker, write_bytes, write_text
 
 FORMATS = ("html", "md", "json")
 
@@ -45,6 +45,12 @@ PAGE_STYLE = (
 
 def _color(action: str) -> tuple[float, float, float]:
     return tuple(c / 255 for c in CLASS_COLORS.get(action, (0, 0, 0)))
+
+
+REPORT_MARK = "contactkit dataset report"
+"""Written into every report file (and its plots), so that ``stats`` recognises its own
+default report and replaces it, but no other file."""
+OWNED_REPORT: Owned = owned_by_marker(REPORT_MARK.encode(), within=1 << 16)
 
 
 def report_path(out: Path, fmt: str) -> Path:
@@ -186,7 +192,7 @@ def _deep_plots(summaries: list[dict]) -> list[tuple[str, str, bytes]]:
 def _png(fig) -> bytes:
     fig.tight_layout()
     buffer = BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
+    fig.savefig(buffer, format="png", dpi=110, metadata={"Software": REPORT_MARK})
     plt.close(fig)
     return buffer.getvalue()
 
@@ -300,17 +306,29 @@ def _html_table(frame: pl.DataFrame) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
 
 
-def write_report(report: dict, out: Path, fmt: str) -> Path:
+def write_report(report: dict, out: Path, fmt: str, *, overwrite: bool = False,
+                 default: bool = False) -> Path:
     """Write the report in ``fmt`` (html, md or json) to ``out`` (the format's extension
-    added when it has none); return the path written."""
+    added when it has none); return the path written.
+
+    An existing file (the report or, for md, its plots) is replaced only with
+    ``overwrite``, or, for the ``default`` output, when it is a report ``stats`` wrote.
+    """
     out = report_path(out, fmt)
+    owned = OWNED_REPORT if default else None
+
+    def put(path: Path, text: str) -> Path:
+        return write_text(path, text, overwrite=overwrite, owned=owned)
+
     if fmt == "json":
-        return atomic_write_text(out, json.dumps(public(report), indent=2, default=float))
+        return put(out, json.dumps({"generator": REPORT_MARK} | public(report), indent=2,
+                                   default=float))
     plots = make_plots(report)
     intro = _summary_lines(report)
     problems = report["problems"]
     if fmt == "md":
-        parts = [f"# Dataset report: {report['dataset']}", "", *[f"- {x}" for x in intro]]
+        parts = [f"<!-- {REPORT_MARK} -->", f"# Dataset report: {report['dataset']}", "",
+                 *[f"- {x}" for x in intro]]
         parts += ["", "## Warnings", ""] + [f"- {w}" for w in report["class_balance_warnings"]
                                              or ["none"]]
         parts += ["", "## Problems", ""] + [f"- `{p['file']}`: {p['problem']}"
@@ -320,9 +338,9 @@ def write_report(report: dict, out: Path, fmt: str) -> Path:
             parts += ["", f"## {title}", "", _markdown_table(table)]
         for i, (title, caption, png) in enumerate(plots):
             name = f"{out.stem}_plot{i + 1}.png"
-            atomic_write_bytes(out.parent / name, png)
+            write_bytes(out.parent / name, png, overwrite=overwrite, owned=owned)
             parts += ["", f"## {title}", "", caption, "", f"![{title}]({name})"]
-        return atomic_write_text(out, "\n".join(parts) + "\n")
+        return put(out, "\n".join(parts) + "\n")
     body = [f"<h1>Dataset report: {html.escape(report['dataset'])}</h1>", "<ul>"]
     body += [f"<li>{html.escape(x)}</li>" for x in intro] + ["</ul>", "<h2>Warnings</h2><ul>"]
     body += [f"<li>{html.escape(w)}</li>" for w in report["class_balance_warnings"] or ["none"]]
@@ -336,7 +354,8 @@ def write_report(report: dict, out: Path, fmt: str) -> Path:
         data = base64.b64encode(png).decode()
         body += [f"<h2>{html.escape(title)}</h2>", f"<p>{html.escape(caption)}</p>",
                  f'<img alt="{html.escape(title)}" src="data:image/png;base64,{data}">']
-    page = ("<!doctype html><html><head><meta charset='utf-8'><title>contactkit dataset "
+    page = ("<!doctype html><html><head><meta charset='utf-8'>"
+            f"<meta name='generator' content='{REPORT_MARK}'><title>contactkit dataset "
             f"report</title><style>{PAGE_STYLE}</style></head><body>" + "\n".join(body)
             + "</body></html>")
-    return atomic_write_text(out, page)
+    return put(out, page)

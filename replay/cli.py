@@ -16,6 +16,7 @@ import typer
 from contactkit.features.detector import load_calibration
 from contactkit.replay.default_model import build_default_model
 from contactkit.replay.engine import DEFAULT_HOP_S
+from contactkit.replay.recording import owned_recording, save_path_for
 from contactkit.replay.session_replay import (
     ReplaySummary,
     default_model_missing,
@@ -24,6 +25,7 @@ from contactkit.replay.session_replay import (
     session_inputs,
 )
 from contactkit.schemas import InputError
+from contactkit.util.atomic import check_target
 from contactkit.util.cli import RobotOpt, new_app, run_app
 from contactkit.util.progress import err_console, labelled_progress, progress_bar
 from contactkit.util.viewer import has_display, start_web_viewer
@@ -85,6 +87,9 @@ def replay_command(
         help="Time after a contact's onset at which its intent is decided [s] (default: "
              "the model's).")] = None,
     robot: RobotOpt = None,
+    overwrite: Annotated[bool, typer.Option(
+        help="Replace existing --save files (the default replay.rrd is replaced only "
+             "when it is a recording).")] = False,
     build_default_model_: Annotated[bool, typer.Option(
         "--build-default-model", help="(Re)build the default model from its recipe "
                                       "(see replay/default_model.py) and exit.")] = False,
@@ -109,6 +114,7 @@ def replay_command(
     paths = session_inputs(sessions)
     detector = None if calibration is None else load_calibration(calibration)
     viewer = Viewer(viewer)
+    owned = None if save is not None else owned_recording
     if viewer is Viewer.rerun and connect is None and not has_display():
         save = save or DEFAULT_SAVE
         err_console.print(f"no display: saving to {save} instead; open it with "
@@ -116,6 +122,10 @@ def replay_command(
         viewer = Viewer.none
     if viewer is Viewer.none and save is None and connect is None:
         save = DEFAULT_SAVE
+    if save is not None:
+        for path in paths:
+            check_target(save_path_for(save, path, len(paths) > 1), overwrite=overwrite,
+                         owned=owned)
     if model is None and default_model_missing():
         err_console.print("No --model given: building the default model once (simulated "
                           "data, then an SVM); it is cached for next time.")
@@ -138,7 +148,8 @@ def replay_command(
         summaries, problems = replay_sessions(
             paths, classifier, save=save, connect=connect, spawn=viewer is Viewer.rerun,
             rate=speed, hop_s=hop, detector=detector, decide_after_s=decide_after,
-            log_rate_hz=log_rate, robot=robot, on_done=report)
+            log_rate_hz=log_rate, robot=robot, overwrite=overwrite, owned=owned,
+            on_done=report)
     written = [s.saved for s in summaries if s.saved is not None]
     if len(written) == 1:
         err_console.print(f"saved {written[0]}; open it with `rerun {written[0]}`")

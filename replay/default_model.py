@@ -38,6 +38,7 @@ from contactkit.classify.calibrate import calibrate_sessions
 from contactkit.classify.event_training import fit_event_model, load_session_events
 from contactkit.classify.events import DEFAULT_DECIDE_AFTER_S, EVENT_FEATURES
 from contactkit.classify.kind import ModelOptions
+from contactkit.classify.modelfile import FORMAT as MODEL_FORMAT
 from contactkit.classify.training import train
 from contactkit.features.detector import MIN_NOISE, DetectorConfig
 from contactkit.recorder.dataset import simulate_dataset
@@ -66,7 +67,8 @@ def recipe_dir() -> Path:
     """Return the cache directory of the current recipe and simulator defaults."""
     # The simulator's defaults and the event features are part of the key: a
     # recalibrated simulator or new event features build anew.
-    recipe = {**RECIPE, "simulator": SimConfig().to_dict(), "event_features": EVENT_FEATURES}
+    recipe = {**RECIPE, "simulator": SimConfig().to_dict(), "event_features": EVENT_FEATURES,
+              "model_format": MODEL_FORMAT}
     key = hashlib.sha256(json.dumps(recipe, sort_keys=True).encode()).hexdigest()[:12]
     return cache_dir() / "default-model" / key
 

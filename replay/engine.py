@@ -28,6 +28,7 @@ it can sleep and log incrementally.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -124,6 +125,17 @@ class OfflineAnswer:
 
 def _joints(table: pa.Table, prefix: str) -> np.ndarray:
     return np.column_stack([table.column(c).to_numpy() for c in joint_columns(prefix)])
+
+
+def next_hop_after(hop: float, t: float, hop_s: float) -> float:
+    """Return the first prediction time [s] on the grid ``hop + i * hop_s`` that lies
+    after ``t`` [s], in one step: a gap in the time stamps (a jump of hours, or of
+    1e9 s after a clock switch) is jumped over, never walked through hop by hop, and
+    the result is always past ``t`` even where ``hop_s`` is below the resolution of
+    ``t``."""
+    if hop <= t + 1e-12:
+        hop += hop_s * (math.floor((t + 1e-12 - hop) / hop_s) + 1)
+    return max(hop, math.nextafter(t, math.inf))
 
 
 class ReplayStream:
@@ -287,8 +299,7 @@ class ReplayStream:
                     in_contact = labels is None or labels[k] != NONE
                     predictions.append(self._predict(buffer_t, buffer_v, offset + k,
                                                      start + k, in_contact))
-                    while next_hop <= t[k] + 1e-12:
-                        next_hop += self.hop_s
+                    next_hop = next_hop_after(next_hop, float(t[k]), self.hop_s)
                     if every_hop:
                         yield _part(whole, first, k + 1, predictions)
                         first, predictions = k + 1, []

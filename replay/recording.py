@@ -24,6 +24,7 @@ import rerun as rr
 from contactkit.replay.engine import ROBOT_VIEW_HZ, Block, OfflineAnswer, ReplayStream
 from contactkit.robots.surfaces import viewer_urdf_file
 from contactkit.schemas import rerun_layout as layout
+from contactkit.util.atomic import Owned, owned_by_marker
 from contactkit.util.paths import inside
 
 
@@ -251,6 +252,11 @@ def log_contact_estimates(rec: rr.RecordingStream, stream: ReplayStream) -> None
                                   np.array([r[0] for r in rows]),
                                   np.array([r[1] for r in rows]),
                                   np.array([r[2] for r in rows]))
+RRD_MAGIC = b"RRF"
+"""How every .rrd file starts (``RRF2`` and a version): the test for a recording."""
+owned_recording: Owned = owned_by_marker(RRD_MAGIC, within=len(RRD_MAGIC))
+"""The default ``replay.rrd`` is replaced only when it is a recording (see
+:mod:`contactkit.util.atomic`)."""
 
 
 def save_path_for(save: Path, session_path: Path, many: bool) -> Path:

@@ -12,6 +12,7 @@ completely.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +36,7 @@ from contactkit.replay.recording import (
 from contactkit.schemas import InputError
 from contactkit.schemas import rerun_layout as layout
 from contactkit.schemas.dataset import session_files
+from contactkit.util.atomic import Owned, atomic_write
 from contactkit.util.pacing import paced
 from contactkit.util.progress import LabelledProgress
 
@@ -110,8 +112,8 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
                    connect: str | None = None, spawn: bool = False, rate: float | None = None,
                    hop_s: float = DEFAULT_HOP_S, detector: DetectorConfig | None = None,
                    decide_after_s: float | None = None,
-                   log_rate_hz: float | None = None, robot: str | None = None
-                   ) -> ReplaySummary:
+                   log_rate_hz: float | None = None, robot: str | None = None,
+                   overwrite: bool = False, owned: Owned | None = None) -> ReplaySummary:
     """Replay one session into its own recording; return its summary.
 
     The session is read, computed and logged batch by batch, so memory stays bounded
@@ -124,7 +126,9 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
     detector settings and ``decide_after_s`` [s] its decision delay; ``robot`` names the
     arm's model instead of the session's own. The session's
     metadata and the model are checked before any file is created, and a replay that
-    fails (also on a bad row found late in the file) leaves no file.
+    fails (also on a bad row found late in the file) leaves no file: the recording is
+    written to a temporary file and renamed at the end. An existing ``save`` is replaced
+    only with ``overwrite``, or when ``owned`` recognises it as contactkit's own.
     """
     if rate is not None and rate <= 0:
         raise InputError(f"the replay rate must be positive, got {rate}")
@@ -134,34 +138,33 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
     t0, t_end = stream.time_span()
     rec = new_recording(Path(path).stem, stream.meta.session_id)
     blueprint = layout.replay_blueprint(t_end)
-    if save is not None:
-        rec.save(save, default_blueprint=blueprint)
-    try:
-        if connect is not None:
-            rec.connect_grpc(connect, default_blueprint=blueprint)
-        elif spawn:
-            rec.spawn(default_blueprint=blueprint)
-        logger = BlockLogger(rec, log_static(rec, stream), log_rate_hz)
-        for block in paced(stream.blocks(every_hop=rate is not None), lambda b: b.t[-1],
-                           rate, origin_s=t0):
-            logger.log(block)
-        log_planned(rec, stream)
-        if stream.pipeline is not None:
-            times = sorted(stream.event_samples)
-            log_contact_events(rec, np.array(times), stream.events, {
-                f"joint {j} at rest": v for j, v in enumerate(stream.detector.noise, 1)},
-                samples=np.array([stream.event_samples[t] for t in times]))
-            log_contact_estimates(rec, stream)
-        answer = stream.offline()
-        if answer is not None:
-            log_offline(rec, stream, answer)
-        rec.flush()
-    except BaseException:
-        rec.disconnect()
+    with ExitStack() as stack:
         if save is not None:
-            Path(save).unlink(missing_ok=True)
-        raise
-    rec.disconnect()
+            tmp = stack.enter_context(atomic_write(save, overwrite=overwrite, owned=owned,
+                                                   suffix=".rrd"))
+            rec.save(tmp.path, default_blueprint=blueprint)
+        try:
+            if connect is not None:
+                rec.connect_grpc(connect, default_blueprint=blueprint)
+            elif spawn:
+                rec.spawn(default_blueprint=blueprint)
+            logger = BlockLogger(rec, log_static(rec, stream), log_rate_hz)
+            for block in paced(stream.blocks(every_hop=rate is not None), lambda b: b.t[-1],
+                               rate, origin_s=t0):
+                logger.log(block)
+            log_planned(rec, stream)
+            if stream.pipeline is not None:
+                times = sorted(stream.event_samples)
+                log_contact_events(rec, np.array(times), stream.events, {
+                    f"joint {j} at rest": v for j, v in enumerate(stream.detector.noise, 1)},
+                    samples=np.array([stream.event_samples[t] for t in times]))
+                log_contact_estimates(rec, stream)
+            answer = stream.offline()
+            if answer is not None:
+                log_offline(rec, stream, answer)
+            rec.flush()
+        finally:
+            rec.disconnect()
     return ReplaySummary(Path(path), stream.meta.action, answer, list(stream.pred_t),
                          list(stream.pred_label), save,
                          None if stream.pipeline is None else stream.events,
@@ -173,14 +176,16 @@ def replay_sessions(paths: Sequence[Path], model: ModelFile, *, save: Path | Non
                     rate: float | None = None, hop_s: float = DEFAULT_HOP_S,
                     detector: DetectorConfig | None = None,
                     decide_after_s: float | None = None, log_rate_hz: float | None = None,
-                    robot: str | None = None,
+                    robot: str | None = None, overwrite: bool = False,
+                    owned: Owned | None = None,
                     on_done: Callable[[ReplaySummary | InputError], None] | None = None
                     ) -> tuple[list[ReplaySummary], list[InputError]]:
     """Replay each session into its own recording (with several sessions and ``save``,
     one file each, see :func:`contactkit.replay.recording.save_path_for`); return the
     summaries and the sessions refused, which do not stop the others. ``detector``,
-    ``decide_after_s``, ``log_rate_hz`` and ``robot`` are as for :func:`replay_session`.
-    ``on_done`` is called after each session with its summary or its error."""
+    ``decide_after_s``, ``log_rate_hz``, ``robot``, ``overwrite`` and ``owned`` are as
+    for :func:`replay_session`. ``on_done`` is called after each session with its
+    summary or its error."""
     many = len(paths) > 1
     summaries, problems = [], []
     for path in paths:
@@ -189,7 +194,8 @@ def replay_sessions(paths: Sequence[Path], model: ModelFile, *, save: Path | Non
             result = replay_session(path, model, save=target, connect=connect, spawn=spawn,
                                     rate=rate, hop_s=hop_s, detector=detector,
                                     decide_after_s=decide_after_s,
-                                    log_rate_hz=log_rate_hz, robot=robot)
+                                    log_rate_hz=log_rate_hz, robot=robot,
+                                    overwrite=overwrite, owned=owned)
             summaries.append(result)
         except InputError as err:
             result = err

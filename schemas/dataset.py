@@ -13,10 +13,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pyarrow as pa
+import pyarrow.parquet as pq
 
 from contactkit.errors import InputError
 from contactkit.robots import canonical_robot_name
-from contactkit.schemas.session import SessionMeta, atomic_write_parquet, read_session_meta
+from contactkit.schemas.session import (
+    METADATA_KEY,
+    SessionMeta,
+    atomic_write_parquet,
+    read_session_meta,
+)
 
 INDEX_NAME = "index.parquet"
 SESSION_GLOB = "*.parquet"
@@ -125,10 +131,23 @@ def build_index(directory: str | Path, files: Iterable[Path] | None = None) -> I
     return IndexResult(table=table, problems=problems)
 
 
+def is_index_file(path: Path) -> bool:
+    """Return whether ``path`` (a regular file named ``index.parquet``) may be replaced
+    by a rebuilt index: an index contactkit wrote, or a damaged file under the name the
+    tool reserves for its index; never a session (``import-arrays --name
+    index.parquet`` is refused, but an older version accepted it)."""
+    try:
+        metadata = pq.read_schema(path).metadata or {}
+    except (OSError, ValueError, pa.ArrowException):
+        return True
+    return b"contactkit.index" in metadata or METADATA_KEY not in metadata
+
+
 def write_index(directory: str | Path, table: pa.Table) -> Path:
-    """Write ``index.parquet`` into ``directory`` atomically (replacing the old index)."""
+    """Write ``index.parquet`` into ``directory`` atomically; return its path. An old
+    index is replaced; any other file of that name (a session, a link) is refused."""
     path = Path(directory) / INDEX_NAME
-    atomic_write_parquet(table, path, overwrite=True)
+    atomic_write_parquet(table, path, overwrite=False, owned=is_index_file)
     return path
 
 

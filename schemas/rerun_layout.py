@@ -141,13 +141,19 @@ def log_state_spans(rec: rr.RecordingStream, path: str, starts: np.ndarray,
                     stops: np.ndarray, labels: list[str], starts_sample: np.ndarray,
                     stops_sample: np.ndarray) -> None:
     """Send one bar per span: state ``labels[i]`` from ``starts[i]`` to ``stops[i]`` [s],
-    then no state (a gap) until the next span."""
+    then no state (a gap) until the next span.
+
+    The gap is an empty state (zero values: the component cleared), not a null value:
+    the Rerun SDK rejects null values in a state column (``rerun rrd verify``)."""
     t = np.column_stack([starts, stops]).ravel()
     sample = np.column_stack([starts_sample, stops_sample]).ravel()
-    states = pa.array([x for label in labels for x in (label, None)], type=pa.string())
+    rows = [[label] if k == 0 else [] for label in labels for k in (0, 1)]
     order = np.argsort(t, kind="stable")
+    ordered = [rows[i] for i in order]
+    values = pa.array([v for row in ordered for v in row], type=pa.string())
     rec.send_columns(path, indexes=time_columns(t[order], sample[order]),
-                     columns=rr.StateChange.columns(state=states.take(pa.array(order))))
+                     columns=rr.StateChange.columns(state=values).partition(
+                         [len(row) for row in ordered]))
 
 
 def log_joint_columns(rec: rr.RecordingStream, t: np.ndarray, sample: np.ndarray,

@@ -36,10 +36,9 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
 import uuid
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -56,6 +55,7 @@ from contactkit.robots import (
     canonical_robot_name,
     get_robot,
 )
+from contactkit.util.atomic import Owned, atomic_write, check_target
 
 SCHEMA_VERSION = 1
 N_JOINTS = 7
@@ -354,6 +354,9 @@ class Session:
         table = complete_table(self.table)
         if table is self.table:
             return self
+        if table.num_rows == 0:
+            raise InputError(f"no complete sample: each of the {self.table.num_rows} samples "
+                             "lacks a joint value", self.path)
         return Session(meta=self.meta, table=table, path=self.path)
 
     @property
@@ -408,51 +411,17 @@ def write_session(path: str | Path, columns: Mapping[str, np.ndarray] | pa.Table
     else:
         table = table_from_columns(columns, meta)
     validate_table(table, path, allows_gaps(meta))
-    if path.exists() and not overwrite:
-        raise InputError("output file already exists (nothing was written)", path)
+    check_target(path, overwrite=overwrite)
     atomic_write_parquet(table, path, overwrite=overwrite)
     return path
 
 
-def atomic_write_parquet(table: pa.Table, path: Path, *, overwrite: bool) -> None:
-    """Write ``table`` to ``path`` through a temporary file and a link or rename."""
-    atomic_write(path, lambda tmp: pq.write_table(table, tmp, compression="zstd"),
-                 overwrite=overwrite)
-
-
-def atomic_write(path: Path, write: Callable[[Path], None], *, overwrite: bool) -> None:
-    """Call ``write(tmp)`` to fill a temporary file beside ``path``, force it to disk,
-    then link (or with ``overwrite`` rename) it into place; remove it on any error."""
-    if not path.parent.is_dir():
-        raise InputError("output directory does not exist", path.parent)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        write(tmp)
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        if overwrite:
-            os.replace(tmp, path)
-        else:
-            try:
-                os.link(tmp, path)
-            except FileExistsError as err:
-                raise InputError("output file already exists (nothing was written)",
-                                 path) from err
-    except PermissionError as err:
-        raise InputError("cannot write here (permission denied)", path.parent) from err
-    except OSError as err:
-        raise InputError(f"cannot write the file ({err.strerror or err})", path) from err
-    finally:
-        tmp.unlink(missing_ok=True)
-    _fsync_dir(path.parent)
-
-
-def _fsync_dir(directory: Path) -> None:
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+def atomic_write_parquet(table: pa.Table, path: Path, *, overwrite: bool,
+                         owned: Owned | None = None) -> None:
+    """Write ``table`` to ``path`` with :func:`contactkit.util.atomic.atomic_write`
+    (``overwrite`` and ``owned`` are its overwrite policy)."""
+    with atomic_write(path, overwrite=overwrite, owned=owned) as tmp:
+        pq.write_table(table, tmp.file, compression="zstd")
 
 
 def read_session_meta(path: str | Path) -> tuple[SessionMeta, pq.FileMetaData]:
@@ -534,14 +503,73 @@ def validate_table(table: pa.Table, path: str | Path | None = None,
             row = int(np.argmax(bad))
             kind = "NaN" if math.isnan(values[row]) else "infinite value"
             raise InputError(f"{kind} in column {name!r} at row {row}", path)
+        bound = hard_limit(name)
+        if bound is not None:
+            with np.errstate(invalid="ignore"):
+                beyond = np.abs(values) > bound
+            if beyond.any():
+                row = int(np.argmax(beyond))
+                raise InputError(f"impossible value {values[row]:.6g} in column {name!r} at "
+                                 f"row {row} (beyond the hard limit {bound:g}: a corrupt "
+                                 "file or a unit error)", path)
     t = table.column("t").to_numpy()
     if len(t) == 0:
         raise InputError("session has no samples", path)
-    steps = np.diff(t)
+    check_times(t, path)
+
+
+HARD_LIMITS = {"q": 100.0, "q_d": 100.0, "dq": 1000.0, "dq_d": 1000.0, "tau": 1e4,
+               "tau_ext_hat": 1e4, "f_ext": 1e5, "f_ext_hat": 1e5, "m_ext_hat": 1e4}
+"""Bounds no robot arm's measurement reaches, per column prefix (q [rad], dq [rad/s],
+tau [Nm], forces [N], moments [Nm]): a value beyond one is refused where data enter
+and on read, naming the column and row. The session robot's own limits (with a
+margin) are far lower; values beyond those are flagged by ``recorder stats --deep``
+and refused by the simulator."""
+
+
+def hard_limit(column: str) -> float | None:
+    """Return the hard bound on ``|value|`` of a session column (None: no bound)."""
+    prefix = column.rsplit("_", 1)[0]
+    return HARD_LIMITS.get(prefix)
+
+
+MAX_STEP_S = 10.0
+"""The longest step between two samples [s] a session may hold. Real recordings step
+0.35-8.8 ms (host-stamped FR3 logs 0.35-5 ms, the Gaz log 0.7-8.8 ms, MindLab 5 ms); a
+longer step is a time jump (a clock switched from sim time to wall time, a log
+restarted, a corrupt stamp), refused where data enter rather than read as one
+session of years. Steps above 3x the median but within this bound are gaps, counted
+by :func:`contactkit.schemas.timing.sampling_stats`."""
+MAX_ABS_T_S = 1e10
+"""The largest time stamp [s] a session may hold (about 300 years; sessions start at
+0 s, epoch stamps are 1.7e9 s): larger values overflow time arithmetic."""
+
+
+def check_times(t: np.ndarray, path: str | Path | None = None, offset: int = 0,
+                last_t: float | None = None) -> None:
+    """Check the time rule on time stamps ``t`` [s]: finite, within
+    :data:`MAX_ABS_T_S`, strictly increasing, no step longer than :data:`MAX_STEP_S`.
+    ``last_t`` is the stamp before ``t[0]`` (chunked reading) and ``offset`` the row of
+    ``t[0]`` in the file. Raises one :class:`InputError` line naming the row."""
+    t = np.asarray(t, dtype=float)
+    big = np.abs(t) > MAX_ABS_T_S
+    if big.any():
+        row = int(np.argmax(big))
+        raise InputError(f"time stamp {t[row]:.6g} s at row {offset + row} is beyond "
+                         f"{MAX_ABS_T_S:.0e} s", path)
+    steps = np.diff(t) if last_t is None else np.diff(t, prepend=last_t)
+    first = offset if last_t is None else offset - 1
     if (steps <= 0).any():
         row = int(np.argmax(steps <= 0)) + 1
-        raise InputError(f"t is not strictly increasing at row {row} "
-                         f"(t={t[row]:.6f} s after {t[row - 1]:.6f} s)", path)
+        before = t[row - 1] if last_t is None else np.r_[last_t, t][row - 1]
+        here = t[row] if last_t is None else t[row - 1]
+        raise InputError(f"t is not strictly increasing at row {first + row} "
+                         f"(t={here:.6f} s after {before:.6f} s)", path)
+    if (steps > MAX_STEP_S).any():
+        row = int(np.argmax(steps > MAX_STEP_S)) + 1
+        raise InputError(f"time jumps by {steps[row - 1]:.6g} s at row {first + row} (more "
+                         f"than {MAX_STEP_S:g} s between samples: a clock switch or a "
+                         "restarted log; split the recording there)", path)
 
 
 def _check_joint_count(names: list[str], path: str | Path | None) -> None:
@@ -629,10 +657,8 @@ def _validate_chunk(table: pa.Table, path: Path, gaps_allowed: bool, offset: int
         if offset == 0:
             raise
         raise InputError(f"{err.problem} (counted from row {offset})", path) from err
-    first_t = float(table.column("t")[0].as_py())
-    if first_t <= last_t:
-        raise InputError(f"t is not strictly increasing at row {offset} "
-                         f"(t={first_t:.6f} s after {last_t:.6f} s)", path)
+    if math.isfinite(last_t):
+        check_times(table.column("t").to_numpy()[:1], path, offset, last_t)
 
 
 def write_session_batches(path: str | Path, batches: Iterable[pa.RecordBatch],
@@ -646,13 +672,11 @@ def write_session_batches(path: str | Path, batches: Iterable[pa.RecordBatch],
     """
     path = Path(path)
     meta.check(path)
-    if path.exists() and not overwrite:
-        raise InputError("output file already exists (nothing was written)", path)
+    check_target(path, overwrite=overwrite)
     gaps = allows_gaps(meta)
     written = 0
 
-    def write(tmp: Path) -> None:
-        nonlocal written
+    with atomic_write(path, overwrite=overwrite) as tmp:
         writer, last_t = None, -math.inf
         try:
             for group in _row_groups(batches, row_group_rows):
@@ -660,7 +684,7 @@ def write_session_batches(path: str | Path, batches: Iterable[pa.RecordBatch],
                 group = group.select(schema.names).cast(schema)
                 _validate_chunk(group, path, gaps, written, last_t)
                 if writer is None:
-                    writer = pq.ParquetWriter(tmp, schema, compression="zstd")
+                    writer = pq.ParquetWriter(tmp.file, schema, compression="zstd")
                 writer.write_table(group, row_group_size=row_group_rows)
                 written += group.num_rows
                 last_t = float(group.column("t")[-1].as_py())
@@ -669,8 +693,6 @@ def write_session_batches(path: str | Path, batches: Iterable[pa.RecordBatch],
                 writer.close()
         if written == 0:
             raise InputError("session has no samples", path)
-
-    atomic_write(path, write, overwrite=overwrite)
     return written
 
 

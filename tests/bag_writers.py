@@ -61,11 +61,14 @@ def _joint_state(store: Any, header: Any, position, velocity, effort) -> Any:
         velocity=velocity, effort=effort)
 
 
-def franka_messages(session: Session, ros1: bool, robot_mode: int = 2):
+def franka_messages(session: Session, ros1: bool, robot_mode: int = 2,
+                    stamps_ns: np.ndarray | None = None):
     """Yield ``(stamp_ns, message)`` for each sample of ``session``: q, dq, tau, q_d, dq_d
-    and tau_ext_hat (where the session has them) in FrankaState or FrankaRobotState."""
+    and tau_ext_hat (where the session has them) in FrankaState or FrankaRobotState.
+    ``stamps_ns`` replaces the time stamps (default: a fixed start plus session time)."""
     store = default_typestore(ros1)
-    stamps = START_NS + np.round(session.t * 1e9).astype(np.int64)
+    stamps = START_NS + np.round(session.t * 1e9).astype(np.int64) if stamps_ns is None \
+        else np.asarray(stamps_ns, dtype=np.int64)
     q, dq, tau = session.q, session.dq, session.tau
     n = len(stamps)
     q_d = session.joints("q_d") if session.has("q_d_1") else np.zeros((n, 7))
@@ -91,11 +94,12 @@ def franka_messages(session: Session, ros1: bool, robot_mode: int = 2):
 
 
 def write_bag(session: Session, out: Path, kind: str, *, labels: list[tuple[float, Any]] = (),
-              label_topic: str = "/labels", strip_definitions: bool = False) -> Path:
+              label_topic: str = "/labels", strip_definitions: bool = False,
+              stamps_ns: np.ndarray | None = None) -> Path:
     """Write ``session`` as a bag of ``kind`` (ros1, sqlite3 or mcap) at ``out`` and return
     the path to open. ``labels`` are ``(session time [s], str or bool)`` on ``label_topic``;
     ``strip_definitions`` removes the message definitions from a sqlite3 bag (as in ROS 2
-    bags before Iron)."""
+    bags before Iron). ``stamps_ns`` replaces the messages' time stamps [ns]."""
     ros1 = kind == "ros1"
     store = default_typestore(ros1)
     msgtype = "franka_msgs/msg/FrankaState" if ros1 else "franka_msgs/msg/FrankaRobotState"
@@ -117,7 +121,7 @@ def write_bag(session: Session, out: Path, kind: str, *, labels: list[tuple[floa
         conn = writer.add_connection(topic, msgtype, typestore=store)
         label_conn = None if label_type is None else writer.add_connection(
             label_topic, label_type, typestore=store)
-        for stamp, msg in franka_messages(session, ros1):
+        for stamp, msg in franka_messages(session, ros1, stamps_ns=stamps_ns):
             while pending and START_NS + round(pending[0][0] * 1e9) <= stamp:
                 _, data = pending.pop(0)
                 writer.write(label_conn, stamp, serialize(store.types[label_type](data=data),

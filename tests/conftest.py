@@ -189,3 +189,24 @@ def kill_when_journal_holds(command: list[str], directory: Path, samples: int,
                 proc.kill()
             proc.wait(timeout=60)
     return proc.returncode, held
+
+
+@pytest.fixture(autouse=True)
+def _written_recordings_pass_rerun_verify(request):
+    """Every .rrd a test writes into its ``tmp_path`` must pass ``rerun rrd verify``
+    (issue 25): the SDK rejects files the viewer might still show."""
+    yield
+    tmp = request.node.funcargs.get("tmp_path") if hasattr(request.node, "funcargs") else None
+    if tmp is None:
+        return
+    written = sorted(p for p in Path(tmp).rglob("*.rrd") if p.is_file() and not p.is_symlink()
+                     and _starts_with(p, b"RRF"))
+    from tests.rrd_frames import verify_problems
+
+    problems = verify_problems(*written)
+    assert not problems, "rerun rrd verify: " + "\n".join(problems)
+
+
+def _starts_with(path: Path, magic: bytes) -> bool:
+    with open(path, "rb") as fh:
+        return fh.read(len(magic)) == magic

@@ -11,6 +11,9 @@ child frame").
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from collections import defaultdict
 from pathlib import Path
 
@@ -72,7 +75,23 @@ def _reaches(frame: str, root: str, parents: dict[str, set[str]]) -> bool:
     return False
 
 
+def verify_problems(*paths: Path) -> list[str]:
+    """Return what ``rerun rrd verify`` (the SDK's own check that the viewer can load
+    and interpret a file) reports on ``paths``; empty when they pass."""
+    if not paths:
+        return []
+    rerun = Path(sys.executable).with_name("rerun")
+    done = subprocess.run([str(rerun), "rrd", "verify", *map(str, paths)],
+                          capture_output=True, text=True, timeout=300,
+                          env=dict(os.environ, RERUN_ANALYTICS="0"))
+    if done.returncode == 0:
+        return []
+    return [line for line in (done.stdout + done.stderr).splitlines()
+            if "Failed" in line or "rror" in line][:20] or [done.stderr[-2000:]]
+
+
 def assert_frames_ok(path: Path) -> None:
-    """Fail with the list of problems when the recording at ``path`` has frame problems."""
-    problems = frame_problems(path)
+    """Fail with the list of problems when the recording at ``path`` has frame problems
+    or fails ``rerun rrd verify``."""
+    problems = frame_problems(path) + verify_problems(path)
     assert not problems, f"{path}:\n" + "\n".join(problems)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bag_writers import ROS2_TOPIC, write_bag
+from bag_writers import ROS2_TOPIC, START_NS, write_bag
 from conftest import make_session, run_cli
 
 from contactkit.recorder.bags import BagJob, import_bag, import_bags
@@ -168,3 +168,15 @@ def test_streamed_import_does_not_depend_on_the_chunk(source, tmp_path, kind, mo
         assert {**small.meta.__dict__, "session_id": "", "created_utc": ""} == \
             {**whole.meta.__dict__, "session_id": "", "created_utc": ""}
     assert written[7][0].column("contact").any()
+
+
+@pytest.mark.timeout(120)
+def test_a_clock_switch_in_a_bag_is_refused_not_read_as_years(source, tmp_path):
+    """Header stamps in sim time (near 0 s), then wall time (1.7e9 s): a time jump."""
+    session = read_session(source)
+    stamps = START_NS + np.round(session.t * 1e9).astype(np.int64)
+    stamps[:50] = np.round(session.t[:50] * 1e9).astype(np.int64) + 1
+    bag = write_bag(session, tmp_path / "bag", "mcap", stamps_ns=stamps)
+    with pytest.raises(InputError, match=r"time jumps by 1\.7e\+09 s at row 50"):
+        import_bag(bag, meta(), tmp_path)
+    assert not list(tmp_path.glob("*.parquet"))

@@ -158,6 +158,42 @@ def test_model_file_round_trip_and_refusals(features, tmp_path: Path) -> None:
         load_model(junk)
 
 
+def test_model_file_as_untrusted_input(features, tmp_path: Path) -> None:
+    """A relabelled contactkit.json, a zip bomb and flipped bytes: each one line."""
+    from contactkit.classify import modelfile
+
+    model = make_estimator("svm", features.names).fit(features.X, features.labels())
+    path = save_model(tmp_path / "m.skops", model, transformer=SessionFeatures(),
+                      feature_names=features.names, classes=list(model.classes_),
+                      kind=get_kind("svm"), scheme="full", fingerprint="", training={})
+    with zipfile.ZipFile(path) as src:
+        members = {n: src.read(n) for n in src.namelist()}
+    meta = json.loads(members[META_MEMBER])
+    meta["classes"] = meta["classes"][::-1]
+    relabelled = tmp_path / "relabelled.skops"
+    with zipfile.ZipFile(relabelled, "w") as dst:
+        for name, data in members.items():
+            dst.writestr(name, json.dumps(meta) if name == META_MEMBER else data)
+    with pytest.raises(InputError, match="modified after it was written"):
+        load_model(relabelled)
+    bomb = tmp_path / "bomb.skops"
+    with zipfile.ZipFile(bomb, "w", compression=zipfile.ZIP_DEFLATED) as dst:
+        for name, data in members.items():
+            dst.writestr(name, data)
+        dst.writestr("big.npy", b"\0" * (modelfile.MAX_MEMBER_BYTES + 1))
+    assert bomb.stat().st_size < 2_000_000
+    with pytest.raises(InputError, match="would decompress"):
+        load_model(bomb)
+    data = path.read_bytes()
+    for offset in range(0, len(data), max(1, len(data) // 97)):
+        flipped = tmp_path / "flipped.skops"
+        flipped.write_bytes(data[:offset] + bytes([data[offset] ^ 0xFF]) + data[offset + 1:])
+        try:
+            load_model(flipped)
+        except InputError as err:
+            assert "\n" not in str(err)
+
+
 def test_model_file_refuses_untrusted_types(features, tmp_path: Path) -> None:
     import skops.io as sio
     from sklearn.base import BaseEstimator
@@ -168,15 +204,15 @@ def test_model_file_refuses_untrusted_types(features, tmp_path: Path) -> None:
         pass
 
     payload = sio.dumps(Smuggled())
+    meta = {"format": FORMAT, "kind": "svm"}
     with zipfile.ZipFile(io.BytesIO(payload)) as archive:
         members = {n: archive.read(n) for n in archive.namelist()}
-        digest = _members_digest(archive)
+        digest = _members_digest(archive, meta)
     evil = tmp_path / "evil.skops"
     with zipfile.ZipFile(evil, "w") as out:
         for name, data in members.items():
             out.writestr(name, data)
-        out.writestr(META_MEMBER, json.dumps({"format": FORMAT, "kind": "svm",
-                                               "members_sha256": digest}))
+        out.writestr(META_MEMBER, json.dumps(meta | {"members_sha256": digest}))
     with pytest.raises(InputError, match="untrusted types"):
         load_model(evil)
 

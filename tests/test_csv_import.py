@@ -89,7 +89,7 @@ GOOD_MAP = ('index_base = 0\n[time]\ncolumn = "time"\n[q]\ncolumns = "q{j}"\n'
     (GOOD_MAP + "sign = -1\n", "tau sign must be 1"),
     (GOOD_MAP + "[frobnicate]\n", "unknown key 'frobnicate'"),
     (GOOD_MAP.replace('column = "time"', 'col = "time"'), "missing key 'column'"),
-    (GOOD_MAP.replace('[time]\ncolumn = "time"\n', 'time = 5\n'), "'int' object has no"),
+    (GOOD_MAP.replace('[time]\ncolumn = "time"\n', 'time = 5\n'), "[time] must be a table"),
 ])
 def test_bad_map(tmp_path: Path, text: str, problem: str) -> None:
     path = _write_map(tmp_path, text)

@@ -351,7 +351,8 @@ def test_fuzz_calibrations(work: Path, data, how: str) -> None:
         assert all(math.isfinite(v) and v >= 0 for v in (*config.speed, *config.accel))
         t = np.arange(50) * 0.01
         detect(t, np.ones((50, 7)), np.zeros((50, 7)), config)
-        assert load_calibration(save_calibration(work / "again.json", config)) == config
+        assert load_calibration(save_calibration(work / "again.json", config,
+                                                 overwrite=True)) == config
 
 
 # -- simulator noise files (JSON, `recorder capture --noise-file`) ---------------------------

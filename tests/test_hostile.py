@@ -395,6 +395,7 @@ def test_interrupted_stats_leaves_no_half_written_report(tmp_path: Path) -> None
                     signal.SIGKILL)
     if report.exists():
         json.loads(report.read_text())
-    again = run_cli("recorder", *command[1:])
+    # the killed run may have finished its report first: --out is replaced only when asked
+    again = run_cli("recorder", *command[1:], "--overwrite")
     assert again.returncode == 0, again.stderr
     assert json.loads(report.read_text())["sessions"] == 4

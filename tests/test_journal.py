@@ -95,3 +95,31 @@ def test_capture_killed_midway_loses_nothing_older_than_flush(tmp_path: Path) ->
     n = session.n_samples
     for name in session.table.column_names:
         assert np.array_equal(session.column(name), reference.column(name).to_numpy()[:n]), name
+
+
+def test_recover_keeps_a_journal_whose_session_name_holds_another_file(tmp_path: Path,
+                                                                       capsys) -> None:
+    """An unrelated file at the session's name is no reason to delete the journal, and
+    one journal that cannot be recovered does not stop the others."""
+    from contactkit.recorder.cli import app
+    from contactkit.util.cli import run_app
+
+    paths = []
+    for name in ("a.parquet", "b.parquet", "c.parquet"):
+        writer = SessionWriter(tmp_path / name, SessionMeta(
+            session_id=name[0] * 8, source="sim", action="bump"), COLUMNS,
+            flush_interval_s=0.02)
+        for k in range(3):
+            writer.append(_rows(k * 0.02, 20))
+        writer.abort()
+        paths.append(tmp_path / name)
+    paths[0].write_bytes(b"mine")
+    code = run_app(app, "recorder", ["recover", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert code == 2
+    assert paths[0].read_bytes() == b"mine" and journal_path(paths[0]).exists()
+    assert "left in place" in out and "a.parquet" in out
+    for path in paths[1:]:
+        assert validate_session(path).meta.recovered and not journal_path(path).exists()
+    assert run_app(app, "recorder", ["recover", str(tmp_path)]) == 2  # again: the same
+    assert paths[0].read_bytes() == b"mine" and journal_path(paths[0]).exists()

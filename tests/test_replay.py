@@ -8,6 +8,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import rerun as rr
@@ -21,6 +22,7 @@ from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import scalar_features
 from contactkit.features.timeseries import TimeseriesChain, columns_of
 from contactkit.replay import cli as replay_cli
+from contactkit.replay.engine import next_hop_after
 from contactkit.replay.recording import ContactEvent, log_contact_events
 from contactkit.replay.session_replay import replay_sessions
 from contactkit.robots import RobotSetup
@@ -222,7 +224,7 @@ def test_refused_input_gives_no_saved_message_and_no_file(tmp_path, session, mod
 def test_window_lane_ends_in_a_gap_not_a_state(replayed) -> None:
     states = [v for b in read_rrd(replayed)[layout.WINDOW] if "StateChange:state" in
               b.schema.names for v in b.column("StateChange:state").to_pylist()]
-    assert states == [["window"], [None]]
+    assert states == [["window"], []]  # an empty state: rerun rrd verify rejects nulls
 
 
 def test_directory_replay_without_hand_has_sound_frames(tmp_path, model_path) -> None:
@@ -266,9 +268,12 @@ def test_contact_events_are_bars_and_thresholds_lines(tmp_path) -> None:
     rec.disconnect()
     data = read_rrd(tmp_path / "events.rrd")
     lanes = [b for b in data[layout.CONTACT_EVENTS] if "StateChange:state" in b.schema.names]
-    times, states = series(lanes, "StateChange:state")
-    assert np.allclose(times, [1.0, 1.5, 2.5, 3.5])
-    assert [s[0] for s in states] == ["bump", None, "shove", None]
+    times = np.concatenate([b.column("time").cast("int64").to_numpy() for b in lanes]) / 1e9
+    states = [s for b in lanes for s in b.column("StateChange:state").to_pylist()]
+    order = np.argsort(times, kind="stable")
+    assert np.allclose(times[order], [1.0, 1.5, 2.5, 3.5])
+    # each bar ends in an empty state (a gap): rerun rrd verify rejects null states
+    assert [states[i] for i in order] == [["bump"], [], ["shove"], []]
     texts = [v for b in data[layout.CONTACT_EVENTS] if "TextLog:text" in b.schema.names
              for v in b.column("TextLog:text").to_pylist()]
     assert any("shove (decided at 2.80 s)" in str(x) for x in texts)
@@ -300,3 +305,38 @@ def test_web_viewer_refuses_a_port_another_program_holds(tmp_path, session,
     assert result.stderr.strip().splitlines() == [
         f"replay: error: port {WEB_PORT} on 127.0.0.1 is already in use by another program; "
         "the Rerun web viewer was not started"]
+
+
+def _with_gap(session: Path, out: Path, gap_s: float) -> Path:
+    """The session with its last fifth shifted by ``gap_s`` [s], written without the
+    writer's checks (as a foreign tool or a corrupt copy would)."""
+    table = pq.read_table(session)
+    t = table.column("t").to_numpy().copy()
+    t[4 * len(t) // 5:] += gap_s
+    index = table.column_names.index("t")
+    pq.write_table(table.set_column(index, "t", pa.array(t)), out)
+    return out
+
+
+def test_next_hop_jumps_over_any_gap() -> None:
+    assert next_hop_after(0.5, 0.52, 0.1) == pytest.approx(0.6)
+    assert next_hop_after(0.5, 1.7e9, 0.1) > 1.7e9
+    assert next_hop_after(1e16, 1e16, 1e-3) > 1e16  # hop below the resolution of t
+
+
+@pytest.mark.timeout(300)
+def test_replay_jumps_over_a_gap_and_refuses_a_time_jump(model_path, session, tmp_path,
+                                                         capsys) -> None:
+    model = load_model(model_path)
+    gapped = _with_gap(session, tmp_path / "gapped.parquet", 9.0)
+    summaries, problems = replay_sessions([gapped], model, save=tmp_path / "g.rrd",
+                                          hop_s=1e-7)
+    assert not problems and summaries[0].pred_t
+    jumped = _with_gap(session, tmp_path / "jumped.parquet", 1e6)
+    code = run_app(replay_cli.app, "replay", [str(jumped), "--model", str(model_path),
+                                              "--viewer", "none", "--save",
+                                              str(tmp_path / "j.rrd")])
+    err = capsys.readouterr().err
+    assert code == 2 and "time jumps by 1e+06 s" in err, err
+    assert not (tmp_path / "j.rrd").exists()
+    assert not [p for p in tmp_path.iterdir() if ".contactkit-" in p.name]

@@ -44,6 +44,7 @@ import numpy as np
 import psutil
 
 from contactkit.errors import InputError
+from contactkit.util.atomic import write_bytes, write_text
 from contactkit.util.viewer import free_port, start_web_viewer, viewer_page_url
 
 VIEWPORT = {"width": 1600, "height": 1000}
@@ -161,7 +162,7 @@ def check_recording(browser, rrd: Path, out: Path, timeout_s: float,
                              TIME_BAR_PX[2])
             time.sleep(POLL_S)
             shots.append(_capture(cdp))
-        shot.write_bytes(shots[-1])
+        write_bytes(shot, shots[-1], overwrite=True)
         errors, warnings = viewer_messages(console)
         finding.errors += errors
         finding.warnings += warnings
@@ -170,8 +171,8 @@ def check_recording(browser, rrd: Path, out: Path, timeout_s: float,
             time.sleep(2.0)
             left, top = max(0, x - 500), max(0, y - 40)
             tip = out / f"{rrd.stem}_marker{i + 1}.png"
-            tip.write_bytes(_capture(cdp, {"x": left, "y": top, "width": min(1000, 1600 - left),
-                                           "height": min(260, 1000 - top)}))
+            write_bytes(tip, _capture(cdp, {"x": left, "y": top, "width": min(1000, 1600 - left),
+                                            "height": min(260, 1000 - top)}), overwrite=True)
             page.keyboard.press("Escape")
             finding.error_markers.append(f"error marker at ({x}, {y}) px, its report in {tip}")
     finally:
@@ -217,8 +218,8 @@ def run(recordings: list[Path], reports: list[Path], out: Path, timeout_s: float
                 print(_line(findings[-1]), flush=True)
         finally:
             browser.close()
-    (out / "viewer_check.json").write_text(json.dumps(
-        [asdict(f) | {"ok": f.ok} for f in findings], indent=2))
+    write_text(out / "viewer_check.json", json.dumps(
+        [asdict(f) | {"ok": f.ok} for f in findings], indent=2), overwrite=True)
     return findings
 
 

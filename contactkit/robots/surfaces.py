@@ -22,8 +22,8 @@ import numpy as np
 from contactkit.robots.model import RobotModel
 from contactkit.robots.registry import get_robot
 from contactkit.robots.spec import RobotSetup, RobotSpec
+from contactkit.util.atomic import any_regular_file, write_text
 from contactkit.util.cache import cache_dir
-from contactkit.util.paths import atomic_write_text
 
 STL_TRIANGLE = np.dtype([("normal", "<f4", 3), ("vertices", "<f4", (3, 3)), ("attr", "<u2")])
 
@@ -146,5 +146,5 @@ def viewer_urdf_file(setup: RobotSetup) -> Path:
     variant = "hand" if setup.with_hand and spec.has_hand else "nohand"
     path = cache_dir() / f"{stem}_{variant}_{digest}.urdf"
     if not path.exists():
-        atomic_write_text(path, text)
+        write_text(path, text, owned=any_regular_file)
     return path

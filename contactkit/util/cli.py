@@ -28,6 +28,18 @@ RobotOpt = Annotated[str | None, typer.Option(
 """The ``--robot`` override of the commands that run the feature chain on sessions."""
 
 
+SOME_FAILED = 2
+"""Exit code of a command over many sessions (or bags, logs) when some of them failed:
+each failure is listed on stderr, and the output of the others is written."""
+
+
+def exit_if_failed(problems: object) -> None:
+    """End the command with :data:`SOME_FAILED` when ``problems`` (listed already) is not
+    empty; return otherwise."""
+    if problems:
+        raise typer.Exit(SOME_FAILED)
+
+
 def new_app(name: str | None = None, help: str | None = None, **settings) -> typer.Typer:
     """Return a Typer app with contactkit's settings: plain help text (rich markup off, so
     units in brackets such as "[s]" or "[rad]" print as written), no shell-completion

@@ -20,6 +20,7 @@ from __future__ import annotations
 import atexit
 import itertools
 import logging
+import os
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any, TypeVar
 
@@ -87,6 +88,7 @@ def get_client(address: str):
                                                dashboard_address=None,
                                                silence_logs=logging.CRITICAL)
         client = distributed.Client(cluster)
+        client.register_plugin(_die_with_parent_plugin(os.getpid()))
     else:
         try:
             client = distributed.Client(address, timeout=CONNECT_TIMEOUT_S)
@@ -102,6 +104,27 @@ def get_client(address: str):
                              ) from err
     _clients[address] = client
     return client
+
+
+def _die_with_parent_plugin(parent_pid: int):
+    """Return a worker plugin for a LocalCluster: its workers end when this process
+    (their parent) ends, even by SIGKILL (see
+    :func:`contactkit.util.parallel.die_with_parent`). Built here so that importing
+    this module does not import distributed."""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class DieWithParent(WorkerPlugin):
+        name = "contactkit-die-with-parent"
+
+        def setup(self, worker) -> None:
+            import os
+
+            from contactkit.util.parallel import die_with_parent
+
+            if os.getppid() == parent_pid:
+                die_with_parent(parent_pid)
+
+    return DieWithParent()
 
 
 def close_clients() -> None:

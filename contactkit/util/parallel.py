@@ -18,9 +18,13 @@ bad session never stops a run; :func:`split_problems` separates them afterwards.
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
 import os
+import signal
 import sys
+import threading
+import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
@@ -114,6 +118,40 @@ def dask_worker_rank() -> int | None:
     return int(tail) if tail.isdigit() else 0
 
 
+PR_SET_PDEATHSIG = 1
+PARENT_POLL_S = 0.5
+"""How often [s] a worker checks that its parent is alive, where the kernel cannot tell
+it (PR_SET_PDEATHSIG is Linux only)."""
+
+
+def die_with_parent(parent_pid: int | None = None) -> None:
+    """Make this (worker) process end when its parent ends, also when the parent is
+    killed with SIGKILL and cannot clean up: a killed command never leaves workers
+    running (or blocked forever, holding their memory).
+
+    On Linux the kernel sends SIGKILL on the parent's death (``PR_SET_PDEATHSIG``);
+    elsewhere, and as a second guard, a daemon thread polls the parent pid every
+    :data:`PARENT_POLL_S` s. ``parent_pid`` defaults to the current parent.
+    """
+    parent = os.getppid() if parent_pid is None else parent_pid
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent:  # the parent died before the line above
+        os._exit(1)
+
+    def watch() -> None:
+        while True:
+            time.sleep(PARENT_POLL_S)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="contactkit-parent-watch", daemon=True).start()
+
+
 def map_ordered(fn: Callable[..., R], items: Iterable[Any], *, workers: int = 1,
                 progress: ProgressCallback | None = None, total: int | None = None,
                 spawn: bool = False, in_flight: int = 4,
@@ -148,7 +186,8 @@ def map_ordered(fn: Callable[..., R], items: Iterable[Any], *, workers: int = 1,
             yield result
         return
     context = multiprocessing.get_context("spawn") if spawn else None
-    with ProcessPoolExecutor(workers, mp_context=context) as pool:
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=die_with_parent,
+                             initargs=(os.getpid(),)) as pool:
         yield from ordered_results(
             lambda item: pool.submit(fn, item),
             lambda jobs: wait(jobs, return_when=FIRST_COMPLETED).done,

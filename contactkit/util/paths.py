@@ -5,13 +5,11 @@ files, CAN logs, command-line options). :func:`safe_name` accepts a file-name
 component only when it cannot name another directory, a hidden file or a device;
 :func:`inside` resolves a name against the output directory and refuses anything
 that lands outside it (``..``, absolute paths, symbolic links pointing away).
-:func:`atomic_write_bytes` writes a small file (a report, a noise file) so that a
-reader never sees it half-written, even when the writer is killed.
+Writing itself goes through :mod:`contactkit.util.atomic`.
 """
 
 from __future__ import annotations
 
-import os
 import re
 from pathlib import Path
 
@@ -19,7 +17,6 @@ from contactkit.errors import InputError
 
 MAX_NAME_CHARS = 200
 _SAFE = re.compile(r"[A-Za-z0-9_+][A-Za-z0-9._+-]*")
-_TEMPORARY = re.compile(r"\..+\.(\d+)\.tmp")
 
 
 def safe_name(part: str, what: str = "file name") -> str:
@@ -50,50 +47,3 @@ def inside(out_dir: str | Path, name: str | Path) -> Path:
         raise InputError(f"output name {str(name)!r} leads outside the output directory",
                          out_dir)
     return target
-
-
-def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` through a temporary file, fsync and rename; return the
-    path. A reader sees the old file or the whole new one, never a part."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except FileNotFoundError as err:
-        raise InputError("output directory does not exist", path.parent) from err
-    except OSError as err:
-        raise InputError(f"cannot write the file ({err.strerror or err})", path) from err
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
-
-
-def remove_stale_temporaries(directory: str | Path) -> list[Path]:
-    """Remove the temporary files (``.<name>.<pid>.tmp``) that writers killed before
-    their rename left in ``directory``; return them. Files of live processes stay."""
-    removed = []
-    for path in Path(directory).glob(".*.tmp"):
-        match = _TEMPORARY.fullmatch(path.name)
-        if match and not _alive(int(match.group(1))):
-            path.unlink(missing_ok=True)
-            removed.append(path)
-    return removed
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
-def atomic_write_text(path: str | Path, text: str) -> Path:
-    """Write ``text`` (UTF-8) atomically, as :func:`atomic_write_bytes`; return the path."""
-    return atomic_write_bytes(path, text.encode())

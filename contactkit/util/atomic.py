@@ -1,0 +1,319 @@
+"""One safe writer for every file contactkit writes.
+
+:func:`atomic_write` fills a temporary file beside the target and renames it into place
+at the end, so a reader sees the old file or the whole new one, never a part, and a
+failure (full disk, read-only directory, kill) leaves no partial target.
+
+- The temporary file is named ``.<target name>.contactkit-<pid>-<random>.tmp[<suffix>]``:
+  unpredictable, created exclusively (``O_CREAT | O_EXCL | O_NOFOLLOW`` through
+  :func:`tempfile.mkstemp`), so a symbolic link or file planted under any name is
+  never followed or reused.
+- The target is replaced with one ``rename`` (``overwrite``), or linked into place only
+  when it does not exist (no overwrite), so two writers never both win.
+- Whether an existing target may be replaced is the caller's policy: a file the user
+  named (``--out``, ``--save``, ``--log``, ``--name``) only with ``--overwrite``; a
+  default output the tool owns only when it is recognisably the tool's (``owned``):
+  never a symbolic link, never a foreign file.
+- Errors of cleaning up never hide the error that made the write fail; an ``OSError``
+  becomes one :class:`InputError` line naming the file.
+- Leftovers of killed writers are recognised by their name and removed by
+  :func:`remove_stale_temporaries` only when their writer's process is gone or they are
+  older than :data:`STALE_AGE_S`.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import re
+import shutil
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager, suppress
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+from contactkit.errors import InputError
+
+STALE_AGE_S = 24 * 3600.0
+"""Age [s] after which a temporary file is removed even when its pid is alive (pids are
+reused; no writer runs for a day)."""
+
+MARK = "contactkit"
+_TEMPORARY = re.compile(
+    rf"\.(?P<name>.+)\.(?:{MARK}-(?P<pid>\d+)-[A-Za-z0-9_]+\.tmp(?:\.[A-Za-z0-9]+)?"
+    r"|(?P<oldpid>\d+)\.tmp)")
+
+Owned = Callable[[Path], bool]
+"""A test that an existing file is one the tool wrote itself (it may then be replaced)."""
+
+
+@dataclass
+class Temporary:
+    """The temporary file of one :func:`atomic_write`: ``path`` [the name] and ``file``
+    (open for binary writing; writers that take a name use ``path`` instead). Set
+    ``keep`` to False to drop it at the end instead of moving it into place."""
+
+    path: Path
+    file: IO[bytes]
+    keep: bool = True
+
+
+def temporary_prefix(target: Path) -> str:
+    """Return the recognisable start of ``target``'s temporary names (this process)."""
+    return f".{target.name}.{MARK}-{os.getpid()}-"
+
+
+def _describe(err: OSError) -> str:
+    """Return one line on an ``OSError`` of writing (full disk, permissions, ...)."""
+    if err.errno == errno.ENOSPC or err.errno == errno.EDQUOT:
+        return "no space left on the device (nothing was written)"
+    if err.errno in (errno.EACCES, errno.EPERM):
+        return "cannot write here: permission denied (nothing was written)"
+    if err.errno == errno.EROFS:
+        return "cannot write here: read-only file system (nothing was written)"
+    return f"cannot write the file ({err.strerror or type(err).__name__}; nothing was written)"
+
+
+def check_target(path: str | Path, *, overwrite: bool = False, flag: str = "--overwrite",
+                 owned: Owned | None = None) -> Path:
+    """Check that ``path`` may be written under the overwrite policy; return it.
+
+    A missing target is always fine. An existing one (a symbolic link included) is
+    replaced with ``overwrite``; without it, only when ``owned`` is given, the target is
+    a regular file (not a link) and ``owned(path)`` says the tool wrote it. Raises one
+    :class:`InputError` line naming the file and ``flag`` otherwise, and when the
+    directory does not exist.
+    """
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise InputError("output directory does not exist", path.parent)
+    if overwrite or not os.path.lexists(path):
+        return path
+    if owned is not None:
+        if path.is_symlink():
+            raise InputError("is a symbolic link, not a file contactkit wrote: remove it or "
+                             "choose another output", path)
+        if not path.is_file() or not _safe_owned(owned, path):
+            raise InputError("exists and is not a file contactkit wrote: remove it or choose "
+                             "another output", path)
+        return path
+    raise InputError(f"output file already exists (pass {flag} to replace it)", path)
+
+
+def _safe_owned(owned: Owned, path: Path) -> bool:
+    try:
+        return bool(owned(path))
+    except (OSError, ValueError):
+        return False
+
+
+@contextmanager
+def atomic_write(path: str | Path, *, overwrite: bool = False, flag: str = "--overwrite",
+                 owned: Owned | None = None, suffix: str = "") -> Iterator[Temporary]:
+    """Write ``path`` atomically: yield a :class:`Temporary` to fill, then move it into
+    place (see the module docstring).
+
+    ``overwrite``, ``flag`` and ``owned`` are the overwrite policy of
+    :func:`check_target`, checked before the temporary is created and again when it is
+    moved into place. ``suffix`` ends the temporary's name (for writers that choose a
+    format by suffix, e.g. ``.asc``). On any error the temporary is removed and the
+    target left as it was; an ``OSError`` is raised as one :class:`InputError` line.
+    """
+    path = Path(path)
+    replace = overwrite or owned is not None
+    check_target(path, overwrite=overwrite, flag=flag, owned=owned)
+    try:
+        fd, name = tempfile.mkstemp(prefix=temporary_prefix(path), suffix=".tmp" + suffix,
+                                    dir=path.parent)
+    except OSError as err:
+        raise InputError(_describe(err), path) from err
+    tmp = Path(name)
+    handle = os.fdopen(fd, "wb")
+    try:
+        temporary = Temporary(tmp, handle)
+        yield temporary
+        if not temporary.keep:
+            return
+        if not handle.closed:
+            handle.flush()
+        _fsync(tmp)
+        handle.close()
+        check_target(path, overwrite=overwrite, flag=flag, owned=owned)
+        if replace:
+            os.replace(tmp, path)
+        else:
+            try:
+                os.link(tmp, path)
+            except FileExistsError as err:
+                raise InputError(f"output file already exists (pass {flag} to replace it)",
+                                 path) from err
+            except OSError as err:  # file systems without hard links
+                if err.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP):
+                    raise
+                if os.path.lexists(path):
+                    raise InputError(f"output file already exists (pass {flag} to replace "
+                                     "it)", path) from err
+                os.replace(tmp, path)
+        _fsync_dir(path.parent)
+    except OSError as err:
+        raise InputError(_describe(err), path) from err
+    finally:
+        with suppress(OSError):
+            handle.close()
+        with suppress(OSError):
+            tmp.unlink(missing_ok=True)
+
+
+@contextmanager
+def atomic_directory(path: str | Path, *, overwrite: bool = False,
+                     flag: str = "--overwrite") -> Iterator[Path]:
+    """Write the directory ``path`` atomically: yield a path to create it at (inside a
+    private temporary directory beside ``path``), then rename it into place.
+
+    An existing ``path`` is refused (one line naming ``flag``) unless ``overwrite``,
+    which moves it (a link itself, never what it points to) into the temporary
+    directory and removes it there. On any error nothing new is left at ``path`` and
+    the temporary directory is removed.
+    """
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise InputError("output directory does not exist", path.parent)
+    if os.path.lexists(path) and not overwrite:
+        raise InputError(f"output already exists (pass {flag} to replace it)", path)
+    try:
+        holder = Path(tempfile.mkdtemp(prefix=temporary_prefix(path), suffix=".tmp",
+                                       dir=path.parent))
+    except OSError as err:
+        raise InputError(_describe(err), path) from err
+    try:
+        inner = holder / path.name
+        yield inner
+        if os.path.lexists(path):
+            if not overwrite:
+                raise InputError(f"output already exists (pass {flag} to replace it)", path)
+            old = holder / ".old"
+            os.rename(path, old)
+        os.rename(inner, path)
+        _fsync_dir(path.parent)
+    except OSError as err:
+        raise InputError(_describe(err), path) from err
+    finally:
+        with suppress(OSError):
+            shutil.rmtree(holder)
+
+
+def write_bytes(path: str | Path, data: bytes, *, overwrite: bool = False,
+                flag: str = "--overwrite", owned: Owned | None = None) -> Path:
+    """Write ``data`` to ``path`` with :func:`atomic_write`; return the path."""
+    with atomic_write(path, overwrite=overwrite, flag=flag, owned=owned) as tmp:
+        tmp.file.write(data)
+    return Path(path)
+
+
+def write_text(path: str | Path, text: str, *, overwrite: bool = False,
+               flag: str = "--overwrite", owned: Owned | None = None) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` with :func:`atomic_write`; return the path."""
+    return write_bytes(path, text.encode(), overwrite=overwrite, flag=flag, owned=owned)
+
+
+def owned_by_marker(marker: bytes, within: int = 4096) -> Owned:
+    """Return an :data:`Owned` test: the file's first ``within`` bytes hold ``marker``."""
+    def test(path: Path) -> bool:
+        with open(path, "rb") as fh:
+            return marker in fh.read(within)
+    return test
+
+
+RESULT_MARKERS = {".md": b"# ", ".json": b"{", ".png": b"\x89PNG"}
+
+
+def owned_result(path: Path) -> bool:
+    """:data:`Owned` for the fixed-name result files a command writes into its output
+    directory (``gridsearch.md``, ``augmentation.png``, ...): a regular file of the kind
+    its suffix names (Markdown heading, JSON object, PNG)."""
+    marker = RESULT_MARKERS.get(path.suffix.lower())
+    if marker is None or not path.is_file() or path.is_symlink():
+        return False
+    with open(path, "rb") as fh:
+        return fh.read(len(marker)) == marker
+
+
+def write_figure(path: str | Path, fig, *, overwrite: bool = False,
+                 owned: Owned | None = None, **savefig) -> Path:
+    """Save a Matplotlib figure as PNG to ``path`` with :func:`atomic_write`; return it."""
+    with atomic_write(path, overwrite=overwrite, owned=owned) as tmp:
+        fig.savefig(tmp.file, format="png", **savefig)
+    return Path(path)
+
+
+def any_regular_file(path: Path) -> bool:
+    """:data:`Owned` for files in contactkit's own cache: any regular file there."""
+    return path.is_file() and not path.is_symlink()
+
+
+def remove_stale_temporaries(directory: str | Path, max_age_s: float = STALE_AGE_S
+                             ) -> list[Path]:
+    """Remove the temporary files and directories that killed writers left in
+    ``directory`` (named as :func:`atomic_write` names them, or the older
+    ``.<name>.<pid>.tmp``); return them. One is removed only when its writer's process
+    is gone or it is older than ``max_age_s`` [s]; others stay."""
+    removed = []
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return removed
+    now = time.time()
+    for entry in entries:
+        match = _TEMPORARY.fullmatch(entry.name)
+        if match is None:
+            continue
+        pid = int(match.group("pid") or match.group("oldpid"))
+        try:
+            age = now - entry.stat(follow_symlinks=False).st_mtime
+        except OSError:
+            continue
+        if pid != os.getpid() and (_alive(pid) and age < max_age_s):
+            continue
+        if pid == os.getpid() and age < max_age_s:
+            continue
+        with suppress(OSError):
+            if entry.is_dir(follow_symlinks=False):
+                shutil.rmtree(entry.path)
+            else:
+                os.unlink(entry.path)
+            removed.append(Path(entry.path))
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_dir(directory: Path) -> None:
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
