@@ -7,7 +7,7 @@ DEMO    := demo
 CHECK   := viewer-check
 GAZ     := ../shared/reference/gaz2019-exciting-traj
 
-.PHONY: install test lint demo viewer-check chromium clean
+.PHONY: install test lint docs demo viewer-check chromium clean
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -15,6 +15,8 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e ".[dev,nn,browser,dask]"
 	# the franka source's tests need a simulated robot; they skip where it does not install
 	-$(PY) -m pip install --quiet -e ".[sim-robot]" || echo "franky-sim/pylibfranka not installable here: franka source tests will skip"
+	# the documentation site's tools; `make docs` skips the build where they do not install
+	-$(PY) -m pip install --quiet -e ".[docs]" || echo "mkdocs not installable here: make docs will skip"
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -22,9 +24,16 @@ install: $(STAMP)
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
-test: $(STAMP) lint chromium
+test: $(STAMP) lint docs chromium
 	$(PY) -m pytest -q -n 2 -m "not slow and not browser" --durations=25
 	$(PY) -m pytest -q -m "browser and not slow"
+
+# The documentation site (mkdocs.yml, docs/): strict, so a broken link or reference fails.
+# The command reference and the session format are generated at build time (docs/hooks.py).
+docs: $(STAMP)
+	@if $(PY) -c "import mkdocs, material, mkdocstrings_handlers.python" 2>/dev/null; then \
+	  NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet --site-dir site; \
+	else echo "mkdocs, mkdocs-material or mkdocstrings not installed: docs build skipped"; fi
 
 # The browser check needs a system Chromium: installed here when running as root with
 # apt-get; otherwise (or when that fails) the browser test skips and says why.
@@ -58,4 +67,4 @@ viewer-check: demo chromium
 	       --report $(CHECK)/report.html --out $(CHECK)
 
 clean:
-	rm -rf $(DEMO) demo.rrd $(CHECK) .pytest_cache .ruff_cache
+	rm -rf $(DEMO) demo.rrd $(CHECK) site .pytest_cache .ruff_cache

@@ -59,11 +59,12 @@ class ReplaySummary:
     (:class:`~contactkit.features.agreement.ResidualAgreement`), where recorded."""
 
     def line(self) -> str:
-        """Return a one-line summary for a terminal."""
+        """Return a one-line summary for a terminal: the contact events first (the answer),
+        then the offline window answer, then the per-hop online labels as a diagnostic."""
         contact = [(t, label) for t, label in zip(self.pred_t, self.pred_label, strict=True)
                    if label != "none"]
-        online = (f"first online contact: {contact[0][1]} at {contact[0][0]:.2f} s"
-                  if contact else "online: none throughout")
+        online = (f"first contact hop {contact[0][1]} at {contact[0][0]:.2f} s"
+                  if contact else "none throughout")
         if self.offline is None:
             offline = "no planned time (no offline answer)"
         else:
@@ -71,16 +72,26 @@ class ReplaySummary:
             found = "detected" if window.found else "planned"
             offline = (f"predicted {self.offline.label} (offline, {found} window "
                        f"{window.start_s:.2f}-{window.end_s:.2f} s)")
-        events = "" if self.events is None else (
-            f"; {len(self.events)} contact events"
-            + "".join(f", {e.label} at {e.onset_s:.2f} s" for e in self.events[:5]))
         agreement = "" if self.agreement is None else (
             "; residual vs robot estimate: correlation "
             + " ".join("-" if c is None else f"{c:.2f}" for c in self.agreement["correlation"])
             + ", RMS difference max "
             + f"{max(v for v in self.agreement['rms_difference_nm'] if v is not None):.2f} Nm")
-        return (f"{self.path.name}: recorded {self.recorded}, {offline}; {online}; "
-                f"{len(self.pred_t)} online predictions{events}{agreement}")
+        return (f"{self.path.name}: recorded {self.recorded}, {self.events_text()}; {offline}"
+                f" (per-hop diagnostic: {online}, {len(self.pred_t)} online predictions)"
+                f"{agreement}")
+
+    def events_text(self) -> str:
+        """Return the contact events as words: ``1 contact event: adjust at 5.32 s``
+        (the first five listed), ``no contact event``, or ``no event pipeline``."""
+        if self.events is None:
+            return "no event pipeline"
+        if not self.events:
+            return "no contact event"
+        count = len(self.events)
+        listed = ", ".join(f"{e.label} at {e.onset_s:.2f} s" for e in self.events[:5])
+        more = f", {count - 5} more" if count > 5 else ""
+        return f"{count} contact event{'s' if count != 1 else ''}: {listed}{more}"
 
 
 def session_inputs(inputs: Sequence[Path]) -> list[Path]:

@@ -275,8 +275,9 @@ def log_force_arrows(rec: rr.RecordingStream, t: np.ndarray, sample: np.ndarray,
 
 def text_event(rec: rr.RecordingStream, path: str, t: float, sample: int, text: str,
                level: str = "INFO") -> None:
-    """Log one text event at time ``t`` [s]."""
-    rec.set_time(TIME, duration=t)
+    """Log one text event at time ``t`` [s], rounded to the millisecond: the viewer's
+    events table prints the time as it is stored (``+10.950015s`` unrounded)."""
+    rec.set_time(TIME, duration=round(t, 3))
     rec.set_time(SAMPLE, sequence=sample)
     rec.log(path, rr.TextLog(text, level=level))
 

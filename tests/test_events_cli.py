@@ -112,7 +112,7 @@ def test_replay_runs_without_planned_time_and_reports_events(tmp_path, model_pat
     assert result.returncode == 0, result.stderr
     summary = result.stdout + result.stderr
     assert "no planned time" in summary
-    assert "1 contact events" in summary
+    assert "1 contact event: " in summary
 
 
 def test_replay_draws_the_isolated_and_the_true_contact(tmp_path, model_path, sessions) -> None:

@@ -24,7 +24,7 @@ from contactkit.features.timeseries import TimeseriesChain, columns_of
 from contactkit.replay import cli as replay_cli
 from contactkit.replay.engine import next_hop_after
 from contactkit.replay.recording import ContactEvent, log_contact_events
-from contactkit.replay.session_replay import replay_sessions
+from contactkit.replay.session_replay import ReplaySummary, replay_sessions
 from contactkit.robots import RobotSetup
 from contactkit.robots.surfaces import viewer_urdf_file
 from contactkit.schemas import read_session
@@ -201,7 +201,9 @@ def test_a_refused_session_leaves_no_file_and_no_saved_message(tmp_path, session
     summary = summaries[0]
     assert summary.recorded == "shove" and summary.offline.label in load_model(model_path).classes
     assert len(summary.pred_t) == len(summary.pred_label) > 10
-    assert summary.line().startswith(f"{session.name}: recorded shove, predicted ")
+    line = summary.line()
+    assert line.startswith(f"{session.name}: recorded shove, ")
+    assert "; predicted " in line and "(per-hop diagnostic: " in line
 
 
 def test_refused_input_gives_no_saved_message_and_no_file(tmp_path, session, model_path
@@ -279,6 +281,31 @@ def test_contact_events_are_bars_and_thresholds_lines(tmp_path) -> None:
     assert any("shove (decided at 2.80 s)" in str(x) for x in texts)
     times, values = series(data[layout.THRESHOLD])
     assert np.allclose(times, [0.0, 4.0]) and np.allclose(values, [[2.0, 1.0], [2.0, 1.0]])
+
+
+def test_events_table_times_are_rounded_to_ms(tmp_path) -> None:
+    rec = rr.RecordingStream("events-ms-test")
+    rec.save(tmp_path / "events.rrd")
+    t = np.linspace(0.0, 12.0, 12001)
+    log_contact_events(rec, t, [ContactEvent(10.8, 10.950015, 11.5, "adjust")])
+    rec.flush()
+    rec.disconnect()
+    texts = [b for b in read_rrd(tmp_path / "events.rrd")[layout.CONTACT_EVENTS]
+             if "TextLog:text" in b.schema.names]
+    ns = [v for b in texts for v in b.column("time").cast("int64").to_pylist()]
+    assert ns == [10_950_000_000]
+
+
+def test_summary_line_puts_the_events_first(tmp_path) -> None:
+    summary = ReplaySummary(tmp_path / "s.parquet", "adjust", None, [5.0, 5.3], ["bump", "bump"],
+                            None, [ContactEvent(5.32, 5.47, 6.0, "adjust")])
+    line = summary.line()
+    assert line.startswith("s.parquet: recorded adjust, 1 contact event: adjust at 5.32 s; ")
+    assert line.index("contact event") < line.index("per-hop diagnostic: first contact hop bump")
+    assert ReplaySummary(tmp_path / "s.parquet", "none", None, [], [], None,
+                         []).events_text() == "no contact event"
+    assert ReplaySummary(tmp_path / "s.parquet", "none", None, [], [], None,
+                         None).events_text() == "no event pipeline"
 
 
 def test_web_viewer_refuses_a_port_another_program_holds(tmp_path, session,
