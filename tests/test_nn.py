@@ -169,7 +169,7 @@ def test_replay_with_an_onnx_network(dataset: Path, tmp_path: Path) -> None:
     net = load_model(model).estimator
     for k in (0, len(t_pred) // 2, len(t_pred) - 1):
         past = slice(0, int(np.searchsorted(s.t, t_pred[k] + 1e-9)))
-        chain = TimeseriesChain(ChainConfig(ObserverConfig(gain=spec.gain)), True).compute(
+        chain = TimeseriesChain(ChainConfig(ObserverConfig(gain=spec.gain))).compute(
             s.t[past], s.q[past], s.dq[past], s.tau[past], list(spec.timeseries))
         values = np.column_stack([chain[n] for n in spec.timeseries])
         grid = window_grid(s.t[past], values, s.t[past][-1] - spec.window_s, spec)
