@@ -76,8 +76,9 @@ def print_info(info: dict, console: Console) -> None:
     agreement = meta.get("residual_agreement")
     if isinstance(agreement, dict) and isinstance(agreement.get("correlation"), list):
         table.add_row("residual vs robot", _shown(agreement_line(agreement)))
-    events = meta.get("events") or ()
-    for number, event in enumerate(events if isinstance(events, list) else [events], 1):
+    events = meta.get("events")
+    events = [] if events is None else events if isinstance(events, list) else [events]
+    for number, event in enumerate(events, 1):
         table.add_row(f"event {number}", _shown(event_line(event) if isinstance(event, dict)
                                                 else event))
     console.print(table)

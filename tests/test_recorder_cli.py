@@ -89,6 +89,7 @@ def test_info_reports_rate_and_contact(session_path: Path) -> None:
     assert 1.5 <= lo < hi < 3.0
     text = run_cli("recorder", "info", str(session_path))
     assert "500.0 Hz" in text.stdout and "contact" in text.stdout
+    assert "event 1" not in text.stdout  # a session recorded without live events has none
     bad = session_path.with_name("bad.parquet")
     bad.write_bytes(b"nope")
     result = run_cli("recorder", "info", str(bad))
