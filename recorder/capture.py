@@ -91,23 +91,45 @@ class OperatorCue:
 class AgreementListener:
     """Measures the observer residual's agreement with the robot's own estimate while a
     capture records (:class:`contactkit.features.agreement.StreamAgreement`) and leaves
-    it in the metadata's ``residual_agreement``. The arm's model is the one the source
-    names once its first chunk has arrived (a Franka robot's backend tells which arm)."""
+    it in the metadata's ``residual_agreement``. The arm's model is built before the
+    stream starts (building it takes longer than a live robot waits), from the arm the
+    source names then; if the source names another once its first chunk has arrived (a
+    Franka robot's backend tells which arm), the model is built again. Chunks are
+    gathered to ``BATCH_ROWS`` samples before the chain runs on them, so a live source
+    loses at most a few states to it per second."""
+
+    BATCH_ROWS = 1000
 
     def __init__(self, meta: SessionMeta, source: Source) -> None:
         self.meta, self.source = meta, source
-        self.stream: StreamAgreement | None = None
+        self.robot = self._robot()
+        self.stream = StreamAgreement(self.meta.with_robot(self.robot).robot_setup())
+        self.first = True
+        self.pending: list[dict[str, np.ndarray]] = []
+
+    def _robot(self) -> str:
+        return self.source.metadata().get("robot", self.meta.robot)
 
     def on_chunk(self, chunk: dict[str, np.ndarray]) -> None:
         """Take the next chunk of session columns."""
-        if self.stream is None:
-            robot = self.source.metadata().get("robot", self.meta.robot)
-            self.stream = StreamAgreement(self.meta.with_robot(robot).robot_setup())
-        self.stream.add(chunk)
+        if self.first and self._robot() != self.robot:
+            self.robot = self._robot()
+            self.stream = StreamAgreement(self.meta.with_robot(self.robot).robot_setup())
+        self.first = False
+        self.pending.append(chunk)
+        if sum(len(c["t"]) for c in self.pending) >= self.BATCH_ROWS:
+            self._flush()
+
+    def _flush(self) -> None:
+        if self.pending:
+            self.stream.add({name: np.concatenate([c[name] for c in self.pending])
+                             for name in self.pending[0]})
+            self.pending = []
 
     def session_fields(self) -> dict:
         """Return the ``residual_agreement`` metadata field."""
-        return {"residual_agreement": None if self.stream is None else self.stream.result()}
+        self._flush()
+        return {"residual_agreement": self.stream.result()}
 
 
 @dataclass

@@ -146,7 +146,8 @@ class StandInRobot:
             time=SimpleNamespace(to_sec=lambda: 7.0 + tick * 1e-3), q=joint, dq=joint + 1,
             tau_J=joint + 2, q_d=joint + 3, dq_d=joint + 4, tau_ext_hat_filtered=joint + 5,
             O_F_ext_hat_K=np.arange(6.0), robot_mode=StandInMode.kMove,
-            control_command_success_rate=0.5)
+            control_command_success_rate=0.5, m_ee=0.73, m_load=0.4,
+            F_x_Cload=np.array([0.0, 0.01, 0.05]))
 
 
 STANDIN = SimpleNamespace(libfranka=SimpleNamespace(
@@ -168,6 +169,10 @@ def test_panda_python_backend_against_stand_in(tmp_path):
     assert np.allclose(session.column("f_ext_hat_y"), 1.0)
     assert (session.column("robot_mode") == 2).all()
     assert np.allclose(session.column("command_success_rate"), 0.5)
+    # the configured end effector and load, and the arm the backend talks to
+    assert info["m_ee_kg"] == 0.73 and session.meta.robot == "panda"
+    assert session.meta.payload_kg == 0.4 and session.meta.payload_com_m == [0.0, 0.01, 0.05]
+    assert session.meta.robot_setup().payload_kg == 0.4
 
 
 def test_missing_extra_names_it(monkeypatch):

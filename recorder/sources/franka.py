@@ -98,6 +98,7 @@ class FrankaSource(Source):
         self.counts = StateCounts()
         self.end_reason = ""
         self.backend_info: dict[str, Any] = {}
+        self.load: dict[str, Any] = {}
         self.robot_time_start_s: float | None = None
 
     @classmethod
@@ -122,7 +123,8 @@ class FrankaSource(Source):
         previous: float | None = None
         while True:
             try:
-                state_row(backend.read(), buffer[filled])
+                state = backend.read()
+                state_row(state, buffer[filled])
             except ConnectionLost as err:
                 self.end_reason = f"connection lost ({err}): capture ended, everything " \
                                   "received so far is kept"
@@ -130,6 +132,7 @@ class FrankaSource(Source):
                 break
             if self.robot_time_start_s is None:
                 self.robot_time_start_s = float(buffer[0, 0])
+                self.load = configured_load(state)
             done = buffer[filled, 0] - self.robot_time_start_s >= self.duration_s
             filled += 1
             if filled == CHUNK_STATES or done:
@@ -164,8 +167,12 @@ class FrankaSource(Source):
                 "robot_time_start_s": self.robot_time_start_s,
                 "states": self.counts.states, "states_lost": self.counts.states_lost,
                 "gaps": self.counts.gaps, "max_gap_s": self.counts.max_gap_s,
-                "end": self.end_reason}
-        return {"source": self.name, "source_info": info, "robot": self.robot_name()}
+                "end": self.end_reason, **self.load}
+        fields = {"source": self.name, "source_info": info, "robot": self.robot_name()}
+        if self.load.get("m_load_kg"):
+            fields.update(payload_kg=self.load["m_load_kg"],
+                          payload_com_m=self.load["F_x_Cload_m"])
+        return fields
 
     def robot_name(self) -> str:
         """Return the arm's registry name: the ``robot`` option, else the one of the
@@ -174,3 +181,22 @@ class FrankaSource(Source):
         backend = self.backend_info.get("backend", self.config.backend)
         known = BACKEND_CLASSES.get(backend)
         return self.config.robot or (known.robot if known else DEFAULT_ROBOT)
+
+
+def configured_load(state: Any) -> dict[str, Any]:
+    """Return the end effector and load configured on the robot, as its state reports
+    them: ``m_ee_kg`` (the end effector's mass, e.g. the Franka Hand's), ``m_load_kg``
+    and ``F_x_Cload_m`` (a payload's mass [kg] and centre of mass in the flange frame
+    [m]); the fields a client library does not report are left out. A payload becomes
+    the session's ``payload_kg``/``payload_com_m``, which the robot model adds to link 7."""
+    out: dict[str, Any] = {}
+    for field_name, key in (("m_ee", "m_ee_kg"), ("m_load", "m_load_kg")):
+        value = getattr(state, field_name, None)
+        if isinstance(value, int | float) and np.isfinite(value) and value >= 0:
+            out[key] = float(value)
+    com = getattr(state, "F_x_Cload", None)
+    if com is not None and np.shape(com) == (3,) and np.isfinite(com).all():
+        out["F_x_Cload_m"] = [float(v) for v in com]
+    if out.get("m_load_kg") and "F_x_Cload_m" not in out:
+        out["F_x_Cload_m"] = [0.0, 0.0, 0.0]
+    return out
