@@ -49,10 +49,10 @@ def timed(fn, n: int) -> np.ndarray:
     return out * 1e6
 
 
-def row(name: str, times: np.ndarray, base: float) -> str:
-    """One table line: median, p99 and p99 / baseline p99."""
+def row(name: str, times: np.ndarray, base: float, width: int = 40) -> str:
+    """One table line: median, p99 [us] and p99 / baseline p99 (name padded to ``width``)."""
     p99 = float(np.percentile(times, 99))
-    return f"{name:<40} {np.median(times):>10.1f} {p99:>9.1f} {p99 / base:>13.1f}"
+    return f"{name:<{width}} {np.median(times):>10.1f} {p99:>9.1f} {p99 / base:>13.1f}"
 
 
 def main() -> None:

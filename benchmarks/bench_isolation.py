@@ -17,13 +17,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 import pinocchio as pin
+from bench_events import row, timed  # the same timing and table as the event benchmark
 
 from contactkit.features.isolation import robot_isolator
 from contactkit.recorder.protocol import pose_q
@@ -58,22 +58,6 @@ def contacts(n: int, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray, int]]:
     return out
 
 
-def timed(fn, n: int) -> np.ndarray:
-    """Wall time [us] of ``fn(i)`` for i in range(n)."""
-    out = np.empty(n)
-    for i in range(n):
-        start = time.perf_counter()
-        fn(i)
-        out[i] = time.perf_counter() - start
-    return out * 1e6
-
-
-def row(name: str, times: np.ndarray, base: float) -> str:
-    """One table line: median, p99 [us] and p99 / baseline p99."""
-    p99 = float(np.percentile(times, 99))
-    return f"{name:<44} {np.median(times):>10.1f} {p99:>9.1f} {p99 / base:>13.1f}"
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=2000)
@@ -92,10 +76,10 @@ def main() -> None:
     print(f"{n} updates, {sum(points)} surface samples ({min(points)}-{max(points)} per "
           f"link), link right in {np.mean(found):.1%} (noise {NOISE_NM} Nm)")
     print(f"{'':<44} {'median us':>10} {'p99 us':>9} {'p99/baseline':>13}")
-    print(row("baseline: computeJointJacobians", jacobians, base_j))
-    print(row("baseline: norm of a 7-vector", norm, base_n))
-    print(row("isolation update / computeJointJacobians", updates, base_j))
-    print(row("isolation update / norm", updates, base_n))
+    print(row("baseline: computeJointJacobians", jacobians, base_j, width=44))
+    print(row("baseline: norm of a 7-vector", norm, base_n, width=44))
+    print(row("isolation update / computeJointJacobians", updates, base_j, width=44))
+    print(row("isolation update / norm", updates, base_n, width=44))
     share = float(np.mean(updates)) * 50 / 1e6
     print(f"at 50 Hz during a contact: {share:.1%} of one core; p99 "
           f"{'within' if np.percentile(updates, 99) <= 1000 else 'above'} the 1 ms aim here")

@@ -97,15 +97,6 @@ def _rounded(values: np.ndarray, digits: int) -> list[float | None]:
     return [None if not math.isfinite(v) else round(float(v), digits) for v in values]
 
 
-def residual_agreement(t: np.ndarray, r: np.ndarray, tau_ext_hat: np.ndarray,
-                       smooth_s: float = DEFAULT_SMOOTH_S) -> dict | None:
-    """Return :meth:`ResidualAgreement.result` for one whole session's arrays (``t`` [s],
-    ``r`` and ``tau_ext_hat`` (N, 7) [Nm])."""
-    agreement = ResidualAgreement(smooth_s)
-    agreement.update(t, r, tau_ext_hat)
-    return agreement.result()
-
-
 class StreamAgreement:
     """The residual's agreement with the robot's own estimate over a session streamed as
     consecutive blocks of session columns (``t`` [s], ``q_1``.., ``dq_1``.., ``tau_1``..,

@@ -198,10 +198,3 @@ class RobotSetup:
     with_hand: bool = True
     payload_kg: float = 0.0
     payload_com_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    def describe(self) -> str:
-        """Return a short human-readable description, e.g. ``fr3 + hand``."""
-        parts = [self.robot, "hand" if self.with_hand else "no hand"]
-        if self.payload_kg:
-            parts.append(f"payload {self.payload_kg:g} kg")
-        return ", ".join(parts)
