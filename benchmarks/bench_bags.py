@@ -25,7 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from bag_writers import ROS2_TOPIC, write_bag
 
-from contactkit.recorder.bags import default_typestore, import_bag
+from contactkit.recorder.importers.bags import default_typestore, import_bag
 from contactkit.recorder.metadata import session_meta
 from contactkit.schemas import joint_columns, read_session, write_session
 

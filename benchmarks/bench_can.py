@@ -20,8 +20,8 @@ import uuid
 import can
 import numpy as np
 
-from contactkit.recorder.can_codec import SampleAssembler, session_frames
-from contactkit.recorder.can_map import load_map
+from contactkit.recorder.importers.can_codec import SampleAssembler, session_frames
+from contactkit.recorder.importers.can_map import load_map
 
 FRAMES_PER_SAMPLE = 15
 

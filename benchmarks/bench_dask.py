@@ -36,8 +36,8 @@ from sklearn.model_selection import StratifiedKFold
 
 from contactkit.classify.registry import make_estimator
 from contactkit.features.extract import SessionFeatures, _session_feature_row
-from contactkit.recorder.dataset import PRESETS, preset_specs, simulate_specs
-from contactkit.recorder.sim import SimConfig
+from contactkit.recorder.sim.dataset import PRESETS, preset_specs, simulate_specs
+from contactkit.recorder.sim.simulator import SimConfig
 from contactkit.util.dask_executor import close_clients, get_client
 from contactkit.util.parallel import map_ordered
 
@@ -51,7 +51,7 @@ def _warm(_: int) -> int:
     """Import on a worker what the timed jobs need (the local pool forks with them)."""
     import contactkit.classify.registry
     import contactkit.features.extract
-    import contactkit.recorder.dataset  # noqa: F401
+    import contactkit.recorder.sim.dataset  # noqa: F401
 
     return 0
 

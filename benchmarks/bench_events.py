@@ -32,7 +32,7 @@ from contactkit.classify.fast import fast_predictor
 from contactkit.classify.models import svm_pipeline
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.timeseries import OnlineChain
-from contactkit.recorder.arrays import load_joint_arrays
+from contactkit.recorder.importers.arrays import load_joint_arrays
 from contactkit.robots import RobotSetup
 
 GAZ = Path(__file__).resolve().parents[2] / "shared" / "reference" / "gaz2019-exciting-traj"

@@ -23,8 +23,8 @@ import numpy as np
 import pinocchio as pin
 
 from contactkit.features.timeseries import OnlineChain, TimeseriesChain
-from contactkit.recorder.arrays import load_joint_arrays
-from contactkit.recorder.sim import SimConfig, plan_session
+from contactkit.recorder.importers.arrays import load_joint_arrays
+from contactkit.recorder.sim.simulator import SimConfig, plan_session
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
 from contactkit.robots import RobotSetup
 from contactkit.schemas import read_session, write_session

@@ -24,7 +24,7 @@ import threading
 import time
 from pathlib import Path
 
-from contactkit.recorder.capture import capture
+from contactkit.recorder.capture.record import capture
 from contactkit.recorder.metadata import session_meta
 from contactkit.recorder.sources.franka import FrankaConfig, FrankaSource
 from contactkit.schemas import validate_session

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 
-from contactkit.recorder.journal import journal_progress
+from contactkit.recorder.capture.journal import journal_progress
 
 BIN = Path(sys.executable).parent
 RATE_HZ = 1000.0

@@ -5,7 +5,7 @@ Each case runs in a fresh Python process (so its peak RSS is its own) on a synth
 1 kHz stream with the simulator's 52 columns, generated in chunks as a source
 would (the simulator itself would dominate the time):
 
-* ``capture``: :func:`contactkit.recorder.capture.capture` through the journal to
+* ``capture``: :func:`contactkit.recorder.capture.record.capture` through the journal to
   the final Parquet file, exactly as ``recorder capture`` writes it;
 * ``read``: the whole session read and validated at once (``read_session``);
 * ``chunks``: the same file read and validated row group by row group
@@ -87,7 +87,7 @@ class SyntheticSource:
 
 def write_long_session(minutes: float, path: Path) -> int:
     """Capture a synthetic session of ``minutes`` at 1 kHz to ``path``; return its samples."""
-    from contactkit.recorder.capture import capture
+    from contactkit.recorder.capture.record import capture
     from contactkit.schemas import SessionMeta
 
     path.unlink(missing_ok=True)
@@ -106,7 +106,7 @@ def write_long_bag(minutes: float, path: Path) -> None:
     import numpy as np
     from rosbags.rosbag2 import StoragePlugin, Writer
 
-    from contactkit.recorder.bags import JOINT_STATE, default_typestore
+    from contactkit.recorder.importers.bags import JOINT_STATE, default_typestore
 
     store = default_typestore(False)
     types = store.types
@@ -159,7 +159,7 @@ def run_case(case: str, minutes: float, directory: Path, model: Path | None = No
         return {}
     if case == "replay":
         from contactkit.classify.modelfile import load_model
-        from contactkit.replay.default_model import build_default_model
+        from contactkit.cli.default_model import build_default_model
         from contactkit.replay.session_replay import replay_session
 
         replay_model = load_model(model or build_default_model())
@@ -170,13 +170,13 @@ def run_case(case: str, minutes: float, directory: Path, model: Path | None = No
 
         os.environ["CONTACTKIT_CHAIN_CACHE"] = "0"  # short sessions: no cache hit, none left
     elif case == "stats-deep":
-        from contactkit.recorder.stats_deep import session_summary
+        from contactkit.recorder.stats.deep import session_summary
     elif case == "import-bag":
-        from contactkit.recorder.bags import import_bag
+        from contactkit.recorder.importers.bags import import_bag
         from contactkit.recorder.metadata import session_meta
     elif case == "import-csv":
-        from contactkit.recorder.csv_import import import_csv
-        from contactkit.recorder.csv_map import load_csv_map, mindlab_map_path
+        from contactkit.recorder.importers.csv_import import import_csv
+        from contactkit.recorder.importers.csv_map import load_csv_map, mindlab_map_path
         from contactkit.recorder.metadata import session_meta
     out_dir = directory / f"out_{case}_{minutes:g}"
     out_dir.mkdir(exist_ok=True)

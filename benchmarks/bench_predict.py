@@ -29,8 +29,8 @@ from contactkit.classify.registry import make_estimator
 from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import scalar_features
 from contactkit.features.timeseries import columns_of
-from contactkit.recorder.dataset import simulate_specs
-from contactkit.recorder.sim import SimConfig, plan_session
+from contactkit.recorder.sim.dataset import simulate_specs
+from contactkit.recorder.sim.simulator import SimConfig, plan_session
 
 REPEATS = 2000
 

@@ -25,13 +25,13 @@ from contactkit.classify.data import load_features
 from contactkit.classify.modelfile import load_model, save_model
 from contactkit.classify.registry import get_kind, make_estimator
 from contactkit.features.extract import SessionFeatures
-from contactkit.recorder.dataset import simulate_specs
-from contactkit.recorder.sim import SimConfig, plan_session
+from contactkit.recorder.sim.dataset import simulate_specs
+from contactkit.recorder.sim.simulator import SimConfig, plan_session
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
 from contactkit.replay.engine import Block, ReplayStream
 from contactkit.replay.recording import BlockLogger, log_offline, log_static, new_recording
-from contactkit.schemas import rerun_layout as layout
 from contactkit.schemas import write_session
+from contactkit.viewer import layout
 
 
 def setup(tmp: Path) -> tuple[Path, Path]:

@@ -18,7 +18,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 import pinocchio as pin
 
-from contactkit.recorder.sim import ArmSimulator, SimConfig, plan_session
+from contactkit.recorder.sim.simulator import ArmSimulator, SimConfig, plan_session
 
 SIM_SECONDS = 6.0
 

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from contactkit.recorder.dataset import simulate_specs
-from contactkit.recorder.sim import SimConfig, plan_session
-from contactkit.recorder.stats import deep_stats, index_stats
+from contactkit.recorder.sim.dataset import simulate_specs
+from contactkit.recorder.sim.simulator import SimConfig, plan_session
+from contactkit.recorder.stats.summary import deep_stats, index_stats
 from contactkit.schemas import ACTIONS
 
 ROWS = 100_000

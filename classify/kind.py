@@ -88,12 +88,14 @@ class InputKind:
 @dataclass(frozen=True)
 class ModelFormat:
     """A model file format: its suffix, a writer ``save(path, estimator, meta,
-    sample_shape, overwrite)`` and a reader ``load(path) -> (estimator, meta)``."""
+    sample_shape, overwrite)`` and a reader ``load(path, trusted_types) -> (estimator,
+    meta)``, where ``trusted_types(meta)`` names the types the file's kind may build (a
+    format that builds no Python objects ignores it)."""
 
     name: str
     suffix: str
     save: Callable[[Path, object, dict, tuple[int, ...], bool], Path]
-    load: Callable[[Path], tuple[object, dict]]
+    load: Callable[[Path, Callable[[dict], Sequence[str]]], tuple[object, dict]]
 
 
 def no_requirements() -> None:

@@ -5,7 +5,7 @@
   on that joint's features, class probabilities summed over the 7 SVMs, argmax.
 * ``three-joint``: thesis eq. 4.2: 5 SVMs on joints (j-1, j, j+1), j = 2..6, summed.
 
-Each is a registered kind (:data:`SVM`, :data:`PER_JOINT`, :data:`THREE_JOINT`).
+Each is a registered kind (:mod:`contactkit.classify.svm_kinds`).
 Features that belong to no joint (for example ``range(f_x)``) are used by the
 whole-arm SVM only. The ensembles' ``predict_proba`` returns the summed
 probabilities divided by the number of members, so rows sum to 1 and the argmax is
@@ -24,9 +24,6 @@ from sklearn.pipeline import Pipeline
 from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
 
-from contactkit.classify.data import FEATURES
-from contactkit.classify.kind import ModelKind, ModelOptions
-from contactkit.classify.modelfile import SKOPS
 from contactkit.schemas import InputError
 
 JOINT_OF_FEATURE = re.compile(r"\((?:[a-z_]+)_(\d)\)$")
@@ -133,35 +130,6 @@ class JointEnsemble(ClassifierMixin, BaseEstimator):
         return self.classes_[np.argmax(self.member_probabilities(X).sum(axis=0), axis=1)]
 
 
-def _check_c(options: ModelOptions) -> None:
-    if not options.c > 0:
-        raise InputError(f"the SVM regularisation C must be positive, got {options.c}")
-
-
-def _fast_predictor(estimator):
-    from contactkit.classify.fast import fast_predictor
-
-    return fast_predictor(estimator)
-
-
-def _svm(options: ModelOptions, feature_names: list[str]) -> Pipeline:
-    return svm_pipeline(options.c, seed=options.seed)
-
-
-def _per_joint(options: ModelOptions, feature_names: list[str]) -> JointEnsemble:
-    return JointEnsemble(list(feature_names), span=1, c=options.c, seed=options.seed)
-
-
-def _three_joint(options: ModelOptions, feature_names: list[str]) -> JointEnsemble:
-    return JointEnsemble(list(feature_names), span=3, c=options.c, seed=options.seed)
-
-
-_SVM_TYPES = ("contactkit.classify.models.CalibratedSVC",)
-SVM = ModelKind("svm", "whole-arm SVM on scalar features", FEATURES, _svm, SKOPS,
-                check=_check_c, online=_fast_predictor, trusted_types=_SVM_TYPES)
-PER_JOINT = ModelKind("per-joint", "one SVM per joint, probabilities summed (eq. 4.1)",
-                      FEATURES, _per_joint, SKOPS, check=_check_c, online=_fast_predictor,
-                      trusted_types=(*_SVM_TYPES, "contactkit.classify.models.JointEnsemble"))
-THREE_JOINT = ModelKind("three-joint", "SVMs on joint triples, summed (eq. 4.2)", FEATURES,
-                        _three_joint, SKOPS, check=_check_c, online=_fast_predictor,
-                        trusted_types=PER_JOINT.trusted_types)
+SVM_TRUSTED_TYPES = ("contactkit.classify.models.CalibratedSVC",)
+"""The estimator types an SVM's skops file may build beyond scikit-learn's."""
+ENSEMBLE_TRUSTED_TYPES = (*SVM_TRUSTED_TYPES, "contactkit.classify.models.JointEnsemble")

@@ -37,7 +37,6 @@ from sklearn.base import BaseEstimator, ClassifierMixin
 
 from contactkit.classify.grids import CNN_INPUT, GRIDS, LSTM_INPUT
 from contactkit.classify.kind import ModelKind, ModelOptions
-from contactkit.classify.modelfile import SKOPS
 from contactkit.classify.networks import (
     DEVICES,
     CNNClassifier,
@@ -46,6 +45,7 @@ from contactkit.classify.networks import (
     require_torch,
 )
 from contactkit.classify.onnx_model import ONNX
+from contactkit.classify.skops_format import SKOPS
 from contactkit.schemas import InputError
 from contactkit.util.parallel import resolve_scheduler
 

@@ -78,8 +78,9 @@ class OnnxClassifier(ClassifierMixin, BaseEstimator):
         return self.classes_[np.argmax(self.predict_proba(X), axis=1)]
 
 
-def load_onnx_model(path: Path) -> tuple[OnnxClassifier, dict]:
-    """Load an ONNX model file; check its metadata and graph digest."""
+def load_onnx_model(path: Path, trusted_types: object = None) -> tuple[OnnxClassifier, dict]:
+    """Load an ONNX model file; check its metadata and graph digest. Return the classifier
+    and its metadata. ``trusted_types`` is ignored: an ONNX file builds no Python objects."""
     try:
         import onnx
     except ImportError as err:

@@ -14,8 +14,8 @@ from __future__ import annotations
 import importlib.metadata
 
 from contactkit.classify.kind import ModelKind, ModelOptions
-from contactkit.classify.models import PER_JOINT, SVM, THREE_JOINT
 from contactkit.classify.nn import CNN, LSTM, MINIROCKET
+from contactkit.classify.svm_kinds import PER_JOINT, SVM, THREE_JOINT
 from contactkit.schemas import InputError
 
 ENTRY_POINT_GROUP = "contactkit.models"

@@ -32,17 +32,17 @@ import numpy as np
 from contactkit.classify.calibrate import calibrate_sessions
 from contactkit.classify.events import session_events
 from contactkit.classify.modelfile import load_model
+from contactkit.cli.default_model import build_default_model
 from contactkit.features.agreement import session_residual_agreement
 from contactkit.features.timeseries import ChainConfig
-from contactkit.recorder.capture import record_session
-from contactkit.recorder.csv_import import import_csv
-from contactkit.recorder.csv_map import load_csv_map
-from contactkit.recorder.forces import Contact, add_synthetic_touches
-from contactkit.recorder.importer import import_arrays
+from contactkit.recorder.capture.record import record_session
+from contactkit.recorder.importers.csv_import import import_csv
+from contactkit.recorder.importers.csv_map import load_csv_map
+from contactkit.recorder.importers.writer import import_arrays
 from contactkit.recorder.metadata import session_meta
-from contactkit.recorder.sim import SimConfig, plan_session
+from contactkit.recorder.sim.forces import Contact, add_synthetic_touches
+from contactkit.recorder.sim.simulator import SimConfig, plan_session
 from contactkit.recorder.sources.sim import SimSource
-from contactkit.replay.default_model import build_default_model
 from contactkit.schemas import Session, read_session
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -26,8 +26,8 @@ from mkdocs.structure.files import File
 from typer.main import get_command
 from typer.testing import CliRunner
 
-TOOLS = (("recorder", "contactkit.recorder.cli"), ("classify", "contactkit.classify.cli"),
-         ("replay", "contactkit.replay.cli"))
+TOOLS = (("recorder", "contactkit.cli.recorder"), ("classify", "contactkit.cli.classify"),
+         ("replay", "contactkit.cli.replay"))
 HELP_WIDTH = "100"
 ROOT = Path(__file__).resolve().parents[1]
 API_SRC = ROOT / "build" / "api-src"

@@ -33,11 +33,11 @@ import numpy as np
 
 from contactkit.classify.events import batch_events
 from contactkit.classify.modelfile import load_model
+from contactkit.cli.default_model import build_default_model
 from contactkit.features.detector import detect
 from contactkit.features.isolation import robot_isolator
 from contactkit.features.timeseries import TimeseriesChain
-from contactkit.recorder.dataset import simulate_dataset
-from contactkit.replay.default_model import build_default_model
+from contactkit.recorder.sim.dataset import simulate_dataset
 from contactkit.robots import RobotSetup
 from contactkit.schemas import read_session
 from contactkit.schemas.dataset import session_files
@@ -208,7 +208,7 @@ def intent_figures(workers: int) -> list[str]:
     """Return the markdown lines of the intent measurement (see the module docstring)."""
     from real import leave_one_pose_out
 
-    from contactkit.replay.default_model import RECIPE, recipe_dir
+    from contactkit.cli.default_model import RECIPE, recipe_dir
 
     paths = [str(p) for preset in RECIPE["presets"]
              for p in session_files(recipe_dir() / preset)]

@@ -37,10 +37,10 @@ from contactkit.classify.event_training import (
 )
 from contactkit.classify.events import batch_events, stream_events
 from contactkit.classify.modelfile import load_model
+from contactkit.cli.default_model import RECIPE, build_default_model, recipe_dir
 from contactkit.features.detector import MIN_NOISE, REST_SPEED, Detection, detect
 from contactkit.features.timeseries import TimeseriesChain
-from contactkit.recorder.arrays import load_joint_arrays
-from contactkit.replay.default_model import RECIPE, build_default_model, recipe_dir
+from contactkit.recorder.importers.arrays import load_joint_arrays
 from contactkit.replay.engine import ReplayStream
 from contactkit.schemas import SessionMeta, joint_columns, read_session, write_session
 from contactkit.schemas.dataset import session_files

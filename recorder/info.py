@@ -9,8 +9,8 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from contactkit.features.timing import rate_warning, sampling_stats
 from contactkit.schemas import Session, validate_session
-from contactkit.schemas.timing import rate_warning, sampling_stats
 from contactkit.util.text import printable
 
 

@@ -1,4 +1,4 @@
-"""Logging a replay to Rerun, following the layout in :mod:`contactkit.schemas.rerun_layout`.
+"""Logging a replay to Rerun, following the layout in :mod:`contactkit.viewer.layout`.
 
 Series go out with ``send_columns``, block by block as the engine streams the
 session: a batch at a time in a ``--rate max`` replay, every hop during a paced
@@ -23,9 +23,9 @@ import rerun as rr
 
 from contactkit.replay.engine import ROBOT_VIEW_HZ, Block, OfflineAnswer, ReplayStream
 from contactkit.robots.surfaces import viewer_urdf_file
-from contactkit.schemas import rerun_layout as layout
 from contactkit.util.atomic import Owned, owned_by_marker
 from contactkit.util.paths import inside
+from contactkit.viewer import layout
 
 
 def new_recording(session_name: str, recording_id: str) -> rr.RecordingStream:

@@ -19,9 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from contactkit.classify.events import ContactEvent
-from contactkit.classify.modelfile import ModelFile, load_model
+from contactkit.classify.modelfile import ModelFile
 from contactkit.features.detector import DetectorConfig
-from contactkit.replay.default_model import build_default_model, default_model_path
 from contactkit.replay.engine import DEFAULT_HOP_S, OfflineAnswer, ReplayStream
 from contactkit.replay.recording import (
     BlockLogger,
@@ -34,11 +33,10 @@ from contactkit.replay.recording import (
     save_path_for,
 )
 from contactkit.schemas import InputError
-from contactkit.schemas import rerun_layout as layout
 from contactkit.schemas.dataset import session_files
 from contactkit.util.atomic import Owned, atomic_write
 from contactkit.util.pacing import paced
-from contactkit.util.progress import LabelledProgress
+from contactkit.viewer import layout
 
 
 @dataclass
@@ -103,20 +101,6 @@ def session_inputs(inputs: Sequence[Path]) -> list[Path]:
     if not paths:
         raise InputError("no session files given")
     return paths
-
-
-def model_or_default(path: Path | None, progress: LabelledProgress | None = None
-                     ) -> ModelFile:
-    """Load the model file at ``path``, or the default model (built and cached on first
-    use, see :mod:`contactkit.replay.default_model`)."""
-    if path is not None:
-        return load_model(path)
-    return load_model(build_default_model(progress=progress))
-
-
-def default_model_missing() -> bool:
-    """Return whether the default model still has to be built (minutes, once)."""
-    return not default_model_path().exists()
 
 
 def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,

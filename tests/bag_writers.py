@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from contactkit.recorder.bags import default_typestore
+from contactkit.recorder.importers.bags import default_typestore
 from contactkit.schemas import Session
 
 ROS1_TOPIC = "/franka_state_controller/franka_states"

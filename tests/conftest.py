@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, settings
 
-from contactkit.recorder.journal import journal_progress
-from contactkit.recorder.sim import SimConfig, plan_session
+from contactkit.recorder.capture.journal import journal_progress
+from contactkit.recorder.sim.simulator import SimConfig, plan_session
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
 from contactkit.schemas import write_session
 
@@ -136,8 +136,8 @@ def run_cli(*args: str, cwd: Path | None = None, timeout: float = 300
 def make_dataset(directory: Path, poses=("A", "B", "C", "D"), repeats: int = 2,
                  rate_hz: float = 250.0, condition: str = "static") -> Path:
     """Simulate a small balanced dataset (poses x four actions x repeats) in one batch."""
-    from contactkit.recorder.dataset import simulate_specs
-    from contactkit.recorder.sim import SimConfig, plan_session
+    from contactkit.recorder.sim.dataset import simulate_specs
+    from contactkit.recorder.sim.simulator import SimConfig, plan_session
 
     specs = []
     for rep in range(repeats):

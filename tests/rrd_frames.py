@@ -19,7 +19,7 @@ from pathlib import Path
 
 import rerun.chunk as rc
 
-from contactkit.schemas import rerun_layout as layout
+from contactkit.viewer import layout
 
 SPATIAL_3D = ("Arrows3D", "Mesh3D", "Asset3D", "Points3D", "Boxes3D", "LineStrips3D",
               "Ellipsoids3D", "Capsules3D", "Cylinders3D")

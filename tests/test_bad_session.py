@@ -11,12 +11,12 @@ import can
 import numpy as np
 import pytest
 
-from contactkit.classify.cli import app as classify_app
-from contactkit.recorder.can_codec import session_frames, session_values
-from contactkit.recorder.can_map import load_map
-from contactkit.recorder.cli import app as recorder_app
+from contactkit.cli.classify import app as classify_app
+from contactkit.cli.common import run_app
+from contactkit.cli.recorder import app as recorder_app
+from contactkit.recorder.importers.can_codec import session_frames, session_values
+from contactkit.recorder.importers.can_map import load_map
 from contactkit.schemas import read_session, write_session
-from contactkit.util.cli import run_app
 from tests.conftest import make_session
 
 

@@ -9,11 +9,11 @@ import pytest
 from bag_writers import ROS2_TOPIC, START_NS, write_bag
 from conftest import make_session, run_cli
 
-from contactkit.recorder.bags import BagJob, import_bag, import_bags
-from contactkit.recorder.mcap_export import export_mcap
+from contactkit.features.timing import rate_warning
+from contactkit.recorder.importers.bags import BagJob, import_bag, import_bags
+from contactkit.recorder.importers.mcap_export import export_mcap
 from contactkit.recorder.metadata import session_meta
 from contactkit.schemas import InputError, read_session, validate_session
-from contactkit.schemas.timing import rate_warning
 
 COMPARED = ["q", "dq", "tau", "q_d", "dq_d"]
 PROTOCOL = {"action": "shove", "condition": "static", "pose": "B", "target_pose": None,
@@ -150,7 +150,7 @@ def test_cli_import_export_and_slow_rate(source, tmp_path):
 def test_streamed_import_does_not_depend_on_the_chunk(source, tmp_path, kind, monkeypatch):
     """The bag is spilled and written a chunk at a time: 7-message chunks give the table
     and metadata of one chunk for the whole bag (labels, contact and export topics)."""
-    from contactkit.recorder import bags
+    from contactkit.recorder.importers import bags
 
     session = read_session(source)
     bag = write_bag(session, tmp_path / ("bag.bag" if kind == "ros1" else "bag"), kind,

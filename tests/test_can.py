@@ -12,20 +12,20 @@ import can
 import numpy as np
 import pytest
 
-from contactkit.recorder.can_codec import (
+from contactkit.features.timing import sampling_stats
+from contactkit.recorder.capture.journal import recover_directory
+from contactkit.recorder.capture.record import capture
+from contactkit.recorder.importers.can_codec import (
     SampleAssembler,
     rows_to_columns,
     session_frames,
     session_values,
 )
-from contactkit.recorder.can_map import load_map
-from contactkit.recorder.can_tools import bridge_session, read_log
-from contactkit.recorder.capture import capture
-from contactkit.recorder.journal import recover_directory
+from contactkit.recorder.importers.can_map import load_map
+from contactkit.recorder.importers.can_tools import bridge_session, read_log
 from contactkit.recorder.metadata import session_meta
 from contactkit.recorder.sources.can import BusConfig, CanSource
 from contactkit.schemas import InputError, read_session, validate_session
-from contactkit.schemas.timing import sampling_stats
 from tests.conftest import kill_when_journal_holds, make_session, run_cli
 
 FMAP = load_map()
@@ -156,9 +156,9 @@ def test_silent_bus_ends_capture_and_keeps_data(tmp_path: Path) -> None:
 def test_can_capture_killed_midway_recovers(source_session: Path, tmp_path: Path) -> None:
     helper = (
         "import pathlib, sys, threading, time\n"
-        "from contactkit.recorder.can_map import load_map\n"
-        "from contactkit.recorder.can_tools import bridge_session\n"
-        "from contactkit.recorder.cli import main\n"
+        "from contactkit.recorder.importers.can_map import load_map\n"
+        "from contactkit.recorder.importers.can_tools import bridge_session\n"
+        "from contactkit.cli.recorder import main\n"
         "from contactkit.recorder.sources.can import BusConfig\n"
         "from contactkit.schemas import read_session\n"
         f"s = read_session({str(source_session)!r})\n"

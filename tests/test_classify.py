@@ -198,7 +198,8 @@ def test_model_file_refuses_untrusted_types(features, tmp_path: Path) -> None:
     import skops.io as sio
     from sklearn.base import BaseEstimator
 
-    from contactkit.classify.modelfile import FORMAT, _members_digest
+    from contactkit.classify.skops_format import FORMAT
+    from contactkit.classify.skops_format import members_digest as _members_digest
 
     class Smuggled(BaseEstimator):
         pass

@@ -80,7 +80,7 @@ def test_help_keeps_units_and_lists_choices(name: str, monkeypatch: pytest.Monke
 
 def test_recorder_help_shows_units_and_every_source_option() -> None:
     runner = CliRunner()
-    module = importlib.import_module("contactkit.recorder.cli")
+    module = importlib.import_module("contactkit.cli.recorder")
     text = " ".join(runner.invoke(module.app, ["capture", "--help"], terminal_width=240,
                                   env={"COLUMNS": "240"}).output.split())
     for piece in ("[rad/s]", "[s from start]", "[Hz]", "[ms]", "[s]", "<sim|can|franka>",

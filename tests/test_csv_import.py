@@ -8,9 +8,9 @@ import numpy as np
 import polars as pl
 import pytest
 
-from contactkit.recorder import csv_import
-from contactkit.recorder.csv_import import import_csv, read_csv_columns
-from contactkit.recorder.csv_map import load_csv_map, mindlab_map_path
+from contactkit.recorder.importers import csv_import
+from contactkit.recorder.importers.csv_import import import_csv, read_csv_columns
+from contactkit.recorder.importers.csv_map import load_csv_map, mindlab_map_path
 from contactkit.recorder.metadata import session_meta
 from contactkit.schemas import InputError, validate_session
 from tests.conftest import MINDLAB_FILES, run_cli

@@ -19,8 +19,8 @@ from sklearn.svm import SVC
 
 from contactkit.errors import InputError
 from contactkit.features.extract import SessionFeatures, _session_feature_row
-from contactkit.recorder.dataset import PRESETS, preset_specs, simulate_specs
-from contactkit.recorder.sim import SimConfig
+from contactkit.recorder.sim.dataset import PRESETS, preset_specs, simulate_specs
+from contactkit.recorder.sim.simulator import SimConfig
 from contactkit.util import dask_executor
 from contactkit.util.parallel import map_ordered, resolve_scheduler
 

@@ -22,7 +22,7 @@ from contactkit.features.detector import (
     save_calibration,
 )
 from contactkit.features.timeseries import TimeseriesChain
-from contactkit.recorder.arrays import load_joint_arrays
+from contactkit.recorder.importers.arrays import load_joint_arrays
 from contactkit.robots import RobotSetup
 from contactkit.schemas import InputError
 from tests.conftest import MINDLAB_FILES, load_mindlab

@@ -17,7 +17,7 @@ from contactkit.classify.models import svm_pipeline
 from contactkit.classify.training import train
 from contactkit.features.detector import DetectorConfig, load_calibration
 from contactkit.schemas import read_session, write_session
-from contactkit.schemas import rerun_layout as layout
+from contactkit.viewer import layout
 from tests.conftest import make_dataset, make_session, run_cli
 from tests.rrd_frames import assert_frames_ok
 

@@ -13,7 +13,8 @@ from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
 
 from contactkit.features.extract import SessionFeatures, feature_rows
-from contactkit.recorder import arrays, importer
+from contactkit.recorder.importers import arrays
+from contactkit.recorder.importers import writer as importer
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.features import read_feature_table
 from tests.conftest import make_session, run_cli

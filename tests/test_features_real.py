@@ -11,8 +11,8 @@ import pytest
 from contactkit.features.observer import ObserverConfig
 from contactkit.features.timeseries import ALL_TIMESERIES, ChainConfig, OnlineChain, TimeseriesChain
 from contactkit.features.windows import WindowSpec, find_window
-from contactkit.recorder.arrays import load_joint_arrays
-from contactkit.recorder.sim import SimConfig, TrackingSimulator, plan_session
+from contactkit.recorder.importers.arrays import load_joint_arrays
+from contactkit.recorder.sim.simulator import SimConfig, TrackingSimulator, plan_session
 from contactkit.robots import RobotSetup
 from contactkit.schemas import read_session
 from tests.conftest import make_session

@@ -11,11 +11,11 @@ import pytest
 
 from contactkit.classify.events import session_events
 from contactkit.classify.modelfile import load_model
-from contactkit.recorder.csv_import import import_csv
-from contactkit.recorder.csv_map import load_csv_map
-from contactkit.recorder.forces import add_synthetic_touches
+from contactkit.cli.default_model import build_default_model
+from contactkit.recorder.importers.csv_import import import_csv
+from contactkit.recorder.importers.csv_map import load_csv_map
 from contactkit.recorder.metadata import session_meta, set_session_robot
-from contactkit.replay.default_model import build_default_model
+from contactkit.recorder.sim.forces import add_synthetic_touches
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
 from contactkit.schemas import read_session

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from conftest import BIN, kill_when_journal_holds, run_cli
 
-from contactkit.recorder.capture import capture
+from contactkit.recorder.capture.record import capture
 from contactkit.recorder.metadata import session_meta
 from contactkit.recorder.sources import source_class
 from contactkit.recorder.sources.franka import FrankaConfig, FrankaSource

@@ -23,14 +23,14 @@ from hypothesis import assume, event, given
 from hypothesis import strategies as st
 
 from contactkit.classify.modelfile import load_model
-from contactkit.recorder.arrays import load_joint_arrays
-from contactkit.recorder.can_map import default_map_path, load_map
-from contactkit.recorder.can_tools import bridge_session, import_can_log
-from contactkit.recorder.importer import import_arrays
+from contactkit.recorder.capture.journal import SessionWriter, journal_path, recover_directory
+from contactkit.recorder.importers.arrays import load_joint_arrays
+from contactkit.recorder.importers.can_map import default_map_path, load_map
+from contactkit.recorder.importers.can_tools import bridge_session, import_can_log
+from contactkit.recorder.importers.writer import import_arrays
 from contactkit.recorder.info import session_info
-from contactkit.recorder.journal import SessionWriter, journal_path, recover_directory
 from contactkit.recorder.metadata import session_filename
-from contactkit.recorder.stats import build_report
+from contactkit.recorder.stats.summary import build_report
 from contactkit.schemas import (
     SessionMeta,
     read_session,

@@ -28,11 +28,11 @@ from contactkit.features.detector import (
     load_calibration,
     save_calibration,
 )
-from contactkit.recorder.bags import default_typestore, import_bag
-from contactkit.recorder.csv_import import import_csv
-from contactkit.recorder.csv_map import load_csv_map, mindlab_map_path
+from contactkit.recorder.importers.bags import default_typestore, import_bag
+from contactkit.recorder.importers.csv_import import import_csv
+from contactkit.recorder.importers.csv_map import load_csv_map, mindlab_map_path
 from contactkit.recorder.metadata import session_meta
-from contactkit.recorder.noise import SensorNoise, default_noise
+from contactkit.recorder.sim.noise import SensorNoise, default_noise
 from contactkit.schemas import InputError, read_session, validate_session
 from contactkit.schemas.features import FEATURES_KEY, read_feature_table, write_feature_table
 from tests.bag_writers import write_bag

@@ -15,14 +15,15 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from contactkit.recorder import dataset, journal
-from contactkit.recorder.cli import app
-from contactkit.recorder.journal import SessionWriter, journal_path, recover_directory
-from contactkit.recorder.sim import SimConfig, plan_session
+from contactkit.cli.common import run_app
+from contactkit.cli.recorder import app
+from contactkit.recorder.capture import journal
+from contactkit.recorder.capture.journal import SessionWriter, journal_path, recover_directory
+from contactkit.recorder.sim import dataset
+from contactkit.recorder.sim.simulator import SimConfig, plan_session
 from contactkit.recorder.sources.sim import SimSource, sim_session_id
 from contactkit.schemas import InputError, SessionMeta, validate_session
 from contactkit.schemas.session import METADATA_KEY
-from contactkit.util.cli import run_app
 from contactkit.util.paths import inside, safe_name
 from tests.conftest import BIN, run_cli
 

@@ -13,7 +13,7 @@ from contactkit.features.detector import DetectorConfig, detect
 from contactkit.features.isolation import NO_SURFACE, OK, TOO_SMALL, ContactIsolator, robot_isolator
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.recorder.protocol import pose_q
-from contactkit.recorder.sim import ArmSimulator, SimConfig, plan_session
+from contactkit.recorder.sim.simulator import ArmSimulator, SimConfig, plan_session
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
 from contactkit.robots.surfaces import link_surface

@@ -9,7 +9,12 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from contactkit.recorder.journal import SessionWriter, journal_path, read_journal, recover_directory
+from contactkit.recorder.capture.journal import (
+    SessionWriter,
+    journal_path,
+    read_journal,
+    recover_directory,
+)
 from contactkit.schemas import InputError, SessionMeta, validate_session
 from tests.conftest import BIN, kill_when_journal_holds, run_cli
 
@@ -101,8 +106,8 @@ def test_recover_keeps_a_journal_whose_session_name_holds_another_file(tmp_path:
                                                                        capsys) -> None:
     """An unrelated file at the session's name is no reason to delete the journal, and
     one journal that cannot be recovered does not stop the others."""
-    from contactkit.recorder.cli import app
-    from contactkit.util.cli import run_app
+    from contactkit.cli.common import run_app
+    from contactkit.cli.recorder import app
 
     paths = []
     for name in ("a.parquet", "b.parquet", "c.parquet"):

@@ -12,9 +12,9 @@ import pytest
 
 from contactkit.errors import InputError
 from contactkit.features.limits import limit_violation, robot_limits
-from contactkit.recorder import dataset
-from contactkit.recorder.sim import SimConfig, plan_session
-from contactkit.recorder.stats import beyond_limits
+from contactkit.recorder.sim import dataset
+from contactkit.recorder.sim.simulator import SimConfig, plan_session
+from contactkit.recorder.stats.summary import beyond_limits
 from contactkit.schemas import SessionMeta, read_session
 from tests.conftest import make_session
 

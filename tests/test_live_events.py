@@ -11,9 +11,9 @@ import pytest
 
 from contactkit.classify.event_listener import LiveEvents
 from contactkit.classify.modelfile import load_model
-from contactkit.recorder.capture import record_session
+from contactkit.cli.default_model import build_default_model
+from contactkit.recorder.capture.record import record_session
 from contactkit.recorder.sources import ProtocolChoices, open_source
-from contactkit.replay.default_model import build_default_model
 from contactkit.replay.engine import ReplayStream
 from contactkit.robots import RobotSetup
 from contactkit.schemas import joint_columns, read_session

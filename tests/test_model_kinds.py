@@ -13,8 +13,9 @@ from sklearn.base import BaseEstimator, ClassifierMixin
 from contactkit.classify import registry
 from contactkit.classify.data import FEATURES
 from contactkit.classify.kind import ModelKind, ModelOptions
-from contactkit.classify.modelfile import SKOPS, load_model
+from contactkit.classify.modelfile import load_model
 from contactkit.classify.prediction import predict_sources
+from contactkit.classify.skops_format import SKOPS
 from contactkit.classify.training import evaluate_kind, train
 from contactkit.replay.session_replay import replay_session
 from contactkit.schemas import InputError

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contactkit.recorder.dataset import PRESETS, preset_specs, simulate_dataset
-from contactkit.recorder.motion import ACCEL_FRACTION, SPEED_FRACTION, free_motion_plan
 from contactkit.recorder.protocol import pose_q
-from contactkit.recorder.sim import SimConfig, plan_free_session
+from contactkit.recorder.sim.dataset import PRESETS, preset_specs, simulate_dataset
+from contactkit.recorder.sim.motion import ACCEL_FRACTION, SPEED_FRACTION, free_motion_plan
+from contactkit.recorder.sim.simulator import SimConfig, plan_free_session
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
 from contactkit.schemas import InputError, read_session

@@ -135,7 +135,7 @@ def test_without_torch_a_network_gives_one_line(dataset: Path, tmp_path: Path) -
             "        if name.split('.')[0] == 'torch':\n"
             "            raise ImportError('No module named torch')\n"
             "sys.meta_path.insert(0, NoTorch())\n"
-            "from contactkit.classify.cli import main\n"
+            "from contactkit.cli.classify import main\n"
             f"sys.argv = ['classify', 'train', {str(dataset)!r}, '--model', 'cnn', '--out', "
             f"{str(tmp_path / 'x.onnx')!r}, '--workers', '1', '--steps', '20']\n"
             "main()\n")

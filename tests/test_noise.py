@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
-from contactkit.recorder.arrays import load_joint_arrays
-from contactkit.recorder.csv_import import read_csv_columns
-from contactkit.recorder.csv_map import load_csv_map, mindlab_map_path
-from contactkit.recorder.noise import (
+from contactkit.recorder.importers.arrays import load_joint_arrays
+from contactkit.recorder.importers.csv_import import read_csv_columns
+from contactkit.recorder.importers.csv_map import load_csv_map, mindlab_map_path
+from contactkit.recorder.sim.noise import (
     SensorNoise,
     away_from_contact,
     default_noise,

@@ -11,10 +11,10 @@ import pytest
 from contactkit.classify.event_metrics import EventScore, score_events
 from contactkit.classify.events import batch_events
 from contactkit.classify.modelfile import load_model
+from contactkit.cli.default_model import build_default_model
 from contactkit.features.detector import detect
 from contactkit.features.timeseries import TimeseriesChain
-from contactkit.recorder.arrays import load_joint_arrays
-from contactkit.replay.default_model import build_default_model
+from contactkit.recorder.importers.arrays import load_joint_arrays
 from contactkit.replay.engine import ReplayStream
 from contactkit.robots import RobotSetup
 from contactkit.schemas import SessionMeta, joint_columns, read_session, write_session

@@ -17,21 +17,21 @@ import rerun.chunk as rc
 from contactkit.classify.data import load_features
 from contactkit.classify.modelfile import load_model, save_model
 from contactkit.classify.registry import get_kind, make_estimator
+from contactkit.cli import replay as replay_cli
+from contactkit.cli.common import run_app
 from contactkit.errors import InputError
 from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import scalar_features
 from contactkit.features.timeseries import TimeseriesChain, columns_of
-from contactkit.replay import cli as replay_cli
 from contactkit.replay.engine import next_hop_after
 from contactkit.replay.recording import ContactEvent, log_contact_events
 from contactkit.replay.session_replay import ReplaySummary, replay_sessions
 from contactkit.robots import RobotSetup
 from contactkit.robots.surfaces import viewer_urdf_file
 from contactkit.schemas import read_session
-from contactkit.schemas import rerun_layout as layout
 from contactkit.schemas.session import METADATA_KEY
-from contactkit.util.cli import run_app
-from contactkit.util.viewer import WEB_PORT, free_port, start_web_viewer
+from contactkit.viewer import layout
+from contactkit.viewer.web import WEB_PORT, free_port, start_web_viewer
 from tests.conftest import make_dataset, make_session, run_cli
 from tests.rrd_frames import assert_frames_ok, frame_problems
 

@@ -15,11 +15,16 @@ import numpy as np
 import pytest
 
 from contactkit.features.timeseries import TimeseriesChain
-from contactkit.recorder.csv_import import read_csv_columns
-from contactkit.recorder.csv_map import load_csv_map, mindlab_map_path
-from contactkit.recorder.dataset import PRESETS, preset_specs
-from contactkit.recorder.noise import away_from_contact
-from contactkit.recorder.sim import ArmSimulator, SimConfig, plan_free_session, plan_session
+from contactkit.recorder.importers.csv_import import read_csv_columns
+from contactkit.recorder.importers.csv_map import load_csv_map, mindlab_map_path
+from contactkit.recorder.sim.dataset import PRESETS, preset_specs
+from contactkit.recorder.sim.noise import away_from_contact
+from contactkit.recorder.sim.simulator import (
+    ArmSimulator,
+    SimConfig,
+    plan_free_session,
+    plan_session,
+)
 from contactkit.robots import RobotSetup
 from tests.conftest import MINDLAB_FILES
 

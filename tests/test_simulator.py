@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from contactkit.recorder.forces import PROFILE_RANGES
 from contactkit.recorder.protocol import MAX_ONSET_DELAY_S, pose_q
-from contactkit.recorder.sim import ArmSimulator, SimConfig, plan_session
+from contactkit.recorder.sim.forces import PROFILE_RANGES
+from contactkit.recorder.sim.simulator import ArmSimulator, SimConfig, plan_session
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
 from contactkit.schemas import InputError
@@ -140,7 +140,7 @@ def test_plan_rejects_bad_choices(kwargs: dict, message: str) -> None:
 def test_a_hard_shove_that_saturates_the_motors_does_not_diverge() -> None:
     """aug-sim session 63: a 135 N shove on link 7 at pose H saturates joints 1-2.
     Without anti-windup the integrators drove the arm unstable and it reached NaN."""
-    from contactkit.recorder.dataset import PRESETS, preset_specs
+    from contactkit.recorder.sim.dataset import PRESETS, preset_specs
 
     preset = PRESETS["aug-sim"]
     config = SimConfig(rate_hz=preset.rate_hz, robot_seed=preset.robot_seed)

@@ -9,8 +9,8 @@ from pathlib import Path
 import polars as pl
 import pytest
 
-from contactkit.recorder.noise import SensorNoise
-from contactkit.recorder.stats import index_stats
+from contactkit.recorder.sim.noise import SensorNoise
+from contactkit.recorder.stats.summary import index_stats
 from tests.conftest import make_dataset, run_cli
 
 SCHEMA = Path(__file__).resolve().parents[1] / "schemas" / "stats_report.schema.json"

@@ -12,14 +12,14 @@ import pytest
 
 from contactkit.features import chain_cache
 from contactkit.features.timeseries import TimeseriesChain
+from contactkit.features.timing import sampling_stats, streamed_sampling_stats
 from contactkit.features.windows import WindowSpec, find_window
-from contactkit.recorder import stats_deep
-from contactkit.recorder.noise import robust_noise_sigma
+from contactkit.recorder.sim.noise import robust_noise_sigma
+from contactkit.recorder.stats import deep as stats_deep
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
 from contactkit.schemas import read_session, write_session
 from contactkit.schemas.session import table_from_columns
-from contactkit.schemas.timing import sampling_stats, streamed_sampling_stats
 from contactkit.util import exact_median
 from contactkit.util.exact_median import exact_medians
 from tests.conftest import make_session

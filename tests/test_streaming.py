@@ -27,8 +27,8 @@ from contactkit.features.timeseries import (
 from contactkit.replay import engine
 from contactkit.replay.session_replay import replay_session
 from contactkit.schemas import SessionMeta, read_session, write_session
-from contactkit.schemas import rerun_layout as layout
 from contactkit.schemas.session import REQUIRED_COLUMNS
+from contactkit.viewer import layout
 from tests.conftest import make_session, run_cli
 from tests.rrd_frames import assert_frames_ok
 

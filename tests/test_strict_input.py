@@ -8,13 +8,13 @@ from pathlib import Path
 
 import pytest
 
+from contactkit.cli.common import run_app
+from contactkit.cli.recorder import app
 from contactkit.errors import InputError
-from contactkit.recorder.can_map import load_map
-from contactkit.recorder.cli import app
-from contactkit.recorder.csv_map import load_csv_map, mindlab_map_path
-from contactkit.recorder.importer import parse_meta
+from contactkit.recorder.importers.can_map import load_map
+from contactkit.recorder.importers.csv_map import load_csv_map, mindlab_map_path
+from contactkit.recorder.importers.writer import parse_meta
 from contactkit.schemas import read_session, write_session
-from contactkit.util.cli import run_app
 from contactkit.util.text import printable
 from tests.conftest import make_session
 

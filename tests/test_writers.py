@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contactkit.classify.cli import app as classify_app
+from contactkit.cli.classify import app as classify_app
+from contactkit.cli.common import run_app
+from contactkit.cli.recorder import app as recorder_app
 from contactkit.errors import InputError
-from contactkit.recorder.cli import app as recorder_app
 from contactkit.util import atomic
-from contactkit.util.cli import run_app
 from tests.conftest import make_session
 
 VICTIM_TEXT = b"precious, outside the output directory\n"

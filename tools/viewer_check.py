@@ -45,7 +45,7 @@ import psutil
 
 from contactkit.errors import InputError
 from contactkit.util.atomic import write_bytes, write_text
-from contactkit.util.viewer import free_port, start_web_viewer, viewer_page_url
+from contactkit.viewer.web import free_port, start_web_viewer, viewer_page_url
 
 VIEWPORT = {"width": 1600, "height": 1000}
 CHROMIUM_FLAGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--no-first-run",

@@ -33,7 +33,7 @@ PANDA_DDQ_MAX = (15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0)  # rad/s^2, Panda data
 FR3_DDQ_MAX = (10.0,) * 7  # rad/s^2, FR3 (libfranka's rate limiter since 2022)
 DTAU_MAX = (1000.0,) * 7  # Nm/s, both
 # The motors' rotor inertia reflected through the gears [kg m^2], which the simulator puts
-# on the plant side of the torque sensors (see contactkit.recorder.sim).
+# on the plant side of the torque sensors (see contactkit.recorder.sim.simulator).
 ARMATURE_KGM2 = (0.1, 0.1, 0.1, 0.1, 0.0, 0.0, 0.0)
 
 # How a contact detector calibrated on the simulated Panda (the default model's) is

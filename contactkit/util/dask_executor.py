@@ -25,8 +25,8 @@ from collections.abc import Callable, Iterable, Iterator
 from typing import Any, TypeVar
 
 from contactkit.errors import InputError
-from contactkit.util.parallel import ordered_results
 from contactkit.util.progress import ProgressCallback
+from contactkit.util.workers import ordered_results
 
 R = TypeVar("R")
 
@@ -109,7 +109,7 @@ def get_client(address: str):
 def _die_with_parent_plugin(parent_pid: int):
     """Return a worker plugin for a LocalCluster: its workers end when this process
     (their parent) ends, even by SIGKILL (see
-    :func:`contactkit.util.parallel.die_with_parent`). Built here so that importing
+    :func:`contactkit.util.workers.die_with_parent`). Built here so that importing
     this module does not import distributed."""
     from distributed.diagnostics.plugin import WorkerPlugin
 
@@ -119,7 +119,7 @@ def _die_with_parent_plugin(parent_pid: int):
         def setup(self, worker) -> None:
             import os
 
-            from contactkit.util.parallel import die_with_parent
+            from contactkit.util.workers import die_with_parent
 
             if os.getppid() == parent_pid:
                 die_with_parent(parent_pid)

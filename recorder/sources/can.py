@@ -1,7 +1,7 @@
 """A python-can bus as a capture source.
 
 A ``can.Notifier`` thread fills a ``can.BufferedReader``; the stream assembles
-samples (:class:`contactkit.recorder.can_codec.SampleAssembler`) with time stamps from the
+samples (:class:`contactkit.recorder.importers.can_codec.SampleAssembler`) with time stamps from the
 frames and hands them to the capture every 10 ms. The capture ends after
 ``duration_s`` of session time, or when the bus has been silent for ``timeout_s``
 (a clear message is printed and what was recorded is kept). An optional cue frame
@@ -21,8 +21,8 @@ from typing import Any
 import can
 import numpy as np
 
-from contactkit.recorder.can_codec import COLUMNS, SampleAssembler, rows_to_columns
-from contactkit.recorder.can_map import FrameMap, load_map
+from contactkit.recorder.importers.can_codec import COLUMNS, SampleAssembler, rows_to_columns
+from contactkit.recorder.importers.can_map import FrameMap, load_map
 from contactkit.recorder.sources.base import ProtocolChoices, Source
 from contactkit.schemas import InputError
 

@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 
 from contactkit.recorder.metadata import session_meta
-from contactkit.recorder.noise import SensorNoise, default_noise
-from contactkit.recorder.sim import ArmSimulator, SessionSpec, SimConfig, plan_session
+from contactkit.recorder.sim.noise import SensorNoise, default_noise
+from contactkit.recorder.sim.simulator import ArmSimulator, SessionSpec, SimConfig, plan_session
 from contactkit.recorder.sources.base import ProtocolChoices, Source
 from contactkit.schemas import InputError, SessionMeta, joint_columns
 

@@ -8,7 +8,7 @@ session ids, sessions too short for a 0.5 s window). Counts are over unique
 session ids: a duplicate is reported, not counted twice.
 
 With ``--deep`` every session is read in parallel workers (see
-:mod:`contactkit.recorder.stats_deep`): measured sampling, the torque-noise baseline of the
+:mod:`contactkit.recorder.stats.deep`): measured sampling, the torque-noise baseline of the
 no-contact sessions (thesis section 5.3.5, also written as a noise file the
 simulator reads with ``--noise-file``), per-class peak residual norm and estimated
 force, estimated force profiles by class (thesis Figure 3.2), how often the
@@ -32,11 +32,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from contactkit.features.limits import POSITION_SLACK_RAD, SPEED_MARGIN, TORQUE_MARGIN
-from contactkit.recorder.noise import SensorNoise
-from contactkit.recorder.stats_deep import session_summary
+from contactkit.features.timing import rate_warning
+from contactkit.recorder.sim.noise import SensorNoise
+from contactkit.recorder.stats.deep import session_summary
 from contactkit.schemas import ACTIONS, InputError
 from contactkit.schemas.dataset import INDEX_NAME, INDEX_SCHEMA, rebuild_index, session_files
-from contactkit.schemas.timing import rate_warning
 from contactkit.util.atomic import owned_by_marker, write_text
 from contactkit.util.parallel import map_ordered
 

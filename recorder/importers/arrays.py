@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from contactkit.recorder.spill import RowSpill
+from contactkit.recorder.importers.spill import RowSpill
 from contactkit.schemas import N_JOINTS, InputError
 
 BLOCK_LINES = 65_536

@@ -14,7 +14,7 @@ Difference window (:class:`contactkit.features.windows.WindowSearch`); the media
 radix selection in a few more passes (:func:`contactkit.util.exact_median.exact_medians`);
 one pass runs the feature chain batch by batch
 (:class:`contactkit.features.timeseries.ChunkedChain`) and spills the residual after
-the first second to a temporary file (:class:`contactkit.recorder.spill.RowSpill`)
+the first second to a temporary file (:class:`contactkit.recorder.importers.spill.RowSpill`)
 for its median. The numbers equal
 those of the whole session held at once up to rounding (1e-12 relative for the
 chunked chain, 1e-15 for the merged moments).
@@ -35,8 +35,9 @@ from contactkit.features import chain_cache
 from contactkit.features.agreement import session_residual_agreement
 from contactkit.features.limits import robot_limits
 from contactkit.features.timeseries import ChunkedChain
+from contactkit.features.timing import streamed_sampling_stats
 from contactkit.features.windows import WindowSearch, WindowSpec
-from contactkit.recorder.spill import RowSpill
+from contactkit.recorder.importers.spill import RowSpill
 from contactkit.schemas import InputError, SessionMeta
 from contactkit.schemas.session import (
     REQUIRED_COLUMNS,
@@ -46,7 +47,6 @@ from contactkit.schemas.session import (
     joint_columns,
     read_session_meta,
 )
-from contactkit.schemas.timing import streamed_sampling_stats
 from contactkit.util.exact_median import exact_medians
 from contactkit.util.moments import RunningMoments
 
@@ -111,7 +111,7 @@ def _second_differences(chunks: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
 
 
 def _robust_noise_sigmas(read: Callable[[], Iterable[np.ndarray]]) -> np.ndarray:
-    """Return :func:`contactkit.recorder.noise.robust_noise_sigma` of each column of a
+    """Return :func:`contactkit.recorder.sim.noise.robust_noise_sigma` of each column of a
     re-readable stream, exactly: the MAD's two medians are found in passes."""
     def differences() -> Iterator[np.ndarray]:
         return _second_differences(read())

@@ -16,14 +16,14 @@ from pathlib import Path
 import can
 import numpy as np
 
-from contactkit.recorder.can_codec import (
+from contactkit.recorder.importers.can_codec import (
     SampleAssembler,
     rows_to_columns,
     session_frames,
     session_values,
 )
-from contactkit.recorder.can_map import FrameMap
-from contactkit.recorder.importer import write_imported_session
+from contactkit.recorder.importers.can_map import FrameMap
+from contactkit.recorder.importers.writer import write_imported_session
 from contactkit.recorder.sources.can import BusConfig
 from contactkit.schemas import InputError, Session, SessionMeta
 from contactkit.util.atomic import atomic_write

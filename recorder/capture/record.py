@@ -13,7 +13,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from contactkit.features.agreement import StreamAgreement
-from contactkit.recorder.journal import SessionWriter
+from contactkit.recorder.capture.journal import SessionWriter
 from contactkit.recorder.metadata import session_filename
 from contactkit.recorder.sources.base import Source
 from contactkit.robots import get_robot

@@ -12,34 +12,34 @@ import numpy as np
 import typer
 from rich.console import Console
 
-from contactkit.recorder.bags import BagJob, find_bags, import_bag_job, import_bags
-from contactkit.recorder.can_map import load_map
-from contactkit.recorder.can_tools import bridge_session, decoding_summary, import_can_log
-from contactkit.recorder.capture import output_directory
-from contactkit.recorder.capture_cli import (
+from contactkit.cli.capture import (
     Action,
     CaptureExtension,
     Condition,
     Pose,
     register_capture,
 )
-from contactkit.recorder.csv_import import import_csv
-from contactkit.recorder.csv_map import load_csv_map
-from contactkit.recorder.dataset import PRESETS, simulate_dataset
-from contactkit.recorder.importer import import_arrays
+from contactkit.cli.common import SchedulerOpt, exit_if_failed, new_app, run_app
+from contactkit.recorder.capture.journal import recover_directory
+from contactkit.recorder.capture.record import output_directory
+from contactkit.recorder.importers.bags import BagJob, find_bags, import_bag_job, import_bags
+from contactkit.recorder.importers.can_map import load_map
+from contactkit.recorder.importers.can_tools import bridge_session, decoding_summary, import_can_log
+from contactkit.recorder.importers.csv_import import import_csv
+from contactkit.recorder.importers.csv_map import load_csv_map
+from contactkit.recorder.importers.mcap_export import export_mcap
+from contactkit.recorder.importers.writer import import_arrays
 from contactkit.recorder.info import print_info, session_info
-from contactkit.recorder.journal import recover_directory
-from contactkit.recorder.mcap_export import export_mcap
 from contactkit.recorder.metadata import session_filename, session_meta, set_session_robot
-from contactkit.recorder.sim import SimConfig
+from contactkit.recorder.sim.dataset import PRESETS, simulate_dataset
+from contactkit.recorder.sim.simulator import SimConfig
 from contactkit.recorder.sources.can import BusConfig
-from contactkit.recorder.stats import build_report, write_noise_file
-from contactkit.recorder.stats_report import OWNED_REPORT, print_summary, report_path, write_report
+from contactkit.recorder.stats.report import OWNED_REPORT, print_summary, report_path, write_report
+from contactkit.recorder.stats.summary import build_report, write_noise_file
 from contactkit.robots import DEFAULT_ROBOT, URDF_PREFIX, get_robot, robot_names
 from contactkit.schemas import InputError, SessionMeta, read_session
 from contactkit.schemas.dataset import rebuild_index
 from contactkit.util.atomic import check_target
-from contactkit.util.cli import SchedulerOpt, exit_if_failed, new_app, run_app
 from contactkit.util.parallel import available_cpus, use_scheduler
 from contactkit.util.progress import (
     bar_callback,
@@ -72,8 +72,8 @@ def _start_events(values: dict[str, Any], meta: SessionMeta) -> Any:
             raise InputError(f"{given[0]} needs --events")
         return None
     from contactkit.classify.event_listener import LiveEvents, describe
+    from contactkit.cli.default_model import default_model_missing, model_or_default
     from contactkit.features.detector import load_calibration
-    from contactkit.replay.session_replay import default_model_missing, model_or_default
 
     detector = None if values["calibration"] is None else load_calibration(values["calibration"])
     if values["model"] is None and default_model_missing():

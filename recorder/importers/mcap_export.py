@@ -19,7 +19,13 @@ from typing import Any
 
 import numpy as np
 
-from contactkit.recorder.bags import BOOL, EXPORT_TOPICS, JOINT_STATE, STRING, WRENCH_STAMPED
+from contactkit.recorder.importers.bags import (
+    BOOL,
+    EXPORT_TOPICS,
+    JOINT_STATE,
+    STRING,
+    WRENCH_STAMPED,
+)
 from contactkit.robots import get_robot
 from contactkit.schemas import Session, joint_columns, read_session
 from contactkit.schemas.session import FORCE_COLUMNS, WRENCH_HAT_COLUMNS

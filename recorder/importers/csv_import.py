@@ -9,7 +9,7 @@ step and put zero-velocity steps into every difference.
 Long files import in bounded memory: the file is parsed once in blocks of
 :data:`BLOCK_ROWS` lines (each by ``pl.read_csv``, the header before each; Polars'
 own streaming reader memory-maps the file and its RSS grew with it) into temporary files
-(:class:`contactkit.recorder.spill.RowSpill`), because the row counts (metadata) and
+(:class:`contactkit.recorder.importers.spill.RowSpill`), because the row counts (metadata) and
 the first problem in column order are known only at its end; the session is then
 written from them a row group at a time.
 """
@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from contactkit.recorder.csv_map import CsvMap
-from contactkit.recorder.importer import write_imported_chunks
+from contactkit.recorder.importers.csv_map import CsvMap
+from contactkit.recorder.importers.spill import RowSpill, spilled_session_chunks, spilled_times
+from contactkit.recorder.importers.writer import write_imported_chunks
 from contactkit.recorder.metadata import session_filename
-from contactkit.recorder.spill import RowSpill, spilled_session_chunks, spilled_times
 from contactkit.schemas import InputError, SessionMeta
 
 BLOCK_ROWS = 16_384

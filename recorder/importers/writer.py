@@ -11,13 +11,13 @@ import numpy as np
 import pyarrow as pa
 
 from contactkit.features.agreement import stream_residual_agreement
-from contactkit.recorder.arrays import spill_joint_arrays
+from contactkit.features.timing import chunked_steps
+from contactkit.recorder.importers.arrays import spill_joint_arrays
+from contactkit.recorder.importers.spill import spilled_session_chunks, spilled_times
 from contactkit.recorder.metadata import session_filename, session_meta
-from contactkit.recorder.spill import spilled_session_chunks, spilled_times
 from contactkit.schemas import InputError, SessionMeta, write_session
 from contactkit.schemas.dataset import INDEX_NAME
 from contactkit.schemas.session import table_from_columns, write_session_batches
-from contactkit.schemas.timing import chunked_steps
 from contactkit.util.exact_median import exact_medians
 from contactkit.util.paths import inside, safe_name
 from contactkit.util.text import quote
@@ -154,7 +154,7 @@ def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out
                   overwrite: bool = False) -> Path:
     """Write a validated session from array files; return its path. The files are read a
     block at a time into temporary files and the session written a row group at a time
-    (:func:`contactkit.recorder.arrays.spill_joint_arrays`), in bounded memory."""
+    (:func:`contactkit.recorder.importers.arrays.spill_joint_arrays`), in bounded memory."""
     if name is not None:
         output_name(name)
     spills = spill_joint_arrays(t_path, q_path, dq_path, tau_path)

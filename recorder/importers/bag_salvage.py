@@ -5,7 +5,7 @@ rosbags opens a bag through the index at its end; a truncated bag has none. This
 reader walks the records in file order instead (the formats are documented at
 wiki.ros.org/Bags/Format/2.0 and mcap.dev/spec), keeps every complete message, and
 says at which byte the file stopped making sense. It offers the few parts of the
-rosbags reader interface that :mod:`contactkit.recorder.bags` uses.
+rosbags reader interface that :mod:`contactkit.recorder.importers.bags` uses.
 """
 
 from __future__ import annotations

@@ -39,12 +39,14 @@ from contactkit.classify.event_training import fit_event_model, load_session_eve
 from contactkit.classify.events import DEFAULT_DECIDE_AFTER_S, EVENT_FEATURES
 from contactkit.classify.kind import ModelOptions
 from contactkit.classify.modelfile import FORMAT as MODEL_FORMAT
+from contactkit.classify.modelfile import ModelFile, load_model
 from contactkit.classify.training import train
 from contactkit.features.detector import MIN_NOISE, DetectorConfig
-from contactkit.recorder.dataset import simulate_dataset
-from contactkit.recorder.sim import SimConfig
+from contactkit.recorder.sim.dataset import simulate_dataset
+from contactkit.recorder.sim.simulator import SimConfig
 from contactkit.schemas.dataset import session_files
 from contactkit.util.cache import cache_dir
+from contactkit.util.progress import LabelledProgress
 
 RECIPE = {
     "presets": ["default-static", "default-dynamic"],
@@ -116,3 +118,17 @@ def build_default_model(workers: int = 2, progress: Progress | None = None,
     return train(sources, path, options, workers=workers, overwrite=True, progress=progress,
                  detector=detector.to_dict(),
                  events=(event_model.estimator, event_model.meta())).path
+
+
+def model_or_default(path: Path | None, progress: LabelledProgress | None = None
+                     ) -> ModelFile:
+    """Load the model file at ``path``, or the default model (built and cached on first
+    use, see :mod:`contactkit.cli.default_model`)."""
+    if path is not None:
+        return load_model(path)
+    return load_model(build_default_model(progress=progress))
+
+
+def default_model_missing() -> bool:
+    """Return whether the default model still has to be built (minutes, once)."""
+    return not default_model_path().exists()

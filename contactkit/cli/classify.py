@@ -41,6 +41,7 @@ from contactkit.classify.prediction import predict_sources, session_paths
 from contactkit.classify.registry import get_kind, kind_names
 from contactkit.classify.schemes import SCHEMES
 from contactkit.classify.training import evaluate_kind, train
+from contactkit.cli.common import RobotOpt, SchedulerOpt, exit_if_failed, new_app, run_app
 from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.detector import DetectorConfig, load_calibration, save_calibration
 from contactkit.features.extract import SessionFeatures, feature_rows
@@ -51,7 +52,6 @@ from contactkit.features.windows import METHODS
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.features import write_feature_table
 from contactkit.util.atomic import check_target, write_text
-from contactkit.util.cli import RobotOpt, SchedulerOpt, exit_if_failed, new_app, run_app
 from contactkit.util.parallel import available_cpus, use_scheduler
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar
 

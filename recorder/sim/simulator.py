@@ -38,10 +38,10 @@ Physics (thesis section 5.3.1, extended):
   trajectory within a factor of 3 (``tests/test_features_real.py``). With the
   thesis-like +-5 % the simulated residuals were 2-2.5x too small on joints 1-4.
 * Sensors: white noise on q, dq and tau at the levels measured on the real Panda
-  recordings (:mod:`contactkit.recorder.noise`; the velocity noise grows with speed, from
+  recordings (:mod:`contactkit.recorder.sim.noise`; the velocity noise grows with speed, from
   its level on the real arm holding a pose), a per-session torque bias, optional
   time-stamp jitter and dropped samples.
-* Contacts: :mod:`contactkit.recorder.forces` (any link, any direction, person-dependent).
+* Contacts: :mod:`contactkit.recorder.sim.forces` (any link, any direction, person-dependent).
 
 Sessions are stepped in lockstep in batches, with ``pin.abaInParallel`` over the
 batch, which amortises Python overhead (see ``benchmarks/bench_simulator.py``).
@@ -57,9 +57,6 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from contactkit.recorder.forces import Contact, Persona, sample_contact
-from contactkit.recorder.motion import MotionPlan, free_motion_plan
-from contactkit.recorder.noise import SensorNoise, default_noise
 from contactkit.recorder.protocol import (
     check_action,
     check_condition,
@@ -67,6 +64,9 @@ from contactkit.recorder.protocol import (
     motion_duration_s,
     pose_q,
 )
+from contactkit.recorder.sim.forces import Contact, Persona, sample_contact
+from contactkit.recorder.sim.motion import MotionPlan, free_motion_plan
+from contactkit.recorder.sim.noise import SensorNoise, default_noise
 from contactkit.robots import N_JOINTS, RobotSetup, canonical_robot_name, get_robot
 from contactkit.robots.model import RobotModel
 from contactkit.robots.surfaces import link_surface
@@ -247,7 +247,7 @@ def plan_free_session(*, seed: int, action: str, pose: str, duration_s: float,
                       pose_jitter_rad: float = 0.0, robot: RobotSetup | None = None,
                       operator_variability: float = 1.0,
                       contact_timing: str = "any") -> SessionSpec:
-    """Plan a free-motion session (:mod:`contactkit.recorder.motion`) from pose ``pose``.
+    """Plan a free-motion session (:mod:`contactkit.recorder.sim.motion`) from pose ``pose``.
 
     The arm holds for 1 s, then moves freely (moves, multi-sine stretches, holds) for
     the rest of ``duration_s`` [s]. A contact (any action but none) is planned while

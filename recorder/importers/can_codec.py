@@ -1,4 +1,4 @@
-"""Samples to CAN frames and back, per a :class:`contactkit.recorder.can_map.FrameMap`.
+"""Samples to CAN frames and back, per a :class:`contactkit.recorder.importers.can_map.FrameMap`.
 
 Encoding: for each sample the PDO frames of every joint, then a SYNC frame carrying
 a CiA 301 counter (1..240) at the sample's time stamp; the PDOs go out 10 us apart
@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass
 import can
 import numpy as np
 
-from contactkit.recorder.can_map import QUANTITIES, FrameMap
+from contactkit.recorder.importers.can_map import QUANTITIES, FrameMap
 from contactkit.schemas import N_JOINTS, joint_columns
 
 FRAME_SPACING_S = 10e-6

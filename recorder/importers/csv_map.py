@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from contactkit.recorder.map_file import known_keys, load_map_file, one_of
+from contactkit.recorder.importers.map_file import known_keys, load_map_file, one_of
 from contactkit.robots import canonical_robot_name
 from contactkit.schemas import N_JOINTS
 

@@ -23,7 +23,7 @@ choices of section 5.3.3 and what it listed as future work):
   point-to-point moves to random poses, multi-sine stretches like the exciting
   trajectories of robot identification, stops and holds, with joints at up to 85 %
   of their velocity limits (the real Gaz log reaches 1.8 rad/s, 83 %) and within
-  70 % of their acceleration limits (:mod:`contactkit.recorder.motion`). In
+  70 % of their acceleration limits (:mod:`contactkit.recorder.sim.motion`). In
   ``mixed-motion`` the contact comes while the arm moves or within 0.3 s after it
   stops, with free motion around it. Both simulate in a few minutes on 2 cores.
 
@@ -46,7 +46,7 @@ import numpy as np
 from contactkit.features.limits import limit_violation
 from contactkit.recorder.metadata import session_filename
 from contactkit.recorder.protocol import POSES, START_POSE
-from contactkit.recorder.sim import (
+from contactkit.recorder.sim.simulator import (
     ArmSimulator,
     SessionSpec,
     SimConfig,

@@ -36,13 +36,13 @@ from typing import Any
 
 import numpy as np
 
-from contactkit.recorder.bag_salvage import SalvageReader
-from contactkit.recorder.importer import write_imported_chunks
+from contactkit.features.timing import streamed_sampling_stats
+from contactkit.recorder.importers.bag_salvage import SalvageReader
+from contactkit.recorder.importers.spill import RowSpill
+from contactkit.recorder.importers.writer import write_imported_chunks
 from contactkit.recorder.metadata import session_meta
-from contactkit.recorder.spill import RowSpill
 from contactkit.schemas import InputError, SessionMeta, joint_columns
 from contactkit.schemas.session import WRENCH_HAT_COLUMNS
-from contactkit.schemas.timing import streamed_sampling_stats
 from contactkit.util.parallel import map_ordered, split_problems
 from contactkit.util.progress import ProgressCallback
 
@@ -266,7 +266,7 @@ ROWS = {FRANKA_STATE: _franka_state_rows, FRANKA_ROBOT_STATE: _franka_robot_stat
 
 def _open_reader(path: Path) -> Any:
     """Open a bag with rosbags, or, when its end (and index) is missing, scan what is left
-    of a ROS 1 or MCAP file (:class:`contactkit.recorder.bag_salvage.SalvageReader`)."""
+    of a ROS 1 or MCAP file (:class:`contactkit.recorder.importers.bag_salvage.SalvageReader`)."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 

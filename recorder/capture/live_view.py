@@ -17,10 +17,10 @@ import rerun as rr
 from contactkit.errors import InputError
 from contactkit.robots.surfaces import viewer_urdf_file
 from contactkit.schemas import SessionMeta, joint_columns
-from contactkit.schemas import rerun_layout as layout
-from contactkit.schemas.rerun_layout import capture_blueprint
 from contactkit.util.atomic import atomic_write
-from contactkit.util.viewer import has_display, start_web_viewer
+from contactkit.viewer import layout
+from contactkit.viewer.layout import capture_blueprint
+from contactkit.viewer.web import has_display, start_web_viewer
 
 ROBOT_VIEW_HZ = 60.0
 PANDA_RATE_HZ = 1000.0

@@ -4,7 +4,7 @@ HTML is one self-contained file (plots embedded as PNG data) with plain styled
 tables; Markdown comes with its PNGs beside it; JSON
 (``schemas/stats_report.schema.json``) is for machines. Tables are built as Polars
 data frames and rendered here, numbers formatted with the unit in the column
-header. Plots use the viewer's class colours (:mod:`contactkit.schemas.rerun_layout`).
+header. Plots use the viewer's class colours (:mod:`contactkit.viewer.layout`).
 """
 
 from __future__ import annotations
@@ -24,10 +24,10 @@ import polars as pl
 from rich.console import Console
 from rich.table import Table
 
-from contactkit.recorder.stats_deep import PROFILE_T
+from contactkit.recorder.stats.deep import PROFILE_T
 from contactkit.schemas import ACTIONS
-from contactkit.schemas.rerun_layout import CLASS_COLORS, JOINT_COLORS
 from contactkit.util.atomic import Owned, owned_by_marker, write_bytes, write_text
+from contactkit.viewer.palette import CLASS_COLORS, JOINT_COLORS
 
 FORMATS = ("html", "md", "json")
 

@@ -57,6 +57,8 @@ import rerun as rr
 import rerun.blueprint as rrb
 import rerun.urdf
 
+from contactkit.viewer.palette import CLASS_COLORS, JOINT_COLORS
+
 TIME = "time"
 SAMPLE = "sample"
 JOINT_NAMES = [f"joint {i}" for i in range(1, 8)]
@@ -81,11 +83,6 @@ BASE_FRAME = "panda_link0"
 JOINT_TRANSFORMS = "robot/joint_transforms"
 FORCE_ARROW_M_PER_N = 0.01
 FORCE_ARROW_RADIUS_M = 0.006
-CLASS_COLORS = {"none": (160, 160, 160), "bump": (66, 135, 245), "adjust": (60, 180, 75),
-                "shove": (230, 60, 60), "contact": (230, 140, 40),
-                "intentional": (150, 80, 200)}
-JOINT_COLORS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40),
-                (148, 103, 189), (140, 86, 75), (227, 119, 194)]
 AXIS_COLORS = [(200, 70, 50), (60, 150, 60), (50, 100, 200)]  # x, y, z
 ESTIMATE_COLOR = (20, 20, 20)
 CONTACT_COLOR = (150, 80, 200)

@@ -13,22 +13,24 @@ from typing import Annotated
 
 import typer
 
+from contactkit.cli.common import RobotOpt, new_app, run_app
+from contactkit.cli.default_model import (
+    build_default_model,
+    default_model_missing,
+    model_or_default,
+)
 from contactkit.features.detector import load_calibration
-from contactkit.replay.default_model import build_default_model
 from contactkit.replay.engine import DEFAULT_HOP_S
 from contactkit.replay.recording import owned_recording, save_path_for
 from contactkit.replay.session_replay import (
     ReplaySummary,
-    default_model_missing,
-    model_or_default,
     replay_sessions,
     session_inputs,
 )
 from contactkit.schemas import InputError
 from contactkit.util.atomic import check_target
-from contactkit.util.cli import RobotOpt, new_app, run_app
 from contactkit.util.progress import err_console, labelled_progress, progress_bar
-from contactkit.util.viewer import has_display, start_web_viewer
+from contactkit.viewer.web import has_display, start_web_viewer
 
 DEFAULT_SAVE = Path("replay.rrd")
 
@@ -92,7 +94,7 @@ def replay_command(
              "when it is a recording).")] = False,
     build_default_model_: Annotated[bool, typer.Option(
         "--build-default-model", help="(Re)build the default model from its recipe "
-                                      "(see replay/default_model.py) and exit.")] = False,
+                                      "(see contactkit/cli/default_model.py) and exit.")] = False,
 ) -> None:
     """Replay sessions through the streaming feature chain and a classifier, and show
     torques, residuals, wrench, class probabilities and the robot, time-aligned, in

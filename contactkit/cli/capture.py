@@ -23,13 +23,13 @@ from typing import Annotated, Any, Literal
 
 import typer
 
-from contactkit.recorder.capture import (
+from contactkit.recorder.capture.live_view import open_live_view
+from contactkit.recorder.capture.record import (
     CaptureListener,
     OperatorCue,
     output_directory,
     record_session,
 )
-from contactkit.recorder.live_view import open_live_view
 from contactkit.recorder.protocol import POSES
 from contactkit.recorder.sources import (
     ProtocolChoices,

@@ -1,0 +1,5 @@
+"""The commands (``recorder``, ``replay``, ``classify``): the composition roots.
+
+Each module here parses a command line and calls the library below it. This is the only
+layer that joins the recorder and classify (the live events of ``capture --events``, the
+default model's recipe). No library module imports from here."""

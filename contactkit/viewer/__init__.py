@@ -1,0 +1,3 @@
+"""The Rerun view shared by the recorder's live view and replay: entity paths, blueprints
+and colours (:mod:`~contactkit.viewer.layout`) and the web viewer
+(:mod:`~contactkit.viewer.web`)."""
