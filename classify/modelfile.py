@@ -36,6 +36,7 @@ from contactkit.classify.skops_format import (
     versions,
     write_skops,
 )
+from contactkit.errors import ContactkitError
 from contactkit.schemas import InputError
 from contactkit.util.atomic import check_target
 
@@ -157,7 +158,7 @@ def _load_event_estimator(path: Path, meta: dict) -> object | None:
                 raise InputError(f"model file lacks its event classifier ({EVENTS_MEMBER})",
                                  path)
             data = archive.read(EVENTS_MEMBER)
-    except InputError:
+    except ContactkitError:
         raise
     except Exception as err:  # the file changed since it was checked, or is damaged
         raise InputError(f"damaged model file ({type(err).__name__})", path) from err

@@ -35,19 +35,19 @@ import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 from sklearn.model_selection import train_test_split
 
-from contactkit.errors import InputError
+from contactkit.errors import DependencyMissing, InputError
 from contactkit.util.parallel import dask_worker_rank
 
 DEVICES = ("auto", "cpu", "cuda")
 
 
 def require_torch():
-    """Return the torch module, or raise a one-line InputError naming the extra."""
+    """Return the torch module, or raise a one-line DependencyMissing naming the extra."""
     try:
         import torch
     except ImportError as err:
-        raise InputError("neural networks need PyTorch: pip install 'contactkit[nn]' "
-                         "(torch==2.13.0, CPU)") from err
+        raise DependencyMissing("neural networks need PyTorch: pip install 'contactkit[nn]' "
+                                "(torch==2.13.0, CPU)") from err
     return torch
 
 

@@ -46,6 +46,7 @@ from contactkit.classify.networks import (
 )
 from contactkit.classify.onnx_model import ONNX
 from contactkit.classify.skops_format import SKOPS
+from contactkit.errors import DependencyMissing
 from contactkit.schemas import InputError
 from contactkit.util.parallel import resolve_scheduler
 
@@ -63,7 +64,8 @@ class MiniRocketClassifier(ClassifierMixin, BaseEstimator):
         try:
             from aeon.classification.convolution_based import MiniRocketClassifier as Rocket
         except ImportError as err:
-            raise InputError("MiniRocket needs aeon: pip install 'contactkit[nn]'") from err
+            raise DependencyMissing("MiniRocket needs aeon: pip install 'contactkit[nn]'"
+                                    ) from err
         self.model_ = Rocket(n_kernels=self.n_kernels, random_state=self.seed)
         self.model_.fit(np.asarray(X, dtype=np.float64), y)
         self.classes_ = self.model_.classes_
@@ -82,7 +84,7 @@ def _require_aeon() -> None:
     try:
         import aeon  # noqa: F401
     except ImportError as err:
-        raise InputError("MiniRocket needs aeon: pip install 'contactkit[nn]'") from err
+        raise DependencyMissing("MiniRocket needs aeon: pip install 'contactkit[nn]'") from err
 
 
 def _check_epochs(options: ModelOptions) -> None:

@@ -17,6 +17,7 @@ import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 
 from contactkit.classify.kind import ModelFormat
+from contactkit.errors import DependencyMissing
 from contactkit.schemas import InputError
 from contactkit.util.atomic import atomic_write
 
@@ -84,8 +85,8 @@ def load_onnx_model(path: Path, trusted_types: object = None) -> tuple[OnnxClass
     try:
         import onnx
     except ImportError as err:
-        raise InputError("ONNX models need onnx and onnxruntime: pip install "
-                         "'contactkit[nn]'", path) from err
+        raise DependencyMissing("ONNX models need onnx and onnxruntime: pip install "
+                                "'contactkit[nn]'", path) from err
     try:
         model = onnx.load(str(path))
     except Exception as err:  # onnx raises DecodeError and others on foreign bytes

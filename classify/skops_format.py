@@ -22,6 +22,7 @@ from pathlib import Path
 import skops.io as sio
 
 from contactkit.classify.kind import ModelFormat
+from contactkit.errors import ContactkitError
 from contactkit.schemas import InputError
 from contactkit.util.atomic import atomic_write
 
@@ -127,7 +128,7 @@ def read_skops(path: Path, trusted_types: Callable[[dict], Sequence[str]] = lamb
                 raise InputError("not a contactkit model file (contactkit.json is not an "
                                  "object)", path)
             digest = members_digest(archive, meta)
-    except InputError:
+    except ContactkitError:
         raise
     except Exception as err:  # zipfile, zlib, json and struct all raise on corrupt bytes
         raise InputError(f"not a contactkit model file, or a damaged one "

@@ -1,6 +1,6 @@
 """The executor seam on Dask distributed: a LocalCluster of 2 workers on 127.0.0.1
 gives the same results, in the same order, as the local pool; a killed worker loses
-nothing; an unreachable scheduler is a one-line InputError."""
+nothing; an unreachable scheduler is a one-line ResourceError."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ import pyarrow.parquet as pq
 import pytest
 from sklearn.svm import SVC
 
-from contactkit.errors import InputError
+from contactkit.errors import InputError, ResourceError
 from contactkit.features.extract import SessionFeatures, _session_feature_row
 from contactkit.recorder.sim.dataset import PRESETS, preset_specs, simulate_specs
 from contactkit.recorder.sim.simulator import SimConfig
@@ -147,7 +147,7 @@ def test_unreachable_scheduler(monkeypatch):
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
     address = f"tcp://127.0.0.1:{port}"
-    with pytest.raises(InputError) as caught:
+    with pytest.raises(ResourceError) as caught:
         list(map_ordered(_slow_square, [1], scheduler=address))
     assert "cannot reach the Dask scheduler" in str(caught.value)
     assert "\n" not in str(caught.value)
@@ -184,7 +184,7 @@ def test_scheduler_without_workers(monkeypatch):
     monkeypatch.setattr(dask_executor, "CONNECT_TIMEOUT_S", 2.0)
     with (distributed.LocalCluster(n_workers=0, processes=False, protocol="tcp",
                                    host="127.0.0.1", dashboard_address=None) as empty,
-          pytest.raises(InputError, match="has no worker")):
+          pytest.raises(ResourceError, match="has no worker")):
         list(map_ordered(_slow_square, [1], scheduler=empty.scheduler_address))
 
 

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from conftest import BIN, kill_when_journal_holds, run_cli
 
+from contactkit.errors import DependencyMissing
 from contactkit.recorder.capture.record import capture
 from contactkit.recorder.metadata import session_meta
 from contactkit.recorder.sources import source_class
@@ -177,7 +178,7 @@ def test_panda_python_backend_against_stand_in(tmp_path):
 
 def test_missing_extra_names_it(monkeypatch):
     monkeypatch.setitem(EXTRAS, "panda-python", ("no_such_module_for_test", "panda"))
-    with pytest.raises(InputError, match=r"contactkit\[panda\]"):
+    with pytest.raises(DependencyMissing, match=r"contactkit\[panda\]"):
         open_backend("172.16.0.2", "panda-python", False)
     with pytest.raises(InputError, match="unknown franka backend"):
         open_backend("172.16.0.2", "ros", False)

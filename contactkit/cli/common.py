@@ -1,5 +1,5 @@
-"""Command-line apps: one factory, and running them so that bad input is one line on
-stderr and exit code 2."""
+"""Command-line apps: one factory, and running them so that an error the user can act on
+is one line on stderr and exit code 2."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from contactkit.errors import InputError
+from contactkit.errors import ContactkitError
 from contactkit.util.parallel import SCHEDULER_ENV
 
 SchedulerOpt = Annotated[str | None, typer.Option(
@@ -52,13 +52,14 @@ def new_app(name: str | None = None, help: str | None = None, **settings) -> typ
 def run_app(app: typer.Typer, prog: str, argv: list[str] | None = None) -> int:
     """Run a Typer app; return its exit code.
 
-    :class:`InputError` and usage errors print ``prog: error: <one line>`` on stderr
-    and give exit code 2 (a bare command prints its help); Ctrl-C gives 130. No
+    A :class:`~contactkit.errors.ContactkitError` (bad input, a missing extra, a full
+    disk or a dead cluster) and usage errors print ``prog: error: <one line>`` on
+    stderr and give exit code 2 (a bare command prints its help); Ctrl-C gives 130. No
     traceback reaches the user for bad input (a bug still shows one).
     """
     try:
         result = app(args=argv, prog_name=prog, standalone_mode=False)
-    except InputError as err:
+    except ContactkitError as err:
         print(f"{prog}: error: {err}", file=sys.stderr)
         return 2
     except typer.TyperException as err:

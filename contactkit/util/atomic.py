@@ -15,7 +15,8 @@ failure (full disk, read-only directory, kill) leaves no partial target.
   default output the tool owns only when it is recognisably the tool's (``owned``):
   never a symbolic link, never a foreign file.
 - Errors of cleaning up never hide the error that made the write fail; an ``OSError``
-  becomes one :class:`InputError` line naming the file.
+  becomes one :class:`InputError` line naming the file (a :class:`ResourceError` when
+  the device is full).
 - Leftovers of killed writers are recognised by their name and removed by
   :func:`remove_stale_temporaries` only when their writer's process is gone or they are
   older than :data:`STALE_AGE_S`.
@@ -35,7 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
-from contactkit.errors import InputError
+from contactkit.errors import InputError, write_error
 
 STALE_AGE_S = 24 * 3600.0
 """Age [s] after which a temporary file is removed even when its pid is alive (pids are
@@ -120,7 +121,8 @@ def atomic_write(path: str | Path, *, overwrite: bool = False, flag: str = "--ov
     :func:`check_target`, checked before the temporary is created and again when it is
     moved into place. ``suffix`` ends the temporary's name (for writers that choose a
     format by suffix, e.g. ``.asc``). On any error the temporary is removed and the
-    target left as it was; an ``OSError`` is raised as one :class:`InputError` line.
+    target left as it was; an ``OSError`` is raised as one :class:`InputError` line (a
+    :class:`~contactkit.errors.ResourceError` when the device is full).
     """
     path = Path(path)
     replace = overwrite or owned is not None
@@ -129,7 +131,7 @@ def atomic_write(path: str | Path, *, overwrite: bool = False, flag: str = "--ov
         fd, name = tempfile.mkstemp(prefix=temporary_prefix(path), suffix=".tmp" + suffix,
                                     dir=path.parent)
     except OSError as err:
-        raise InputError(_describe(err), path) from err
+        raise write_error(_describe(err), err, path) from err
     tmp = Path(name)
     handle = os.fdopen(fd, "wb")
     try:
@@ -159,7 +161,7 @@ def atomic_write(path: str | Path, *, overwrite: bool = False, flag: str = "--ov
                 os.replace(tmp, path)
         _fsync_dir(path.parent)
     except OSError as err:
-        raise InputError(_describe(err), path) from err
+        raise write_error(_describe(err), err, path) from err
     finally:
         with suppress(OSError):
             handle.close()
@@ -187,7 +189,7 @@ def atomic_directory(path: str | Path, *, overwrite: bool = False,
         holder = Path(tempfile.mkdtemp(prefix=temporary_prefix(path), suffix=".tmp",
                                        dir=path.parent))
     except OSError as err:
-        raise InputError(_describe(err), path) from err
+        raise write_error(_describe(err), err, path) from err
     try:
         inner = holder / path.name
         yield inner
@@ -199,7 +201,7 @@ def atomic_directory(path: str | Path, *, overwrite: bool = False,
         os.rename(inner, path)
         _fsync_dir(path.parent)
     except OSError as err:
-        raise InputError(_describe(err), path) from err
+        raise write_error(_describe(err), err, path) from err
     finally:
         with suppress(OSError):
             shutil.rmtree(holder)

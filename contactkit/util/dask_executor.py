@@ -24,7 +24,7 @@ import os
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any, TypeVar
 
-from contactkit.errors import InputError
+from contactkit.errors import DependencyMissing, InputError, ResourceError
 from contactkit.util.progress import ProgressCallback
 from contactkit.util.workers import ordered_results
 
@@ -58,16 +58,17 @@ def _require_distributed():
     try:
         import distributed
     except ImportError as err:
-        raise InputError("a Dask scheduler needs Dask distributed: "
-                         "pip install 'contactkit[dask]'") from err
+        raise DependencyMissing("a Dask scheduler needs Dask distributed: "
+                                "pip install 'contactkit[dask]'") from err
     return distributed
 
 
 def get_client(address: str):
     """Return the (cached) ``distributed.Client`` of a scheduler string.
 
-    Raises :class:`InputError` when a remote scheduler does not answer, or has no
-    worker, within :data:`CONNECT_TIMEOUT_S`.
+    Raises :class:`~contactkit.errors.ResourceError` when a remote scheduler does not
+    answer, or has no worker, within :data:`CONNECT_TIMEOUT_S`, and
+    :class:`~contactkit.errors.DependencyMissing` without the ``dask`` extra.
     """
     if address in _clients:
         return _clients[address]
@@ -93,15 +94,15 @@ def get_client(address: str):
         try:
             client = distributed.Client(address, timeout=CONNECT_TIMEOUT_S)
         except (OSError, TimeoutError) as err:
-            raise InputError(f"cannot reach the Dask scheduler at {address} within "
-                             f"{CONNECT_TIMEOUT_S:g} s") from err
+            raise ResourceError(f"cannot reach the Dask scheduler at {address} within "
+                                f"{CONNECT_TIMEOUT_S:g} s") from err
         try:
             client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
         except TimeoutError as err:
             client.close()
-            raise InputError(f"the Dask scheduler at {address} has no worker within "
-                             f"{CONNECT_TIMEOUT_S:g} s (start some with `dask worker`)"
-                             ) from err
+            raise ResourceError(f"the Dask scheduler at {address} has no worker within "
+                                f"{CONNECT_TIMEOUT_S:g} s (start some with `dask worker`)"
+                                ) from err
     _clients[address] = client
     return client
 

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from contactkit.errors import DATA_ERRORS, problem_text
+from contactkit.errors import DATA_ERRORS, ContactkitError, problem_text, write_error
 from contactkit.schemas import InputError, SessionMeta
 from contactkit.schemas.session import (
     METADATA_KEY,
@@ -130,17 +130,18 @@ class SessionWriter:
 
     @contextlib.contextmanager
     def _writing(self):
-        """Turn a failed journal write (disk full, I/O error) into an InputError that
-        says what is safe; later flushes are refused."""
+        """Turn a failed journal write (disk full: a ResourceError, I/O error: an
+        InputError) into one line that says what is safe; later flushes are refused."""
         if self._failed:
             raise InputError("the journal is no longer writable", self.journal)
         try:
             yield
         except OSError as err:
             self._failed = True
-            raise InputError(f"cannot write the journal ({err.strerror or err}); the capture "
-                             f"stopped and its {self.samples_written} samples already flushed "
-                             "are kept for `recorder recover`", self.journal) from err
+            raise write_error(f"cannot write the journal ({err.strerror or err}); the "
+                              f"capture stopped and its {self.samples_written} samples "
+                              "already flushed are kept for `recorder recover`", err,
+                              self.journal) from err
 
     def _sync(self) -> None:
         self._file.flush()
@@ -175,7 +176,7 @@ class SessionWriter:
             if not self._failed:
                 self.flush()
                 self._stream.close()
-        except InputError:
+        except ContactkitError:
             pass
         finally:
             with contextlib.suppress(OSError):

@@ -16,6 +16,7 @@ from pathlib import Path
 import can
 import numpy as np
 
+from contactkit.errors import DependencyMissing
 from contactkit.recorder.importers.can_codec import (
     SampleAssembler,
     rows_to_columns,
@@ -58,7 +59,8 @@ def _messages(path: Path) -> Iterator[can.Message]:
     try:
         reader = iter(can.LogReader(path))
     except ImportError as err:
-        raise InputError(f"reading this format needs an extra package ({err})", path) from err
+        raise DependencyMissing(f"reading this format needs an extra package ({err})",
+                                path) from err
     except Exception as err:  # a third-party parser of untrusted bytes
         raise InputError(f"cannot read this log ({type(err).__name__}: {str(err)[:80]})",
                          path) from err

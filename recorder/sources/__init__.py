@@ -37,6 +37,7 @@ import importlib
 import importlib.metadata
 import inspect
 
+from contactkit.errors import ContactkitError
 from contactkit.recorder.sources.base import ProtocolChoices, Source
 from contactkit.recorder.sources.options import SourceOption, make_config, source_options
 from contactkit.schemas import InputError
@@ -92,7 +93,7 @@ def load_sources() -> tuple[dict[str, type[Source]], dict[str, str]]:
     for name, target in registered_sources().items():
         try:
             classes[name] = _load(name, target)
-        except InputError as err:
+        except ContactkitError as err:
             problems[name] = str(err)
     return classes, problems
 

@@ -17,6 +17,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from contactkit.errors import ContactkitError, DependencyMissing
 from contactkit.schemas import InputError
 
 BACKENDS = ("auto", "pylibfranka", "panda-python")
@@ -69,8 +70,8 @@ def _import(backend: str) -> Any:
     try:
         return importlib.import_module(module)
     except ImportError as err:
-        raise InputError(f"the franka source's {backend} backend needs the {module} module: "
-                         f"pip install 'contactkit[{extra}]'") from err
+        raise DependencyMissing(f"the franka source's {backend} backend needs the {module} "
+                                f"module: pip install 'contactkit[{extra}]'") from err
 
 
 def _version(distribution: str) -> str | None:
@@ -166,14 +167,14 @@ def open_backend(host: str, backend: str, realtime_kernel: bool) -> Backend:
         return _connect(BACKEND_CLASSES[backend], host, realtime_kernel)
     candidates = [name for name in BACKEND_CLASSES if _installed(name)]
     if not candidates:
-        raise InputError("the franka source needs pylibfranka (FR3: pip install "
-                         "'contactkit[fr3]') or panda-python (Panda: pip install "
-                         "'contactkit[panda]')")
+        raise DependencyMissing("the franka source needs pylibfranka (FR3: pip install "
+                                "'contactkit[fr3]') or panda-python (Panda: pip install "
+                                "'contactkit[panda]')")
     answers = []
     for name in candidates:
         try:
             return _connect(BACKEND_CLASSES[name], host, realtime_kernel)
-        except InputError as err:
+        except ContactkitError as err:
             answers.append(f"{name}: {err}")
     raise InputError(f"no franka backend connects to {host}: " + "; ".join(answers))
 
@@ -181,7 +182,7 @@ def open_backend(host: str, backend: str, realtime_kernel: bool) -> Backend:
 def _connect(cls: type, host: str, realtime_kernel: bool) -> Backend:
     try:
         return cls(host, realtime_kernel)
-    except InputError:
+    except ContactkitError:
         raise
     except Exception as err:  # libfranka raises its own exception types per binding
         first = str(err).splitlines()[0] if str(err) else type(err).__name__
