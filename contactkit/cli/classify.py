@@ -41,7 +41,16 @@ from contactkit.classify.prediction import predict_sources, session_paths
 from contactkit.classify.registry import get_kind, kind_names
 from contactkit.classify.schemes import SCHEMES
 from contactkit.classify.training import evaluate_kind, train
-from contactkit.cli.common import RobotOpt, SchedulerOpt, exit_if_failed, new_app, run_app
+from contactkit.cli.common import (
+    QuietOpt,
+    RobotOpt,
+    SchedulerOpt,
+    VerboseOpt,
+    exit_if_failed,
+    new_app,
+    run_app,
+    set_verbosity,
+)
 from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.detector import DetectorConfig, load_calibration, save_calibration
 from contactkit.features.extract import SessionFeatures, feature_rows
@@ -74,8 +83,10 @@ Network = _choices("Network", NETWORKS)
 
 
 @app.callback()
-def _root(scheduler: SchedulerOpt = None) -> None:
+def _root(scheduler: SchedulerOpt = None, verbose: VerboseOpt = 0,
+          quiet: QuietOpt = False) -> None:
     """Turn sessions into features and contact predictions."""
+    set_verbosity(verbose, quiet)
     use_scheduler(scheduler)
 
 

@@ -3,6 +3,7 @@ is one line on stderr and exit code 2."""
 
 from __future__ import annotations
 
+import logging
 import sys
 from typing import Annotated
 
@@ -26,6 +27,44 @@ RobotOpt = Annotated[str | None, typer.Option(
          "recorded before sessions named their arm; `recorder set-robot` corrects a file "
          "for good.")]
 """The ``--robot`` override of the commands that run the feature chain on sessions."""
+
+
+VerboseOpt = Annotated[int, typer.Option(
+    "--verbose", "-v", count=True, show_default=False,
+    help="Say more: -v adds what the tools do (info), -vv debugging detail.")]
+"""The ``-v`` option of every command line (before the subcommand where there is one)."""
+QuietOpt = Annotated[bool, typer.Option(
+    "--quiet", "-q", help="Say less: only errors (no warnings) on stderr.")]
+"""The ``-q`` option of every command line; it wins over ``-v``."""
+
+LOGGER = "contactkit"
+"""The logger every library module logs under (``logging.getLogger(__name__)``)."""
+
+
+class _StderrHandler(logging.StreamHandler):
+    """Write each record as ``prog: message`` to whatever ``sys.stderr`` is when it is
+    emitted: a progress bar's redirection (so the bar is not torn), a test's capture."""
+
+    def __init__(self, prog: str) -> None:
+        super().__init__()
+        self.setFormatter(logging.Formatter(f"{prog}: %(message)s"))
+
+    @property
+    def stream(self):  # type: ignore[override]
+        """The current ``sys.stderr``."""
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, _value) -> None:
+        """Ignore the stream the base class sets: the current one is used."""
+
+
+def set_verbosity(verbose: int = 0, quiet: bool = False) -> None:
+    """Set how much contactkit's logger lets through: warnings (default), info with one
+    ``-v``, debugging with two, only errors with ``quiet``."""
+    levels = {0: logging.WARNING, 1: logging.INFO}
+    level = logging.ERROR if quiet else levels.get(verbose, logging.DEBUG)
+    logging.getLogger(LOGGER).setLevel(level)
 
 
 SOME_FAILED = 2
@@ -55,8 +94,22 @@ def run_app(app: typer.Typer, prog: str, argv: list[str] | None = None) -> int:
     A :class:`~contactkit.errors.ContactkitError` (bad input, a missing extra, a full
     disk or a dead cluster) and usage errors print ``prog: error: <one line>`` on
     stderr and give exit code 2 (a bare command prints its help); Ctrl-C gives 130. No
-    traceback reaches the user for bad input (a bug still shows one).
+    traceback reaches the user for bad input (a bug still shows one). While it runs,
+    the library's log records (warnings, unless ``-v`` or ``-q`` says otherwise) go to
+    stderr as ``prog: message``.
     """
+    logger = logging.getLogger(LOGGER)
+    handler = _StderrHandler(prog)
+    logger.addHandler(handler)
+    set_verbosity()
+    try:
+        return _run(app, prog, argv)
+    finally:
+        logger.removeHandler(handler)
+
+
+def _run(app: typer.Typer, prog: str, argv: list[str] | None) -> int:
+    """Run the app as :func:`run_app` says; return its exit code."""
     try:
         result = app(args=argv, prog_name=prog, standalone_mode=False)
     except ContactkitError as err:

@@ -19,7 +19,15 @@ from contactkit.cli.capture import (
     Pose,
     register_capture,
 )
-from contactkit.cli.common import SchedulerOpt, exit_if_failed, new_app, run_app
+from contactkit.cli.common import (
+    QuietOpt,
+    SchedulerOpt,
+    VerboseOpt,
+    exit_if_failed,
+    new_app,
+    run_app,
+    set_verbosity,
+)
 from contactkit.recorder.capture.journal import recover_directory
 from contactkit.recorder.capture.record import output_directory
 from contactkit.recorder.importers.bags import BagJob, find_bags, import_bag_job, import_bags
@@ -127,9 +135,11 @@ OutOption = Annotated[Path, typer.Option(help="Output directory.")]
 
 
 @app.callback()
-def _root(scheduler: SchedulerOpt = None) -> None:
+def _root(scheduler: SchedulerOpt = None, verbose: VerboseOpt = 0,
+          quiet: QuietOpt = False) -> None:
     """Record Panda joint streams while a person touches the arm on cue, and manage the
     resulting sessions. Without a robot, sessions come from a physics simulation."""
+    set_verbosity(verbose, quiet)
     use_scheduler(scheduler)
 
 

@@ -13,7 +13,7 @@ from typing import Annotated
 
 import typer
 
-from contactkit.cli.common import RobotOpt, new_app, run_app
+from contactkit.cli.common import QuietOpt, RobotOpt, VerboseOpt, new_app, run_app, set_verbosity
 from contactkit.cli.default_model import (
     build_default_model,
     default_model_missing,
@@ -95,6 +95,8 @@ def replay_command(
     build_default_model_: Annotated[bool, typer.Option(
         "--build-default-model", help="(Re)build the default model from its recipe "
                                       "(see contactkit/cli/default_model.py) and exit.")] = False,
+    verbose: VerboseOpt = 0,
+    quiet: QuietOpt = False,
 ) -> None:
     """Replay sessions through the streaming feature chain and a classifier, and show
     torques, residuals, wrench, class probabilities and the robot, time-aligned, in
@@ -102,6 +104,7 @@ def replay_command(
 
     Example: replay session.parquet --viewer rerun
     """
+    set_verbosity(verbose, quiet)
     if build_default_model_:
         with progress_bar() as bar:
             print(build_default_model(progress=labelled_progress(bar), rebuild=True))

@@ -36,6 +36,7 @@ JOBS_PER_WORKER = 8
 """Jobs per worker a known number of items is split into: few enough that scheduling
 costs little, enough to balance the load and to lose little when a worker dies."""
 
+log = logging.getLogger(__name__)
 _clients: dict[str, Any] = {}
 
 
@@ -90,6 +91,7 @@ def get_client(address: str):
                                                silence_logs=logging.CRITICAL)
         client = distributed.Client(cluster)
         client.register_plugin(_die_with_parent_plugin(os.getpid()))
+        log.info("started a Dask LocalCluster of %d workers on 127.0.0.1", count)
     else:
         try:
             client = distributed.Client(address, timeout=CONNECT_TIMEOUT_S)
@@ -103,6 +105,8 @@ def get_client(address: str):
             raise ResourceError(f"the Dask scheduler at {address} has no worker within "
                                 f"{CONNECT_TIMEOUT_S:g} s (start some with `dask worker`)"
                                 ) from err
+        log.info("connected to the Dask scheduler at %s (%d worker threads)", address,
+                 worker_count(client))
     _clients[address] = client
     return client
 

@@ -11,7 +11,7 @@ the bus gives the cue's time on the bus clock.
 
 from __future__ import annotations
 
-import sys
+import logging
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -26,6 +26,7 @@ from contactkit.recorder.importers.can_map import FrameMap, load_map
 from contactkit.recorder.sources.base import ProtocolChoices, Source
 from contactkit.schemas import InputError
 
+log = logging.getLogger(__name__)
 CHUNK_S = 0.01
 
 
@@ -146,7 +147,7 @@ class CanSource(Source):
                 if now - last_frame > limit:
                     self.end_reason = (f"bus silent for {limit:.1f} s: capture ended, "
                                        "everything received so far is kept")
-                    print(f"recorder: {self.end_reason}", file=sys.stderr)
+                    log.warning(self.end_reason)
                     break
             if self.cue is not None and t_first is not None and self.cue_time_s is None and \
                     rows and rows[-1][0] >= self.cue.planned_at_s:

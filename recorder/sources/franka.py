@@ -10,7 +10,7 @@ was recorded is kept.
 
 from __future__ import annotations
 
-import sys
+import logging
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -30,6 +30,7 @@ from contactkit.robots import DEFAULT_ROBOT
 from contactkit.schemas import joint_columns
 from contactkit.schemas.session import WRENCH_HAT_COLUMNS
 
+log = logging.getLogger(__name__)
 FRANKA_COLUMNS = ["t", *joint_columns("q"), *joint_columns("dq"), *joint_columns("tau"),
                   *joint_columns("q_d"), *joint_columns("dq_d"), *joint_columns("tau_ext_hat"),
                   *WRENCH_HAT_COLUMNS, "robot_mode", "command_success_rate"]
@@ -128,7 +129,7 @@ class FrankaSource(Source):
             except ConnectionLost as err:
                 self.end_reason = f"connection lost ({err}): capture ended, everything " \
                                   "received so far is kept"
-                print(f"recorder: {self.end_reason}", file=sys.stderr)
+                log.warning(self.end_reason)
                 break
             if self.robot_time_start_s is None:
                 self.robot_time_start_s = float(buffer[0, 0])
