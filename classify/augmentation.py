@@ -89,10 +89,12 @@ class Cell:
 def run_augmentation(real_dir: Path, sim_dir: Path, out_dir: Path, *, kind: ModelKind,
                      options: ModelOptions, repeats: int = 3, workers: int = 1,
                      noise_file: Path | None = None,
-                     progress: Progress | None = None) -> list[Path]:
+                     progress: Progress | None = None,
+                     scheduler: str | None = None) -> list[Path]:
     """Run the experiment with a kind that takes grids (``options`` size the network and
-    the grid; the seed of repetition r is ``options.seed + r``); write augmentation.md,
-    .json and .png; return their paths."""
+    the grid; the seed of repetition r is ``options.seed + r``), in ``workers`` processes
+    or on the Dask ``scheduler``; write augmentation.md, .json and .png; return their
+    paths."""
     if kind.input.name != GRIDS.name:
         raise InputError(f"the augmentation experiment trains networks on grids; a "
                          f"{kind.name} model takes {kind.input.name}")
@@ -105,7 +107,7 @@ def run_augmentation(real_dir: Path, sim_dir: Path, out_dir: Path, *, kind: Mode
 
     def grids(source: Path, aug: Augmentation | None, label: str) -> FeatureSet:
         report = None if progress is None else (lambda d, t: progress(label, d, t))
-        return load_grids([source], spec, workers, aug, report)
+        return load_grids([source], spec, workers, aug, report, scheduler=scheduler)
 
     real = grids(real_dir, None, "real grids")
     sim_sets = {"1xSim": grids(sim_dir, None, "sim grids")}
@@ -140,7 +142,7 @@ def run_augmentation(real_dir: Path, sim_dir: Path, out_dir: Path, *, kind: Mode
                    np.concatenate(y), real.X[test])
 
     report = None if progress is None else (lambda d, t: progress("trainings", d, t))
-    predictions = fit_predict_many(tasks(), workers, report, len(plan))
+    predictions = fit_predict_many(tasks(), workers, report, len(plan), scheduler=scheduler)
     cells = {(f, c): Cell(f, c, []) for f in FRACTIONS for c in conditions}
     for (_, fraction, condition, _, test), predicted in zip(plan, predictions, strict=True):
         score = metrics_from_confusion(confusion(y_real[test], predicted, classes))

@@ -73,17 +73,19 @@ def calibrate_sessions(paths: Sequence[str | Path], template: DetectorConfig | N
                        progress: ProgressCallback | None = None,
                        motion_margin: float | None = None,
                        robot: str | None = None,
-                       problems: list[tuple[str, str]] | None = None) -> DetectorConfig:
+                       problems: list[tuple[str, str]] | None = None,
+                       scheduler: str | None = None) -> DetectorConfig:
     """Calibrate the detector on the no-contact samples of ``paths`` (``margin`` and
     ``motion_margin`` as in :func:`~contactkit.features.detector.calibrate`; ``robot``
     the arm's model instead of each session's own); return its settings, with the
     session count in ``source`` and, when every session is of one arm, its name in
     ``robot`` (the settings then apply to that arm as they are). A session that cannot
     be read is left out and, when ``problems`` is given, appended to it as ``(file,
-    problem)`` (without it, the first such session raises its InputError)."""
+    problem)`` (without it, the first such session raises its InputError). Sessions are
+    read in ``workers`` processes or on the Dask ``scheduler``."""
     template = template or DetectorConfig()
     results = list(map_ordered(_job, [(str(p), template, robot) for p in paths],
-                               workers=workers, progress=progress))
+                               workers=workers, progress=progress, scheduler=scheduler))
     bad = [(name, problem) for name, _, problem in results if problem is not None]
     if bad and problems is None:
         raise InputError(bad[0][1], bad[0][0])

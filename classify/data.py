@@ -114,12 +114,14 @@ def _cache_key(files: list[Path], config: dict) -> str:
 
 def load_features(sources: Sequence[Path], extractor: SessionFeatures, workers: int = 1,
                   progress: Callable[[int, int], None] | None = None,
-                  cache: bool = True) -> FeatureSet:
-    """Return the feature set of one or more dataset directories or feature tables.
+                  cache: bool = True, *, scheduler: str | None = None) -> FeatureSet:
+    """Return the feature set of one or more dataset directories or feature tables,
+    computed in ``workers`` processes or on the Dask ``scheduler``.
 
     Several sources are concatenated (for example a static and a dynamic dataset).
     """
-    parts = [_load_one(Path(s), extractor, workers, progress, cache) for s in sources]
+    parts = [_load_one(Path(s), extractor, workers, progress, cache, scheduler)
+             for s in sources]
     if len(parts) == 1:
         return parts[0]
     names = parts[0].names
@@ -132,7 +134,8 @@ def load_features(sources: Sequence[Path], extractor: SessionFeatures, workers: 
 
 
 def _load_one(source: Path, extractor: SessionFeatures, workers: int,
-              progress: Callable[[int, int], None] | None, cache: bool) -> FeatureSet:
+              progress: Callable[[int, int], None] | None, cache: bool,
+              scheduler: str | None) -> FeatureSet:
     if source.is_file():
         table, doc = read_feature_table(source)
         return _from_table(table, doc, [])
@@ -147,7 +150,7 @@ def _load_one(source: Path, extractor: SessionFeatures, workers: int,
     if cache and cache_path.is_file():
         table, doc = read_feature_table(cache_path)
         return _from_table(table, doc, [])
-    result = feature_rows(files, extractor, workers, progress)
+    result = feature_rows(files, extractor, workers, progress, scheduler=scheduler)
     if not result.rows:
         raise InputError("no session could be processed", source)
     table = pa.Table.from_pylist(result.rows, schema=feature_table_schema(result.names, config))

@@ -155,7 +155,8 @@ def _fit_predict(task: tuple) -> np.ndarray:
 
 def fit_predict_many(tasks: Iterable[tuple], workers: int = 1,
                      progress: Callable[[int, int], None] | None = None,
-                     total: int | None = None) -> list[np.ndarray]:
+                     total: int | None = None, *,
+                     scheduler: str | None = None) -> list[np.ndarray]:
     """Fit and predict every ``(estimator, X_train, y_train, X_test)`` task; return the
     predictions in task order.
 
@@ -163,22 +164,24 @@ def fit_predict_many(tasks: Iterable[tuple], workers: int = 1,
     most two per worker held in memory at once; the results do not depend on it.
     ``tasks`` may be a generator, so training sets are built only when needed.
     As with any spawned pool, a script that calls this with ``workers`` > 1 must do
-    so under ``if __name__ == "__main__":``.
+    so under ``if __name__ == "__main__":``. A Dask ``scheduler`` runs them on its
+    cluster instead.
     """
     return list(map_ordered(_fit_predict, tasks, workers=workers, progress=progress,
-                            total=total, spawn=True, in_flight=2))
+                            total=total, spawn=True, in_flight=2, scheduler=scheduler))
 
 
 def evaluate(X: np.ndarray, y: np.ndarray, make_estimator: Callable[[], object], *,
              protocol: str, groups: np.ndarray | None = None, group_by: str | None = None,
              model: str = "svm", scheme: str = "full", classes: list[str] | None = None,
              seed: int = 0, progress: Callable[[int, int], None] | None = None,
-             workers: int = 1) -> Report:
+             workers: int = 1, scheduler: str | None = None) -> Report:
     """Evaluate a classifier under a protocol; return the :class:`Report`.
 
     ``make_estimator()`` returns a fresh, unfitted estimator for each split. With
     ``workers`` > 1 the splits are fitted in that many processes (worth it for
-    networks, whose training is single-threaded); the result does not depend on it.
+    networks, whose training is single-threaded), or on the Dask ``scheduler``; the
+    result does not depend on it.
     """
     classes = classes or sorted(set(y))
     classes = [c for c in classes if c in set(y)]
@@ -187,7 +190,8 @@ def evaluate(X: np.ndarray, y: np.ndarray, make_estimator: Callable[[], object],
     folds = splits(protocol, y, groups, seed)
     tasks = ((clone(make_estimator()), X[train], y[train], X[test]) for train, test in folds)
     try:
-        predictions = fit_predict_many(tasks, min(workers, len(folds)), progress, len(folds))
+        predictions = fit_predict_many(tasks, min(workers, len(folds)), progress, len(folds),
+                                       scheduler=scheduler)
     except ValueError as err:
         raise InputError(f"cannot fit a split of {len(folds)}: {err}") from err
     true_all, pred_all, cluster_all = [], [], []

@@ -98,12 +98,14 @@ def _job(item: tuple[str, DetectorConfig, tuple[float, ...]]) -> list[SessionEve
 
 def load_session_events(paths: Sequence[str | Path], detector: DetectorConfig,
                         decide_after_s: Sequence[float], workers: int = 1,
-                        progress: ProgressCallback | None = None
-                        ) -> dict[float, list[SessionEvents]]:
-    """Return, per decision delay, every session's events (in the order of ``paths``)."""
+                        progress: ProgressCallback | None = None, *,
+                        scheduler: str | None = None) -> dict[float, list[SessionEvents]]:
+    """Return, per decision delay, every session's events (in the order of ``paths``),
+    found in ``workers`` processes or on the Dask ``scheduler``."""
     delays = tuple(float(d) for d in decide_after_s)
     per_session = list(map_ordered(_job, [(str(p), detector, delays) for p in paths],
-                                   workers=workers, progress=progress))
+                                   workers=workers, progress=progress,
+                                   scheduler=scheduler))
     return {d: [s[i] for s in per_session] for i, d in enumerate(delays)}
 
 

@@ -53,7 +53,8 @@ Progress = Callable[[str, int, int], None]
 
 @dataclass
 class Setting:
-    """How experiments evaluate: protocol, grouping, class scheme, seed, workers."""
+    """How experiments evaluate: protocol, grouping, class scheme, seed, and where the
+    features are computed (``workers`` processes, or the Dask ``scheduler``)."""
 
     protocol: str = "group"
     group_by: str = "pose"
@@ -61,6 +62,7 @@ class Setting:
     seed: int = 0
     workers: int = 1
     c: float = 10.0
+    scheduler: str | None = None
 
 
 @dataclass
@@ -96,7 +98,8 @@ def _wide(sources: Sequence[Path], setting: Setting, window_s: float = 0.5,
     extractor = SessionFeatures(timeseries=list(ALL_TIMESERIES), scalars=list(SCALARS),
                                 window_s=window_s)
     report = None if progress is None else (lambda d, t: progress(label, d, t))
-    return load_features(sources, extractor, setting.workers, report)
+    return load_features(sources, extractor, setting.workers, report,
+                         scheduler=setting.scheduler)
 
 
 def feature_identification(data: FeatureSet, setting: Setting,
@@ -198,7 +201,8 @@ def window_lengths(sources: Sequence[Path], setting: Setting,
         extractor = SessionFeatures(window="difference", window_s=length)
         report_progress = None if progress is None else (
             lambda d, t, length=length: progress(f"window {length} s", d, t))
-        data = load_features(sources, extractor, setting.workers, report_progress)
+        data = load_features(sources, extractor, setting.workers, report_progress,
+                             scheduler=setting.scheduler)
         rows.append(Row(f"{length:.1f} s", "range(dq, tau, r), difference window",
                         _evaluate(data, setting)))
     return rows
@@ -268,7 +272,8 @@ def run_experiment(name: str, sources: Sequence[Path], out_dir: Path, setting: S
         extractor = SessionFeatures()
         data = load_features(sources, extractor, setting.workers,
                              None if progress is None else
-                             (lambda d, t: progress("features", d, t)))
+                             (lambda d, t: progress("features", d, t)),
+                             scheduler=setting.scheduler)
         rows = speed_bands(data, setting, progress)
         title, series = "Accuracy by joint speed (thesis Figure 6.5)", True
     else:

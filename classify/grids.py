@@ -246,15 +246,17 @@ def session_paths(sources: Sequence[Path]) -> list[str]:
 
 def load_grids(sources: Sequence[Path], spec: GridSpec, workers: int = 1,
                augmentation: Augmentation | None = None,
-               progress: Callable[[int, int], None] | None = None) -> FeatureSet:
-    """Compute the grids of every session of the dataset directories (in parallel).
+               progress: Callable[[int, int], None] | None = None, *,
+               scheduler: str | None = None) -> FeatureSet:
+    """Compute the grids of every session of the dataset directories (in ``workers``
+    processes or on the Dask ``scheduler``).
 
     Returns a :class:`contactkit.classify.data.FeatureSet` whose X is (sessions, channels, steps),
     so labels, groups and the limited context work as for scalar features.
     """
     jobs = [(p, spec, augmentation) for p in session_paths(sources)]
     good, problems = split_problems(map_ordered(_grid_job, jobs, workers=workers,
-                                                progress=progress))
+                                                progress=progress, scheduler=scheduler))
     if not good:
         raise InputError("no session could be processed")
     info = {key: np.array([r[1][key] for r in good],
@@ -279,8 +281,9 @@ def _grids_from_config(config: dict) -> SessionGrids:
 
 
 def _load_grid_set(sources: Sequence[Path], grids: SessionGrids, workers: int = 1,
-                   progress: Callable[[int, int], None] | None = None) -> FeatureSet:
-    return load_grids(sources, grids.spec, workers, progress=progress)
+                   progress: Callable[[int, int], None] | None = None, *,
+                   scheduler: str | None = None) -> FeatureSet:
+    return load_grids(sources, grids.spec, workers, progress=progress, scheduler=scheduler)
 
 
 GRIDS = InputKind(name="grid", meta_key="grid", build=grids_for,

@@ -18,7 +18,7 @@ from __future__ import annotations
 import itertools
 import json
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from contactkit.classify.data import FeatureSet
@@ -30,7 +30,7 @@ from contactkit.classify.schemes import check_scheme, scheme_classes
 from contactkit.classify.training import TrainedModel, train, training_set
 from contactkit.schemas import InputError
 from contactkit.util.atomic import owned_result, write_text
-from contactkit.util.parallel import map_ordered
+from contactkit.util.parallel import map_ordered, resolve_scheduler
 from contactkit.util.progress import LabelledProgress
 
 THESIS_DEPTHS = (1, 2, 4)
@@ -158,10 +158,13 @@ def run_trials(sources: Sequence[Path], trials: Sequence[Trial], protocol: Proto
     that needs them is submitted (by ``grids``, default the kind's input over
     ``sources`` with ``workers``); a trial whose grids cannot be computed is reported
     with the problem. Trials run as jobs on ``workers`` local processes or the Dask
-    ``scheduler`` (default ``$CONTACTKIT_SCHEDULER``). ``progress(label, done, total)``
-    reports grids and trials.
+    ``scheduler``. ``progress(label, done, total)`` reports grids and trials.
     """
-    protocol.check()
+    # The GPUs of a cluster are its workers' business: this process checks, and computes
+    # the grids, as if on the CPU (the device does not change the grids).
+    here = protocol if resolve_scheduler(scheduler) is None else replace(protocol,
+                                                                          device="cpu")
+    here.check()
     if not trials:
         raise InputError("the grid has no trials")
     kind = get_kind(protocol.model)
@@ -171,7 +174,8 @@ def run_trials(sources: Sequence[Path], trials: Sequence[Trial], protocol: Proto
     if grids is None:
         session_paths(sources)  # a missing dataset fails now, not once per trial
     grids = grids or (lambda options: training_set(sources, options, workers=workers,
-                                                   progress=progress).data)
+                                                   progress=progress,
+                                                   scheduler=scheduler).data)
     cache: dict[tuple, FeatureSet | str] = {}
 
     def jobs():
@@ -179,7 +183,7 @@ def run_trials(sources: Sequence[Path], trials: Sequence[Trial], protocol: Proto
             key = (trial.inputs, trial.steps)
             if key not in cache:
                 try:
-                    cache[key] = grids(protocol.options(trial))
+                    cache[key] = grids(here.options(trial))
                 except InputError as err:
                     cache[key] = str(err)
             yield trial, protocol, cache[key]
@@ -257,8 +261,10 @@ def best_model_path(out_dir: Path, protocol: Protocol) -> Path:
 
 def train_best(sources: Sequence[Path], best: Trial, protocol: Protocol, out: Path, *,
                workers: int = 1, overwrite: bool = False,
-               progress: LabelledProgress | None = None) -> TrainedModel:
-    """Train the best trial's network on every session and save it through the model
+               progress: LabelledProgress | None = None,
+               scheduler: str | None = None) -> TrainedModel:
+    """Train the best trial's network on every session (its input computed in
+    ``workers`` processes or on the Dask ``scheduler``) and save it through the model
     registry; return what was written."""
     return train(sources, out, protocol.options(best), scheme=protocol.scheme, workers=workers,
-                 overwrite=overwrite, progress=progress)
+                 overwrite=overwrite, progress=progress, scheduler=scheduler)

@@ -67,6 +67,16 @@ class SessionTransformer(Protocol):
     def chain_config(self): ...
 
 
+class InputLoader(Protocol):
+    """How an input kind loads dataset directories (see :class:`InputKind`)."""
+
+    def __call__(self, sources: Sequence[Path], transformer: SessionTransformer,
+                 workers: int = 1, progress: ProgressCallback | None = None, *,
+                 scheduler: str | None = None) -> Any:
+        """Return the FeatureSet of ``sources``, computed in ``workers`` processes or on
+        the Dask ``scheduler``."""
+
+
 @dataclass(frozen=True)
 class InputKind:
     """How a kind sees a session.
@@ -74,15 +84,16 @@ class InputKind:
     ``name`` is stored in model files (``input``) and ``meta_key`` holds the
     transformer's configuration there; ``build(options, kind)`` returns the
     configured transformer, ``from_config`` rebuilds it from a model file, and
-    ``load(sources, transformer, workers, progress)`` returns the
-    :class:`contactkit.classify.data.FeatureSet` of dataset directories.
+    ``load(sources, transformer, workers, progress, scheduler=None)`` returns the
+    :class:`contactkit.classify.data.FeatureSet` of dataset directories, computed in
+    ``workers`` processes or on the Dask ``scheduler``.
     """
 
     name: str
     meta_key: str
     build: Callable[[ModelOptions, ModelKind], SessionTransformer]
     from_config: Callable[[dict], SessionTransformer]
-    load: Callable[[Sequence[Path], SessionTransformer, int, ProgressCallback | None], Any]
+    load: InputLoader
 
 
 @dataclass(frozen=True)

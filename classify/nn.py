@@ -48,7 +48,6 @@ from contactkit.classify.onnx_model import ONNX
 from contactkit.classify.skops_format import SKOPS
 from contactkit.errors import DependencyMissing
 from contactkit.schemas import InputError
-from contactkit.util.parallel import resolve_scheduler
 
 
 class MiniRocketClassifier(ClassifierMixin, BaseEstimator):
@@ -105,8 +104,7 @@ def _check_network(options: ModelOptions) -> None:
     if options.device not in DEVICES:
         raise InputError(f"unknown device {options.device!r} (expected one of "
                          f"{', '.join(DEVICES)})")
-    if resolve_scheduler() is None:  # the GPUs of a cluster are its workers' business
-        check_device(options.device)
+    check_device(options.device)
 
 
 def _torch_params(options: ModelOptions) -> dict:

@@ -32,17 +32,19 @@ class TrainingSet:
 
 
 def training_set(datasets: Sequence[Path], options: ModelOptions, *, workers: int = 1,
-                 limited: bool = False, progress: LabelledProgress | None = None
-                 ) -> TrainingSet:
+                 limited: bool = False, progress: LabelledProgress | None = None,
+                 scheduler: str | None = None) -> TrainingSet:
     """Check ``options`` for their kind, then compute (or read from the dataset cache)
-    the kind's input for every session of ``datasets``; sessions that fail are listed
-    in ``data.problems``. ``limited`` keeps the limited context only."""
+    the kind's input for every session of ``datasets`` (in ``workers`` processes or on
+    the Dask ``scheduler``); sessions that fail are listed in ``data.problems``.
+    ``limited`` keeps the limited context only."""
     kind = get_kind(options.kind)
     kind.check_options(options)
     transformer = kind.transformer(options)
     report = None if progress is None else (
         lambda done, total: progress(f"{kind.input.name} of sessions", done, total))
-    data = kind.input.load([Path(d) for d in datasets], transformer, workers, report)
+    data = kind.input.load([Path(d) for d in datasets], transformer, workers, report,
+                           scheduler=scheduler)
     return TrainingSet(kind, transformer, data.limited() if limited else data)
 
 
@@ -60,11 +62,13 @@ class TrainedModel:
 def train(datasets: Sequence[Path], out: Path, options: ModelOptions, *, scheme: str = "full",
           limited: bool = False, workers: int = 1, overwrite: bool = False,
           progress: LabelledProgress | None = None, detector: dict | None = None,
-          events: tuple[object, dict] | None = None) -> TrainedModel:
+          events: tuple[object, dict] | None = None,
+          scheduler: str | None = None) -> TrainedModel:
     """Train a model of ``options.kind`` on every session of ``datasets`` and save it to
     ``out`` in the kind's file format; return what was written. ``detector`` and
     ``events`` (a contact detector's settings, an event classifier with its settings)
-    travel in the model file (see :func:`contactkit.classify.modelfile.save_model`)."""
+    travel in the model file (see :func:`contactkit.classify.modelfile.save_model`). The
+    input is computed in ``workers`` processes or on the Dask ``scheduler``."""
     check_scheme(scheme)
     out = Path(out)
     check_target(out, overwrite=overwrite)
@@ -73,7 +77,7 @@ def train(datasets: Sequence[Path], out: Path, options: ModelOptions, *, scheme:
         raise InputError(f"a {kind.name} model is saved as {kind.file_format.name}: the file "
                          f"name must end in {kind.file_format.suffix}", out)
     found = training_set(datasets, options, workers=workers, limited=limited,
-                         progress=progress)
+                         progress=progress, scheduler=scheduler)
     data = found.data
     estimator = kind.make(options, list(data.names))
     estimator.fit(data.X, data.labels(scheme))
@@ -91,10 +95,11 @@ def train(datasets: Sequence[Path], out: Path, options: ModelOptions, *, scheme:
 
 def evaluate_kind(datasets: Sequence[Path], options: ModelOptions, *, protocol: str = "group",
                   group: str = "pose", scheme: str = "full", limited: bool = False,
-                  workers: int = 1, progress: LabelledProgress | None = None
-                  ) -> tuple[Report, list[tuple[str, str]]]:
+                  workers: int = 1, progress: LabelledProgress | None = None,
+                  scheduler: str | None = None) -> tuple[Report, list[tuple[str, str]]]:
     """Evaluate ``options.kind`` on ``datasets`` under a protocol (see
-    :mod:`contactkit.classify.evaluate`); return the report and the skipped files."""
+    :mod:`contactkit.classify.evaluate`), in ``workers`` processes or on the Dask
+    ``scheduler``; return the report and the skipped files."""
     check_scheme(scheme)
     if protocol not in PROTOCOLS:
         raise InputError(f"unknown protocol {protocol!r} (expected one of "
@@ -103,7 +108,7 @@ def evaluate_kind(datasets: Sequence[Path], options: ModelOptions, *, protocol: 
         raise InputError(f"unknown grouping {group!r} (expected one of "
                          f"{', '.join(GROUP_KEYS)})")
     found = training_set(datasets, options, workers=workers, limited=limited,
-                         progress=progress)
+                         progress=progress, scheduler=scheduler)
     data, kind = found.data, found.kind
     template = kind.make(options, list(data.names))
     report = None if progress is None else (
@@ -112,5 +117,6 @@ def evaluate_kind(datasets: Sequence[Path], options: ModelOptions, *, protocol: 
                       groups=data.groups(group) if protocol == "group" else None,
                       group_by=group, model=kind.name, scheme=scheme,
                       classes=scheme_classes(scheme), seed=options.seed,
-                      workers=workers if kind.parallel_fits else 1, progress=report)
+                      workers=workers if kind.parallel_fits else 1, progress=report,
+                      scheduler=scheduler if kind.parallel_fits else None)
     return result, list(data.problems)

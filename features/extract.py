@@ -200,9 +200,11 @@ def _session_feature_row(job: tuple[str, dict]) -> tuple[str, dict | None, str |
 
 
 def feature_rows(paths: Sequence[str | Path], extractor: SessionFeatures, workers: int = 1,
-                 progress: Callable[[int, int], None] | None = None) -> FeatureRows:
-    """Compute the scalar features of many sessions, in ``workers`` processes; the rows
-    come in the order of ``paths`` whatever the number of workers.
+                 progress: Callable[[int, int], None] | None = None, *,
+                 scheduler: str | None = None) -> FeatureRows:
+    """Compute the scalar features of many sessions, in ``workers`` processes (or on the
+    Dask ``scheduler``, see :func:`contactkit.util.parallel.map_ordered`); the rows come
+    in the order of ``paths`` whatever the number of workers.
 
     Sessions that fail (bad file, window too short) are listed in ``problems``.
     """
@@ -211,7 +213,7 @@ def feature_rows(paths: Sequence[str | Path], extractor: SessionFeatures, worker
     names = list(extractor.get_feature_names_out())
     jobs = [(str(p), params) for p in paths]
     rows, problems = split_problems(map_ordered(_session_feature_row, jobs, workers=workers,
-                                                progress=progress))
+                                                progress=progress, scheduler=scheduler))
     return FeatureRows(rows=rows, names=names, problems=problems)
 
 

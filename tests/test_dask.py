@@ -47,13 +47,12 @@ def _fit_predict(task: tuple) -> np.ndarray:
 
 
 def test_scheduler_strings(monkeypatch):
-    monkeypatch.delenv("CONTACTKIT_SCHEDULER", raising=False)
     assert resolve_scheduler(None) is None
     assert resolve_scheduler("local") is None
     assert resolve_scheduler("local:3") == "local:3"
     assert resolve_scheduler("tcp://10.0.0.1:8786") == "tcp://10.0.0.1:8786"
     monkeypatch.setenv("CONTACTKIT_SCHEDULER", "local:2")
-    assert resolve_scheduler(None) == "local:2"
+    assert resolve_scheduler(None) is None  # the library reads no environment
     for bad in ("local:0", "local:x", "http://host:1", "tcp://host"):
         with pytest.raises(InputError):
             resolve_scheduler(bad)
@@ -173,8 +172,7 @@ def test_gridsearch_and_lstm_evaluate_identical(cluster, tmp_path, monkeypatch):
     options = ModelOptions(kind="lstm", timeseries=("dq", "tau"), steps=20, epochs=2,
                            depth=1, width=0.5, patience=1)
     local_report, _ = evaluate_kind([dataset], options, workers=2)
-    monkeypatch.setenv("CONTACTKIT_SCHEDULER", CLUSTER)
-    remote_report, _ = evaluate_kind([dataset], options, workers=2)
+    remote_report, _ = evaluate_kind([dataset], options, workers=2, scheduler=CLUSTER)
     assert remote_report.as_dict() == local_report.as_dict()
 
 
@@ -188,15 +186,18 @@ def test_scheduler_without_workers(monkeypatch):
         list(map_ordered(_slow_square, [1], scheduler=empty.scheduler_address))
 
 
-def test_cli_scheduler_option(tmp_path, session_path):
-    """--scheduler on the root of a command sends its jobs to Dask; same table."""
+def test_cli_scheduler_option(tmp_path, session_path, monkeypatch):
+    """--scheduler on the root of a command (or $CONTACTKIT_SCHEDULER, its default)
+    sends its jobs to Dask; same table."""
     from tests.conftest import run_cli
 
     tables = {}
-    for name, root in (("local", ()), ("dask", ("--scheduler", "local:1"))):
+    for name, root in (("local", ()), ("dask", ("--scheduler", "local:1")), ("env", ())):
+        if name == "env":
+            monkeypatch.setenv("CONTACTKIT_SCHEDULER", "local:1")
         out = tmp_path / f"{name}.parquet"
         done = run_cli("classify", *root, "features", str(session_path), "--out", str(out),
                        "--workers", "1")
         assert done.returncode == 0, done.stderr
         tables[name] = pq.read_table(out)
-    assert tables["dask"].equals(tables["local"])
+    assert tables["dask"].equals(tables["local"]) and tables["env"].equals(tables["local"])

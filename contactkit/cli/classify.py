@@ -41,16 +41,7 @@ from contactkit.classify.prediction import predict_sources, session_paths
 from contactkit.classify.registry import get_kind, kind_names
 from contactkit.classify.schemes import SCHEMES
 from contactkit.classify.training import evaluate_kind, train
-from contactkit.cli.common import (
-    QuietOpt,
-    RobotOpt,
-    SchedulerOpt,
-    VerboseOpt,
-    exit_if_failed,
-    new_app,
-    run_app,
-    set_verbosity,
-)
+from contactkit.cli.common import RobotOpt, exit_if_failed, new_app, run_app, scheduler_of
 from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.detector import DetectorConfig, load_calibration, save_calibration
 from contactkit.features.extract import SessionFeatures, feature_rows
@@ -61,10 +52,11 @@ from contactkit.features.windows import METHODS
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.features import write_feature_table
 from contactkit.util.atomic import check_target, write_text
-from contactkit.util.parallel import available_cpus, use_scheduler
+from contactkit.util.parallel import available_cpus
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar
 
-app = new_app("classify", help="Turn sessions into features and contact predictions.")
+app = new_app("classify", help="Turn sessions into features and contact predictions.",
+              root_options=True)
 DEFAULT_WORKERS = available_cpus()
 
 
@@ -80,14 +72,6 @@ Method = _choices("Method", METHODS)
 Experiment = _choices("Experiment", (*EXPERIMENTS, "augmentation"))
 Device = _choices("Device", DEVICES)
 Network = _choices("Network", NETWORKS)
-
-
-@app.callback()
-def _root(scheduler: SchedulerOpt = None, verbose: VerboseOpt = 0,
-          quiet: QuietOpt = False) -> None:
-    """Turn sessions into features and contact predictions."""
-    set_verbosity(verbose, quiet)
-    use_scheduler(scheduler)
 
 
 def _split(value: str | None) -> tuple[str, ...] | None:
@@ -109,6 +93,7 @@ def _skipped(problems) -> None:
 
 @app.command("features")
 def features_command(
+    ctx: typer.Context,
     source: Annotated[Path, typer.Argument(help="A session file or a dataset directory.")],
     out: Annotated[Path, typer.Option(help="Output Parquet file.")],
     timeseries: Annotated[str, typer.Option(
@@ -141,7 +126,8 @@ def features_command(
         extractor = SessionFeatures(timeseries=list(_split(timeseries)), scalars=list(
             _split(scalars)), window=Method(window).value, window_s=window_s,
             robot=robot).fit(None)
-        result = feature_rows(files, extractor, workers, progress)
+        result = feature_rows(files, extractor, workers, progress,
+                              scheduler=scheduler_of(ctx))
     _skipped(result.problems)
     if not result.rows:
         raise InputError("no session could be processed", source)
@@ -200,6 +186,7 @@ def _options(model, features, scalars, window, window_s, c, seed, epochs, steps,
 
 @app.command("train")
 def train_command(
+    ctx: typer.Context,
     datasets: DatasetsArg,
     out: Annotated[Path, typer.Option(
         help="Model file to write: .skops (SVMs, MiniRocket) or .onnx (CNN, LSTM).")],
@@ -218,7 +205,8 @@ def train_command(
                        depth, width, dropout, device)
     with progress_bar("train") as bar:
         trained = train(datasets, out, options, scheme=Scheme(scheme).value, limited=limited,
-                        workers=workers, overwrite=overwrite, progress=labelled_progress(bar))
+                        workers=workers, overwrite=overwrite, progress=labelled_progress(bar),
+                        scheduler=scheduler_of(ctx))
     _skipped(trained.problems)
     err_console.print(f"trained {trained.kind} on {trained.sessions} sessions, classes "
                       f"{', '.join(trained.classes)}")
@@ -228,6 +216,7 @@ def train_command(
 
 @app.command("evaluate")
 def evaluate_command(
+    ctx: typer.Context,
     datasets: DatasetsArg,
     protocol: Annotated[Protocol, typer.Option(
         help="thesis: 25 random 80/20 splits; group: no group on both sides of a split.")
@@ -253,7 +242,7 @@ def evaluate_command(
         report, problems = evaluate_kind(
             datasets, options, protocol=Protocol(protocol).value, group=Group(group).value,
             scheme=Scheme(scheme).value, limited=limited, workers=workers,
-            progress=labelled_progress(bar))
+            progress=labelled_progress(bar), scheduler=scheduler_of(ctx))
     _skipped(problems)
     print(report_markdown(report))
     if json_out is not None:
@@ -336,6 +325,7 @@ def _print_events(model, source: Path, detector: DetectorConfig, decide_after: f
 
 @app.command("calibrate")
 def calibrate_command(
+    ctx: typer.Context,
     sessions: Annotated[list[Path], typer.Argument(
         help="No-contact sessions (action none, or with a contact column), files or "
              "directories.")],
@@ -364,7 +354,7 @@ def calibrate_command(
         config = calibrate_sessions(paths, margin=margin, workers=workers,
                                     progress=bar_callback(bar, "sessions"),
                                     motion_margin=motion_margin, robot=robot,
-                                    problems=problems)
+                                    problems=problems, scheduler=scheduler_of(ctx))
     _skipped(problems)
     save_calibration(out, config, overwrite=overwrite)
     print(f"{out}: thresholds at rest {[round(v, 2) for v in config.noise]} Nm, "
@@ -375,6 +365,7 @@ def calibrate_command(
 
 @app.command("experiment")
 def experiment_command(
+    ctx: typer.Context,
     name: Annotated[Experiment, typer.Argument(help="The experiment.")],
     datasets: DatasetsArg,
     out: Annotated[Path, typer.Option(help="Directory for the .md, .json and .png.")],
@@ -398,7 +389,8 @@ def experiment_command(
     (Algorithm 3: less real data, added simulated data and noise augmentation)."""
     name = Experiment(name).value
     setting = Setting(protocol=Protocol(protocol).value, group_by=Group(group).value,
-                      scheme=Scheme(scheme).value, seed=seed, workers=workers, c=c)
+                      scheme=Scheme(scheme).value, seed=seed, workers=workers, c=c,
+                      scheduler=scheduler_of(ctx))
     with progress_bar(f"experiment {name}") as bar:
         progress = labelled_progress(bar)
         if name == "augmentation":
@@ -409,7 +401,8 @@ def experiment_command(
                                    device=Device(device).value)
             paths = run_augmentation(datasets[0], datasets[1], out, kind=kind,
                                      options=options, repeats=repeats, workers=workers,
-                                     noise_file=noise_file, progress=progress)
+                                     noise_file=noise_file, progress=progress,
+                                     scheduler=setting.scheduler)
         else:
             paths = run_experiment(name, datasets, out, setting, progress)
     for path in paths:
@@ -425,6 +418,7 @@ def _numbers(option: str, text: str, kind: type) -> list:
 
 @app.command("gridsearch")
 def gridsearch_command(
+    ctx: typer.Context,
     datasets: DatasetsArg,
     out: Annotated[Path, typer.Option(
         help="Output directory: gridsearch.md, gridsearch.json and the best network "
@@ -473,11 +467,13 @@ def gridsearch_command(
                          [_split(i) for i in inputs] if inputs else [kind.default_timeseries])
     with progress_bar("grid search") as bar:
         progress = labelled_progress(bar)
-        results = run_trials(datasets, trials, setting, workers=workers, progress=progress)
+        results = run_trials(datasets, trials, setting, workers=workers, progress=progress,
+                             scheduler=scheduler_of(ctx))
         md, _ = write_results(out, results, setting)
         best = best_trial(results)
         trained = train_best(datasets, best, setting, best_path, workers=workers,
-                             overwrite=overwrite, progress=progress)
+                             overwrite=overwrite, progress=progress,
+                             scheduler=scheduler_of(ctx))
     failed = [r for r in results if r.report is None]
     for r in failed:
         err_console.print(f"[yellow]failed[/] {r.trial.label()}: {r.problem}")

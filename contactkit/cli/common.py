@@ -10,7 +10,7 @@ from typing import Annotated
 import typer
 
 from contactkit.errors import ContactkitError
-from contactkit.util.parallel import SCHEDULER_ENV
+from contactkit.util.parallel import SCHEDULER_ENV, resolve_scheduler
 
 SchedulerOpt = Annotated[str | None, typer.Option(
     "--scheduler", envvar=SCHEDULER_ENV, show_envvar=True,
@@ -18,8 +18,14 @@ SchedulerOpt = Annotated[str | None, typer.Option(
          "local:N (a Dask LocalCluster of N workers on 127.0.0.1) or tcp://host:8786 (a "
          "running Dask scheduler whose workers see the sessions under the same paths). "
          "Dask needs the dask extra. Results are the same wherever the jobs run.")]
-"""The ``--scheduler`` option of every app whose commands run parallel jobs: pass its
-value to :func:`contactkit.util.parallel.use_scheduler` in the app's callback."""
+"""The ``--scheduler`` option of every app whose commands run parallel jobs, on the app's
+callback; its commands read it with :func:`scheduler_of` and pass it down."""
+
+
+def scheduler_of(ctx: typer.Context) -> str | None:
+    """Return the ``--scheduler`` given to the command line's root (before the
+    subcommand, or from ``$CONTACTKIT_SCHEDULER``); None for the local pool."""
+    return ctx.find_root().params.get("scheduler")
 
 RobotOpt = Annotated[str | None, typer.Option(
     help="The arm's model to use instead of the one each session names: panda, fr3, a "
@@ -79,13 +85,29 @@ def exit_if_failed(problems: object) -> None:
         raise typer.Exit(SOME_FAILED)
 
 
-def new_app(name: str | None = None, help: str | None = None, **settings) -> typer.Typer:
+def new_app(name: str | None = None, help: str | None = None, *,
+            root_options: bool = False, **settings) -> typer.Typer:
     """Return a Typer app with contactkit's settings: plain help text (rich markup off, so
     units in brackets such as "[s]" or "[rad]" print as written), no shell-completion
-    options, no pretty tracebacks, and help when called without arguments."""
+    options, no pretty tracebacks, and help when called without arguments.
+
+    ``root_options`` gives an app of subcommands the options that go before the
+    subcommand: ``--scheduler`` (read by the commands with :func:`scheduler_of`),
+    ``-v/--verbose`` and ``-q/--quiet``.
+    """
     defaults = {"rich_markup_mode": None, "add_completion": False,
                 "pretty_exceptions_enable": False, "no_args_is_help": True}
-    return typer.Typer(name=name, help=help, **(defaults | settings))
+    app = typer.Typer(name=name, help=help, **(defaults | settings))
+    if root_options:
+        app.callback()(_root)
+    return app
+
+
+def _root(scheduler: SchedulerOpt = None, verbose: VerboseOpt = 0,
+          quiet: QuietOpt = False) -> None:
+    """Apply the options before the subcommand (see :func:`new_app`)."""
+    set_verbosity(verbose, quiet)
+    resolve_scheduler(scheduler)  # a malformed address fails before any command runs
 
 
 def run_app(app: typer.Typer, prog: str, argv: list[str] | None = None) -> int:

@@ -19,15 +19,7 @@ from contactkit.cli.capture import (
     Pose,
     register_capture,
 )
-from contactkit.cli.common import (
-    QuietOpt,
-    SchedulerOpt,
-    VerboseOpt,
-    exit_if_failed,
-    new_app,
-    run_app,
-    set_verbosity,
-)
+from contactkit.cli.common import exit_if_failed, new_app, run_app, scheduler_of
 from contactkit.recorder.capture.journal import recover_directory
 from contactkit.recorder.capture.record import output_directory
 from contactkit.recorder.importers.bags import BagJob, find_bags, import_bag_job, import_bags
@@ -48,7 +40,7 @@ from contactkit.robots import DEFAULT_ROBOT, URDF_PREFIX, get_robot, robot_names
 from contactkit.schemas import InputError, SessionMeta, read_session
 from contactkit.schemas.dataset import rebuild_index
 from contactkit.util.atomic import check_target
-from contactkit.util.parallel import available_cpus, use_scheduler
+from contactkit.util.parallel import available_cpus
 from contactkit.util.progress import (
     bar_callback,
     err_console,
@@ -58,7 +50,7 @@ from contactkit.util.progress import (
 
 app = new_app("recorder", help="Record Panda joint streams while a person touches the arm on "
               "cue, and manage the resulting sessions. Without a robot, sessions come from a "
-              "physics simulation.")
+              "physics simulation.", root_options=True)
 DEFAULT_WORKERS = available_cpus()
 Preset = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
 ReportFormat = Literal["html", "md", "json"]
@@ -134,17 +126,9 @@ RobotOption = Annotated[str | None, typer.Option(
 OutOption = Annotated[Path, typer.Option(help="Output directory.")]
 
 
-@app.callback()
-def _root(scheduler: SchedulerOpt = None, verbose: VerboseOpt = 0,
-          quiet: QuietOpt = False) -> None:
-    """Record Panda joint streams while a person touches the arm on cue, and manage the
-    resulting sessions. Without a robot, sessions come from a physics simulation."""
-    set_verbosity(verbose, quiet)
-    use_scheduler(scheduler)
-
-
 @app.command("simulate")
 def simulate_command(
+    ctx: typer.Context,
     out_dir: Annotated[Path, typer.Argument(help="Dataset directory (created if needed).")],
     preset: Annotated[Preset, typer.Option(help="Which sessions to draw.")] = "smoke",
     sessions: Annotated[int | None, typer.Option(
@@ -172,7 +156,8 @@ def simulate_command(
                        robot_seed=chosen.robot_seed if robot_seed is None else robot_seed)
     with progress_bar("simulating") as bar:
         result = simulate_dataset(output_directory(out_dir), preset, sessions, seed, workers,
-                                  config, bar_callback(bar, "sessions"), variability)
+                                  config, bar_callback(bar, "sessions"), variability,
+                                  scheduler=scheduler_of(ctx))
     err_console.print(f"{result.written} written, {result.skipped} already there"
                       + (f", {len(result.failed)} failed" if result.failed else "")
                       + f"; index has {result.index.table.num_rows} sessions")
@@ -326,6 +311,7 @@ def import_csv_command(
 
 @app.command("stats")
 def stats_command(
+    ctx: typer.Context,
     directory: Annotated[Path, typer.Argument(help="Dataset directory.")],
     out: Annotated[Path | None, typer.Option(
         help="Report file (default: report.html, report.md or report.json here).")] = None,
@@ -348,7 +334,8 @@ def stats_command(
     out = report_path(out or Path(f"report.{fmt}"), fmt)
     check_target(out, overwrite=overwrite, owned=OWNED_REPORT if default else None)
     with progress_bar("reading", disable=not deep) as bar:
-        report = build_report(directory, deep, workers, bar_callback(bar, "sessions"))
+        report = build_report(directory, deep, workers, bar_callback(bar, "sessions"),
+                              scheduler=scheduler_of(ctx))
     print_summary(report, err_console)
     noise = report["deep"] and report["deep"]["noise_baseline"]
     if noise:
@@ -389,6 +376,7 @@ def import_can_command(
 
 @app.command("import-bag")
 def import_bag_command(
+    ctx: typer.Context,
     bag: Annotated[Path, typer.Argument(help="ROS 1 .bag, ROS 2 bag directory, .mcap or .db3 "
                                              "file, or a directory of bags.")],
     pose: PoseOption,
@@ -430,7 +418,8 @@ def import_bag_command(
         _report_bag(session)
         return
     with progress_bar("importing") as bar:
-        sessions, problems = import_bags(jobs, workers, bar_callback(bar, "bags"))
+        sessions, problems = import_bags(jobs, workers, bar_callback(bar, "bags"),
+                                         scheduler=scheduler_of(ctx))
     for session in sessions:
         _report_bag(session)
     err_console.print(f"{len(sessions)} of {len(paths)} bags imported")

@@ -6,10 +6,13 @@ local executor runs the items in a pool of processes on this machine (or in this
 process with one worker); the results come back in the order of the items, so the
 output never depends on the number of workers.
 
-The executor is chosen by ``scheduler`` (default: the environment variable
-``CONTACTKIT_SCHEDULER``): unset or ``local`` is the local pool; ``local:N`` or
-``tcp://host:8786`` sends the jobs to Dask distributed (the ``dask`` extra, see
-:mod:`contactkit.util.dask_executor`), with the same results in the same order.
+The executor is chosen by the ``scheduler`` argument, which every function that maps
+jobs takes next to ``workers`` and passes on: None or ``local`` is the local pool;
+``local:N`` or ``tcp://host:8786`` sends the jobs to Dask distributed (the ``dask``
+extra, see :mod:`contactkit.util.dask_executor`), with the same results in the same
+order. Nothing reads the environment here: the commands' ``--scheduler`` option takes
+its default from ``$CONTACTKIT_SCHEDULER`` (:data:`SCHEDULER_ENV`) once, when the command
+line is parsed, and passes the value down.
 
 Functions and items must be picklable (module-level functions, plain data). A job
 that reports a problem with an input returns it as data rather than raising, so one
@@ -33,6 +36,7 @@ T = TypeVar("T")
 R = TypeVar("R")
 
 SCHEDULER_ENV = "CONTACTKIT_SCHEDULER"
+"""The environment variable the commands' ``--scheduler`` option defaults to."""
 CGROUP_CPU_FILES = (("/sys/fs/cgroup/cpu.max", None),  # cgroup v2: "quota period" or "max"
                     ("/sys/fs/cgroup/cpu/cpu.cfs_quota_us", "/sys/fs/cgroup/cpu/cpu.cfs_period_us"))
 
@@ -63,9 +67,9 @@ def available_cpus() -> int:
     return max(1, count)
 
 
-def resolve_scheduler(scheduler: str | None = None) -> str | None:
-    """Return the scheduler to use: ``scheduler``, else ``$CONTACTKIT_SCHEDULER``;
-    None for the local pool (also for ``local`` or an empty string).
+def resolve_scheduler(scheduler: str | None) -> str | None:
+    """Return the Dask scheduler ``scheduler`` names, or None for the local pool (None,
+    ``local`` or an empty string).
 
     A job already running on a Dask worker maps its own jobs locally (None), so a job
     never starts a cluster inside a cluster. Raises
@@ -73,25 +77,13 @@ def resolve_scheduler(scheduler: str | None = None) -> str | None:
     """
     if dask_worker_rank() is not None:
         return None
-    chosen = scheduler if scheduler is not None else os.environ.get(SCHEDULER_ENV, "")
-    chosen = chosen.strip()
+    chosen = (scheduler or "").strip()
     if chosen in ("", "local"):
         return None
     from contactkit.util.dask_executor import parse_scheduler
 
     parse_scheduler(chosen)
     return chosen
-
-
-def use_scheduler(scheduler: str | None) -> None:
-    """Make ``scheduler`` the default of every later :func:`map_ordered` of this process
-    (by setting ``$CONTACTKIT_SCHEDULER``); None leaves the default as it is.
-
-    Raises :class:`~contactkit.errors.InputError` on a malformed address.
-    """
-    if scheduler is not None:
-        resolve_scheduler(scheduler)
-        os.environ[SCHEDULER_ENV] = scheduler
 
 
 def dask_worker_rank() -> int | None:

@@ -625,8 +625,10 @@ def import_bag_job(job: BagJob) -> tuple[str, Path | None, str | None]:
         return str(job.path), None, str(err)
 
 
-def import_bags(jobs: list[BagJob], workers: int = 1, progress: ProgressCallback | None = None
-                ) -> tuple[list[Path], list[tuple[str, str]]]:
-    """Import bags in parallel; return the written sessions and ``(bag, problem)`` pairs
-    for the bags that could not be imported (one bad bag never stops the others)."""
-    return split_problems(map_ordered(import_bag_job, jobs, workers=workers, progress=progress))
+def import_bags(jobs: list[BagJob], workers: int = 1, progress: ProgressCallback | None = None,
+                *, scheduler: str | None = None) -> tuple[list[Path], list[tuple[str, str]]]:
+    """Import bags in ``workers`` processes (or on the Dask ``scheduler``); return the
+    written sessions and ``(bag, problem)`` pairs for the bags that could not be imported
+    (one bad bag never stops the others)."""
+    return split_problems(map_ordered(import_bag_job, jobs, workers=workers, progress=progress,
+                                      scheduler=scheduler))

@@ -232,9 +232,10 @@ class SimulateResult:
 def simulate_dataset(out_dir: str | Path, preset_name: str, sessions: int | None, seed: int,
                      workers: int, config: SimConfig | None = None,
                      progress: Callable[[int, int], None] | None = None,
-                     variability: float | None = None, robot: str = DEFAULT_ROBOT
-                     ) -> SimulateResult:
-    """Write a preset's sessions into ``out_dir`` with ``workers`` processes.
+                     variability: float | None = None, robot: str = DEFAULT_ROBOT,
+                     scheduler: str | None = None) -> SimulateResult:
+    """Write a preset's sessions into ``out_dir`` with ``workers`` processes (or on the
+    Dask ``scheduler``, whose workers must see ``out_dir`` under the same path).
 
     Sessions whose file exists are skipped, and temporary files left by a killed run
     are removed. ``progress(done, total)`` is called as
@@ -265,7 +266,7 @@ def simulate_dataset(out_dir: str | Path, preset_name: str, sessions: int | None
     if progress:
         progress(done, len(specs))
     failed: list[tuple[str, str]] = []
-    for paths, problems in _run_batches(todo, config, out_dir, workers):
+    for paths, problems in _run_batches(todo, config, out_dir, workers, scheduler):
         done += len(paths) + len(problems)
         failed += problems
         if progress:
@@ -275,8 +276,9 @@ def simulate_dataset(out_dir: str | Path, preset_name: str, sessions: int | None
 
 
 def _run_batches(todo: list[SessionSpec], config: SimConfig, out_dir: Path,
-                 workers: int) -> Iterator[tuple[list[str], list[tuple[str, str]]]]:
+                 workers: int, scheduler: str | None
+                 ) -> Iterator[tuple[list[str], list[tuple[str, str]]]]:
     size = max(1, min(MAX_BATCH, -(-len(todo) // max(workers, 1))))
     batches = [todo[i:i + size] for i in range(0, len(todo), size)]
     return map_ordered(partial(simulate_batch, config=config, out_dir=str(out_dir)), batches,
-                       workers=workers)
+                       workers=workers, scheduler=scheduler)

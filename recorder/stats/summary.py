@@ -178,10 +178,12 @@ def beyond_limits(summary: dict) -> str | None:
 
 
 def deep_stats(paths: list[Path], workers: int,
-               progress: Callable[[int, int], None] | None = None) -> dict:
-    """Read every session in ``workers`` processes and aggregate the summaries."""
+               progress: Callable[[int, int], None] | None = None, *,
+               scheduler: str | None = None) -> dict:
+    """Read every session in ``workers`` processes (or on the Dask ``scheduler``) and
+    aggregate the summaries."""
     summaries = list(map_ordered(session_summary, [str(p) for p in paths], workers=workers,
-                                 progress=progress))
+                                 progress=progress, scheduler=scheduler))
     good = [s for s in summaries if "problem" not in s]
     problems = [{"file": s["file"], "problem": s["problem"]} for s in summaries
                 if "problem" in s]
@@ -290,8 +292,10 @@ def write_noise_file(path: Path, noise: dict, dataset: Path, *, overwrite: bool 
 
 
 def build_report(directory: Path, deep: bool, workers: int,
-                 progress: Callable[[int, int], None] | None = None) -> dict:
-    """Compute the whole report of a dataset directory (see the module docstring)."""
+                 progress: Callable[[int, int], None] | None = None, *,
+                 scheduler: str | None = None) -> dict:
+    """Compute the whole report of a dataset directory (see the module docstring); the
+    deep part reads the sessions in ``workers`` processes or on the Dask ``scheduler``."""
     index, index_problems = load_index(directory)
     stats = index_stats(index)
     report = {"schema": SCHEMA_ID, "dataset": str(directory),
@@ -305,7 +309,7 @@ def build_report(directory: Path, deep: bool, workers: int,
     private = {"durations": stats["_durations"], "frame": stats["_frame"], "summaries": []}
     if deep:
         files = [directory / name for name in stats["_frame"]["file"].to_list()]
-        deep_part = deep_stats(files, workers, progress)
+        deep_part = deep_stats(files, workers, progress, scheduler=scheduler)
         report["problems"] += deep_part.pop("problems")
         private["summaries"] = deep_part.pop("_summaries")
         report["deep"] = deep_part
