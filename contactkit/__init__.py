@@ -23,4 +23,6 @@ try:
 except importlib.metadata.PackageNotFoundError:  # running from a source tree
     __version__ = "0+unknown"
 
-__all__ = ["__version__"]
+# The version and the subpackages (names only: importing contactkit stays light).
+__all__ = ["__version__", "classify", "cli", "errors", "features", "recorder", "replay",
+           "robots", "schemas", "util", "viewer"]

@@ -1,1 +1,7 @@
 """Physics feature chain: Panda dynamics, momentum observer, timeseries and scalar features."""
+
+# The public modules, for the API reference (submodule names: importing the package
+# stays light).
+__all__ = ["agreement", "chain_cache", "detector", "extract", "isolation", "limits",
+           "observer", "per_sample", "scalars", "timeseries", "timing", "window_stream",
+           "windows"]

@@ -15,3 +15,8 @@ Beside them, :mod:`~contactkit.recorder.protocol` (poses, actions, timing),
 :mod:`~contactkit.recorder.metadata` (building a session's metadata) and
 :mod:`~contactkit.recorder.info` (one session's summary).
 """
+
+# The public modules, for the API reference (submodule names: importing the package
+# stays light).
+__all__ = ["capture", "importers", "info", "metadata", "protocol", "sim", "sources",
+           "stats"]

@@ -1,1 +1,5 @@
 """Replay of sessions through the feature chain and classifier, logged to Rerun."""
+
+# The public modules, for the API reference (submodule names: importing the package
+# stays light).
+__all__ = ["engine", "recording", "session_replay"]
