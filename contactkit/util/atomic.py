@@ -78,6 +78,21 @@ def _describe(err: OSError) -> str:
     return f"cannot write the file ({err.strerror or type(err).__name__}; nothing was written)"
 
 
+@contextmanager
+def _write_errors(path: Path) -> Iterator[None]:
+    """Raise an ``OSError`` of the block as one line naming ``path``
+    (:func:`~contactkit.errors.write_error`: a ResourceError when the device is full)."""
+    try:
+        yield
+    except OSError as err:
+        raise write_error(_describe(err), err, path) from err
+
+
+def _already_exists(path: Path, flag: str, what: str = "output file") -> InputError:
+    """Return the one-line error for an existing ``path`` that ``flag`` would replace."""
+    return InputError(f"{what} already exists (pass {flag} to replace it)", path)
+
+
 def check_target(path: str | Path, *, overwrite: bool = False, flag: str = "--overwrite",
                  owned: Owned | None = None) -> Path:
     """Check that ``path`` may be written under the overwrite policy; return it.
@@ -101,7 +116,7 @@ def check_target(path: str | Path, *, overwrite: bool = False, flag: str = "--ov
             raise InputError("exists and is not a file contactkit wrote: remove it or choose "
                              "another output", path)
         return path
-    raise InputError(f"output file already exists (pass {flag} to replace it)", path)
+    raise _already_exists(path, flag)
 
 
 def _safe_owned(owned: Owned, path: Path) -> bool:
@@ -127,41 +142,36 @@ def atomic_write(path: str | Path, *, overwrite: bool = False, flag: str = "--ov
     path = Path(path)
     replace = overwrite or owned is not None
     check_target(path, overwrite=overwrite, flag=flag, owned=owned)
-    try:
+    with _write_errors(path):
         fd, name = tempfile.mkstemp(prefix=temporary_prefix(path), suffix=".tmp" + suffix,
                                     dir=path.parent)
-    except OSError as err:
-        raise write_error(_describe(err), err, path) from err
     tmp = Path(name)
     handle = os.fdopen(fd, "wb")
     try:
-        temporary = Temporary(tmp, handle)
-        yield temporary
-        if not temporary.keep:
-            return
-        if not handle.closed:
-            handle.flush()
-        _fsync(tmp)
-        handle.close()
-        check_target(path, overwrite=overwrite, flag=flag, owned=owned)
-        if replace:
-            os.replace(tmp, path)
-        else:
-            try:
-                os.link(tmp, path)
-            except FileExistsError as err:
-                raise InputError(f"output file already exists (pass {flag} to replace it)",
-                                 path) from err
-            except OSError as err:  # file systems without hard links
-                if err.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP):
-                    raise
-                if os.path.lexists(path):
-                    raise InputError(f"output file already exists (pass {flag} to replace "
-                                     "it)", path) from err
+        with _write_errors(path):
+            temporary = Temporary(tmp, handle)
+            yield temporary
+            if not temporary.keep:
+                return
+            if not handle.closed:
+                handle.flush()
+            _fsync(tmp)
+            handle.close()
+            check_target(path, overwrite=overwrite, flag=flag, owned=owned)
+            if replace:
                 os.replace(tmp, path)
-        _fsync_dir(path.parent)
-    except OSError as err:
-        raise write_error(_describe(err), err, path) from err
+            else:
+                try:
+                    os.link(tmp, path)
+                except FileExistsError as err:
+                    raise _already_exists(path, flag) from err
+                except OSError as err:  # file systems without hard links
+                    if err.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP):
+                        raise
+                    if os.path.lexists(path):
+                        raise _already_exists(path, flag) from err
+                    os.replace(tmp, path)
+            _fsync_dir(path.parent)
     finally:
         with suppress(OSError):
             handle.close()
@@ -184,24 +194,21 @@ def atomic_directory(path: str | Path, *, overwrite: bool = False,
     if not path.parent.is_dir():
         raise InputError("output directory does not exist", path.parent)
     if os.path.lexists(path) and not overwrite:
-        raise InputError(f"output already exists (pass {flag} to replace it)", path)
-    try:
+        raise _already_exists(path, flag, "output")
+    with _write_errors(path):
         holder = Path(tempfile.mkdtemp(prefix=temporary_prefix(path), suffix=".tmp",
                                        dir=path.parent))
-    except OSError as err:
-        raise write_error(_describe(err), err, path) from err
     try:
-        inner = holder / path.name
-        yield inner
-        if os.path.lexists(path):
-            if not overwrite:
-                raise InputError(f"output already exists (pass {flag} to replace it)", path)
-            old = holder / ".old"
-            os.rename(path, old)
-        os.rename(inner, path)
-        _fsync_dir(path.parent)
-    except OSError as err:
-        raise write_error(_describe(err), err, path) from err
+        with _write_errors(path):
+            inner = holder / path.name
+            yield inner
+            if os.path.lexists(path):
+                if not overwrite:
+                    raise _already_exists(path, flag, "output")
+                old = holder / ".old"
+                os.rename(path, old)
+            os.rename(inner, path)
+            _fsync_dir(path.parent)
     finally:
         with suppress(OSError):
             shutil.rmtree(holder)
