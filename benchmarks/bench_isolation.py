@@ -27,6 +27,7 @@ from bench_events import row, timed  # the same timing and table as the event be
 
 from contactkit.features.isolation import robot_isolator
 from contactkit.recorder.protocol import pose_q
+from contactkit.recorder.sim.forces import inward_push
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
 from contactkit.robots.surfaces import link_surface
@@ -41,17 +42,8 @@ def contacts(n: int, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray, int]]:
     out = []
     while len(out) < n:
         link = int(rng.integers(1, 8))
-        surface = link_surface(RobotSetup(), link)
         q = pose_q("ABCDEFGH"[int(rng.integers(8))]) + rng.normal(0, 0.1, 7)
-        i = rng.choice(len(surface.areas), p=surface.areas / surface.areas.sum())
-        a, b = rng.random(2)
-        a, b = (1 - a, 1 - b) if a + b > 1 else (a, b)
-        tri = surface.vertices[i]
-        point = tri[0] + a * (tri[1] - tri[0]) + b * (tri[2] - tri[0])
-        direction = -surface.normals[i] + 0.4 * rng.normal(size=3)
-        direction /= np.linalg.norm(direction)
-        if direction @ -surface.normals[i] < np.cos(np.radians(40)):
-            continue
+        point, direction = inward_push(rng, link_surface(RobotSetup(), link))
         force = rng.uniform(10, 100) * model.frame_placement(q, link).rotation @ direction
         r = model.point_jacobian(q, link, point)[:3].T @ force + rng.normal(0, NOISE_NM, 7)
         out.append((q, r, link))

@@ -38,6 +38,7 @@ from contactkit.classify.data import FeatureSet, load_features
 from contactkit.classify.evaluate import Report, evaluate
 from contactkit.classify.models import svm_pipeline
 from contactkit.classify.schemes import scheme_classes
+from contactkit.errors import check_choice
 from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import SCALARS
 from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS, columns_of
@@ -252,9 +253,7 @@ def _plot(path: Path, title: str, rows: list[Row], series_key: bool = False) -> 
 def run_experiment(name: str, sources: Sequence[Path], out_dir: Path, setting: Setting,
                    progress: Progress | None = None) -> list[Path]:
     """Run one experiment and write its Markdown, JSON and PNG; return the paths."""
-    if name not in EXPERIMENTS:
-        raise InputError(f"unknown experiment {name!r} (expected one of "
-                         f"{', '.join(EXPERIMENTS)})")
+    check_choice("experiment", name, EXPERIMENTS)
     out_dir.mkdir(parents=True, exist_ok=True)
     extra, series, doc_extra = "", False, {}
     if name == "features":

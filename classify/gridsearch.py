@@ -28,6 +28,7 @@ from contactkit.classify.kind import ModelOptions
 from contactkit.classify.registry import get_kind
 from contactkit.classify.schemes import check_scheme, scheme_classes
 from contactkit.classify.training import TrainedModel, train, training_set
+from contactkit.errors import check_choice
 from contactkit.schemas import InputError
 from contactkit.util.atomic import owned_result, write_text
 from contactkit.util.parallel import map_ordered, resolve_scheduler
@@ -109,9 +110,7 @@ class Protocol:
         if self.model not in NETWORKS:
             raise InputError(f"the grid search trains {' or '.join(NETWORKS)} networks, "
                              f"not {self.model!r}")
-        if self.protocol not in PROTOCOLS:
-            raise InputError(f"unknown protocol {self.protocol!r} (expected one of "
-                             f"{', '.join(PROTOCOLS)})")
+        check_choice("protocol", self.protocol, PROTOCOLS)
         check_scheme(self.scheme)
         get_kind(self.model).check_options(self.options(Trial(1, 1.0, 0.0, 20, ("q",))))
 

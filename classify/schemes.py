@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from contactkit.schemas import ACTIONS, InputError
+from contactkit.errors import check_choice
+from contactkit.schemas import ACTIONS
 
 SCHEMES: dict[str, dict[str, str]] = {
     "full": {a: a for a in ACTIONS},
@@ -33,9 +34,7 @@ LIMITED_DROP = {"static": "shove", "dynamic": "adjust"}
 
 def check_scheme(scheme: str) -> str:
     """Return ``scheme`` if known, else raise InputError."""
-    if scheme not in SCHEMES:
-        raise InputError(f"unknown class scheme {scheme!r} (expected one of "
-                         f"{', '.join(SCHEMES)})")
+    check_choice("class scheme", scheme, SCHEMES)
     return scheme
 
 

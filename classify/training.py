@@ -17,6 +17,7 @@ from contactkit.classify.kind import ModelKind, ModelOptions
 from contactkit.classify.modelfile import save_model
 from contactkit.classify.registry import get_kind
 from contactkit.classify.schemes import check_scheme, scheme_classes
+from contactkit.errors import check_choice
 from contactkit.schemas import InputError
 from contactkit.util.atomic import check_target
 from contactkit.util.progress import LabelledProgress
@@ -101,12 +102,8 @@ def evaluate_kind(datasets: Sequence[Path], options: ModelOptions, *, protocol: 
     :mod:`contactkit.classify.evaluate`), in ``workers`` processes or on the Dask
     ``scheduler``; return the report and the skipped files."""
     check_scheme(scheme)
-    if protocol not in PROTOCOLS:
-        raise InputError(f"unknown protocol {protocol!r} (expected one of "
-                         f"{', '.join(PROTOCOLS)})")
-    if group not in GROUP_KEYS:
-        raise InputError(f"unknown grouping {group!r} (expected one of "
-                         f"{', '.join(GROUP_KEYS)})")
+    check_choice("protocol", protocol, PROTOCOLS)
+    check_choice("grouping", group, GROUP_KEYS)
     found = training_set(datasets, options, workers=workers, limited=limited,
                          progress=progress, scheduler=scheduler)
     data, kind = found.data, found.kind

@@ -20,6 +20,7 @@ every one of them (cleaning up, trying the next backend) catches :class:`Contact
 from __future__ import annotations
 
 import errno
+from collections.abc import Collection
 from pathlib import Path
 
 NO_SPACE_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
@@ -63,6 +64,13 @@ class DependencyMissing(ContactkitError, ImportError):
 class ResourceError(ContactkitError):
     """The machine cannot do the job: no space left on the device, a Dask scheduler that
     does not answer or has no worker."""
+
+
+def check_choice(what: str, value: object, allowed: Collection[str]) -> None:
+    """Return None when ``value`` is one of ``allowed``; raise the one-line InputError
+    ``unknown <what> <value!r> (expected one of <allowed>)`` otherwise."""
+    if value not in allowed:
+        raise InputError(f"unknown {what} {value!r} (expected one of {', '.join(allowed)})")
 
 
 def write_error(problem: str, err: OSError, path: str | Path | None = None

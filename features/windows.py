@@ -36,6 +36,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from contactkit.errors import check_choice
 from contactkit.schemas import InputError
 from contactkit.util.moments import RunningMoments
 
@@ -83,12 +84,8 @@ class WindowSpec:
     calibration: str = "pre-contact"
 
     def __post_init__(self) -> None:
-        if self.calibration not in CALIBRATIONS:
-            raise InputError(f"unknown calibration {self.calibration!r} (expected one of "
-                             f"{', '.join(CALIBRATIONS)})")
-        if self.method not in METHODS:
-            raise InputError(f"unknown window method {self.method!r} (expected one of "
-                             f"{', '.join(METHODS)})")
+        check_choice("calibration", self.calibration, CALIBRATIONS)
+        check_choice("window method", self.method, METHODS)
         if self.length_s <= 0:
             raise InputError(f"window length must be positive, got {self.length_s} s")
 

@@ -18,6 +18,7 @@ from contactkit.errors import (
     DependencyMissing,
     InputError,
     ResourceError,
+    check_choice,
     problem_text,
     write_error,
 )
@@ -78,3 +79,10 @@ def test_a_full_disk_is_a_resource_error(tmp_path, monkeypatch) -> None:
     with pytest.raises(ResourceError, match="no space left on the device"):
         atomic.write_text(tmp_path / "x.txt", "hello")
     assert not (tmp_path / "x.txt").exists()
+
+
+def test_check_choice_names_the_choices() -> None:
+    assert check_choice("protocol", "group", ("group", "thesis")) is None
+    with pytest.raises(InputError) as caught:
+        check_choice("protocol", "x", ("group", "thesis"))
+    assert str(caught.value) == "unknown protocol 'x' (expected one of group, thesis)"

@@ -13,6 +13,7 @@ from contactkit.features.detector import DetectorConfig, detect
 from contactkit.features.isolation import NO_SURFACE, OK, TOO_SMALL, ContactIsolator, robot_isolator
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.recorder.protocol import pose_q
+from contactkit.recorder.sim.forces import inward_push
 from contactkit.recorder.sim.simulator import ArmSimulator, SimConfig, plan_session
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
@@ -54,15 +55,7 @@ def _contacts(model: RobotModel, link: int, count: int, seed: int
     out = []
     while len(out) < count:
         q = pose_q("ABCDEFGH"[int(rng.integers(8))]) + rng.normal(0, 0.1, 7)
-        i = rng.choice(len(surface.areas), p=surface.areas / surface.areas.sum())
-        a, b = rng.random(2)
-        a, b = (1 - a, 1 - b) if a + b > 1 else (a, b)
-        tri = surface.vertices[i]
-        point = tri[0] + a * (tri[1] - tri[0]) + b * (tri[2] - tri[0])
-        inward = -surface.normals[i] + 0.4 * rng.normal(size=3)
-        inward /= np.linalg.norm(inward)
-        if inward @ -surface.normals[i] < np.cos(np.radians(40)):
-            continue
+        point, inward = inward_push(rng, surface)
         force = 30.0 * model.frame_placement(q, link).rotation @ inward
         r = model.point_jacobian(q, link, point)[:3].T @ force
         if abs(r[link - 1]) >= 1.0:

@@ -150,11 +150,7 @@ def sample_contact(rng: np.random.Generator, action: str, planned_at_s: float, l
         # a hand cannot push into the link that way, so draw another direction
     else:
         raise ValueError(f"no face of link {link}'s collision mesh faces any drawn direction")
-    tri = surface.vertices[rng.choice(len(weights), p=weights / weights.sum())]
-    a, b = rng.random(2)
-    if a + b > 1.0:
-        a, b = 1.0 - a, 1.0 - b
-    point = tri[0] + a * (tri[1] - tri[0]) + b * (tri[2] - tri[0])
+    _, point = surface_point(rng, surface, weights)
     return Contact(
         action=action,
         onset_s=planned_at_s + float(rng.uniform(0.0, MAX_ONSET_DELAY_S)),
@@ -166,6 +162,34 @@ def sample_contact(rng: np.random.Generator, action: str, planned_at_s: float, l
         hold_s=draw.get("hold_s", 0.0) * persona.tempo,
         fall_s=draw.get("fall_s", 0.0) * persona.tempo,
     )
+
+
+def surface_point(rng: np.random.Generator, surface: LinkSurface, weights: np.ndarray
+                  ) -> tuple[int, np.ndarray]:
+    """Draw a face of ``surface`` with probability proportional to ``weights`` (one per
+    face, e.g. its area) and a point uniform on it; return the face's index and the
+    point [m] in the link frame."""
+    face = int(rng.choice(len(weights), p=weights / weights.sum()))
+    a, b = rng.random(2)
+    if a + b > 1.0:
+        a, b = 1.0 - a, 1.0 - b
+    tri = surface.vertices[face]
+    return face, tri[0] + a * (tri[1] - tri[0]) + b * (tri[2] - tri[0])
+
+
+def inward_push(rng: np.random.Generator, surface: LinkSurface, spread: float = 0.4,
+                max_angle_deg: float = 40.0) -> tuple[np.ndarray, np.ndarray]:
+    """Draw a well-conditioned push: a point uniform on ``surface`` (area-weighted) and a
+    unit direction (link frame) along the face's inward normal, perturbed by ``spread``
+    times a normal draw and at most ``max_angle_deg`` [deg] off the normal (drawn again
+    until it is); return (point [m], direction), both in the link frame."""
+    while True:
+        face, point = surface_point(rng, surface, surface.areas)
+        inward = -surface.normals[face]
+        direction = inward + spread * rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        if direction @ inward >= np.cos(np.radians(max_angle_deg)):
+            return point, direction
 
 
 def contact_torque(model: RobotModel, t: np.ndarray, q: np.ndarray, contact: Contact

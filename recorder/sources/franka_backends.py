@@ -17,7 +17,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from contactkit.errors import ContactkitError, DependencyMissing
+from contactkit.errors import ContactkitError, DependencyMissing, check_choice
 from contactkit.schemas import InputError
 
 BACKENDS = ("auto", "pylibfranka", "panda-python")
@@ -160,9 +160,7 @@ def open_backend(host: str, backend: str, realtime_kernel: bool) -> Backend:
     answers pylibfranka with an incompatible-version error, and panda-python is
     tried next. Raises InputError when no backend is installed or none connects.
     """
-    if backend not in BACKENDS:
-        raise InputError(f"unknown franka backend {backend!r} (expected one of "
-                         f"{', '.join(BACKENDS)})")
+    check_choice("franka backend", backend, BACKENDS)
     if backend != "auto":
         return _connect(BACKEND_CLASSES[backend], host, realtime_kernel)
     candidates = [name for name in BACKEND_CLASSES if _installed(name)]
