@@ -13,10 +13,11 @@ from sklearn.metrics import balanced_accuracy_score, f1_score, recall_score
 
 from contactkit.classify.data import load_features
 from contactkit.classify.evaluate import confusion, evaluate, metrics_from_confusion, splits
-from contactkit.classify.modelfile import META_MEMBER, load_model, save_model
+from contactkit.classify.modelfile import load_model, save_model
 from contactkit.classify.models import JointEnsemble, feature_joint
 from contactkit.classify.registry import get_kind, make_estimator
 from contactkit.classify.schemes import limited_mask, relabel, scheme_classes
+from contactkit.classify.skops_format import META_MEMBER
 from contactkit.features.extract import SessionFeatures
 from contactkit.schemas import InputError
 from tests.conftest import make_dataset
