@@ -204,3 +204,50 @@ def test_every_importer_streams_through_the_one_writer(tmp_path: Path,
     assert calls == ["can-log"]
     assert validate_session(written.session).n_samples == session.n_samples
     assert "samples" in written.summary
+
+
+def _recorder_here(capsys: pytest.CaptureFixture, *argv: object) -> tuple[int, str, str]:
+    from contactkit.cli.common import run_app
+    from contactkit.cli.recorder import app
+
+    code = run_app(app, "recorder", [str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, " ".join(err.split())
+
+
+def test_one_command_many_files_and_the_aliases(tmp_path: Path,
+                                                capsys: pytest.CaptureFixture) -> None:
+    """Several files: each bad one listed, the others written, exit code 2; the old verbs
+    are the same command with the format fixed; the protocol options and --meta agree."""
+    rows = 40
+    files = {}
+    for key, values in {"t": 0.002 * np.arange(rows)[:, None], "q": np.zeros((rows, 7)),
+                        "dq": np.zeros((rows, 7)), "tau": np.ones((rows, 7))}.items():
+        np.savetxt(tmp_path / f"{key}.txt", values)
+        files[key] = tmp_path / f"{key}.txt"
+    joints = ["--q", files["q"], "--dq", files["dq"], "--tau", files["tau"]]
+    out = tmp_path / "out"
+    code, stdout, err = _recorder_here(capsys, "import-arrays", "--t", files["t"], *joints,
+                                       "--pose", "C", "--action", "bump", "--no-hand",
+                                       "--meta", "speed_rad_s=0.5", "--out", out)
+    assert code == 0, err
+    meta = validate_session(stdout.strip()).meta
+    assert (meta.source, meta.pose, meta.action, meta.with_hand, meta.speed_rad_s) == \
+        ("arrays", "C", "bump", False, 0.5)
+    assert meta.nominal_rate_hz == 500.0
+
+    (tmp_path / "short.txt").write_text("0\n0.002\n")
+    code, stdout, err = _recorder_here(capsys, "import", files["t"], tmp_path / "short.txt",
+                                       "--format", "arrays", *joints, "--out", out,
+                                       "--workers", "1")
+    assert code == 2
+    assert len(stdout.split()) == 1 and validate_session(stdout.strip()).n_samples == rows
+    assert f"skipped {tmp_path / 'short.txt'}" in err and "1 of 2 files imported" in err
+
+    code, _, err = _recorder_here(capsys, "import-csv", files["t"], "--format", "bag")
+    assert code == 2 and "import-csv reads format csv" in err
+    code, _, err = _recorder_here(capsys, "import", files["t"], *joints, "--format", "arrays",
+                                  "--pose", "C", "--meta", "pose=D", "--out", out)
+    assert code == 2 and "--meta pose='D' disagrees" in err
+    code, _, err = _recorder_here(capsys, "import", tmp_path, "--out", out)
+    assert code == 2 and "give --format" in err
