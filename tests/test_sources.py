@@ -78,10 +78,10 @@ def test_builtin_sources_and_their_options() -> None:
     assert {"sim", "can"} <= set(registered_sources())
     classes, problems = load_sources()
     assert classes["sim"] is SimSource and classes["can"] is CanSource and not problems
-    sim = {o.name: o for o in source_options(SimSource.Config)}
+    sim = {o.option[2:]: o for o in source_options(SimSource.Config)}
     assert sim["rate"].unit == "Hz" and sim["rate"].default == 1000.0
     assert sim["jitter-ms"].describe().startswith("Time-stamp jitter, uniform +- [ms].")
-    can = {o.name: o for o in source_options(CanSource.Config)}
+    can = {o.option[2:]: o for o in source_options(CanSource.Config)}
     assert can["channel"].required and "map" in can and can["timeout"].unit == "s"
 
 
