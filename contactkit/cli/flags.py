@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import typer
 import typer.core
@@ -25,7 +25,7 @@ import typer.main
 import typer.models
 
 from contactkit.errors import InputError
-from contactkit.util.params import Param
+from contactkit.util.params import Choice, Param
 
 
 @dataclass
@@ -79,10 +79,15 @@ def shared_flags(owners: Mapping[str, Sequence[Param]], taken: set[str] = frozen
 
 
 def _option(flag: SharedFlag) -> typer.core.TyperOption:
-    """Return the click option of a shared flag: typed as declared, None when not given."""
+    """Return the click option of a shared flag: typed as declared (a string restricted
+    by a :class:`Choice` as a choice), None when not given. Typer's own builder makes it
+    (``typer.main._get_param``, private: the tests of capture and train exercise it), so
+    the generated options parse, convert and show in ``--help`` as a typed signature's."""
     p = flag.param
     decl = f"{p.option}/--no-{p.option[2:]}" if p.type is bool else p.option
-    meta = typer.models.ParamMeta(name=flag.key, annotation=p.type | None,
+    choices = [c.values for c in p.constraints if isinstance(c, Choice)]
+    annotation = Literal[choices[0]] if p.type is str and choices else p.type
+    meta = typer.models.ParamMeta(name=flag.key, annotation=annotation | None,
                                   default=typer.Option(None, decl, help=flag.help()))
     return typer.main._get_param(meta)
 
