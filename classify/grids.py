@@ -163,7 +163,9 @@ class SessionGrids(TransformerMixin, BaseEstimator):
                         int(self.steps), float(self.gain), float(self.baseline_s))
 
     def fit(self, X, y=None) -> SessionGrids:
-        """Nothing to learn; checks the parameters and returns self."""
+        """Nothing to learn from the sessions: checks the parameters, records the grid's
+        channels (``channels_``, so scikit-learn sees a fitted transformer) and returns
+        self."""
         try:
             self.spec.channels()
         except KeyError as err:
@@ -171,7 +173,7 @@ class SessionGrids(TransformerMixin, BaseEstimator):
         if self.steps < 2:
             raise InputError(f"a grid needs at least 2 time steps, got {self.steps}")
         WindowSpec(self.window, self.window_s)
-        self.n_features_in_ = 1
+        self.channels_ = self.spec.channels()
         return self
 
     def config(self) -> dict:
