@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from contactkit.classify.kind import InputKind, ModelKind, ModelOptions
+from contactkit.classify.kind import ModelKind, ModelOptions
 from contactkit.classify.schemes import limited_mask, relabel
 from contactkit.features.extract import SessionFeatures, feature_rows
 from contactkit.schemas import InputError
@@ -165,9 +165,6 @@ def features_for(options: ModelOptions, kind: ModelKind) -> SessionFeatures:
                            window_s=options.window_s)
 
 
-def _features_from_config(config: dict) -> SessionFeatures:
+def features_from_config(config: dict) -> SessionFeatures:
+    """Return the scalar-feature input a model file's configuration describes."""
     return SessionFeatures(**config)
-
-
-FEATURES = InputKind(name="features", meta_key="features", build=features_for,
-                     from_config=_features_from_config, load=load_features)

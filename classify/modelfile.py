@@ -25,7 +25,6 @@ import skops.io as sio
 from sklearn.pipeline import Pipeline
 
 from contactkit.classify.kind import ModelKind
-from contactkit.classify.models import SVM_TRUSTED_TYPES as EVENT_TRUSTED_TYPES
 from contactkit.classify.registry import get_kind, kind_names
 from contactkit.classify.skops_format import (
     EVENTS_MEMBER,
@@ -36,6 +35,7 @@ from contactkit.classify.skops_format import (
     versions,
     write_skops,
 )
+from contactkit.classify.svm_kinds import SVM_TRUSTED_TYPES as EVENT_TRUSTED_TYPES
 from contactkit.schemas import InputError
 from contactkit.util.atomic import check_target
 

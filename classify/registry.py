@@ -1,7 +1,9 @@
 """The classifier kinds train, evaluate, predict and replay know, by name.
 
-One line per built-in kind below. A lab's own kind is a module with a
-:class:`contactkit.classify.kind.ModelKind` and one entry point in its package::
+One line per built-in kind below; the kinds are declared, with their parameters, in
+:mod:`contactkit.classify.svm_kinds` and :mod:`contactkit.classify.nn_kinds`, which (like
+this module) import neither scikit-learn nor PyTorch. A lab's own kind is a module with
+a :class:`contactkit.classify.kind.ModelKind` and one entry point in its package::
 
     [project.entry-points."contactkit.models"]
     my-kind = "mylab.kinds:MY_KIND"
@@ -14,9 +16,9 @@ from __future__ import annotations
 import importlib.metadata
 
 from contactkit.classify.kind import ModelKind, ModelOptions
-from contactkit.classify.nn import CNN, LSTM, MINIROCKET
+from contactkit.classify.nn_kinds import CNN, LSTM, MINIROCKET
 from contactkit.classify.svm_kinds import PER_JOINT, SVM, THREE_JOINT
-from contactkit.schemas import InputError
+from contactkit.errors import InputError
 
 ENTRY_POINT_GROUP = "contactkit.models"
 _KINDS: dict[str, ModelKind] = {kind.name: kind for kind in (
@@ -28,6 +30,10 @@ _KINDS: dict[str, ModelKind] = {kind.name: kind for kind in (
     MINIROCKET,
 )}
 _entry_points_loaded = False
+DEFAULT_KIND = SVM.name
+"""The kind a command trains when none is named."""
+DEFAULT_SEARCHED = LSTM.name
+"""The kind the grid search and the augmentation experiment train when none is named."""
 
 
 def register(kind: ModelKind, *, replace: bool = False) -> ModelKind:
@@ -74,10 +80,14 @@ def get_kind(name: str) -> ModelKind:
                          f"{', '.join(_KINDS)})") from None
 
 
-def make_estimator(kind: str, feature_names: list[str], **options) -> object:
-    """Return an unfitted estimator of the named kind; ``options`` are
-    :class:`contactkit.classify.kind.ModelOptions` fields (``c``, ``seed``, ``epochs``, ...)."""
-    model_kind = get_kind(kind)
-    settings = ModelOptions(kind=kind, **options)
-    model_kind.check_options(settings)
-    return model_kind.make(settings, list(feature_names))
+def searchable_kinds() -> list[str]:
+    """Return the names of the kinds that declare a parameter with a search grid (the
+    kinds ``classify gridsearch`` trains)."""
+    return [name for name in kind_names() if any(p.grid for p in get_kind(name).params)]
+
+
+def make_estimator(kind: str, feature_names: list[str], seed: int = 0, **params) -> object:
+    """Return an unfitted estimator of the named kind, checked; ``params`` are the kind's
+    own parameters (``c``, ``epochs``, ...; :attr:`ModelKind.params`)."""
+    return get_kind(kind).estimator(ModelOptions(kind=kind, seed=seed, params=params),
+                                    feature_names)

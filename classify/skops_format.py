@@ -5,7 +5,8 @@ Reading (1) checks the archive's sizes from its directory and the digest, so a f
 changed after it was written is refused; (2) asks skops which types the file would build
 and refuses any outside :data:`TRUSTED_TYPES` and the ones the model's kind trusts,
 before anything is constructed; (3) builds the model. This module sits below the kind
-registry: the caller says which types a kind trusts.
+registry: the caller says which types a kind trusts. skops (and with it scikit-learn)
+is imported when a file is written or read, not with this module.
 """
 
 from __future__ import annotations
@@ -19,10 +20,8 @@ import zipfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-import skops.io as sio
-
 from contactkit.classify.kind import ModelFormat
-from contactkit.schemas import InputError
+from contactkit.errors import InputError
 from contactkit.util.atomic import atomic_write
 
 META_MEMBER = "contactkit.json"
@@ -96,6 +95,8 @@ def write_skops(path: Path, estimator: object, meta: dict, sample_shape: tuple[i
                 overwrite: bool = False, extra: dict[str, bytes] | None = None) -> Path:
     """Write ``estimator`` and ``meta`` (and ``extra`` members, covered by the digest) as a
     skops model file atomically; return the path."""
+    import skops.io as sio
+
     payload = sio.dumps(estimator)
     with zipfile.ZipFile(io.BytesIO(payload)) as archive:
         members = {name: archive.read(name) for name in archive.namelist()}
@@ -114,6 +115,8 @@ def read_skops(path: Path, trusted_types: Callable[[dict], Sequence[str]] = lamb
     """Read a skops model file safely (see the module docstring); return the estimator
     and its metadata, or raise InputError. ``trusted_types(meta)`` names the types the
     file's model kind may build beyond :data:`TRUSTED_TYPES`."""
+    import skops.io as sio
+
     if path.stat().st_size > MAX_MODEL_BYTES:
         raise InputError(f"model file is larger than {MAX_MODEL_BYTES} bytes", path)
     data = path.read_bytes()

@@ -95,9 +95,11 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
         return {k: list(v) if isinstance(v, tuple) else v for k, v in params.items()}
 
     def fit(self, X: Iterable, y=None) -> SessionFeatures:
-        """Nothing to learn; checks the parameters and returns self."""
+        """Nothing to learn from the sessions: checks the parameters, records the
+        per-sample columns the features come from (``channels_``, so scikit-learn sees a
+        fitted transformer) and returns self."""
         self._check()
-        self.n_features_in_ = 1
+        self.channels_ = self.channels()
         return self
 
     def get_feature_names_out(self, input_features=None) -> np.ndarray:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import inspect
 import json
 import sys
 from pathlib import Path
@@ -47,6 +46,7 @@ from contactkit.schemas import InputError, SessionMeta, read_session
 from contactkit.schemas.dataset import rebuild_index
 from contactkit.util.atomic import check_target
 from contactkit.util.parallel import available_cpus, use_scheduler
+from contactkit.util.params import Param
 from contactkit.util.progress import (
     bar_callback,
     err_console,
@@ -60,11 +60,6 @@ app = new_app("recorder", help="Record Panda joint streams while a person touche
 DEFAULT_WORKERS = available_cpus()
 Preset = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
 ReportFormat = Literal["html", "md", "json"]
-
-
-def _event_option(name: str, kind: Any, default: Any, help: str) -> inspect.Parameter:
-    return inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=default,
-                             annotation=Annotated[kind, typer.Option(help=help)])
 
 
 def _start_events(values: dict[str, Any], meta: SessionMeta) -> Any:
@@ -104,15 +99,15 @@ def _start_events(values: dict[str, Any], meta: SessionMeta) -> Any:
 
 
 EVENTS = CaptureExtension((
-    _event_option("events", bool, False, "Run the contact-event pipeline on every sample as "
-                  "it arrives: print each onset, decision and release, and store the events "
-                  "in the session metadata (recorder info shows them)."),
-    _event_option("model", Path | None, None, "Events: model file from `classify train` "
-                  "(default: the built-in model, built and cached on first use)."),
-    _event_option("calibration", Path | None, None, "Events: contact detector calibration "
-                  "from `classify calibrate` (overrides the model's detector settings)."),
-    _event_option("decide_after", float | None, None, "Events: time after a contact's onset "
-                  "at which its intent is decided [s] (default: the model's)."),
+    Param("events", bool, False, "Run the contact-event pipeline on every sample as it "
+          "arrives: print each onset, decision and release, and store the events in the "
+          "session metadata (recorder info shows them)."),
+    Param("model", Path, None, "Events: model file from `classify train` (default: the "
+          "built-in model, built and cached on first use)."),
+    Param("calibration", Path, None, "Events: contact detector calibration from `classify "
+          "calibrate` (overrides the model's detector settings)."),
+    Param("decide_after", float, None, "Events: time after a contact's onset at which its "
+          "intent is decided (default: the model's).", unit="s"),
 ), _start_events)
 register_capture(app, (EVENTS,))
 
