@@ -2,7 +2,7 @@
 
 :class:`LiveEvents` takes the capture's chunks of samples (dicts of column arrays, as
 sources yield them) and feeds each sample, in arrival order, through the streaming
-observer (:class:`contactkit.features.timeseries.OnlineChain`) and the event
+observer (:meth:`contactkit.features.timeseries.TimeseriesChain.update`) and the event
 pipeline (:class:`contactkit.classify.events.EventPipeline`): the same code, on the
 same samples, as ``replay`` runs on the written session, so both find the same
 events. Samples that lack a joint value (NaN gaps of a CAN source) are skipped, as
@@ -20,7 +20,7 @@ import numpy as np
 from contactkit.classify.events import ContactEvent, EventModel, EventPipeline
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.isolation import OK, ContactEstimate, ContactIsolator
-from contactkit.features.timeseries import ChainConfig, OnlineChain
+from contactkit.features.timeseries import ChainConfig, TimeseriesChain
 from contactkit.robots import RobotSetup
 from contactkit.schemas import joint_columns
 
@@ -74,7 +74,7 @@ class LiveEvents:
                  model: EventModel | None = None, decide_after_s: float | None = None,
                  report: Report | None = None,
                  isolator: ContactIsolator | None = None) -> None:
-        self.chain = OnlineChain(chain, robot)
+        self.chain = TimeseriesChain(chain, robot, ["r"])
         self.pipeline = EventPipeline(detector.for_robot(self.chain.model.spec), model,
                                       decide_after_s, isolator)
         self.report = report

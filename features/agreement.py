@@ -30,7 +30,7 @@ import pyarrow.parquet as pq
 
 from contactkit.features.chain_cache import BATCH_ROWS
 from contactkit.features.observer import solve_recurrence
-from contactkit.features.timeseries import ChainConfig, ChunkedChain
+from contactkit.features.timeseries import ChainConfig, TimeseriesChain
 from contactkit.robots import RobotSetup
 from contactkit.schemas.session import SessionMeta, iter_session_batches, joint_columns
 
@@ -105,7 +105,7 @@ class StreamAgreement:
     out; samples missing an estimate value are left out of the agreement."""
 
     def __init__(self, robot: RobotSetup, config: ChainConfig | None = None) -> None:
-        self.chain = ChunkedChain(config or ChainConfig(), robot, ["r"])
+        self.chain = TimeseriesChain(config, robot, ["r"])
         self.agreement = ResidualAgreement()
 
     def add(self, block: Mapping[str, np.ndarray]) -> None:
@@ -117,7 +117,7 @@ class StreamAgreement:
                                                  for c in joint_columns(prefix)])
                                 for prefix in ("q", "dq", "tau", "tau_ext_hat"))
         complete = np.isfinite(np.hstack([q, dq, tau])).all(axis=1) & np.isfinite(t)
-        r = self.chain.compute(t[complete], q[complete], dq[complete], tau[complete])["r"]
+        r = self.chain.feed(t[complete], q[complete], dq[complete], tau[complete])["r"]
         known = np.isfinite(estimate[complete]).all(axis=1)
         self.agreement.update(t[complete][known], r[known], estimate[complete][known])
 

@@ -11,7 +11,7 @@ differ only in their windows compute the chain once. A changed file or setting i
 another key. Sessions not read from a file, or the cache switched off, compute as
 before.
 
-The cache is computed and written batch by batch (:class:`ChunkedChain`, one Parquet
+The cache is computed and written batch by batch (:meth:`TimeseriesChain.feed`, one Parquet
 row group per batch), so filling it holds one batch of the session, however long
 the session is; :func:`iter_chain_batches` reads it back the same way.
 """
@@ -34,7 +34,6 @@ from contactkit.features.timeseries import (
     MODEL,
     WORKSPACE,
     ChainConfig,
-    ChunkedChain,
     TimeseriesChain,
     columns_of,
     expand,
@@ -88,7 +87,7 @@ def write_chain_files(tables: Iterator[pa.Table], robot: RobotSetup, config: Cha
     chunked chain and write each feature in ``targets`` (name -> Parquet path; its
     columns as in :func:`contactkit.features.timeseries.columns_of`) one row group per
     chunk, each file atomically."""
-    chain = ChunkedChain(config, robot, list(targets))
+    chain = TimeseriesChain(config, robot, list(targets))
     writers: dict[str, pq.ParquetWriter] = {}
     with ExitStack() as stack:
         temps = {name: stack.enter_context(atomic_write(path, owned=any_regular_file))
@@ -97,7 +96,7 @@ def write_chain_files(tables: Iterator[pa.Table], robot: RobotSetup, config: Cha
             for table in tables:
                 if table.num_rows == 0:
                     continue
-                out = chain.compute(table.column("t").to_numpy(), _joints(table, "q"),
+                out = chain.feed(table.column("t").to_numpy(), _joints(table, "q"),
                                     _joints(table, "dq"), _joints(table, "tau"))
                 for name, values in out.items():
                     group = pa.table({c: np.ascontiguousarray(v) for c, v in
@@ -152,10 +151,10 @@ def iter_chain_batches(tables: Iterator[pa.Table], robot: RobotSetup,
                        names: Sequence[str] = ("dq", "tau", "r")
                        ) -> Iterator[tuple[pa.Table, dict[str, np.ndarray]]]:
     """Yield each chunk of a session's complete rows (``tables``) with its features
-    (name -> (n, k) array), computed by one :class:`ChunkedChain`: memory is bounded
+    (name -> (n, k) array), computed by one :class:`TimeseriesChain`: memory is bounded
     by one chunk."""
-    chain = ChunkedChain(config or ChainConfig(), robot, list(names))
+    chain = TimeseriesChain(config, robot, list(names))
     for table in tables:
         if table.num_rows:
-            yield table, chain.compute(table.column("t").to_numpy(), _joints(table, "q"),
+            yield table, chain.feed(table.column("t").to_numpy(), _joints(table, "q"),
                                        _joints(table, "dq"), _joints(table, "tau"))

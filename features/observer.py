@@ -92,24 +92,3 @@ def solve_recurrence(a: np.ndarray, b: np.ndarray, r_before: np.ndarray | None =
         start = stop
     return out
 
-
-class RecurrenceStep:
-    """The same recurrence advanced one sample at a time (the streaming path)."""
-
-    def __init__(self, gain: np.ndarray) -> None:
-        self.gain = gain
-        self.t: float | None = None
-        self.p = np.zeros(7)
-        self.r = np.zeros(7)
-
-    def update(self, t: float, p: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Advance to time ``t`` [s] with momentum ``p`` [Nm s] and ``u`` [Nm]; return r [Nm]."""
-        if self.t is None:
-            self.r = np.zeros(7)
-        else:
-            h = t - self.t
-            a = 1.0 / (1.0 + self.gain * h)
-            self.r = a * self.r + self.gain * (p - self.p - h * u) * a
-        self.t = t
-        self.p = p
-        return self.r

@@ -1,7 +1,7 @@
 """The samples of a long session's interaction window, found and gathered batch by batch.
 
 :func:`streamed_window_values` reads a session file a batch at a time, runs the feature
-chain on it (:class:`contactkit.features.timeseries.ChunkedChain`), finds the window as
+chain on it (:class:`contactkit.features.timeseries.TimeseriesChain`), finds the window as
 it goes (:class:`contactkit.features.windows.WindowSearch`) and keeps only the samples
 that are or may still become the window's: the planned window (the fallback), the
 samples from the earliest time that may still be the onset, and the window once found.

@@ -3,7 +3,7 @@
 The session is read in batches (row groups of the file, see
 :func:`contactkit.schemas.session.iter_session_batches`), so memory stays bounded by
 one batch however long the session is. Each batch goes through
-:class:`contactkit.features.timeseries.ChunkedChain`, whose state (observer, last
+:class:`contactkit.features.timeseries.TimeseriesChain`, whose state (observer, last
 velocity) is carried from batch to batch: the numbers equal the whole-session chain.
 Every ``hop_s`` seconds, once a full window is available, the scalar features of the
 last ``window_s`` seconds (the window length the model was trained with), or for a
@@ -42,7 +42,7 @@ from contactkit.classify.modelfile import ModelFile
 from contactkit.features.agreement import ResidualAgreement
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.isolation import robot_isolator
-from contactkit.features.timeseries import ChainConfig, ChunkedChain, columns_of, expand
+from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
 from contactkit.features.windows import Window
 from contactkit.robots import get_robot
 from contactkit.schemas import InputError, Session
@@ -241,8 +241,9 @@ class ReplayStream:
     def blocks(self, every_hop: bool = False) -> Iterator[Block]:
         """Stream the session; yield a :class:`Block` per batch read, or with
         ``every_hop`` after every prediction (and at the end of each batch)."""
-        chain = ChunkedChain(self.chain_config, self.chain_config.robot_setup(self.meta, self.path),
-                             list(dict.fromkeys([*self.names, "r", "f", "m", "fm_norm"])))
+        chain = TimeseriesChain(self.chain_config,
+                                self.chain_config.robot_setup(self.meta, self.path),
+                                list(dict.fromkeys([*self.names, "r", "f", "m", "fm_norm"])))
         model, ee = chain.model, chain.model.end_effector
         history_t, history_v = np.zeros(0), np.zeros((0, len(self.channels)))
         next_hop = robot_stride = None
@@ -262,7 +263,7 @@ class ReplayStream:
                 self.event_samples[float(t[0])] = 0
             if planned is not None and self.planned_sample is None and t[-1] >= planned:
                 self.planned_sample = start + int(np.searchsorted(t, planned))
-            out = chain.compute(t, q, dq, tau)
+            out = chain.feed(t, q, dq, tau)
             values = np.column_stack([out[name] for name in self.names])
             buffer_t, buffer_v = np.r_[history_t, t], np.vstack([history_v, values])
             offset = len(history_t)

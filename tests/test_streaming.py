@@ -21,7 +21,6 @@ from contactkit.features.per_sample import write_per_sample_table
 from contactkit.features.timeseries import (
     ALL_TIMESERIES,
     ChainConfig,
-    ChunkedChain,
     TimeseriesChain,
 )
 from contactkit.replay import engine
@@ -43,8 +42,8 @@ def shove(tmp_path_factory) -> Path:
 def test_chunked_chain_equals_the_whole_session_chain(shove, size) -> None:
     s = read_session(shove)
     whole = TimeseriesChain().compute(s.t, s.q, s.dq, s.tau)
-    chain = ChunkedChain()
-    parts = [chain.compute(s.t[i:i + size], s.q[i:i + size], s.dq[i:i + size],
+    chain = TimeseriesChain()
+    parts = [chain.feed(s.t[i:i + size], s.q[i:i + size], s.dq[i:i + size],
                            s.tau[i:i + size]) for i in range(0, s.n_samples, size)]
     for name in ALL_TIMESERIES:
         chunked = np.concatenate([part[name] for part in parts])
@@ -54,10 +53,10 @@ def test_chunked_chain_equals_the_whole_session_chain(shove, size) -> None:
 
 def test_an_empty_chunk_changes_nothing(shove) -> None:
     s = read_session(shove)
-    chain = ChunkedChain(names=["r"])
-    first = chain.compute(s.t[:10], s.q[:10], s.dq[:10], s.tau[:10])["r"]
-    assert chain.compute(s.t[:0], s.q[:0], s.dq[:0], s.tau[:0])["r"].shape == (0, 7)
-    rest = chain.compute(s.t[10:], s.q[10:], s.dq[10:], s.tau[10:])["r"]
+    chain = TimeseriesChain(names=["r"])
+    first = chain.feed(s.t[:10], s.q[:10], s.dq[:10], s.tau[:10])["r"]
+    assert chain.feed(s.t[:0], s.q[:0], s.dq[:0], s.tau[:0])["r"].shape == (0, 7)
+    rest = chain.feed(s.t[10:], s.q[10:], s.dq[10:], s.tau[10:])["r"]
     whole = TimeseriesChain().compute(s.t, s.q, s.dq, s.tau, ["r"])["r"]
     assert np.abs(np.vstack([first, rest]) - whole).max() <= 1e-9
 

@@ -13,7 +13,7 @@ Difference window (:class:`contactkit.features.windows.WindowSearch`); the media
 (median step, the robust noise sigmas, the residual's median) are exact, found by
 radix selection in a few more passes (:func:`contactkit.util.exact_median.exact_medians`);
 one pass runs the feature chain batch by batch
-(:class:`contactkit.features.timeseries.ChunkedChain`) and spills the residual after
+(:class:`contactkit.features.timeseries.TimeseriesChain`) and spills the residual after
 the first second to a temporary file (:class:`contactkit.recorder.importers.spill.RowSpill`)
 for its median. The numbers equal
 those of the whole session held at once up to rounding (1e-12 relative for the
@@ -34,7 +34,7 @@ from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features import chain_cache
 from contactkit.features.agreement import session_residual_agreement
 from contactkit.features.limits import robot_limits
-from contactkit.features.timeseries import ChunkedChain
+from contactkit.features.timeseries import TimeseriesChain
 from contactkit.features.timing import streamed_sampling_stats
 from contactkit.features.windows import WindowSearch, WindowSpec
 from contactkit.recorder.importers.spill import RowSpill
@@ -196,12 +196,12 @@ def _summary(path: Path, meta: SessionMeta, rows: int) -> dict:
     window = search.finish() if search is not None else None
     onset = None if window is None else (window.onset_s if window.found else planned)
     profile = _Profile(onset + PROFILE_T) if onset is not None else None
-    chain = ChunkedChain(None, meta.robot_setup(path), ["r", "fm_norm"])
+    chain = TimeseriesChain(None, meta.robot_setup(path), ["r", "fm_norm"])
     peak_residual = peak_force = -math.inf
     settled = RowSpill(7)
     try:
         for t, q, dq, tau in chunks():
-            series = chain.compute(t, q, dq, tau)
+            series = chain.feed(t, q, dq, tau)
             residual, force = series["r"], series["fm_norm"][:, 0]
             peak_residual = max(peak_residual, float(np.linalg.norm(residual, axis=1).max()))
             peak_force = max(peak_force, float(force.max()))
