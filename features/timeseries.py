@@ -53,7 +53,7 @@ from contactkit.features.observer import (
 )
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
-from contactkit.schemas.session import SessionMeta
+from contactkit.schemas.session import SampleBatch, SessionMeta
 
 SENSOR = ("q", "dq", "tau", "ddq", "p_int")
 MODEL = ("r", "g", "tau_inv", "p_ext")
@@ -185,23 +185,24 @@ class TimeseriesChain:
         return self._chunk(t, q, dq, tau, self.names if names is None else expand(names),
                            None)[0]
 
-    def feed(self, t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.ndarray
-             ) -> dict[str, np.ndarray]:
+    def feed(self, batch: SampleBatch) -> dict[str, np.ndarray]:
         """Return the chain's features (name -> (n, k) array) of the next chunk of the
-        stream: ``t`` (n,) [s] after the previous chunk's, ``q``, ``dq``, ``tau`` (n, 7)
-        as for :meth:`compute`; carry the state to the next chunk. An empty chunk gives
-        empty arrays."""
-        if len(t) == 0:
+        stream, ``batch`` (its times after the previous chunk's; only ``t``, ``q``,
+        ``dq`` and ``tau`` are used), and carry the state to the next chunk. An empty
+        chunk gives empty arrays."""
+        if len(batch) == 0:
             return {name: np.zeros((0, len(columns_of(name)))) for name in self.names}
-        out, self._state = self._chunk(t, q, dq, tau, self.names, self._state)
+        out, self._state = self._chunk(batch.t, batch.q, batch.dq, batch.tau, self.names,
+                                       self._state)
         return out
 
     def update(self, t: float, q: np.ndarray, dq: np.ndarray, tau: np.ndarray
                ) -> dict[str, np.ndarray]:
         """Feed one sample (``t`` [s]; ``q`` [rad], ``dq`` [rad/s], ``tau`` [Nm], each
         (7,)), as a chunk of one; return the chain's features at it, name -> (k,)."""
-        out = self.feed(np.array([t], dtype=float), np.asarray(q, dtype=float)[None],
-                        np.asarray(dq, dtype=float)[None], np.asarray(tau, dtype=float)[None])
+        out = self.feed(SampleBatch(np.array([t], dtype=float), np.asarray(q, dtype=float)[None],
+                                    np.asarray(dq, dtype=float)[None],
+                                    np.asarray(tau, dtype=float)[None]))
         return {name: values[0] for name, values in out.items()}
 
     def _rnea(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:

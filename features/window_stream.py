@@ -17,14 +17,13 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
 
 from contactkit.features import chain_cache
 from contactkit.features.chain_cache import iter_chain_batches
 from contactkit.features.timeseries import ChainConfig
 from contactkit.features.windows import Window, WindowSearch, WindowSpec
 from contactkit.schemas import InputError
-from contactkit.schemas.session import complete_table, iter_session_batches, read_session_meta
+from contactkit.schemas.session import SampleBatch, iter_sample_batches, read_session_meta
 
 
 class _Rows:
@@ -66,12 +65,11 @@ def streamed_window_values(path: str | Path, spec: WindowSpec, config: ChainConf
     planned = Window(meta.planned_at_s, meta.planned_at_s + spec.length_s, spec.method,
                      False, None)
     rows = fallback = None
-    batches = iter_session_batches(path, chain_cache.BATCH_ROWS)
-    tables = (complete_table(pa.Table.from_batches([batch])) for batch in batches)
+    batches = iter_sample_batches(path, chain_cache.BATCH_ROWS)
     config = config or ChainConfig()
     robot = config.robot_setup(meta, path)
-    for table, series in iter_chain_batches(tables, robot, config, needed):
-        t = table.column("t").to_numpy()
+    for batch, series in iter_chain_batches(batches, robot, config, needed):
+        t = batch.t
         values = np.column_stack([series[n] for n in names])
         if rows is None:
             rows, fallback = _Rows(values.shape[1]), _Rows(values.shape[1])
@@ -93,7 +91,7 @@ def streamed_window_values(path: str | Path, spec: WindowSpec, config: ChainConf
     return (rows if window.found or not searching else fallback).inside(window), window
 
 
-def _validate_rest(batches: Iterator[pa.RecordBatch]) -> None:
+def _validate_rest(batches: Iterator[SampleBatch]) -> None:
     """Read the rest of the file: each batch is validated as it is read."""
     for _ in batches:
         pass

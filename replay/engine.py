@@ -47,9 +47,10 @@ from contactkit.features.windows import Window
 from contactkit.robots import get_robot
 from contactkit.schemas import InputError, Session
 from contactkit.schemas.session import (
+    SampleBatch,
     complete_table,
+    iter_sample_batches,
     iter_session_batches,
-    joint_columns,
     read_session_meta,
 )
 
@@ -63,7 +64,6 @@ OFFLINE_SPAN_S = 60.0
 """The offline answer looks at the samples within this many seconds of the planned time
 (before and after it): the whole of a dataset's session, a minute either side in a long
 one."""
-TRUTH_FORCE = ("f_ext_x", "f_ext_y", "f_ext_z")
 
 
 @dataclass
@@ -121,10 +121,6 @@ class OfflineAnswer:
     probabilities: np.ndarray
     start_sample: int = 0
     end_sample: int = 0
-
-
-def _joints(table: pa.Table, prefix: str) -> np.ndarray:
-    return np.column_stack([table.column(c).to_numpy() for c in joint_columns(prefix)])
 
 
 def next_hop_after(hop: float, t: float, hop_s: float) -> float:
@@ -238,6 +234,10 @@ class ReplayStream:
         for batch in batches:
             yield complete_table(pa.Table.from_batches([batch]))
 
+    def _batches(self) -> Iterator[SampleBatch]:
+        return iter_sample_batches(self.session if self.session is not None else self.path,
+                                   self.batch_rows)
+
     def blocks(self, every_hop: bool = False) -> Iterator[Block]:
         """Stream the session; yield a :class:`Block` per batch read, or with
         ``every_hop`` after every prediction (and at the end of each batch)."""
@@ -249,12 +249,9 @@ class ReplayStream:
         next_hop = robot_stride = None
         start = 0
         planned = self.meta.planned_at_s
-        for table in self._tables():
-            n = table.num_rows
-            if n == 0:
-                continue
-            t = table.column("t").to_numpy()
-            q, dq, tau = _joints(table, "q"), _joints(table, "dq"), _joints(table, "tau")
+        for batch in self._batches():
+            n = len(batch)
+            t, q, dq, tau = batch.t, batch.q, batch.dq, batch.tau
             if next_hop is None:
                 next_hop = t[0] + self.window_s
                 steps = np.diff(t)
@@ -263,7 +260,7 @@ class ReplayStream:
                 self.event_samples[float(t[0])] = 0
             if planned is not None and self.planned_sample is None and t[-1] >= planned:
                 self.planned_sample = start + int(np.searchsorted(t, planned))
-            out = chain.feed(t, q, dq, tau)
+            out = chain.feed(batch)
             values = np.column_stack([out[name] for name in self.names])
             buffer_t, buffer_v = np.r_[history_t, t], np.vstack([history_v, values])
             offset = len(history_t)
@@ -274,12 +271,8 @@ class ReplayStream:
             labels = scores = None
             if self.pipeline is not None:
                 labels, scores = np.full(n, NONE, dtype=object), np.zeros(n)
-            truth = np.column_stack([table.column(c).to_numpy() for c in TRUTH_FORCE]) \
-                if all(c in table.column_names for c in TRUTH_FORCE) else None
-            contact = table.column("contact").to_numpy(zero_copy_only=False) \
-                if "contact" in table.column_names else None
-            estimate = -_joints(table, "tau_ext_hat") if all(
-                c in table.column_names for c in joint_columns("tau_ext_hat")) else None
+            truth, contact = batch.f_ext, batch.contact
+            estimate = None if batch.tau_ext_hat is None else -batch.tau_ext_hat
             if estimate is not None:
                 self.agreement.update(t, out["r"], -estimate)
             true_point = None
