@@ -126,6 +126,14 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
                                  self.fft_k)
         return row
 
+    def window_row(self, t: np.ndarray, values: np.ndarray, window: Window,
+                   path: str | Path | None = None) -> np.ndarray:
+        """Return the scalar features of ``window`` from per-sample ``values`` (N,
+        channels, in :meth:`channels` order) at times ``t`` [s] around it. Raises
+        InputError naming ``path`` when the window holds fewer than 2 samples."""
+        return self._scalar_row(values[window.mask(t)], expand(list(self.timeseries)), window,
+                                path)[0]
+
     def session_row(self, session: Session | str | Path) -> tuple[np.ndarray, list[str], Window]:
         """Return (values, names, window) for one session. A session file longer than
         :data:`STREAMED_ABOVE_ROWS` samples is read batch by batch, keeping only what

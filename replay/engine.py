@@ -16,10 +16,10 @@ release), which needs no planned interaction time, and gates the per-hop output:
 without a detected contact a hop's label is ``none`` (probability 1), whatever the
 window classifier says (its own probabilities stay in ``pred_window_proba``), because
 the window classifier was trained on contacts at a planned time and calls fast free
-motion a contact. For a session with a planned time
-the engine also computes the offline answer: the window found by the thesis method
-and the model's label for it, from the samples around the planned time (see
-:meth:`ReplayStream.offline`).
+motion a contact. For a session with a planned time the engine also gives the offline
+answer: the window found by the thesis method and the model's label for it, from the
+features it streamed (:class:`contactkit.features.window_stream.WindowCollector`) and
+through the same predictor as every hop (see :meth:`ReplayStream.offline`).
 
 :meth:`ReplayStream.blocks` yields each batch's samples with their features and
 predictions as a :class:`Block`; a paced replay asks for a block after every hop, so
@@ -43,27 +43,19 @@ from contactkit.features.agreement import ResidualAgreement
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.isolation import robot_isolator
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
+from contactkit.features.window_stream import WindowCollector
 from contactkit.features.windows import Window
 from contactkit.robots import get_robot
 from contactkit.schemas import InputError, Session
-from contactkit.schemas.session import (
-    SampleBatch,
-    complete_table,
-    iter_sample_batches,
-    iter_session_batches,
-    read_session_meta,
-)
+from contactkit.schemas.session import SampleBatch, iter_sample_batches, read_session_meta
 
 DEFAULT_HOP_S = 0.02
 ROBOT_VIEW_HZ = 60.0
 BATCH_ROWS = 16_384
 """Samples read and computed at a time (about 16 s at 1 kHz)."""
 HISTORY_MARGIN_S = 1.0
-"""Seconds of features kept before a prediction window (a network's baseline)."""
-OFFLINE_SPAN_S = 60.0
-"""The offline answer looks at the samples within this many seconds of the planned time
-(before and after it): the whole of a dataset's session, a minute either side in a long
-one."""
+"""Seconds of features kept before a prediction window (a network's baseline), and
+either side of the offline window."""
 
 
 @dataclass
@@ -199,6 +191,10 @@ class ReplayStream:
         self.true_contact = (int(truth["link"]), np.asarray(truth["point_local"], float)) \
             if isinstance(truth, dict) else None
         """The simulated contact's link and point [m] (link frame), None without one."""
+        self.window_spec = self.transformer.window_spec
+        planned = self.meta.planned_at_s
+        self._offline = None if planned is None else \
+            WindowCollector(planned, self.window_spec, HISTORY_MARGIN_S)
         self.n_samples = 0
         self.planned_sample: int | None = None
         self.agreement = ResidualAgreement()
@@ -225,15 +221,6 @@ class ReplayStream:
         except (pa.ArrowInvalid, OSError, IndexError, KeyError) as err:
             raise InputError(f"cannot read the sample times ({err})", self.path) from err
 
-    def _tables(self, batch_rows: int | None = None) -> Iterator[pa.Table]:
-        rows = batch_rows or self.batch_rows
-        if self.session is not None:
-            batches = self.session.table.to_batches(max_chunksize=rows)
-        else:
-            batches = iter_session_batches(self.path, rows)
-        for batch in batches:
-            yield complete_table(pa.Table.from_batches([batch]))
-
     def _batches(self) -> Iterator[SampleBatch]:
         return iter_sample_batches(self.session if self.session is not None else self.path,
                                    self.batch_rows)
@@ -243,7 +230,8 @@ class ReplayStream:
         ``every_hop`` after every prediction (and at the end of each batch)."""
         chain = TimeseriesChain(self.chain_config,
                                 self.chain_config.robot_setup(self.meta, self.path),
-                                list(dict.fromkeys([*self.names, "r", "f", "m", "fm_norm"])))
+                                list(dict.fromkeys([*self.names, "r", "f", "m", "fm_norm",
+                                                    self.window_spec.signal])))
         model, ee = chain.model, chain.model.end_effector
         history_t, history_v = np.zeros(0), np.zeros((0, len(self.channels)))
         next_hop = robot_stride = None
@@ -265,6 +253,8 @@ class ReplayStream:
             buffer_t, buffer_v = np.r_[history_t, t], np.vstack([history_v, values])
             offset = len(history_t)
             sample = np.arange(start, start + n)
+            if self._offline is not None:
+                self._offline.add(sample, t, values, out[self.window_spec.signal])
             robot = np.flatnonzero(sample % robot_stride == 0)
             ee_position = np.array([model.frame_placement(q[k], ee).translation
                                     for k in robot]).reshape(-1, 3)
@@ -346,37 +336,22 @@ class ReplayStream:
 
     def offline(self) -> OfflineAnswer | None:
         """Return the thesis method's window and the model's label for it (None for a
-        session without a planned interaction time).
-
-        Only the samples within ``OFFLINE_SPAN_S`` of the planned time are read (all of
-        a dataset's sessions; a long session's calibration then starts a minute before
-        the planned time, and the observer has long settled when the window begins)."""
-        planned = self.meta.planned_at_s
-        if planned is None:
+        session without a planned interaction time), from the features the stream
+        computed (the session is streamed first if it has not been), through the same
+        predictor as every hop. Raises InputError when the window holds too few
+        samples."""
+        if self._offline is None:
             return None
-        low, high = planned - OFFLINE_SPAN_S, planned + OFFLINE_SPAN_S
-        parts, first, seen = [], None, 0
-        for table in self._tables(batch_rows=65_536):
-            t = table.column("t").to_numpy()
-            inside = (t >= low) & (t <= high)
-            if inside.any():
-                first = seen + int(np.argmax(inside)) if first is None else first
-                parts.append(table.filter(pa.array(inside)))
-            seen += table.num_rows
-            if len(t) and t[-1] > high:
-                break
-        if not parts:
-            raise InputError(f"no samples near the planned time {planned:.3f} s", self.path)
-        table = pa.concat_tables(parts)
-        whole = table.num_rows == seen == self.n_samples
-        session = Session(self.meta, table, self.path if whole else None)
-        values, names, window = self.transformer.session_row(session)
-        self.model.check_features(names, self.path)
-        proba = self.model.estimator.predict_proba(values[None, ...])[0]
-        t = session.t
-        k0 = first + int(np.searchsorted(t, window.start_s))
-        k1 = first + min(int(np.searchsorted(t, window.end_s)), len(t) - 1)
-        return OfflineAnswer(window, self.classes[int(np.argmax(proba))], proba, k0, k1)
+        if self.n_samples == 0:
+            self.run()
+        window, sample, t, values = self._offline.result()
+        row = self.transformer.window_row(t, values, window, self.path)
+        proba = self._predict_proba(row[None, ...])[0]
+        last = len(t) - 1
+        k0 = sample[min(int(np.searchsorted(t, window.start_s)), last)]
+        k1 = sample[min(int(np.searchsorted(t, window.end_s)), last)]
+        return OfflineAnswer(window, self.classes[int(np.argmax(proba))], proba, int(k0),
+                             int(k1))
 
 
 def _part(block: Block, first: int, stop: int,

@@ -15,12 +15,12 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
 
+from contactkit.classify.events import ContactEvent
 from contactkit.replay.engine import ROBOT_VIEW_HZ, Block, OfflineAnswer, ReplayStream
 from contactkit.robots.surfaces import viewer_urdf_file
 from contactkit.util.atomic import Owned, owned_by_marker
@@ -159,17 +159,6 @@ def log_offline(rec: rr.RecordingStream, stream: ReplayStream, answer: OfflineAn
                                                      strict=True))
     layout.text_event(rec, layout.OFFLINE_LABEL, window.end_s, k1,
                       f"offline label: {answer.label} ({probs})")
-
-
-@dataclass(frozen=True)
-class ContactEvent:
-    """One contact as the event pipeline decides it: onset, decision and release time
-    [s] and the decided label."""
-
-    onset_s: float
-    decision_s: float
-    release_s: float
-    label: str
 
 
 def log_contact_events(rec: rr.RecordingStream, t: np.ndarray,
