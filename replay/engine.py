@@ -50,7 +50,6 @@ from contactkit.schemas import InputError, Session
 from contactkit.schemas.session import SampleBatch, iter_sample_batches, read_session_meta
 
 DEFAULT_HOP_S = 0.02
-ROBOT_VIEW_HZ = 60.0
 BATCH_ROWS = 16_384
 """Samples read and computed at a time (about 16 s at 1 kHz)."""
 HISTORY_MARGIN_S = 1.0
@@ -64,15 +63,11 @@ class Block:
     processed: times ``t`` [s], ``q`` [rad], ``dq`` [rad/s], ``tau`` [Nm] (n, 7), the
     residual ``r`` [Nm] (n, 7), ``force`` [N] and ``moment`` [Nm] (n, 3), their
     ``norms`` (n, 2), the ground truth where the session has it (``true_force`` [N]
-    (n, 3), ``contact`` (n,)), the samples ``robot`` (indices into the block) where the
-    3-D robot is drawn with its end effector at ``ee_position`` [m], the robot's own
-    external-torque estimate with the residual's sign (``robot_estimate``, -tau_ext_hat
-    [Nm] (n, 7), where the session has it), the event
-    pipeline's per-sample ``event_label`` and ``score`` (None without a detector),
-    the simulated contact's true point [m] (base frame) at the ``robot`` samples
-    (``true_point``, None without one), and the predictions made among these
-    samples: ``pred_t`` [s], ``pred_sample``, ``pred_proba`` (m, classes) and
-    ``pred_label``."""
+    (n, 3), ``contact`` (n,)), the robot's own external-torque estimate with the
+    residual's sign (``robot_estimate``, -tau_ext_hat [Nm] (n, 7), where the session
+    has it), the event pipeline's per-sample ``event_label`` and ``score`` (None
+    without a detector), and the predictions made among these samples: ``pred_t`` [s],
+    ``pred_sample``, ``pred_proba`` (m, classes) and ``pred_label``."""
 
     start: int
     stop: int
@@ -84,14 +79,11 @@ class Block:
     force: np.ndarray
     moment: np.ndarray
     norms: np.ndarray
-    robot: np.ndarray
-    ee_position: np.ndarray
     true_force: np.ndarray | None = None
     contact: np.ndarray | None = None
     robot_estimate: np.ndarray | None = None
     event_label: np.ndarray | None = None
     score: np.ndarray | None = None
-    true_point: np.ndarray | None = None
     pred_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
     pred_sample: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     pred_proba: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
@@ -187,15 +179,14 @@ class ReplayStream:
         self.estimate_samples: dict[float, int] = {}
         """Session time [s] -> sample index of every contact estimate of an event's
         track (:class:`contactkit.features.isolation.EventTrack`)."""
-        truth = ((self.meta.simulator or {}).get("session") or {}).get("contact")
-        self.true_contact = (int(truth["link"]), np.asarray(truth["point_local"], float)) \
-            if isinstance(truth, dict) else None
-        """The simulated contact's link and point [m] (link frame), None without one."""
         self.window_spec = self.transformer.window_spec
         planned = self.meta.planned_at_s
         self._offline = None if planned is None else \
             WindowCollector(planned, self.window_spec, HISTORY_MARGIN_S)
         self.n_samples = 0
+        self.rate_hz: float | None = None
+        """The sample rate [Hz] by the median step of the first batch (None while
+        unknown, or for a first batch of one sample)."""
         self.planned_sample: int | None = None
         self.agreement = ResidualAgreement()
         """The residual's agreement with the robot's own estimate (sessions with
@@ -232,9 +223,8 @@ class ReplayStream:
                                 self.chain_config.robot_setup(self.meta, self.path),
                                 list(dict.fromkeys([*self.names, "r", "f", "m", "fm_norm",
                                                     self.window_spec.signal])))
-        model, ee = chain.model, chain.model.end_effector
         history_t, history_v = np.zeros(0), np.zeros((0, len(self.channels)))
-        next_hop = robot_stride = None
+        next_hop = None
         start = 0
         planned = self.meta.planned_at_s
         for batch in self._batches():
@@ -243,8 +233,7 @@ class ReplayStream:
             if next_hop is None:
                 next_hop = t[0] + self.window_s
                 steps = np.diff(t)
-                rate = 1.0 / float(np.median(steps)) if steps.size else ROBOT_VIEW_HZ
-                robot_stride = max(1, round(rate / ROBOT_VIEW_HZ))
+                self.rate_hz = 1.0 / float(np.median(steps)) if steps.size else None
                 self.event_samples[float(t[0])] = 0
             if planned is not None and self.planned_sample is None and t[-1] >= planned:
                 self.planned_sample = start + int(np.searchsorted(t, planned))
@@ -255,9 +244,6 @@ class ReplayStream:
             sample = np.arange(start, start + n)
             if self._offline is not None:
                 self._offline.add(sample, t, values, out[self.window_spec.signal])
-            robot = np.flatnonzero(sample % robot_stride == 0)
-            ee_position = np.array([model.frame_placement(q[k], ee).translation
-                                    for k in robot]).reshape(-1, 3)
             labels = scores = None
             if self.pipeline is not None:
                 labels, scores = np.full(n, NONE, dtype=object), np.zeros(n)
@@ -265,15 +251,8 @@ class ReplayStream:
             estimate = None if batch.tau_ext_hat is None else -batch.tau_ext_hat
             if estimate is not None:
                 self.agreement.update(t, out["r"], -estimate)
-            true_point = None
-            if self.true_contact is not None:
-                link, point = self.true_contact
-                placements = [model.frame_placement(q[k], link) for k in robot]
-                true_point = np.array([p.rotation @ point + p.translation
-                                       for p in placements]).reshape(-1, 3)
             whole = Block(start, start + n, t, q, dq, tau, out["r"], out["f"], out["m"],
-                          out["fm_norm"], robot, ee_position, truth, contact, estimate,
-                          labels, scores, true_point)
+                          out["fm_norm"], truth, contact, estimate, labels, scores)
             first, predictions = 0, []
             for k in range(n):
                 if self.pipeline is not None:
@@ -358,20 +337,14 @@ def _part(block: Block, first: int, stop: int,
           predictions: list[tuple[float, int, np.ndarray, str]]) -> Block:
     """Return rows ``[first, stop)`` of a batch's block with the given predictions."""
     s = slice(first, stop)
-    robot = block.robot[(block.robot >= first) & (block.robot < stop)]
-    at = np.searchsorted(block.robot, robot)
-    ee = block.ee_position[at] if len(robot) else np.zeros((0, 3))
-    true_point = None if block.true_point is None else \
-        block.true_point[at] if len(robot) else np.zeros((0, 3))
 
     def rows(x: np.ndarray | None) -> np.ndarray | None:
         return None if x is None else x[s]
 
     part = Block(block.start + first, block.start + stop, block.t[s], block.q[s],
                  block.dq[s], block.tau[s], block.r[s], block.force[s], block.moment[s],
-                 block.norms[s], robot - first, ee, rows(block.true_force),
-                 rows(block.contact), rows(block.robot_estimate), rows(block.event_label),
-                 rows(block.score), true_point)
+                 block.norms[s], rows(block.true_force), rows(block.contact),
+                 rows(block.robot_estimate), rows(block.event_label), rows(block.score))
     if predictions:
         part.pred_t = np.array([p[0] for p in predictions])
         part.pred_sample = np.array([p[1] for p in predictions], dtype=np.int64)
