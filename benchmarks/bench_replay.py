@@ -76,7 +76,7 @@ def log_to_file(stream: ReplayStream, blocks: list[Block], answer, rrd: Path) ->
     start = time.perf_counter()
     rec = new_recording("bench", "bench")
     rec.save(rrd, default_blueprint=layout.replay_blueprint())
-    logger = BlockLogger(rec, log_static(rec, stream))
+    logger = BlockLogger(rec, log_static(rec, stream), stream)
     for block in blocks:
         logger.log(block)
     log_offline(rec, stream, answer)
@@ -90,7 +90,7 @@ def paced_lag(session_path: Path, model_path: Path, rrd: Path) -> np.ndarray:
     stream = ReplayStream(session_path, load_model(model_path))
     rec = new_recording("bench-paced", "bench-paced")
     rec.save(rrd)
-    logger = BlockLogger(rec, log_static(rec, stream))
+    logger = BlockLogger(rec, log_static(rec, stream), stream)
     lags = []
     started = time.monotonic()
     t0, _ = stream.time_span()

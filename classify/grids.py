@@ -196,6 +196,17 @@ class SessionGrids(TransformerMixin, BaseEstimator):
         """Return the (sessions, channels, steps) grids."""
         return np.stack([self.session_row(s)[0] for s in X])
 
+    @property
+    def window_spec(self) -> WindowSpec:
+        """The window settings as a :class:`WindowSpec` (found on the torque)."""
+        return WindowSpec(self.window, self.window_s)
+
+    def window_row(self, t: np.ndarray, values: np.ndarray, window: Window,
+                   path: str | Path | None = None) -> np.ndarray:
+        """Return the grid of ``window`` from per-sample ``values`` (N, channels) at times
+        ``t`` [s] around it (from ``baseline_s`` before it to its end)."""
+        return window_grid(t, values, window.start_s, self.spec)
+
     def session_row(self, session: Session | str | Path
                     ) -> tuple[np.ndarray, list[str], Window]:
         """Return (grid, channel names, window) for one session."""

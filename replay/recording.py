@@ -6,7 +6,8 @@ replay, where the viewer updates live. Both send the same values at the same tim
 stamps. Every time series is logged at the full sample rate unless a log rate thins
 it (:class:`Thinning`: the chain still runs on every sample); the 3-D robot and its
 force arrow are animated at about 60 Hz (every n-th sample), which is all a 3-D view
-needs and keeps files small.
+needs and keeps files small. The kinematics only the view needs (the end effector's
+position, the simulated contact's point) are computed here, at those samples.
 :func:`log_contact_events` is where the contact-event pipeline hands over its events
 (one state-timeline bar each) and detector thresholds (lines on the residual plot).
 """
@@ -15,17 +16,21 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
 
-from contactkit.replay.engine import ROBOT_VIEW_HZ, Block, OfflineAnswer, ReplayStream
+from contactkit.classify.events import ContactEvent
+from contactkit.replay.engine import Block, OfflineAnswer, ReplayStream
+from contactkit.robots.model import RobotModel
 from contactkit.robots.surfaces import viewer_urdf_file
 from contactkit.util.atomic import Owned, owned_by_marker
 from contactkit.util.paths import inside
 from contactkit.viewer import layout
+
+ROBOT_VIEW_HZ = 60.0
+"""The 3-D robot is drawn at about this rate [Hz] (every n-th sample)."""
 
 
 def new_recording(session_name: str, recording_id: str) -> rr.RecordingStream:
@@ -93,17 +98,41 @@ class Thinning:
 
 
 class BlockLogger:
-    """Sends blocks of a replay as columns, every series thinned to ``log_rate_hz``
-    [Hz] (None: every sample) and the 3-D robot to at most ``ROBOT_VIEW_HZ``; the
-    predictions always go out in full."""
+    """Sends the blocks of ``stream`` as columns, every series thinned to ``log_rate_hz``
+    [Hz] (None: every sample) and the 3-D robot (every n-th sample, about
+    ``ROBOT_VIEW_HZ`` at the session's rate) to at most that rate; the predictions
+    always go out in full. The 3-D view's kinematics come from the session's robot
+    model: the end effector's position for the force arrow and, in a simulated session,
+    the true contact point [m] (base frame)."""
 
     def __init__(self, rec: rr.RecordingStream, tree: rr.urdf.UrdfTree,
-                 log_rate_hz: float | None = None) -> None:
-        self.rec, self.tree = rec, tree
+                 stream: ReplayStream, log_rate_hz: float | None = None) -> None:
+        self.rec, self.tree, self.stream = rec, tree, stream
         self.series = Thinning(log_rate_hz)
         self.robot = Thinning(None if log_rate_hz is None or log_rate_hz >= ROBOT_VIEW_HZ
                               else log_rate_hz)
         self._contact: bool | None = None
+        self._stride: int | None = None
+        self.model = RobotModel(stream.meta.robot_setup(stream.path))
+        truth = ((stream.meta.simulator or {}).get("session") or {}).get("contact")
+        self.true_contact = (int(truth["link"]), np.asarray(truth["point_local"], float)) \
+            if isinstance(truth, dict) else None
+        """The simulated contact's link and point [m] (link frame), None without one."""
+
+    def _robot_rows(self, block: Block) -> np.ndarray:
+        """Return the rows of ``block`` where the 3-D robot is drawn."""
+        if self._stride is None:
+            rate = self.stream.rate_hz
+            self._stride = 1 if rate is None else max(1, round(rate / ROBOT_VIEW_HZ))
+        robot = np.flatnonzero(block.sample % self._stride == 0)
+        return robot[self.robot.keep(block.t[robot])]
+
+    def _points(self, q: np.ndarray, link: int | str, point: np.ndarray) -> np.ndarray:
+        """Return ``point`` [m] (in the frame of ``link``) in the base frame at each
+        configuration ``q`` (m, 7) [rad], (m, 3)."""
+        placements = (self.model.frame_placement(qk, link) for qk in q)
+        return np.array([p.rotation @ point + p.translation for p in placements]
+                        ).reshape(-1, 3)
 
     def log(self, block: Block) -> None:
         """Send the (thinned) samples and the predictions of one block."""
@@ -128,16 +157,17 @@ class BlockLogger:
                 layout.log_ground_truth(rec, t, sample, block.true_force[keep], contact,
                                         self._contact)
                 self._contact = bool(contact[-1])
-        rows = block.robot[self.robot.keep(block.t[block.robot])]
+        rows = self._robot_rows(block)
         if len(rows):
-            at = np.searchsorted(block.robot, rows)
-            t, sample = block.t[rows], block.sample[rows]
-            layout.log_joint_transforms(rec, self.tree, t, sample, block.q[rows])
-            layout.log_force_arrows(rec, t, sample, block.ee_position[at], block.force[rows])
-            if block.true_point is not None and block.true_force is not None:
+            t, sample, q = block.t[rows], block.sample[rows], block.q[rows]
+            layout.log_joint_transforms(rec, self.tree, t, sample, q)
+            ee = self._points(q, self.model.end_effector, np.zeros(3))
+            layout.log_force_arrows(rec, t, sample, ee, block.force[rows])
+            if self.true_contact is not None and block.true_force is not None:
                 applied = block.true_force[rows]
-                layout.log_contact_columns(rec, t, sample, block.true_point[at], applied,
-                                           np.linalg.norm(applied, axis=1) > 0, truth=True)
+                layout.log_contact_columns(rec, t, sample, self._points(q, *self.true_contact),
+                                           applied, np.linalg.norm(applied, axis=1) > 0,
+                                           truth=True)
         if len(block.pred_t):
             pt, ps = block.pred_t, block.pred_sample
             layout.log_scalar_columns(rec, layout.PROBABILITY, pt, ps, block.pred_proba)
@@ -159,17 +189,6 @@ def log_offline(rec: rr.RecordingStream, stream: ReplayStream, answer: OfflineAn
                                                      strict=True))
     layout.text_event(rec, layout.OFFLINE_LABEL, window.end_s, k1,
                       f"offline label: {answer.label} ({probs})")
-
-
-@dataclass(frozen=True)
-class ContactEvent:
-    """One contact as the event pipeline decides it: onset, decision and release time
-    [s] and the decided label."""
-
-    onset_s: float
-    decision_s: float
-    release_s: float
-    label: str
 
 
 def log_contact_events(rec: rr.RecordingStream, t: np.ndarray,

@@ -143,7 +143,7 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
                 rec.connect_grpc(connect, default_blueprint=blueprint)
             elif spawn:
                 rec.spawn(default_blueprint=blueprint)
-            logger = BlockLogger(rec, log_static(rec, stream), log_rate_hz)
+            logger = BlockLogger(rec, log_static(rec, stream), stream, log_rate_hz)
             for block in paced(stream.blocks(every_hop=rate is not None), lambda b: b.t[-1],
                                rate, origin_s=t0):
                 logger.log(block)

@@ -15,6 +15,7 @@ import rerun as rr
 import rerun.chunk as rc
 
 from contactkit.classify.data import load_features
+from contactkit.classify.events import ContactEvent
 from contactkit.classify.modelfile import load_model, save_model
 from contactkit.classify.registry import get_kind, make_estimator
 from contactkit.cli import replay as replay_cli
@@ -24,7 +25,7 @@ from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import scalar_features
 from contactkit.features.timeseries import TimeseriesChain, columns_of
 from contactkit.replay.engine import next_hop_after
-from contactkit.replay.recording import ContactEvent, log_contact_events
+from contactkit.replay.recording import log_contact_events
 from contactkit.replay.session_replay import ReplaySummary, replay_sessions
 from contactkit.robots import RobotSetup
 from contactkit.robots.surfaces import viewer_urdf_file

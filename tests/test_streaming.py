@@ -21,13 +21,12 @@ from contactkit.features.per_sample import write_per_sample_table
 from contactkit.features.timeseries import (
     ALL_TIMESERIES,
     ChainConfig,
-    ChunkedChain,
     TimeseriesChain,
 )
 from contactkit.replay import engine
 from contactkit.replay.session_replay import replay_session
 from contactkit.schemas import SessionMeta, read_session, write_session
-from contactkit.schemas.session import REQUIRED_COLUMNS
+from contactkit.schemas.session import REQUIRED_COLUMNS, SampleBatch, iter_sample_batches
 from contactkit.viewer import layout
 from tests.conftest import make_session, run_cli
 from tests.rrd_frames import assert_frames_ok
@@ -43,21 +42,35 @@ def shove(tmp_path_factory) -> Path:
 def test_chunked_chain_equals_the_whole_session_chain(shove, size) -> None:
     s = read_session(shove)
     whole = TimeseriesChain().compute(s.t, s.q, s.dq, s.tau)
-    chain = ChunkedChain()
-    parts = [chain.compute(s.t[i:i + size], s.q[i:i + size], s.dq[i:i + size],
-                           s.tau[i:i + size]) for i in range(0, s.n_samples, size)]
+    chain = TimeseriesChain()
+    batch = SampleBatch(s.t, s.q, s.dq, s.tau)
+    parts = [chain.feed(batch.take(slice(i, i + size))) for i in range(0, s.n_samples, size)]
     for name in ALL_TIMESERIES:
         chunked = np.concatenate([part[name] for part in parts])
         assert chunked.shape == whole[name].shape
         assert np.abs(chunked - whole[name]).max() <= 1e-9, name
 
 
+def test_sample_batches_stack_the_session_columns(shove) -> None:
+    s = read_session(shove)
+    (batch,) = list(iter_sample_batches(s, s.n_samples))
+    assert np.array_equal(batch.q, s.q) and np.array_equal(batch.tau, s.tau)
+    assert batch.f_ext.shape == (s.n_samples, 3) and batch.contact.dtype == bool
+    assert batch.tau_ext_hat is None
+    columns = {name: s.column(name).copy() for name in s.table.column_names}
+    columns["q_3"][5] = np.nan
+    gappy = SampleBatch.from_columns(columns).complete()
+    assert len(gappy) == s.n_samples - 1 and gappy.t[5] == s.t[6]
+    assert np.array_equal(gappy.f_ext[5], batch.f_ext[6])
+
+
 def test_an_empty_chunk_changes_nothing(shove) -> None:
     s = read_session(shove)
-    chain = ChunkedChain(names=["r"])
-    first = chain.compute(s.t[:10], s.q[:10], s.dq[:10], s.tau[:10])["r"]
-    assert chain.compute(s.t[:0], s.q[:0], s.dq[:0], s.tau[:0])["r"].shape == (0, 7)
-    rest = chain.compute(s.t[10:], s.q[10:], s.dq[10:], s.tau[10:])["r"]
+    chain = TimeseriesChain(names=["r"])
+    batch = SampleBatch(s.t, s.q, s.dq, s.tau)
+    first = chain.feed(batch.take(slice(10)))["r"]
+    assert chain.feed(batch.take(slice(0)))["r"].shape == (0, 7)
+    rest = chain.feed(batch.take(slice(10, None)))["r"]
     whole = TimeseriesChain().compute(s.t, s.q, s.dq, s.tau, ["r"])["r"]
     assert np.abs(np.vstack([first, rest]) - whole).max() <= 1e-9
 

@@ -136,11 +136,10 @@ def features_command(
             robot=robot).fit(None)
         result = feature_rows(files, extractor, workers, progress)
     _skipped(result.problems)
-    if not result.rows:
+    if not len(result):
         raise InputError("no session could be processed", source)
-    write_feature_table(out, result.rows, result.names, extractor.config(),
-                        overwrite=overwrite)
-    err_console.print(f"{len(result.rows)} sessions x {len(result.names)} features")
+    write_feature_table(out, result.table(extractor.config()), overwrite=overwrite)
+    err_console.print(f"{len(result)} sessions x {len(result.names)} features")
     print(out)
     exit_if_failed(result.problems)
 
