@@ -27,7 +27,7 @@ UNIT = re.compile(r"\[[^\]]+\]")
 
 def _app(name: str, monkeypatch: pytest.MonkeyPatch) -> typer.Typer:
     """Return the Typer app that the tool's main() runs."""
-    module = importlib.import_module(f"contactkit.{name}.cli")
+    module = importlib.import_module(f"contactkit.cli.{name}")
     captured = {}
 
     def capture_app(app: typer.Typer, prog: str, argv: list[str] | None = None) -> int:

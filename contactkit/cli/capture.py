@@ -23,7 +23,6 @@ from typing import Annotated, Any, Literal
 
 import typer
 
-from contactkit.recorder.capture.live_view import open_live_view
 from contactkit.recorder.capture.record import (
     CaptureListener,
     OperatorCue,
@@ -219,6 +218,8 @@ def register_capture(app: typer.Typer, extensions: tuple[CaptureExtension, ...] 
 
 def _record(source: Source, values: dict[str, Any],
             extensions: tuple[CaptureExtension, ...]) -> None:
+    from contactkit.recorder.capture.live_view import open_live_view  # rerun: when recording
+
     meta = source.session_meta()
     out = output_directory(values["out"])
     listeners = [listener for extension in extensions

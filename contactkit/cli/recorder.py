@@ -8,9 +8,7 @@ import sys
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import numpy as np
 import typer
-from rich.console import Console
 
 from contactkit.cli.capture import (
     Action,
@@ -22,23 +20,10 @@ from contactkit.cli.capture import (
 from contactkit.cli.common import SchedulerOpt, exit_if_failed, new_app, run_app
 from contactkit.recorder.capture.journal import recover_directory
 from contactkit.recorder.capture.record import output_directory
-from contactkit.recorder.importers.bags import BagJob, find_bags, import_bag_job, import_bags
-from contactkit.recorder.importers.can_map import load_map
-from contactkit.recorder.importers.can_tools import bridge_session, decoding_summary, import_can_log
-from contactkit.recorder.importers.csv_import import import_csv
-from contactkit.recorder.importers.csv_map import load_csv_map
-from contactkit.recorder.importers.mcap_export import export_mcap
-from contactkit.recorder.importers.writer import import_arrays
-from contactkit.recorder.info import print_info, session_info
 from contactkit.recorder.metadata import session_filename, session_meta, set_session_robot
-from contactkit.recorder.sim.dataset import PRESETS, simulate_dataset
-from contactkit.recorder.sim.simulator import SimConfig
-from contactkit.recorder.sources.can import BusConfig
-from contactkit.recorder.stats.report import OWNED_REPORT, print_summary, report_path, write_report
-from contactkit.recorder.stats.summary import build_report, write_noise_file
+from contactkit.recorder.sim.presets import PRESETS
 from contactkit.robots import DEFAULT_ROBOT, URDF_PREFIX, get_robot, robot_names
 from contactkit.schemas import InputError, SessionMeta, read_session
-from contactkit.schemas.dataset import rebuild_index
 from contactkit.util.atomic import check_target
 from contactkit.util.parallel import available_cpus, use_scheduler
 from contactkit.util.progress import (
@@ -47,6 +32,10 @@ from contactkit.util.progress import (
     labelled_progress,
     progress_bar,
 )
+
+# The commands import the libraries they run (simulator, importers, statistics, plots)
+# inside their functions, so that `recorder --help` and `recorder info` load none of them:
+# tests/test_startup.py checks which modules they import.
 
 app = new_app("recorder", help="Record Panda joint streams while a person touches the arm on "
               "cue, and manage the resulting sessions. Without a robot, sessions come from a "
@@ -157,6 +146,9 @@ def simulate_command(
 
     A session that fails is reported and the others are still written (exit code 2).
     """
+    from contactkit.recorder.sim.dataset import simulate_dataset
+    from contactkit.recorder.sim.simulator import SimConfig
+
     chosen = PRESETS[preset]
     config = SimConfig(rate_hz=rate or chosen.rate_hz, noise_scale=noise_scale, robot=robot,
                        robot_seed=chosen.robot_seed if robot_seed is None else robot_seed)
@@ -178,6 +170,8 @@ def simulate_command(
 def robots_command() -> None:
     """List the robot models a session can name: built-in, installed plugins (the
     contactkit.robots entry-point group) and the urdf:PATH form, with their limits."""
+    import numpy as np
+
     for name in robot_names():
         try:
             spec = get_robot(name)
@@ -217,6 +211,8 @@ def index_command(
     directory: Annotated[Path, typer.Argument(help="Dataset directory.")],
 ) -> None:
     """Rebuild DIR/index.parquet (one metadata row per session) from the session files."""
+    from contactkit.schemas.dataset import rebuild_index
+
     result = rebuild_index(directory)
     err_console.print(f"{result.table.num_rows} sessions indexed")
     _print_problems(result.problems)
@@ -261,6 +257,8 @@ def import_arrays_command(
     Joint files hold 7 values per line, or one per line (7 lines a sample); the time
     file one value per line. Time is shifted to start at 0 s.
     """
+    from contactkit.recorder.importers.writer import import_arrays
+
     pairs = [*(meta or []), *([] if robot is None else [f"robot={robot}"])]
     print(import_arrays(t, q, dq, tau, output_directory(out), pairs, name, overwrite))
 
@@ -291,6 +289,9 @@ def import_csv_command(
     label) columns and their units; rows repeating the previous row are dropped and
     counted.
     """
+    from contactkit.recorder.importers.csv_import import import_csv
+    from contactkit.recorder.importers.csv_map import load_csv_map
+
     cmap = load_csv_map(column_map)
     directory = output_directory(out)
     problems = []
@@ -334,6 +335,14 @@ def stats_command(
 ) -> None:
     """Summarise a dataset on the terminal and write a report of what it holds and of
     its problems (bad files, duplicates, sessions too short)."""
+    from contactkit.recorder.stats.report import (
+        OWNED_REPORT,
+        print_summary,
+        report_path,
+        write_report,
+    )
+    from contactkit.recorder.stats.summary import build_report, write_noise_file
+
     default = out is None
     out = report_path(out or Path(f"report.{fmt}"), fmt)
     check_target(out, overwrite=overwrite, owned=OWNED_REPORT if default else None)
@@ -367,6 +376,9 @@ def import_can_command(
     out: OutOption = Path("sessions"),
 ) -> None:
     """Convert a CAN log into a validated session and print its path."""
+    from contactkit.recorder.importers.can_map import load_map
+    from contactkit.recorder.importers.can_tools import decoding_summary, import_can_log
+
     fmap = load_map(can_map)
     meta = session_meta(source="can-log", action=action, condition=condition, pose=pose,
                         target_pose=target_pose, link=link, planned_at_s=planned_at,
@@ -403,6 +415,8 @@ def import_bag_command(
 ) -> None:
     """Convert ROS bags (franka_ros, franka_ros2, JointState) into validated sessions and
     print their paths; a directory imports in parallel and reports the bags that failed."""
+    from contactkit.recorder.importers.bags import BagJob, find_bags, import_bag_job, import_bags
+
     protocol = {"action": action, "condition": condition, "pose": pose,
                 "target_pose": target_pose, "link": link, "planned_at_s": planned_at,
                 "operator": operator, "with_hand": hand, "robot": robot or DEFAULT_ROBOT}
@@ -451,6 +465,8 @@ def export_mcap_command(
 ) -> None:
     """Write a session as a ROS 2 MCAP bag (JointState, WrenchStamped) for Foxglove or
     the Rerun viewer; print the .mcap file's path. `import-bag` reads it back."""
+    from contactkit.recorder.importers.mcap_export import export_mcap
+
     print(export_mcap(session, out or session.with_suffix(""), overwrite=overwrite))
 
 
@@ -471,6 +487,10 @@ def can_bridge_command(
 ) -> None:
     """Publish a recorded or simulated session onto a CAN bus per the frame map (or into
     a CAN log), to test a CAN setup end to end without a robot."""
+    from contactkit.recorder.importers.can_map import load_map
+    from contactkit.recorder.importers.can_tools import bridge_session
+    from contactkit.recorder.sources.can import BusConfig
+
     if log is None and not channel:
         raise InputError("give --channel (and --interface) for a bus, or --log FILE")
     if log is not None:
@@ -489,6 +509,10 @@ def info_command(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead.")] = False,
 ) -> None:
     """Show a session's metadata, duration, measured rate, gaps and ground truth."""
+    from rich.console import Console
+
+    from contactkit.recorder.info import print_info, session_info
+
     info = session_info(session)
     if as_json:
         print(json.dumps(info, indent=2, default=str))
