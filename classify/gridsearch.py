@@ -22,9 +22,10 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from contactkit.classify.data import FeatureSet
-from contactkit.classify.evaluate import PROTOCOLS, Report, evaluate
+from contactkit.classify.evaluate import Report, evaluate
 from contactkit.classify.grids import session_paths
 from contactkit.classify.kind import ModelOptions
+from contactkit.classify.names import NETWORKS, PROTOCOLS
 from contactkit.classify.registry import get_kind
 from contactkit.classify.schemes import check_scheme, scheme_classes
 from contactkit.classify.training import TrainedModel, train, training_set
@@ -32,11 +33,6 @@ from contactkit.schemas import InputError
 from contactkit.util.atomic import owned_result, write_text
 from contactkit.util.parallel import map_ordered
 from contactkit.util.progress import LabelledProgress
-
-THESIS_DEPTHS = (1, 2, 4)
-THESIS_WIDTHS = (0.5, 1.0, 2.0)
-THESIS_DROPOUTS = (0.0, 0.1, 0.25)
-NETWORKS = ("cnn", "lstm")
 
 
 @dataclass(frozen=True)

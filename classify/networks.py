@@ -35,10 +35,9 @@ import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 from sklearn.model_selection import train_test_split
 
+from contactkit.classify.names import DEVICES
 from contactkit.errors import InputError
 from contactkit.util.parallel import dask_worker_rank
-
-DEVICES = ("auto", "cpu", "cuda")
 
 
 def require_torch():

@@ -11,22 +11,25 @@ or, in-process (a notebook, a test), :func:`register`.
 
 from __future__ import annotations
 
+import importlib
 import importlib.metadata
 
 from contactkit.classify.kind import ModelKind, ModelOptions
-from contactkit.classify.nn import CNN, LSTM, MINIROCKET
-from contactkit.classify.svm_kinds import PER_JOINT, SVM, THREE_JOINT
 from contactkit.schemas import InputError
 
 ENTRY_POINT_GROUP = "contactkit.models"
-_KINDS: dict[str, ModelKind] = {kind.name: kind for kind in (
-    SVM,
-    PER_JOINT,
-    THREE_JOINT,
-    CNN,
-    LSTM,
-    MINIROCKET,
-)}
+# Each kind is imported when it is first asked for (get_kind): listing the names, as the
+# command line does for its --model choices, imports neither scikit-learn nor torch nor
+# any plugin. A value is a kind, or where to load it from ("module:ATTR", or an entry
+# point whose name is the kind's name).
+_KINDS: dict[str, ModelKind | str | importlib.metadata.EntryPoint] = {
+    "svm": "contactkit.classify.svm_kinds:SVM",
+    "per-joint": "contactkit.classify.svm_kinds:PER_JOINT",
+    "three-joint": "contactkit.classify.svm_kinds:THREE_JOINT",
+    "cnn": "contactkit.classify.nn:CNN",
+    "lstm": "contactkit.classify.nn:LSTM",
+    "minirocket": "contactkit.classify.nn:MINIROCKET",
+}
 _entry_points_loaded = False
 
 
@@ -34,7 +37,7 @@ def register(kind: ModelKind, *, replace: bool = False) -> ModelKind:
     """Add a kind under its name; return it. A name already taken is refused unless
     ``replace``."""
     _load_entry_points()
-    if kind.name in _KINDS and not replace and _KINDS[kind.name] is not kind:
+    if kind.name in _KINDS and not replace and _resolve(kind.name) is not kind:
         raise InputError(f"model kind {kind.name!r} is already registered")
     _KINDS[kind.name] = kind
     return kind
@@ -46,32 +49,50 @@ def unregister(name: str) -> None:
 
 
 def _load_entry_points() -> None:
+    """Add the names the ``contactkit.models`` entry points declare, without importing
+    them (:func:`get_kind` does, on first use)."""
     global _entry_points_loaded
     if _entry_points_loaded:
         return
     _entry_points_loaded = True
     for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
-        kind = entry.load()
+        _KINDS.setdefault(entry.name, entry)
+
+
+def _resolve(name: str) -> ModelKind:
+    """Return the kind registered as ``name``, importing it on first use."""
+    found = _KINDS[name]
+    if isinstance(found, ModelKind):
+        return found
+    if isinstance(found, str):
+        module, _, attr = found.partition(":")
+        kind = getattr(importlib.import_module(module), attr)
+    else:
+        try:
+            kind = found.load()
+        except (ImportError, AttributeError) as err:
+            raise InputError(f"model kind {name!r} ({found.value}) cannot be loaded: "
+                             f"{err}") from err
         if not isinstance(kind, ModelKind):
-            raise InputError(f"entry point {entry.name!r} of {ENTRY_POINT_GROUP} is not a "
-                             f"ModelKind ({entry.value})")
-        _KINDS.setdefault(kind.name, kind)
+            raise InputError(f"entry point {found.name!r} of {ENTRY_POINT_GROUP} is not a "
+                             f"ModelKind ({found.value})")
+    _KINDS[name] = kind
+    return kind
 
 
 def kind_names() -> list[str]:
-    """Return the names of every known kind, built-in first."""
+    """Return the names of every known kind, built-in first (importing none of them)."""
     _load_entry_points()
     return list(_KINDS)
 
 
 def get_kind(name: str) -> ModelKind:
-    """Return the kind called ``name``, or raise InputError listing the known ones."""
+    """Return the kind called ``name`` (imported on first use), or raise InputError
+    listing the known ones."""
     _load_entry_points()
-    try:
-        return _KINDS[name]
-    except KeyError:
-        raise InputError(f"unknown model {name!r} (expected one of "
-                         f"{', '.join(_KINDS)})") from None
+    if name not in _KINDS:
+        raise InputError(f"unknown model {name!r} (expected one of {', '.join(_KINDS)})")
+    return _resolve(name)
 
 
 def make_estimator(kind: str, feature_names: list[str], **options) -> object:

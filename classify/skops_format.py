@@ -19,9 +19,8 @@ import zipfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-import skops.io as sio
-
 from contactkit.classify.kind import ModelFormat
+from contactkit.classify.skops_import import skops_io
 from contactkit.schemas import InputError
 from contactkit.util.atomic import atomic_write
 
@@ -96,7 +95,7 @@ def write_skops(path: Path, estimator: object, meta: dict, sample_shape: tuple[i
                 overwrite: bool = False, extra: dict[str, bytes] | None = None) -> Path:
     """Write ``estimator`` and ``meta`` (and ``extra`` members, covered by the digest) as a
     skops model file atomically; return the path."""
-    payload = sio.dumps(estimator)
+    payload = skops_io().dumps(estimator)
     with zipfile.ZipFile(io.BytesIO(payload)) as archive:
         members = {name: archive.read(name) for name in archive.namelist()}
     members |= extra or {}
@@ -143,13 +142,13 @@ def read_skops(path: Path, trusted_types: Callable[[dict], Sequence[str]] = lamb
                          "refusing to load it", path)
     trusted = TRUSTED_TYPES + list(trusted_types(meta))
     try:
-        untrusted = [t for t in sio.get_untrusted_types(data=data) if t not in trusted]
+        untrusted = [t for t in skops_io().get_untrusted_types(data=data) if t not in trusted]
     except Exception as err:  # skops raises many kinds on a malformed archive
         raise InputError(f"unreadable model archive ({type(err).__name__})", path) from err
     if untrusted:
         raise InputError(f"model file would build untrusted types {untrusted}; refusing", path)
     try:
-        return sio.loads(data, trusted=trusted), meta
+        return skops_io().loads(data, trusted=trusted), meta
     except Exception as err:  # skops raises many kinds on a malformed archive
         raise InputError(f"unreadable model ({type(err).__name__})", path) from err
 

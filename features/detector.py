@@ -48,7 +48,6 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import linprog
 
 from contactkit.errors import InputError
 from contactkit.robots import RobotSpec
@@ -328,6 +327,8 @@ def calibration_samples(t: np.ndarray, r: np.ndarray, dq: np.ndarray,
 
 def _envelope(y: np.ndarray, x: np.ndarray) -> np.ndarray:
     """Smallest mean of x c over the samples with x c >= y, c >= 0 (a linear program)."""
+    from scipy.optimize import linprog  # here: loading a calibration needs no scipy
+
     result = linprog(x.mean(axis=0), A_ub=-x, b_ub=-y, bounds=[(0, None)] * x.shape[1],
                      method="highs")
     if not result.success:

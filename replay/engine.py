@@ -44,6 +44,7 @@ from contactkit.features.detector import DetectorConfig
 from contactkit.features.isolation import robot_isolator
 from contactkit.features.timeseries import ChainConfig, ChunkedChain, columns_of, expand
 from contactkit.features.windows import Window
+from contactkit.replay.hop import DEFAULT_HOP_S
 from contactkit.robots import get_robot
 from contactkit.schemas import InputError, Session
 from contactkit.schemas.session import (
@@ -53,7 +54,6 @@ from contactkit.schemas.session import (
     read_session_meta,
 )
 
-DEFAULT_HOP_S = 0.02
 ROBOT_VIEW_HZ = 60.0
 BATCH_ROWS = 16_384
 """Samples read and computed at a time (about 16 s at 1 kHz)."""
