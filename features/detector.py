@@ -210,16 +210,20 @@ class Detector:
     def motion(self, t: float, dq: np.ndarray) -> tuple[float, float]:
         """Advance the motion measures to sample ``t``; return (s [rad/s], a [rad/s^2])."""
         hold = self.config.motion_hold_s
+        dq = np.array(dq, dtype=float)  # a copy: kept as dq_prev
+        # |x| as sqrt(x . x), as np.linalg.norm computes it, without its per-call checks
+        # (the detector runs on every sample)
+        speed = math.sqrt(dq.dot(dq))
         if self.t is None:
-            self.speed, self.accel = float(np.linalg.norm(dq)), 0.0
+            self.speed, self.accel = speed, 0.0
         else:
             h = t - self.t
             ddq = (dq - self.dq_prev) / h if h > 0 else self.ddq_f
             self.ddq_f = (self.ddq_f + FILTER_GAIN * h * ddq) / (1.0 + FILTER_GAIN * h)
             decay = math.exp(-h / hold) if hold > 0 else 0.0
-            self.speed = max(float(np.linalg.norm(dq)), self.speed * decay)
-            self.accel = max(float(np.linalg.norm(self.ddq_f)), self.accel * decay)
-        self.dq_prev = np.asarray(dq, dtype=float).copy()
+            self.speed = max(speed, self.speed * decay)
+            self.accel = max(math.sqrt(self.ddq_f.dot(self.ddq_f)), self.accel * decay)
+        self.dq_prev = dq
         return self.speed, self.accel
 
     def update(self, t: float, r: np.ndarray, dq: np.ndarray) -> DetectorState:
