@@ -19,6 +19,7 @@ import numpy as np
 import pyarrow as pa
 
 from contactkit.classify.kind import ModelKind, ModelOptions
+from contactkit.classify.names import GROUP_KEYS
 from contactkit.classify.schemes import limited_mask, relabel
 from contactkit.features.extract import SessionFeatures, feature_rows
 from contactkit.schemas import InputError
@@ -27,7 +28,6 @@ from contactkit.schemas.features import read_feature_table
 from contactkit.schemas.session import atomic_write_parquet
 from contactkit.util.atomic import any_regular_file
 
-GROUP_KEYS = ("pose", "session", "operator", "condition")
 CACHE_DIR = ".cache"
 
 

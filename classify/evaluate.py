@@ -26,7 +26,6 @@ from sklearn.model_selection import LeaveOneGroupOut, ShuffleSplit, StratifiedGr
 from contactkit.schemas import InputError
 from contactkit.util.parallel import map_ordered
 
-PROTOCOLS = ("thesis", "group")
 THESIS_SPLITS = 25
 LOGO_MAX_GROUPS = 12
 BOOTSTRAP = 1000

@@ -37,6 +37,7 @@ from sklearn.svm import SVC, LinearSVC
 from contactkit.classify.data import FeatureSet, load_features
 from contactkit.classify.evaluate import Report, evaluate
 from contactkit.classify.models import svm_pipeline
+from contactkit.classify.names import EXPERIMENTS
 from contactkit.classify.schemes import scheme_classes
 from contactkit.classify.svm_kinds import SVM
 from contactkit.features.extract import SessionFeatures
@@ -45,7 +46,6 @@ from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS, columns_of
 from contactkit.schemas import InputError
 from contactkit.util.atomic import owned_result, write_figure, write_text
 
-EXPERIMENTS = ("features", "rfe", "speed", "window")
 MVR = ("mean", "variance", "range")
 WINDOW_LENGTHS = (0.1, 0.2, 0.3, 0.5)
 SPEED_EDGES = (0.1, 0.2, 0.3, 0.4, 0.5)

@@ -8,7 +8,11 @@ a :class:`contactkit.classify.kind.ModelKind` and one entry point in its package
     [project.entry-points."contactkit.models"]
     my-kind = "mylab.kinds:MY_KIND"
 
-or, in-process (a notebook, a test), :func:`register`.
+or, in-process (a notebook, a test), :func:`register`. Listing the names
+(:func:`kind_names`) imports no plugin: an entry point is loaded when its kind is first
+asked for (:func:`get_kind`). The commands build their flags from every kind's declared
+parameters, so a plugin's kind module should, like the built-in ones, declare without
+importing heavy libraries.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ from contactkit.classify.svm_kinds import PER_JOINT, SVM, THREE_JOINT
 from contactkit.errors import InputError
 
 ENTRY_POINT_GROUP = "contactkit.models"
-_KINDS: dict[str, ModelKind] = {kind.name: kind for kind in (
+_KINDS: dict[str, ModelKind | importlib.metadata.EntryPoint] = {kind.name: kind for kind in (
     SVM,
     PER_JOINT,
     THREE_JOINT,
@@ -40,7 +44,7 @@ def register(kind: ModelKind, *, replace: bool = False) -> ModelKind:
     """Add a kind under its name; return it. A name already taken is refused unless
     ``replace``."""
     _load_entry_points()
-    if kind.name in _KINDS and not replace and _KINDS[kind.name] is not kind:
+    if kind.name in _KINDS and not replace and _resolve(kind.name) is not kind:
         raise InputError(f"model kind {kind.name!r} is already registered")
     _KINDS[kind.name] = kind
     return kind
@@ -52,38 +56,60 @@ def unregister(name: str) -> None:
 
 
 def _load_entry_points() -> None:
+    """Add the names the ``contactkit.models`` entry points declare, without importing
+    them (:func:`get_kind` does, on first use)."""
     global _entry_points_loaded
     if _entry_points_loaded:
         return
     _entry_points_loaded = True
     for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
-        kind = entry.load()
-        if not isinstance(kind, ModelKind):
-            raise InputError(f"entry point {entry.name!r} of {ENTRY_POINT_GROUP} is not a "
-                             f"ModelKind ({entry.value})")
-        _KINDS.setdefault(kind.name, kind)
+        _KINDS.setdefault(entry.name, entry)
+
+
+def _resolve(name: str) -> ModelKind:
+    """Return the kind registered as ``name``, loading its entry point on first use."""
+    found = _KINDS[name]
+    if isinstance(found, ModelKind):
+        return found
+    try:
+        kind = found.load()
+    except (ImportError, AttributeError) as err:
+        raise InputError(f"model kind {name!r} ({found.value}) cannot be loaded: "
+                         f"{err}") from err
+    if not isinstance(kind, ModelKind):
+        raise InputError(f"entry point {found.name!r} of {ENTRY_POINT_GROUP} is not a "
+                         f"ModelKind ({found.value})")
+    _KINDS[name] = kind
+    return kind
 
 
 def kind_names() -> list[str]:
-    """Return the names of every known kind, built-in first."""
+    """Return the names of every known kind, built-in first (loading no plugin)."""
     _load_entry_points()
     return list(_KINDS)
 
 
 def get_kind(name: str) -> ModelKind:
-    """Return the kind called ``name``, or raise InputError listing the known ones."""
+    """Return the kind called ``name`` (a plugin's loaded on first use), or raise
+    InputError listing the known ones."""
     _load_entry_points()
-    try:
-        return _KINDS[name]
-    except KeyError:
-        raise InputError(f"unknown model {name!r} (expected one of "
-                         f"{', '.join(_KINDS)})") from None
+    if name not in _KINDS:
+        raise InputError(f"unknown model {name!r} (expected one of {', '.join(_KINDS)})")
+    return _resolve(name)
 
 
 def searchable_kinds() -> list[str]:
     """Return the names of the kinds that declare a parameter with a search grid (the
     kinds ``classify gridsearch`` trains)."""
-    return [name for name in kind_names() if any(p.grid for p in get_kind(name).params)]
+    found = []
+    for name in kind_names():
+        try:
+            kind = get_kind(name)
+        except InputError:  # a plugin that cannot be loaded has no grid to offer
+            continue
+        if any(p.grid for p in kind.params):
+            found.append(name)
+    return found
 
 
 def make_estimator(kind: str, feature_names: list[str], seed: int = 0, **params) -> object:

@@ -21,6 +21,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from contactkit.classify.kind import ModelFormat
+from contactkit.classify.skops_import import skops_io
 from contactkit.errors import InputError
 from contactkit.util.atomic import atomic_write
 
@@ -95,9 +96,7 @@ def write_skops(path: Path, estimator: object, meta: dict, sample_shape: tuple[i
                 overwrite: bool = False, extra: dict[str, bytes] | None = None) -> Path:
     """Write ``estimator`` and ``meta`` (and ``extra`` members, covered by the digest) as a
     skops model file atomically; return the path."""
-    import skops.io as sio
-
-    payload = sio.dumps(estimator)
+    payload = skops_io().dumps(estimator)
     with zipfile.ZipFile(io.BytesIO(payload)) as archive:
         members = {name: archive.read(name) for name in archive.namelist()}
     members |= extra or {}
@@ -115,8 +114,6 @@ def read_skops(path: Path, trusted_types: Callable[[dict], Sequence[str]] = lamb
     """Read a skops model file safely (see the module docstring); return the estimator
     and its metadata, or raise InputError. ``trusted_types(meta)`` names the types the
     file's model kind may build beyond :data:`TRUSTED_TYPES`."""
-    import skops.io as sio
-
     if path.stat().st_size > MAX_MODEL_BYTES:
         raise InputError(f"model file is larger than {MAX_MODEL_BYTES} bytes", path)
     data = path.read_bytes()
@@ -146,13 +143,13 @@ def read_skops(path: Path, trusted_types: Callable[[dict], Sequence[str]] = lamb
                          "refusing to load it", path)
     trusted = TRUSTED_TYPES + list(trusted_types(meta))
     try:
-        untrusted = [t for t in sio.get_untrusted_types(data=data) if t not in trusted]
+        untrusted = [t for t in skops_io().get_untrusted_types(data=data) if t not in trusted]
     except Exception as err:  # skops raises many kinds on a malformed archive
         raise InputError(f"unreadable model archive ({type(err).__name__})", path) from err
     if untrusted:
         raise InputError(f"model file would build untrusted types {untrusted}; refusing", path)
     try:
-        return sio.loads(data, trusted=trusted), meta
+        return skops_io().loads(data, trusted=trusted), meta
     except Exception as err:  # skops raises many kinds on a malformed archive
         raise InputError(f"unreadable model ({type(err).__name__})", path) from err
 

@@ -12,9 +12,10 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from contactkit.classify.data import GROUP_KEYS, FeatureSet
-from contactkit.classify.evaluate import PROTOCOLS, Report, evaluate
+from contactkit.classify.evaluate import Report, evaluate
 from contactkit.classify.kind import ModelKind, ModelOptions
 from contactkit.classify.modelfile import save_model
+from contactkit.classify.names import PROTOCOLS
 from contactkit.classify.registry import get_kind
 from contactkit.classify.schemes import check_scheme, scheme_classes
 from contactkit.schemas import InputError

@@ -47,6 +47,10 @@ import numpy as np
 import pinocchio as pin
 
 from contactkit.errors import InputError
+from contactkit.features.names import ALL_TIMESERIES, GROUPS
+from contactkit.features.names import MODEL as MODEL  # re-exported: chain_cache's names
+from contactkit.features.names import SENSOR as SENSOR
+from contactkit.features.names import WORKSPACE as WORKSPACE
 from contactkit.features.observer import (
     ObserverConfig,
     observer_coefficients,
@@ -56,11 +60,6 @@ from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
 from contactkit.schemas.session import SampleBatch, SessionMeta
 
-SENSOR = ("q", "dq", "tau", "ddq", "p_int")
-MODEL = ("r", "g", "tau_inv", "p_ext")
-WORKSPACE = ("f", "m", "fm_norm")
-GROUPS = {"sensor": SENSOR, "model": MODEL, "workspace": WORKSPACE}
-ALL_TIMESERIES = SENSOR + MODEL + WORKSPACE
 UNITS = {"q": "rad", "dq": "rad/s", "tau": "Nm", "ddq": "rad/s^2", "p_int": "W", "r": "Nm",
          "g": "Nm", "tau_inv": "Nm", "p_ext": "W", "f": "N", "m": "Nm", "fm_norm": "N, Nm"}
 DAMPING = 0.01

@@ -45,11 +45,11 @@ from contactkit.features.isolation import robot_isolator
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
 from contactkit.features.window_stream import WindowCollector
 from contactkit.features.windows import Window
+from contactkit.replay.hop import DEFAULT_HOP_S
 from contactkit.robots import get_robot
 from contactkit.schemas import InputError, Session
 from contactkit.schemas.session import SampleBatch, iter_sample_batches, read_session_meta
 
-DEFAULT_HOP_S = 0.02
 BATCH_ROWS = 16_384
 """Samples read and computed at a time (about 16 s at 1 kHz)."""
 HISTORY_MARGIN_S = 1.0

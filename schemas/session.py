@@ -458,7 +458,10 @@ def validate_session(path: str | Path) -> Session:
     path = Path(path)
     meta, _ = read_session_meta(path)
     try:
-        table = pq.read_table(path)
+        # ParquetFile, not pq.read_table: that one goes through pyarrow.dataset, whose
+        # import loads pandas (a second of start-up for `recorder info`)
+        with pq.ParquetFile(path) as file:
+            table = file.read()
     except (pa.ArrowInvalid, OSError) as err:
         raise InputError(f"cannot read the Parquet data ({_first_line(err)})", path) from err
     validate_table(table, path, allows_gaps(meta))

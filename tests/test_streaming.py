@@ -163,8 +163,21 @@ def _rows(rrd: Path) -> dict[str, int]:
     return counts
 
 
+def _sparse_rows(force: np.ndarray) -> int:
+    """Return how many rows of the applied force (N, 3) a replay logs: the non-zero
+    rows, the zero rows beside them, the first and the last (replay.recording.ZeroRuns)."""
+    nonzero = np.any(force != 0, axis=1)
+    keep = nonzero.copy()
+    keep[1:] |= nonzero[:-1]
+    keep[:-1] |= nonzero[1:]
+    keep[[0, -1]] = True
+    return int(keep.sum())
+
+
 def test_log_rate_thins_what_goes_to_rerun(tmp_path, shove, quick_model) -> None:
-    t = read_session(shove).t  # 500 Hz: the robot is drawn every 8th sample (about 60 Hz)
+    session = read_session(shove)
+    t = session.t  # 500 Hz: the robot is drawn every 8th sample (about 60 Hz)
+    force = np.column_stack([session.table.column(f"f_ext_{a}").to_numpy() for a in "xyz"])
     rows = {}
     for log_rate in (None, 100.0):
         out = tmp_path / f"thin_{log_rate}.rrd"
@@ -179,12 +192,14 @@ def test_log_rate_thins_what_goes_to_rerun(tmp_path, shove, quick_model) -> None
     expected = {None: (len(t), len(t[::8])), 100.0: (len(t[::5]), len(t[::8])),
                 20.0: (len(t[::25]), len(np.unique(np.floor(t[::8] * 20 + 1e-6))))}
     for log_rate, (series, robot) in expected.items():
-        for entity in (layout.Q, layout.TAU, layout.RESIDUAL, layout.FORCE_NORM,
-                       layout.TRUE_FORCE):
+        for entity in (layout.Q, layout.TAU, layout.RESIDUAL, layout.FORCE_NORM):
             assert rows[log_rate][entity] == series, (log_rate, entity)
+        step = {None: 1, 100.0: 5, 20.0: 25}[log_rate]
+        assert rows[log_rate][layout.TRUE_FORCE] == _sparse_rows(force[::step])
         assert rows[log_rate][f"{layout.JOINT_TRANSFORMS}/panda_joint1"] == robot, log_rate
         # predictions are logged at every hop, thinned or not
         assert rows[log_rate][layout.PROBABILITY] == rows[None][layout.PROBABILITY] > 100
+    assert rows[None][layout.TRUE_FORCE] < len(t) / 2
 
 
 def test_replay_streamed_in_small_batches_logs_the_chain(tmp_path, shove, quick_model,

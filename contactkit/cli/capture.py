@@ -24,7 +24,6 @@ from typing import Annotated, Any, Literal
 import typer
 
 from contactkit.cli.flags import command_with_flags, flag_key, owner_values, shared_flags
-from contactkit.recorder.capture.live_view import open_live_view
 from contactkit.recorder.capture.record import (
     CaptureListener,
     OperatorCue,
@@ -169,6 +168,8 @@ def _record(source: Source, meta: SessionMeta, listeners: list[CaptureListener],
             overwrite: bool) -> None:
     """Record the session into directory ``out`` with the live view ``viewer`` (and its
     ``save_rrd`` file), paced at wall-clock speed when ``realtime``; print its path."""
+    from contactkit.recorder.capture.live_view import open_live_view  # rerun: when recording
+
     live = open_live_view(viewer, save_rrd, meta, source.nominal_rate_hz, err_console.print,
                           overwrite=overwrite)
     try:

@@ -15,25 +15,9 @@ from typing import Annotated
 
 import typer
 
-from contactkit.classify.augmentation import run_augmentation
-from contactkit.classify.calibrate import calibrate_sessions
-from contactkit.classify.data import GROUP_KEYS
 from contactkit.classify.devices import DEVICES
-from contactkit.classify.evaluate import PROTOCOLS, report_markdown
-from contactkit.classify.events import session_events
-from contactkit.classify.experiments import EXPERIMENTS, Setting, run_experiment
-from contactkit.classify.gridsearch import Protocol as GridProtocol
-from contactkit.classify.gridsearch import (
-    best_model_path,
-    best_trial,
-    grid_trials,
-    run_trials,
-    train_best,
-    write_results,
-)
 from contactkit.classify.kind import SEED, ModelOptions
-from contactkit.classify.modelfile import load_model
-from contactkit.classify.prediction import predict_sources, session_paths
+from contactkit.classify.names import EXPERIMENTS, GROUP_KEYS, PROTOCOLS
 from contactkit.classify.registry import (
     DEFAULT_KIND,
     DEFAULT_SEARCHED,
@@ -42,22 +26,21 @@ from contactkit.classify.registry import (
     searchable_kinds,
 )
 from contactkit.classify.schemes import SCHEMES
-from contactkit.classify.training import evaluate_kind, train
 from contactkit.cli.common import RobotOpt, SchedulerOpt, exit_if_failed, new_app, run_app
 from contactkit.cli.flags import command_with_flags, owner_values, shared_flags
 from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.detector import DetectorConfig, load_calibration, save_calibration
-from contactkit.features.extract import SessionFeatures, feature_rows
-from contactkit.features.per_sample import write_per_sample_table
+from contactkit.features.names import ALL_TIMESERIES, GROUPS
 from contactkit.features.scalars import SCALARS
-from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS, ChainConfig
 from contactkit.features.windows import METHODS
 from contactkit.schemas import InputError, read_session
-from contactkit.schemas.features import write_feature_table
 from contactkit.util.atomic import check_target, write_text
 from contactkit.util.parallel import available_cpus, use_scheduler
 from contactkit.util.params import Param
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar
+
+# The commands import the library (scikit-learn, skops, the chain, torch for networks)
+# inside their functions: `classify --help` loads none of it (tests/test_startup.py).
 
 app = new_app("classify", help="Turn sessions into features and contact predictions.")
 DEFAULT_WORKERS = available_cpus()
@@ -120,6 +103,12 @@ def features_command(
 ) -> None:
     """Compute features of a session or dataset: one row per session (scalar features
     of the interaction window), or with --per-sample one row per sample."""
+    from contactkit.classify.prediction import session_paths
+    from contactkit.features.extract import SessionFeatures, feature_rows
+    from contactkit.features.per_sample import write_per_sample_table
+    from contactkit.features.timeseries import ChainConfig
+    from contactkit.schemas.features import write_feature_table
+
     files = session_paths(source)
     _refuse_existing(out, overwrite)
     with progress_bar("per-sample features" if per_sample else "features") as bar:
@@ -204,6 +193,8 @@ def train_command(
     """Train a classifier on every session of the datasets and save it as a safe model file
     (.skops; a CNN or LSTM as .onnx). The model's own parameters are the options after
     --steps (each names the models that take it)."""
+    from contactkit.classify.training import train
+
     _refuse_existing(out, overwrite)
     options = _options(ctx, model, features, scalars, window, window_s, seed, steps)
     with progress_bar("train") as bar:
@@ -237,6 +228,9 @@ def evaluate_command(
     per-class recall with 95 % confidence intervals, and the confusion matrix. The
     model's own parameters are the options after --overwrite (each names the models
     that take it)."""
+    from contactkit.classify.evaluate import report_markdown
+    from contactkit.classify.training import evaluate_kind
+
     if json_out is not None:
         check_target(json_out, overwrite=overwrite)
     options = _options(ctx, model, features, scalars, window, window_s, seed, steps)
@@ -269,6 +263,9 @@ def predict_command(
 ) -> None:
     """Predict the contact class of sessions with a trained model, or (--events) the
     contact events the model's detector finds and the intent decided for each."""
+    from contactkit.classify.modelfile import load_model
+    from contactkit.classify.prediction import predict_sources
+
     model = load_model(model_path)
     if events or calibration is not None:
         detector = (load_calibration(calibration) if calibration is not None
@@ -303,6 +300,8 @@ def _print_events(model, source: Path, detector: DetectorConfig, decide_after: f
     ``robot`` instead of each session's own when given; return the sessions that failed
     as ``(path, problem)``."""
     from contactkit.classify.event_listener import contact_text
+    from contactkit.classify.events import session_events
+    from contactkit.classify.prediction import session_paths
 
     events_model = model.event_model()
     problems = []
@@ -344,6 +343,9 @@ def calibrate_command(
     """Calibrate the contact detector on a robot's no-contact sessions: record a minute
     of free motion and holds, calibrate, then pass --calibration robot.json to replay
     and predict."""
+    from contactkit.classify.calibrate import calibrate_sessions
+    from contactkit.classify.prediction import session_paths
+
     check_target(out, overwrite=overwrite)
     if margin < 1:
         raise InputError(f"--margin must be at least 1, got {margin}")
@@ -390,6 +392,9 @@ def experiment_command(
     """Regenerate a thesis table on any dataset: features (Appendix B), rfe, speed
     (Figure 6.5), window (accuracy against window length), or augmentation REAL SIM
     (Algorithm 3: less real data, added simulated data and noise augmentation)."""
+    from contactkit.classify.augmentation import run_augmentation
+    from contactkit.classify.experiments import Setting, run_experiment
+
     name = Experiment(name).value
     setting = Setting(protocol=Protocol(protocol).value, group_by=Group(group).value,
                       scheme=Scheme(scheme).value, seed=seed, workers=workers, c=c)
@@ -465,6 +470,16 @@ def gridsearch_command(
     stopping, a ranked table with 95 % intervals (gridsearch.md, .json), and the best
     network saved as a model file that predict and replay --model take. The network's
     parameters are the options after --overwrite."""
+    from contactkit.classify.gridsearch import Protocol as GridProtocol
+    from contactkit.classify.gridsearch import (
+        best_model_path,
+        best_trial,
+        grid_trials,
+        run_trials,
+        train_best,
+        write_results,
+    )
+
     kind = get_kind(Network(model).value)
     given = owner_values(GRID_FLAGS, ctx.meta["params"], kind.name, "model")
     grid = {p.name: _numbers(p.option + "s", given.pop(p.name + "s"), p.type)

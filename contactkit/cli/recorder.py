@@ -5,11 +5,9 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-import numpy as np
 import typer
-from rich.console import Console
 
 from contactkit.cli.capture import (
     Action,
@@ -21,29 +19,10 @@ from contactkit.cli.capture import (
 from contactkit.cli.common import SchedulerOpt, exit_if_failed, new_app, run_app
 from contactkit.recorder.capture.journal import recover_directory
 from contactkit.recorder.capture.record import output_directory
-from contactkit.recorder.importers.can_map import load_map
-from contactkit.recorder.importers.can_tools import bridge_session
-from contactkit.recorder.importers.jobs import (
-    Imported,
-    checked_meta,
-    format_options,
-    import_file,
-    import_files,
-    import_jobs,
-    protocol_from,
-)
-from contactkit.recorder.importers.mcap_export import export_mcap
-from contactkit.recorder.importers.registry import load_importers, registered_importers
-from contactkit.recorder.info import print_info, session_info
 from contactkit.recorder.metadata import set_session_robot
-from contactkit.recorder.sim.dataset import PRESETS, simulate_dataset
-from contactkit.recorder.sim.simulator import SimConfig
-from contactkit.recorder.sources.can import BusConfig
-from contactkit.recorder.stats.report import OWNED_REPORT, print_summary, report_path, write_report
-from contactkit.recorder.stats.summary import build_report, write_noise_file
+from contactkit.recorder.sim.presets import PRESETS
 from contactkit.robots import URDF_PREFIX, get_robot, robot_names
 from contactkit.schemas import InputError, SessionMeta, read_session
-from contactkit.schemas.dataset import rebuild_index
 from contactkit.util.atomic import check_target
 from contactkit.util.parallel import available_cpus, use_scheduler
 from contactkit.util.params import Param
@@ -53,6 +32,13 @@ from contactkit.util.progress import (
     labelled_progress,
     progress_bar,
 )
+
+if TYPE_CHECKING:
+    from contactkit.recorder.importers.jobs import Imported
+
+# The commands import the libraries they run (simulator, importers, statistics, plots)
+# inside their functions, so that `recorder --help` and `recorder info` load none of them:
+# tests/test_startup.py checks which modules they import.
 
 app = new_app("recorder", help="Record Panda joint streams while a person touches the arm on "
               "cue, and manage the resulting sessions. Without a robot, sessions come from a "
@@ -142,6 +128,9 @@ def simulate_command(
 
     A session that fails is reported and the others are still written (exit code 2).
     """
+    from contactkit.recorder.sim.dataset import simulate_dataset
+    from contactkit.recorder.sim.simulator import SimConfig
+
     chosen = PRESETS[preset]
     config = SimConfig(rate_hz=rate or chosen.rate_hz, noise_scale=noise_scale, robot=robot,
                        robot_seed=chosen.robot_seed if robot_seed is None else robot_seed)
@@ -163,6 +152,8 @@ def simulate_command(
 def robots_command() -> None:
     """List the robot models a session can name: built-in, installed plugins (the
     contactkit.robots entry-point group) and the urdf:PATH form, with their limits."""
+    import numpy as np
+
     for name in robot_names():
         try:
             spec = get_robot(name)
@@ -202,6 +193,8 @@ def index_command(
     directory: Annotated[Path, typer.Argument(help="Dataset directory.")],
 ) -> None:
     """Rebuild DIR/index.parquet (one metadata row per session) from the session files."""
+    from contactkit.schemas.dataset import rebuild_index
+
     result = rebuild_index(directory)
     err_console.print(f"{result.table.num_rows} sessions indexed")
     _print_problems(result.problems)
@@ -327,6 +320,15 @@ def import_command(
     through one writer in bounded memory. Several files import in parallel; one that
     fails is reported and the others are still written (exit code 2).
     """
+    from contactkit.recorder.importers.jobs import (
+        checked_meta,
+        format_options,
+        import_file,
+        import_files,
+        import_jobs,
+        protocol_from,
+    )
+
     alias = IMPORT_ALIASES.get(ctx.info_name or "")
     if alias is not None and fmt not in (None, alias):
         raise InputError(f"{ctx.info_name} reads format {alias}; for {fmt} use "
@@ -373,6 +375,8 @@ for _alias, _format in IMPORT_ALIASES.items():
 def importers_command() -> None:
     """List the import formats: built-in, installed plugins (the contactkit.importers
     entry-point group), with the suffixes each claims and its options."""
+    from contactkit.recorder.importers.registry import load_importers, registered_importers
+
     classes, problems = load_importers()
     for fmt in registered_importers():
         if fmt in problems:
@@ -407,6 +411,14 @@ def stats_command(
 ) -> None:
     """Summarise a dataset on the terminal and write a report of what it holds and of
     its problems (bad files, duplicates, sessions too short)."""
+    from contactkit.recorder.stats.report import (
+        OWNED_REPORT,
+        print_summary,
+        report_path,
+        write_report,
+    )
+    from contactkit.recorder.stats.summary import build_report, write_noise_file
+
     default = out is None
     out = report_path(out or Path(f"report.{fmt}"), fmt)
     check_target(out, overwrite=overwrite, owned=OWNED_REPORT if default else None)
@@ -432,6 +444,8 @@ def export_mcap_command(
 ) -> None:
     """Write a session as a ROS 2 MCAP bag (JointState, WrenchStamped) for Foxglove or
     the Rerun viewer; print the .mcap file's path. `import-bag` reads it back."""
+    from contactkit.recorder.importers.mcap_export import export_mcap
+
     print(export_mcap(session, out or session.with_suffix(""), overwrite=overwrite))
 
 
@@ -452,6 +466,10 @@ def can_bridge_command(
 ) -> None:
     """Publish a recorded or simulated session onto a CAN bus per the frame map (or into
     a CAN log), to test a CAN setup end to end without a robot."""
+    from contactkit.recorder.importers.can_map import load_map
+    from contactkit.recorder.importers.can_tools import bridge_session
+    from contactkit.recorder.sources.can import BusConfig
+
     if log is None and not channel:
         raise InputError("give --channel (and --interface) for a bus, or --log FILE")
     if log is not None:
@@ -470,6 +488,10 @@ def info_command(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead.")] = False,
 ) -> None:
     """Show a session's metadata, duration, measured rate, gaps and ground truth."""
+    from rich.console import Console
+
+    from contactkit.recorder.info import print_info, session_info
+
     info = session_info(session)
     if as_json:
         print(json.dumps(info, indent=2, default=str))
