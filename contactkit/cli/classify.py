@@ -163,8 +163,8 @@ KIND_FLAGS, _ = shared_flags({name: get_kind(name).params for name in kind_names
 clashes with a command's option or another kind's of another type gets none)."""
 
 
-def _options(ctx: typer.Context, model, features, scalars, window, window_s, seed, steps
-             ) -> ModelOptions:
+def _options(ctx: typer.Context, model: str, features: str | None, scalars: str,
+             window: str | None, window_s: float, seed: int, steps: int) -> ModelOptions:
     """Return the model options of the command line, the kind's parameters among them
     (from its generated options, ``ctx.meta["params"]``), checked for their kind before
     any data is read (or a progress bar drawn)."""
@@ -418,6 +418,8 @@ def experiment_command(
 
 
 def _numbers(option: str, text: str, kind: type) -> list:
+    """Return the comma-separated numbers of ``text`` converted by ``kind``; raise
+    InputError naming ``option`` when one is not a number."""
     try:
         return [kind(v) for v in _split(text) or ()]
     except ValueError as err:
