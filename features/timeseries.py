@@ -199,9 +199,11 @@ class TimeseriesChain:
                ) -> dict[str, np.ndarray]:
         """Feed one sample (``t`` [s]; ``q`` [rad], ``dq`` [rad/s], ``tau`` [Nm], each
         (7,)), as a chunk of one; return the chain's features at it, name -> (k,)."""
-        out = self.feed(SampleBatch(np.array([t], dtype=float), np.asarray(q, dtype=float)[None],
-                                    np.asarray(dq, dtype=float)[None],
-                                    np.asarray(tau, dtype=float)[None]))
+        out, self._state = self._chunk(np.array([t], dtype=float),
+                                       np.asarray(q, dtype=float).reshape(1, 7),
+                                       np.asarray(dq, dtype=float).reshape(1, 7),
+                                       np.asarray(tau, dtype=float).reshape(1, 7), self.names,
+                                       self._state)
         return {name: values[0] for name, values in out.items()}
 
     def _rnea(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
