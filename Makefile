@@ -12,7 +12,7 @@ GAZ     := ../shared/reference/gaz2019-exciting-traj
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[dev,nn,browser,dask]"
+	$(PY) -m pip install --quiet -e ".[dev,nn,browser,dask,notebook]"
 	# the franka source's tests need a simulated robot; they skip where it does not install
 	-$(PY) -m pip install --quiet -e ".[sim-robot]" || echo "franky-sim/pylibfranka not installable here: franka source tests will skip"
 	# the documentation site's tools; `make docs` skips the build where they do not install

@@ -31,7 +31,7 @@ from contactkit.classify.events import (
 from contactkit.classify.fast import fast_predictor
 from contactkit.classify.models import svm_pipeline
 from contactkit.features.detector import DetectorConfig
-from contactkit.features.timeseries import OnlineChain
+from contactkit.features.timeseries import TimeseriesChain
 from contactkit.recorder.importers.arrays import load_joint_arrays
 from contactkit.robots import RobotSetup
 
@@ -62,13 +62,13 @@ def main() -> None:
     n = len(t)
     vector = np.ones(7)
     base = float(np.percentile(timed(lambda i: np.linalg.norm(vector), REPEATS), 99))
-    chain = OnlineChain(robot=RobotSetup(with_hand=False))
+    chain = TimeseriesChain(robot=RobotSetup(with_hand=False), names=["r"])
     r = np.array([chain.update(t[k], q[k], dq[k], tau[k])["r"] for k in range(n)])
     # thresholds low enough that the log holds many events: the worst case per sample
     pipeline = EventPipeline(DetectorConfig(noise=(0.5,) * 7, speed=(0.0,) * 7,
                                             accel=(0.0,) * 7))
     per_sample = timed(lambda k: pipeline.update(t[k], r[k], dq[k]), n)
-    chain = OnlineChain(robot=RobotSetup(with_hand=False))
+    chain = TimeseriesChain(robot=RobotSetup(with_hand=False), names=["r"])
     pipeline = EventPipeline(DetectorConfig(noise=(0.5,) * 7, speed=(0.0,) * 7,
                                             accel=(0.0,) * 7))
 

@@ -22,7 +22,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 import pinocchio as pin
 
-from contactkit.features.timeseries import OnlineChain, TimeseriesChain
+from contactkit.features.timeseries import TimeseriesChain
 from contactkit.recorder.importers.arrays import load_joint_arrays
 from contactkit.recorder.sim.simulator import SimConfig, plan_session
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
@@ -87,7 +87,7 @@ def main() -> None:
         chain_s = best_of(3, lambda chain=chain, data=data: chain.compute(
             data["t"], data["q"], data["dq"], data["tau"]))
         bare_s = best_of(3, lambda chain=chain, data=data: bare_calls(chain, data))
-        online = OnlineChain(robot=RobotSetup(with_hand=with_hand))
+        online = TimeseriesChain(robot=RobotSetup(with_hand=with_hand))
         latencies = np.empty(n)
         gc.collect()
         for k in range(n):

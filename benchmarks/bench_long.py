@@ -198,7 +198,7 @@ def run_case(case: str, minutes: float, directory: Path, model: Path | None = No
         samples = pq.ParquetFile(out).metadata.num_rows
     elif case == "windows":
         result = feature_rows([path], SessionFeatures())
-        assert result.rows and not result.problems, result.problems
+        assert len(result) and not result.problems, result.problems
         samples = pq.ParquetFile(path).metadata.num_rows
     elif case == "stats-deep":
         summary = session_summary(str(path))

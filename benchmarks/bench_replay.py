@@ -1,11 +1,14 @@
 """Replay cost of Rerun logging, .rrd size, and paced-replay lag.
 
-For a 10 s simulated session at 1 kHz, prints: replay time without logging (the
-baseline, measured in the same run), the time to log that replay to an .rrd
-file exactly as the CLI does (timed on its own: the difference of two noisy
-totals is not reliable), their ratio, the file size, and for a paced replay at
---rate 1 the lag between wall clock and
-session time at each hop (median, max).
+For a 10 s simulated session at 1 kHz, replayed with a contact detector (so the event,
+threshold and isolated-contact lanes are logged too), prints: the feature chain alone on
+the session (the chain's baseline), the replay's computation without logging (chain,
+classifier, event pipeline), the time to log that replay to an .rrd file exactly as the
+CLI does (timed on its own: the difference of two noisy totals is not reliable) and its
+ratio to the computation, a whole replay to an .rrd (what ``replay --viewer none``
+runs after start-up) against the chain alone, the file size per second of session, and
+for a paced replay at --rate 1 the lag between wall clock and session time at each hop
+(median, max). Every baseline is measured in the same run; each time is the best of 3.
 
     .venv/bin/python benchmarks/bench_replay.py
 """
@@ -24,13 +27,16 @@ import numpy as np
 from contactkit.classify.data import load_features
 from contactkit.classify.modelfile import load_model, save_model
 from contactkit.classify.registry import get_kind, make_estimator
+from contactkit.features.detector import DetectorConfig
 from contactkit.features.extract import SessionFeatures
+from contactkit.features.timeseries import TimeseriesChain
 from contactkit.recorder.sim.dataset import simulate_specs
 from contactkit.recorder.sim.simulator import SimConfig, plan_session
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
 from contactkit.replay.engine import Block, ReplayStream
-from contactkit.replay.recording import BlockLogger, log_offline, log_static, new_recording
-from contactkit.schemas import write_session
+from contactkit.replay.recording import BlockLogger, log_results, log_static, new_recording
+from contactkit.replay.session_replay import replay_session
+from contactkit.schemas import read_session, write_session
 from contactkit.viewer import layout
 
 
@@ -51,7 +57,7 @@ def setup(tmp: Path) -> tuple[Path, Path]:
                        fingerprint="", training={})
     config = SimConfig(rate_hz=1000.0)
     spec = plan_session(seed=9, condition="static", action="shove", pose="B", link=6,
-                        duration_s=10.0, planned_at_s=5.0)
+                        duration_s=DURATION_S, planned_at_s=5.0)
     source = SimSource(spec, config, chunk=500)
     chunks = list(source.stream())
     columns = {k: np.concatenate([c[k] for c in chunks]) for k in SIM_COLUMNS}
@@ -60,12 +66,36 @@ def setup(tmp: Path) -> tuple[Path, Path]:
     return session, model
 
 
+DURATION_S = 10.0
+DETECTOR = DetectorConfig()
+
+
+def chain_alone(session_path: Path, model_path: Path) -> float:
+    """Read the session and run the model's feature chain on it; return wall time [s]."""
+    model = load_model(model_path)
+    names = ReplayStream(session_path, model).names
+    start = time.perf_counter()
+    session = read_session(session_path)
+    chain = TimeseriesChain.for_session(session.meta, model.transformer().chain_config())
+    chain.compute(session.t, session.q, session.dq, session.tau, names)
+    return time.perf_counter() - start
+
+
+def whole_replay(session_path: Path, model_path: Path, rrd: Path) -> float:
+    """Replay the session into an .rrd file as ``replay --viewer none`` does (after
+    loading the model); return wall time [s]."""
+    model = load_model(model_path)
+    start = time.perf_counter()
+    replay_session(session_path, model, save=rrd, detector=DETECTOR, overwrite=True)
+    return time.perf_counter() - start
+
+
 def compute(session_path: Path, model_path: Path
             ) -> tuple[ReplayStream, list[Block], object, float]:
     """Run one --rate max replay without logging; return it, its blocks and its wall
     time [s]."""
     start = time.perf_counter()
-    stream = ReplayStream(session_path, load_model(model_path))
+    stream = ReplayStream(session_path, load_model(model_path), detector=DETECTOR)
     blocks = list(stream.blocks())
     answer = stream.offline()
     return stream, blocks, answer, time.perf_counter() - start
@@ -76,10 +106,11 @@ def log_to_file(stream: ReplayStream, blocks: list[Block], answer, rrd: Path) ->
     start = time.perf_counter()
     rec = new_recording("bench", "bench")
     rec.save(rrd, default_blueprint=layout.replay_blueprint())
-    logger = BlockLogger(rec, log_static(rec, stream))
+    logger = BlockLogger(rec, log_static(rec, stream), stream)
     for block in blocks:
         logger.log(block)
-    log_offline(rec, stream, answer)
+    logger.finish()
+    log_results(rec, stream, answer)
     rec.flush()
     rec.disconnect()
     return time.perf_counter() - start
@@ -87,10 +118,10 @@ def log_to_file(stream: ReplayStream, blocks: list[Block], answer, rrd: Path) ->
 
 def paced_lag(session_path: Path, model_path: Path, rrd: Path) -> np.ndarray:
     """Lag [s] of wall clock behind session time at every hop of a --rate 1 replay."""
-    stream = ReplayStream(session_path, load_model(model_path))
+    stream = ReplayStream(session_path, load_model(model_path), detector=DETECTOR)
     rec = new_recording("bench-paced", "bench-paced")
     rec.save(rrd)
-    logger = BlockLogger(rec, log_static(rec, stream))
+    logger = BlockLogger(rec, log_static(rec, stream), stream)
     lags = []
     started = time.monotonic()
     t0, _ = stream.time_span()
@@ -101,27 +132,38 @@ def paced_lag(session_path: Path, model_path: Path, rrd: Path) -> np.ndarray:
         lags.append(max(0.0, now - due))
         if due > now:
             time.sleep(due - now)
+    logger.finish()
     rec.flush()
     rec.disconnect()
     return np.array(lags)
 
 
 def main() -> None:
+    """Measure and print the table."""
     with tempfile.TemporaryDirectory() as tmp:
         session, model = setup(Path(tmp))
+        chain = min(chain_alone(session, model) for _ in range(3))
         runs = [compute(session, model) for _ in range(3)]
         bare = min(r[3] for r in runs)
         stream, blocks, answer, _ = runs[-1]
         logging = min(log_to_file(stream, blocks, answer, Path(tmp) / f"r{i}.rrd")
                       for i in range(3))
-        logged = bare + logging
+        whole = min(whole_replay(session, model, Path(tmp) / "whole.rrd") for _ in range(3))
         size = (Path(tmp) / "r0.rrd").stat().st_size
         lags = paced_lag(session, model, Path(tmp) / "paced.rrd")
-    print("replay of a 10 s session at 1 kHz (10001 samples), --rate max")
-    print(f"  without logging (baseline): {bare:.3f} s  ({10.0 / bare:.1f}x real time)")
-    print(f"  Rerun logging of it:        {logging:.3f} s  (replay + logging {logged:.3f} s, "
-          f"ratio {logged / bare:.3f}, +{100 * logging / bare:.1f} %)")
-    print(f"  .rrd size:                  {size / 1e6:.2f} MB")
+    events = len(stream.events)
+    print(f"replay of a {DURATION_S:g} s session at 1 kHz ({stream.n_samples} samples), "
+          f"--rate max, with a contact detector ({events} contact events)")
+    print(f"  feature chain alone (baseline): {chain:.3f} s  ({DURATION_S / chain:.1f}x real "
+          "time)")
+    print(f"  replay without logging:         {bare:.3f} s  ({DURATION_S / bare:.1f}x real "
+          f"time, {bare / chain:.2f}x the chain)")
+    print(f"  Rerun logging of it:            {logging:.3f} s  (+{100 * logging / bare:.1f} % "
+          "of the replay without logging)")
+    print(f"  whole replay to an .rrd:        {whole:.3f} s  ({DURATION_S / whole:.1f}x real "
+          f"time, {whole / chain:.2f}x the chain)")
+    print(f"  .rrd size:                      {size / 1e6:.2f} MB  "
+          f"({size / 1e6 / DURATION_S:.3f} MB per second of session)")
     print(f"paced replay at --rate 1: lag behind session time median "
           f"{1e3 * np.median(lags):.2f} ms, max {1e3 * lags.max():.2f} ms over {len(lags)} hops")
 

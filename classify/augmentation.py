@@ -32,7 +32,8 @@ from sklearn.model_selection import train_test_split
 
 from contactkit.classify.data import FeatureSet
 from contactkit.classify.evaluate import confusion, fit_predict_many, metrics_from_confusion
-from contactkit.classify.grids import GRIDS, Augmentation, GridSpec, load_grids
+from contactkit.classify.grids import Augmentation, GridSpec, load_grids
+from contactkit.classify.inputs import GRIDS
 from contactkit.classify.kind import ModelKind, ModelOptions
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.dataset import session_files
@@ -100,7 +101,7 @@ def run_augmentation(real_dir: Path, sim_dir: Path, out_dir: Path, *, kind: Mode
                          f"{kind.name} model takes {kind.input.name}")
     if repeats < 1:
         raise InputError(f"repeats must be at least 1, got {repeats}")
-    kind.check_options(options)
+    options = kind.check_options(options)
     spec = kind.transformer(options).spec
     seed = options.seed
     baseline = noise_baseline(real_dir, noise_file)
@@ -138,7 +139,7 @@ def run_augmentation(real_dir: Path, sim_dir: Path, out_dir: Path, *, kind: Mode
             elif condition.startswith("noise"):
                 X += [part.X for part in sim_sets[condition]]
                 y += [part.labels() for part in sim_sets[condition]]
-            yield (kind.make(replace(options, seed=seed + r), real.names), np.concatenate(X),
+            yield (kind.estimator(replace(options, seed=seed + r), real.names), np.concatenate(X),
                    np.concatenate(y), real.X[test])
 
     report = None if progress is None else (lambda d, t: progress("trainings", d, t))

@@ -18,16 +18,16 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from contactkit.classify.kind import InputKind, ModelKind, ModelOptions
+from contactkit.classify.kind import ModelKind, ModelOptions
+from contactkit.classify.names import GROUP_KEYS
 from contactkit.classify.schemes import limited_mask, relabel
 from contactkit.features.extract import SessionFeatures, feature_rows
 from contactkit.schemas import InputError
 from contactkit.schemas.dataset import session_files
-from contactkit.schemas.features import feature_table_schema, read_feature_table
+from contactkit.schemas.features import read_feature_table
 from contactkit.schemas.session import atomic_write_parquet
 from contactkit.util.atomic import any_regular_file
 
-GROUP_KEYS = ("pose", "session", "operator", "condition")
 CACHE_DIR = ".cache"
 
 
@@ -89,10 +89,14 @@ class FeatureSet:
         return digest.hexdigest()
 
 
-def _from_table(table: pa.Table, doc: dict, problems: list) -> FeatureSet:
+def _from_table(table: pa.Table, doc: dict, problems: list, X: np.ndarray | None = None
+                ) -> FeatureSet:
+    """Return the feature set of a scalar feature table; ``X``, where given, is its
+    feature matrix already in hand (not read back from the table)."""
     names = list(doc["features"])
-    X = np.column_stack([table.column(n).to_numpy(zero_copy_only=False) for n in names]) \
-        if table.num_rows else np.zeros((0, len(names)))
+    if X is None:
+        X = np.column_stack([table.column(n).to_numpy(zero_copy_only=False) for n in names]) \
+            if table.num_rows else np.zeros((0, len(names)))
     info = {}
     for key in ("file", "session_id", "action", "condition", "pose", "target_pose", "operator",
                 "window_method"):
@@ -151,13 +155,14 @@ def _load_one(source: Path, extractor: SessionFeatures, workers: int,
         table, doc = read_feature_table(cache_path)
         return _from_table(table, doc, [])
     result = feature_rows(files, extractor, workers, progress, scheduler=scheduler)
-    if not result.rows:
+    if not len(result):
         raise InputError("no session could be processed", source)
-    table = pa.Table.from_pylist(result.rows, schema=feature_table_schema(result.names, config))
+    table = result.table(config)
     if cache:
         cache_path.parent.mkdir(exist_ok=True)
         atomic_write_parquet(table, cache_path, overwrite=False, owned=any_regular_file)
-    return _from_table(table, {"config": config, "features": result.names}, result.problems)
+    return _from_table(table, {"config": config, "features": result.names}, result.problems,
+                       result.X)
 
 
 def features_for(options: ModelOptions, kind: ModelKind) -> SessionFeatures:
@@ -168,9 +173,6 @@ def features_for(options: ModelOptions, kind: ModelKind) -> SessionFeatures:
                            window_s=options.window_s)
 
 
-def _features_from_config(config: dict) -> SessionFeatures:
+def features_from_config(config: dict) -> SessionFeatures:
+    """Return the scalar-feature input a model file's configuration describes."""
     return SessionFeatures(**config)
-
-
-FEATURES = InputKind(name="features", meta_key="features", build=features_for,
-                     from_config=_features_from_config, load=load_features)

@@ -26,7 +26,6 @@ from sklearn.model_selection import LeaveOneGroupOut, ShuffleSplit, StratifiedGr
 from contactkit.schemas import InputError
 from contactkit.util.parallel import map_ordered
 
-PROTOCOLS = ("thesis", "group")
 THESIS_SPLITS = 25
 LOGO_MAX_GROUPS = 12
 BOOTSTRAP = 1000
@@ -172,13 +171,14 @@ def fit_predict_many(tasks: Iterable[tuple], workers: int = 1,
 
 
 def evaluate(X: np.ndarray, y: np.ndarray, make_estimator: Callable[[], object], *,
-             protocol: str, groups: np.ndarray | None = None, group_by: str | None = None,
-             model: str = "svm", scheme: str = "full", classes: list[str] | None = None,
+             protocol: str, model: str, groups: np.ndarray | None = None,
+             group_by: str | None = None, scheme: str = "full", classes: list[str] | None = None,
              seed: int = 0, progress: Callable[[int, int], None] | None = None,
              workers: int = 1, scheduler: str | None = None) -> Report:
     """Evaluate a classifier under a protocol; return the :class:`Report`.
 
-    ``make_estimator()`` returns a fresh, unfitted estimator for each split. With
+    ``make_estimator()`` returns a fresh, unfitted estimator for each split; ``model``
+    names it in the report (a kind's name, or what an experiment evaluates). With
     ``workers`` > 1 the splits are fitted in that many processes (worth it for
     networks, whose training is single-threaded), or on the Dask ``scheduler``; the
     result does not depend on it.

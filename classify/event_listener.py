@@ -1,8 +1,9 @@
 """Contact events while recording: a capture listener that runs the event pipeline.
 
 :class:`LiveEvents` takes the capture's chunks of samples (dicts of column arrays, as
-sources yield them) and feeds each sample, in arrival order, through the streaming
-observer (:class:`contactkit.features.timeseries.OnlineChain`) and the event
+sources yield them) and runs each chunk through the feature chain's observer
+(:meth:`contactkit.features.timeseries.TimeseriesChain.feed`, state carried) and each
+sample, in arrival order, through the event
 pipeline (:class:`contactkit.classify.events.EventPipeline`): the same code, on the
 same samples, as ``replay`` runs on the written session, so both find the same
 events. Samples that lack a joint value (NaN gaps of a CAN source) are skipped, as
@@ -20,9 +21,9 @@ import numpy as np
 from contactkit.classify.events import ContactEvent, EventModel, EventPipeline
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.isolation import OK, ContactEstimate, ContactIsolator
-from contactkit.features.timeseries import ChainConfig, OnlineChain
+from contactkit.features.timeseries import ChainConfig, TimeseriesChain
 from contactkit.robots import RobotSetup
-from contactkit.schemas import joint_columns
+from contactkit.schemas.session import SampleBatch
 
 Report = Callable[[str, ContactEvent], None]
 """Called with ("onset" | "decision" | "release", the event) as each happens."""
@@ -74,22 +75,18 @@ class LiveEvents:
                  model: EventModel | None = None, decide_after_s: float | None = None,
                  report: Report | None = None,
                  isolator: ContactIsolator | None = None) -> None:
-        self.chain = OnlineChain(chain, robot)
+        self.chain = TimeseriesChain(chain, robot, ["r"])
         self.pipeline = EventPipeline(detector.for_robot(self.chain.model.spec), model,
                                       decide_after_s, isolator)
         self.report = report
         self.samples = 0
-        self._columns = [joint_columns(prefix) for prefix in ("q", "dq", "tau")]
 
     def on_chunk(self, chunk: dict[str, np.ndarray]) -> None:
         """Feed one chunk of recorded rows (``t`` [s] and the joint columns)."""
-        t = np.asarray(chunk["t"], dtype=float)
-        q, dq, tau = (np.column_stack([np.asarray(chunk[c], dtype=float) for c in names])
-                      for names in self._columns)
-        keep = np.isfinite(np.column_stack([q, dq, tau])).all(axis=1)
-        for k in np.flatnonzero(keep):
-            out = self.chain.update(float(t[k]), q[k], dq[k], tau[k])
-            state = self.pipeline.update(float(t[k]), out["r"], dq[k], q[k])
+        batch = SampleBatch.from_columns(chunk).complete()
+        r = self.chain.feed(batch)["r"]
+        for k in range(len(batch)):
+            state = self.pipeline.update(float(batch.t[k]), r[k], batch.dq[k], batch.q[k])
             self.samples += 1
             if self.report is None:
                 continue

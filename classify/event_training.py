@@ -28,7 +28,8 @@ from contactkit.classify.events import (
     EventModel,
     batch_events,
 )
-from contactkit.classify.models import svm_pipeline
+from contactkit.classify.kind import ModelOptions
+from contactkit.classify.svm_kinds import SVM
 from contactkit.features.detector import DetectorConfig, detect
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.schemas import read_session
@@ -123,7 +124,8 @@ def fit_event_model(sessions: Sequence[SessionEvents], decide_after_s: float,
     names, counts = np.unique(y, return_counts=True)
     keep = np.isin(y, names[counts >= 2])  # a class seen once cannot be calibrated
     X, y = X[keep], y[keep]
-    estimator = svm_pipeline(c, seed=seed).fit(X, y)
+    options = ModelOptions(kind=SVM.name, seed=seed, params={"c": c})
+    estimator = SVM.estimator(options, []).fit(X, y)
     return EventModel(estimator, [str(c) for c in estimator.classes_], decide_after_s,
                       X.min(axis=0), X.max(axis=0))
 

@@ -37,7 +37,9 @@ from sklearn.svm import SVC, LinearSVC
 from contactkit.classify.data import FeatureSet, load_features
 from contactkit.classify.evaluate import Report, evaluate
 from contactkit.classify.models import svm_pipeline
+from contactkit.classify.names import EXPERIMENTS
 from contactkit.classify.schemes import scheme_classes
+from contactkit.classify.svm_kinds import SVM
 from contactkit.errors import check_choice
 from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import SCALARS
@@ -45,7 +47,6 @@ from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS, columns_of
 from contactkit.schemas import InputError
 from contactkit.util.atomic import owned_result, write_figure, write_text
 
-EXPERIMENTS = ("features", "rfe", "speed", "window")
 MVR = ("mean", "variance", "range")
 WINDOW_LENGTHS = (0.1, 0.2, 0.3, 0.5)
 SPEED_EDGES = (0.1, 0.2, 0.3, 0.4, 0.5)
@@ -89,9 +90,9 @@ def _evaluate(data: FeatureSet, setting: Setting) -> Report:
     groups = data.groups(setting.group_by) if setting.protocol == "group" else None
     return evaluate(data.X, y, lambda: svm_pipeline(setting.c, seed=setting.seed,
                                                     probability=False),
-                    protocol=setting.protocol, groups=groups, group_by=setting.group_by,
-                    scheme=setting.scheme, classes=scheme_classes(setting.scheme),
-                    seed=setting.seed)
+                    protocol=setting.protocol, model=SVM.name, groups=groups,
+                    group_by=setting.group_by, scheme=setting.scheme,
+                    classes=scheme_classes(setting.scheme), seed=setting.seed)
 
 
 def _wide(sources: Sequence[Path], setting: Setting, window_s: float = 0.5,

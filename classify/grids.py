@@ -31,7 +31,8 @@ import numpy as np
 from sklearn.base import BaseEstimator, TransformerMixin
 
 from contactkit.classify.data import FeatureSet
-from contactkit.classify.kind import InputKind, ModelKind, ModelOptions
+from contactkit.classify.inputs import CNN_INPUT
+from contactkit.classify.kind import ModelKind, ModelOptions
 from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.chain_cache import chain_series
 from contactkit.features.observer import DEFAULT_GAIN, ObserverConfig
@@ -40,9 +41,6 @@ from contactkit.features.windows import Window, WindowSpec, find_window
 from contactkit.schemas import InputError, Session, read_session
 from contactkit.schemas.dataset import session_files
 from contactkit.util.parallel import map_ordered, split_problems
-
-CNN_INPUT = ("q", "dq", "tau")
-LSTM_INPUT = ("dq", "tau", "r")
 
 
 @dataclass(frozen=True)
@@ -165,7 +163,9 @@ class SessionGrids(TransformerMixin, BaseEstimator):
                         int(self.steps), float(self.gain), float(self.baseline_s))
 
     def fit(self, X, y=None) -> SessionGrids:
-        """Nothing to learn; checks the parameters and returns self."""
+        """Nothing to learn from the sessions: checks the parameters, records the grid's
+        channels (``channels_``, so scikit-learn sees a fitted transformer) and returns
+        self."""
         try:
             self.spec.channels()
         except KeyError as err:
@@ -173,7 +173,7 @@ class SessionGrids(TransformerMixin, BaseEstimator):
         if self.steps < 2:
             raise InputError(f"a grid needs at least 2 time steps, got {self.steps}")
         WindowSpec(self.window, self.window_s)
-        self.n_features_in_ = 1
+        self.channels_ = self.spec.channels()
         return self
 
     def config(self) -> dict:
@@ -195,6 +195,17 @@ class SessionGrids(TransformerMixin, BaseEstimator):
     def transform(self, X) -> np.ndarray:
         """Return the (sessions, channels, steps) grids."""
         return np.stack([self.session_row(s)[0] for s in X])
+
+    @property
+    def window_spec(self) -> WindowSpec:
+        """The window settings as a :class:`WindowSpec` (found on the torque)."""
+        return WindowSpec(self.window, self.window_s)
+
+    def window_row(self, t: np.ndarray, values: np.ndarray, window: Window,
+                   path: str | Path | None = None) -> np.ndarray:
+        """Return the grid of ``window`` from per-sample ``values`` (N, channels) at times
+        ``t`` [s] around it (from ``baseline_s`` before it to its end)."""
+        return window_grid(t, values, window.start_s, self.spec)
 
     def session_row(self, session: Session | str | Path
                     ) -> tuple[np.ndarray, list[str], Window]:
@@ -273,18 +284,19 @@ def grids_for(options: ModelOptions, kind: ModelKind) -> SessionGrids:
                         window_s=options.window_s, steps=options.steps)
 
 
-def _grids_from_config(config: dict) -> SessionGrids:
+def grids_from_config(config: dict) -> SessionGrids:
+    """Return the grid input a model file's configuration describes (files without a
+    ``baseline_s`` kept absolute values)."""
     config = dict(config)
     config["timeseries"] = tuple(config["timeseries"])
     config.setdefault("baseline_s", 0.0)
     return SessionGrids(**config)
 
 
-def _load_grid_set(sources: Sequence[Path], grids: SessionGrids, workers: int = 1,
-                   progress: Callable[[int, int], None] | None = None, *,
-                   scheduler: str | None = None) -> FeatureSet:
+def load_grid_set(sources: Sequence[Path], grids: SessionGrids, workers: int = 1,
+                  progress: Callable[[int, int], None] | None = None, *,
+                  scheduler: str | None = None) -> FeatureSet:
+    """Return the grids ``grids`` describes of every session of the dataset directories
+    ``sources`` (see :func:`load_grids`), in ``workers`` processes or on the Dask
+    ``scheduler``."""
     return load_grids(sources, grids.spec, workers, progress=progress, scheduler=scheduler)
-
-
-GRIDS = InputKind(name="grid", meta_key="grid", build=grids_for,
-                  from_config=_grids_from_config, load=_load_grid_set)

@@ -1,6 +1,7 @@
 """The thesis's network grid search (section 5.2.2), over the executor seam.
 
-A trial is one network configuration: depth and width multipliers, dropout, the
+A trial is one configuration of a kind that declares a search grid on some of its
+parameters (the thesis's networks: depth and width multipliers, dropout), with the
 time steps of a window grid and its input timeseries. Every trial is evaluated under
 the same protocol and seed, each split training with early stopping on its own
 validation split, as one job of :func:`contactkit.util.parallel.map_ordered`: in
@@ -17,15 +18,17 @@ from __future__ import annotations
 
 import itertools
 import json
-from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, replace
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 from contactkit.classify.data import FeatureSet
-from contactkit.classify.evaluate import PROTOCOLS, Report, evaluate
+from contactkit.classify.evaluate import Report, evaluate
 from contactkit.classify.grids import session_paths
-from contactkit.classify.kind import ModelOptions
-from contactkit.classify.registry import get_kind
+from contactkit.classify.kind import ModelKind, ModelOptions
+from contactkit.classify.names import PROTOCOLS
+from contactkit.classify.registry import DEFAULT_SEARCHED, get_kind, searchable_kinds
 from contactkit.classify.schemes import check_scheme, scheme_classes
 from contactkit.classify.training import TrainedModel, train, training_set
 from contactkit.errors import check_choice
@@ -34,66 +37,83 @@ from contactkit.util.atomic import owned_result, write_text
 from contactkit.util.parallel import map_ordered, resolve_scheduler
 from contactkit.util.progress import LabelledProgress
 
-THESIS_DEPTHS = (1, 2, 4)
-THESIS_WIDTHS = (0.5, 1.0, 2.0)
-THESIS_DROPOUTS = (0.0, 0.1, 0.25)
-NETWORKS = ("cnn", "lstm")
+MIN_STEPS = 4
+"""The fewest time steps a grid may have."""
 
 
 @dataclass(frozen=True)
 class Trial:
-    """One network configuration of the grid: layer and width multipliers, dropout,
-    time steps of a window grid and its input timeseries."""
+    """One configuration of the grid: the searched parameters' values (in the kind's
+    declaration order), the time steps of a window grid and its input timeseries."""
 
-    depth: int
-    width: float
-    dropout: float
+    params: tuple[tuple[str, Any], ...]
     steps: int
     inputs: tuple[str, ...]
 
     def label(self) -> str:
-        """Return a short name, for example ``d2 w1 p0.1 s300 dq+tau+r``."""
-        return (f"d{self.depth} w{self.width:g} p{self.dropout:g} s{self.steps} "
-                + "+".join(self.inputs))
+        """Return a short name, for example ``depth=2 width=1 dropout=0.1 steps=300
+        dq+tau+r``."""
+        return " ".join([*(f"{name}={_text(value)}" for name, value in self.params),
+                         f"steps={self.steps}", "+".join(self.inputs)])
 
 
-def grid_trials(depths: Sequence[int], widths: Sequence[float], dropouts: Sequence[float],
-                steps: Sequence[int], inputs: Sequence[Sequence[str]]) -> list[Trial]:
+def _text(value: Any) -> str:
+    """Return a parameter value as a table shows it (numbers without trailing zeros)."""
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def searched_params(kind: ModelKind) -> list[str]:
+    """Return the names of the parameters of ``kind`` that declare a search grid."""
+    return [p.name for p in kind.params if p.grid]
+
+
+def default_grid(kind: ModelKind) -> dict[str, tuple]:
+    """Return the declared grid of every searched parameter of ``kind`` (for the thesis's
+    networks: depth 1, 2, 4; width 0.5, 1, 2; dropout 0, 0.1, 0.25)."""
+    return {p.name: p.grid for p in kind.params if p.grid}
+
+
+def grid_trials(kind: ModelKind, grid: Mapping[str, Sequence], steps: Sequence[int],
+                inputs: Sequence[Sequence[str]]) -> list[Trial]:
     """Return every combination of the given values as trials (inputs varying slowest,
-    then steps, so trials that share a grid are neighbours).
+    then steps, then the parameters in ``kind``'s declaration order, so trials that
+    share a grid are neighbours). ``grid`` maps some of the kind's searched parameters to
+    the values to try; the others take their declared grid.
 
-    Raises InputError on an empty list or a value outside its domain.
+    Raises InputError on an empty list, a parameter ``kind`` does not search, or a value
+    its declaration refuses.
     """
-    for name, values in (("depths", depths), ("widths", widths), ("dropouts", dropouts),
-                         ("steps", steps), ("inputs", inputs)):
-        if not values:
+    declared = {p.name: p for p in kind.params if p.grid}
+    unknown = sorted(set(grid) - set(declared))
+    if unknown:
+        raise InputError(f"model {kind.name!r} searches no parameter {unknown[0]!r} (it "
+                         f"searches {', '.join(declared) or 'none'})")
+    values = {name: list(grid.get(name, p.grid)) for name, p in declared.items()}
+    for name, given in (*values.items(), ("steps", steps), ("inputs", inputs)):
+        if not given:
             raise InputError(f"the grid needs at least one value of {name}")
-    if min(depths) < 1:
-        raise InputError(f"depth must be at least 1, got {min(depths)}")
-    if min(widths) <= 0:
-        raise InputError(f"width must be positive, got {min(widths):g}")
-    if not all(0 <= p < 1 for p in dropouts):
-        raise InputError(f"dropout must be in [0, 1), got {max(dropouts):g}")
-    if min(steps) < 4:
-        raise InputError(f"steps must be at least 4, got {min(steps)}")
-    return [Trial(int(d), float(w), float(p), int(s), tuple(i))
-            for i, s, d, w, p in itertools.product(inputs, steps, depths, widths, dropouts)]
+    values = {name: [declared[name].check(v, f"model {kind.name!r}") for v in given]
+              for name, given in values.items()}
+    if min(steps) < MIN_STEPS:
+        raise InputError(f"steps must be at least {MIN_STEPS}, got {min(steps)}")
+    names = list(values)
+    return [Trial(tuple(zip(names, combo, strict=True)), int(s), tuple(i))
+            for i, s, *combo in itertools.product(inputs, steps, *values.values())]
 
 
 @dataclass(frozen=True)
 class Protocol:
-    """How every trial is trained and evaluated: network kind, evaluation protocol and
-    grouping, class scheme, seed, most epochs, early-stopping patience [epochs],
-    device, window method and window length [s]."""
+    """How every trial is trained and evaluated: the kind, evaluation protocol and
+    grouping, class scheme, seed, the kind's parameters every trial shares (``params``,
+    e.g. epochs, early-stopping patience and device; the others take their declared
+    defaults), window method and window length [s]."""
 
-    model: str = "lstm"
+    model: str = DEFAULT_SEARCHED
     protocol: str = "group"
     group_by: str = "pose"
     scheme: str = "full"
     seed: int = 0
-    epochs: int = 100
-    patience: int = 20
-    device: str = "cpu"
+    params: Mapping[str, Any] = field(default_factory=dict)
     window: str = "planned"
     window_s: float = 0.5
 
@@ -101,18 +121,23 @@ class Protocol:
         """Return the model options of one trial under this protocol."""
         return ModelOptions(kind=self.model, timeseries=trial.inputs, window=self.window,
                             window_s=self.window_s, steps=trial.steps, seed=self.seed,
-                            epochs=self.epochs, depth=trial.depth, width=trial.width,
-                            dropout=trial.dropout, patience=self.patience,
-                            device=self.device)
+                            params={**self.params, **dict(trial.params)})
+
+    def shared_params(self) -> dict[str, Any]:
+        """Return the value of every parameter of the kind that the grid does not vary."""
+        kind = get_kind(self.model)
+        checked = kind.check_options(self.options(Trial((), 20, ("q",)))).params
+        return {k: v for k, v in checked.items() if k not in searched_params(kind)}
 
     def check(self) -> None:
         """Raise InputError now, before any data is read, for an unusable protocol."""
-        if self.model not in NETWORKS:
-            raise InputError(f"the grid search trains {' or '.join(NETWORKS)} networks, "
-                             f"not {self.model!r}")
+        searchable = searchable_kinds()
+        if self.model not in searchable:
+            raise InputError(f"the grid search trains {' or '.join(searchable)} (the kinds "
+                             f"that declare a parameter grid), not {self.model!r}")
         check_choice("protocol", self.protocol, PROTOCOLS)
         check_scheme(self.scheme)
-        get_kind(self.model).check_options(self.options(Trial(1, 1.0, 0.0, 20, ("q",))))
+        self.shared_params()
 
 
 @dataclass
@@ -131,15 +156,14 @@ def _trial_job(job: tuple[Trial, Protocol, FeatureSet | str]) -> TrialResult:
     if isinstance(data, str):
         return TrialResult(trial, None, data)
     options = protocol.options(trial)
-    template = get_kind(protocol.model).make(options, list(data.names))
+    template = get_kind(protocol.model).estimator(options, data.names)
     try:
         report = evaluate(data.X, data.labels(protocol.scheme), lambda: template,
-                          protocol=protocol.protocol,
+                          protocol=protocol.protocol, model=protocol.model,
                           groups=data.groups(protocol.group_by)
                           if protocol.protocol == "group" else None,
-                          group_by=protocol.group_by, model=protocol.model,
-                          scheme=protocol.scheme, classes=scheme_classes(protocol.scheme),
-                          seed=protocol.seed)
+                          group_by=protocol.group_by, scheme=protocol.scheme,
+                          classes=scheme_classes(protocol.scheme), seed=protocol.seed)
     except ValueError as err:
         return TrialResult(trial, None, str(err))
     report.out_of_fold = None
@@ -161,8 +185,9 @@ def run_trials(sources: Sequence[Path], trials: Sequence[Trial], protocol: Proto
     """
     # The GPUs of a cluster are its workers' business: this process checks, and computes
     # the grids, as if on the CPU (the device does not change the grids).
-    here = protocol if resolve_scheduler(scheduler) is None else replace(protocol,
-                                                                          device="cpu")
+    on_cluster = resolve_scheduler(scheduler) is not None and "device" in protocol.params
+    here = replace(protocol, params={**protocol.params, "device": "cpu"}) if on_cluster \
+        else protocol
     here.check()
     if not trials:
         raise InputError("the grid has no trials")
@@ -195,10 +220,11 @@ def run_trials(sources: Sequence[Path], trials: Sequence[Trial], protocol: Proto
 
 def ranked(results: Sequence[TrialResult]) -> list[TrialResult]:
     """Return the successful results, best balanced accuracy first (ties: the smaller
-    network first, by depth, then width, then dropout)."""
+    values of the searched parameters first, in declaration order: for the networks the
+    smaller network)."""
     good = [r for r in results if r.report is not None]
-    return sorted(good, key=lambda r: (-r.report.balanced_accuracy.value, r.trial.depth,
-                                       r.trial.width, r.trial.dropout))
+    return sorted(good, key=lambda r: (-r.report.balanced_accuracy.value,
+                                       *(value for _, value in r.trial.params)))
 
 
 def best_trial(results: Sequence[TrialResult]) -> Trial:
@@ -214,17 +240,18 @@ def results_markdown(results: Sequence[TrialResult], protocol: Protocol) -> str:
     """Return the ranked results table in Markdown, failed trials listed below it."""
     how = "25 random 80/20 splits" if protocol.protocol == "thesis" else \
         f"group protocol by {protocol.group_by}"
+    searched = searched_params(get_kind(protocol.model))
+    shared = ", ".join(f"{k} {_text(v)}" for k, v in protocol.shared_params().items())
     lines = [f"# Grid search: {protocol.model}, {how}, seed {protocol.seed}", "",
-             f"Scheme {protocol.scheme}; at most {protocol.epochs} epochs per training, "
-             f"early stopping after {protocol.patience} without a better validation loss; "
-             f"{protocol.window} window of {protocol.window_s:g} s; device "
-             f"{protocol.device}.", "",
-             "| rank | depth | width | dropout | steps | inputs | balanced accuracy "
+             f"Scheme {protocol.scheme}; every trial with {shared or 'no other parameter'}; "
+             f"{protocol.window} window of {protocol.window_s:g} s.", "",
+             f"| rank | {' | '.join(searched)} | steps | inputs | balanced accuracy "
              "[95 % CI] | accuracy [95 % CI] | macro-F1 [95 % CI] |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "|---|" + "---|" * (len(searched) + 5)]
     for rank, r in enumerate(ranked(results), 1):
         t, rep = r.trial, r.report
-        lines.append(f"| {rank} | {t.depth} | {t.width:g} | {t.dropout:g} | {t.steps} | "
+        values = "".join(f"{_text(v)} | " for _, v in t.params)
+        lines.append(f"| {rank} | {values}{t.steps} | "
                      f"{'+'.join(t.inputs)} | {rep.balanced_accuracy.text()} | "
                      f"{rep.accuracy.text()} | {rep.macro_f1.text(percent=False)} |")
     failed = [r for r in results if r.report is None]
@@ -237,7 +264,8 @@ def results_markdown(results: Sequence[TrialResult], protocol: Protocol) -> str:
 def results_json(results: Sequence[TrialResult], protocol: Protocol) -> dict:
     """Return the protocol and every trial with its report (or problem) as JSON values."""
     return {"protocol": asdict(protocol),
-            "trials": [{"trial": {**asdict(r.trial), "inputs": list(r.trial.inputs)},
+            "trials": [{"trial": {"params": dict(r.trial.params), "steps": r.trial.steps,
+                                  "inputs": list(r.trial.inputs)},
                         "report": None if r.report is None else r.report.as_dict(),
                         "problem": r.problem} for r in results]}
 

@@ -2,50 +2,68 @@
 
 A :class:`ModelKind` names its input (an :class:`InputKind`: scalar features of the
 interaction window, or timeseries grids), a factory for the unfitted estimator, its
-file format, the types its files may build, and its online predictor. The kinds
-themselves live beside their estimators (``models.py``, ``nn.py``) and are listed in
-:mod:`contactkit.classify.registry`; a lab adds one from its own package through the
-``contactkit.models`` entry-point group.
+own parameters (declarations with constraints, :class:`contactkit.util.params.Param`),
+its file format, the types its files may build, and its online predictor. The kinds
+are declared beside their estimators (``svm_kinds.py`` for ``models.py``,
+``nn_kinds.py`` for ``networks.py`` and ``nn.py``), without importing scikit-learn or
+PyTorch, and listed in :mod:`contactkit.classify.registry`; a lab adds one from its own
+package through the ``contactkit.models`` entry-point group.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+import importlib
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
-import numpy as np
+from contactkit.errors import InputError
+from contactkit.util.params import Interval, Param, check_params
 
-from contactkit.schemas import InputError
-from contactkit.util.progress import ProgressCallback
+if TYPE_CHECKING:
+    import numpy as np
+
+    from contactkit.util.progress import ProgressCallback
+
+SEED = Param("seed", int, 0, "Random seed (same seed, same result).",
+             constraints=(Interval(0, None),))
+"""The seed every kind takes: it fixes initialisation, shuffling and evaluation splits."""
 
 
 @dataclass(frozen=True)
 class ModelOptions:
-    """Everything a kind may need to build its input and its estimator.
+    """What a kind builds its input and its estimator from.
 
-    ``timeseries`` and ``window`` default to the kind's own choice (None). ``c`` is
-    the SVM regularisation; ``epochs``, ``depth``, ``width`` and ``dropout`` size the
-    networks, ``patience`` is their early stopping (epochs without a better validation
-    loss) and ``device`` where they train (auto, cpu or cuda); ``steps`` is the length
-    of a grid; ``window_s`` is in seconds.
+    ``timeseries`` and ``window`` default to the kind's own choice (None); ``scalars``
+    are the scalar features of the features input, ``window_s`` the window length [s]
+    and ``steps`` the time steps of a grid input. ``params`` are the kind's own
+    parameters by name (:attr:`ModelKind.params`: ``c`` of an SVM, ``epochs`` of a
+    network); one not given takes its declared default.
     """
 
-    kind: str = "svm"
+    kind: str
     timeseries: tuple[str, ...] | None = None
     scalars: tuple[str, ...] = ("range",)
     window: str | None = None
     window_s: float = 0.5
     steps: int = 300
-    c: float = 1.0
     seed: int = 0
-    epochs: int = 100
-    depth: int | None = None
-    width: float = 2.0
-    dropout: float = 0.02
-    patience: int = 20
-    device: str = "cpu"
+    params: Mapping[str, Any] = field(default_factory=dict)
+
+
+def lazy(target: str) -> Callable[..., Any]:
+    """Return a function that imports ``module:attribute`` on its first call and calls it,
+    so a kind's declaration names its heavy parts (estimators, file formats, online
+    predictors) without importing scikit-learn or PyTorch."""
+    module, _, attribute = target.partition(":")
+
+    def call(*args: Any, **kwargs: Any) -> Any:
+        return getattr(importlib.import_module(module), attribute)(*args, **kwargs)
+
+    call.__qualname__ = call.__name__ = attribute
+    call.__doc__ = f"Call {target} (imported on first use)."
+    return call
 
 
 class SessionTransformer(Protocol):
@@ -63,6 +81,12 @@ class SessionTransformer(Protocol):
     def session_row(self, session) -> tuple[np.ndarray, list[str], Any]: ...
 
     def online_row(self, t: np.ndarray, values: np.ndarray, k: int) -> np.ndarray: ...
+
+    def window_row(self, t: np.ndarray, values: np.ndarray, window: Any,
+                   path: Any = None) -> np.ndarray: ...
+
+    @property
+    def window_spec(self) -> Any: ...
 
     def chain_config(self): ...
 
@@ -96,6 +120,7 @@ class InputKind:
     load: InputLoader
 
 
+
 @dataclass(frozen=True)
 class ModelFormat:
     """A model file format: its suffix, a writer ``save(path, estimator, meta,
@@ -113,8 +138,8 @@ def no_requirements() -> None:
     """Nothing to check: the kind needs only the base install."""
 
 
-def no_checks(options: ModelOptions) -> None:
-    """Accept any options."""
+def no_checks(params: dict[str, Any]) -> None:
+    """Accept any parameters that meet their declarations."""
 
 
 def predict_proba_of(estimator) -> Callable[[np.ndarray], np.ndarray]:
@@ -126,12 +151,19 @@ def predict_proba_of(estimator) -> Callable[[np.ndarray], np.ndarray]:
 class ModelKind:
     """One classifier kind (see the module docstring).
 
-    ``make(options, feature_names)`` returns an unfitted scikit-learn classifier;
-    ``check(options)`` raises :class:`InputError` for options the kind cannot use;
+    ``params`` declare the kind's own parameters, with their types, defaults, help and
+    constraints (as scikit-learn's ``_parameter_constraints``); the command line's
+    options and the grid search's space are generated from them, and they are checked
+    here before any data is read. Every kind takes :data:`SEED` besides.
+    ``make(options, feature_names)`` returns an unfitted scikit-learn classifier from
+    options whose ``params`` are complete and checked; ``check(params)`` raises
+    :class:`InputError` for what a declaration cannot say (a GPU that is missing);
     ``requires()`` raises one if an optional library is missing; ``online(estimator)``
-    returns the function replay calls on each window; ``trusted_types`` are the
-    classes its skops files may build beyond scikit-learn's and numpy's;
-    ``parallel_fits`` says evaluation splits are worth separate processes.
+    returns the function replay calls on each window; ``trusted_types`` are the classes
+    its skops files may build beyond scikit-learn's and numpy's; ``parallel_fits`` says
+    evaluation splits are worth separate processes. A declaration module imports
+    neither scikit-learn nor PyTorch: ``make``, ``online`` and the file format's
+    functions import them when called (see :func:`lazy`).
     """
 
     name: str
@@ -139,9 +171,10 @@ class ModelKind:
     input: InputKind
     make: Callable[[ModelOptions, list[str]], Any]
     file_format: ModelFormat
+    params: tuple[Param, ...] = ()
     default_timeseries: tuple[str, ...] = ("dq", "tau", "r")
     default_window: str = "difference"
-    check: Callable[[ModelOptions], None] = no_checks
+    check: Callable[[dict[str, Any]], None] = no_checks
     requires: Callable[[], None] = no_requirements
     online: Callable[[Any], Callable[[np.ndarray], np.ndarray]] = predict_proba_of
     trusted_types: tuple[str, ...] = field(default=())
@@ -153,10 +186,20 @@ class ModelKind:
         transformer.fit(None)
         return transformer
 
-    def check_options(self, options: ModelOptions) -> None:
-        """Raise InputError now, before any data is read, for unusable options or a
-        missing optional library."""
+    def check_options(self, options: ModelOptions) -> ModelOptions:
+        """Return ``options`` with every parameter of the kind (declared defaults for those
+        not given), checked; raise InputError now, before any data is read, for an
+        unusable value, a parameter the kind does not declare, or a missing optional
+        library."""
+        if options.kind != self.name:
+            raise InputError(f"options for a {options.kind} model given to {self.name}")
         self.requires()
-        if options.seed < 0:
-            raise InputError(f"seed must be non-negative, got {options.seed}")
-        self.check(options)
+        SEED.check(options.seed, f"model {self.name!r}")
+        params = check_params(self.params, options.params, f"model {self.name!r}")
+        self.check(params)
+        return replace(options, params=params)
+
+    def estimator(self, options: ModelOptions, feature_names: Sequence[str]) -> Any:
+        """Return the unfitted estimator ``options`` describe, for inputs with columns (or
+        grid channels) ``feature_names``, after :meth:`check_options`."""
+        return self.make(self.check_options(options), list(feature_names))

@@ -21,11 +21,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import skops.io as sio
 from sklearn.pipeline import Pipeline
 
 from contactkit.classify.kind import ModelKind
-from contactkit.classify.models import SVM_TRUSTED_TYPES as EVENT_TRUSTED_TYPES
 from contactkit.classify.registry import get_kind, kind_names
 from contactkit.classify.skops_format import (
     EVENTS_MEMBER,
@@ -36,6 +34,8 @@ from contactkit.classify.skops_format import (
     versions,
     write_skops,
 )
+from contactkit.classify.skops_import import skops_io
+from contactkit.classify.svm_kinds import SVM_TRUSTED_TYPES as EVENT_TRUSTED_TYPES
 from contactkit.errors import ContactkitError
 from contactkit.schemas import InputError
 from contactkit.util.atomic import check_target
@@ -143,7 +143,7 @@ def save_model(path: str | Path, estimator: object, *, kind: ModelKind, transfor
                          f"{kind.file_format.name}", path)
     meta["events"] = events[1]
     return write_skops(path, estimator, meta, sample_shape, overwrite,
-                       extra={EVENTS_MEMBER: sio.dumps(events[0])})
+                       extra={EVENTS_MEMBER: skops_io().dumps(events[0])})
 
 
 def _load_event_estimator(path: Path, meta: dict) -> object | None:
@@ -164,14 +164,14 @@ def _load_event_estimator(path: Path, meta: dict) -> object | None:
         raise InputError(f"damaged model file ({type(err).__name__})", path) from err
     trusted = TRUSTED_TYPES + list(EVENT_TRUSTED_TYPES)
     try:
-        untrusted = [t for t in sio.get_untrusted_types(data=data) if t not in trusted]
+        untrusted = [t for t in skops_io().get_untrusted_types(data=data) if t not in trusted]
     except Exception as err:  # skops raises many kinds on a malformed archive
         raise InputError(f"unreadable event classifier ({type(err).__name__})", path) from err
     if untrusted:
         raise InputError(f"event classifier would build untrusted types {untrusted}; "
                          "refusing", path)
     try:
-        return sio.loads(data, trusted=trusted)
+        return skops_io().loads(data, trusted=trusted)
     except Exception as err:  # skops raises many kinds on a malformed archive
         raise InputError(f"unreadable event classifier ({type(err).__name__})", path) from err
 

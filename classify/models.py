@@ -130,6 +130,3 @@ class JointEnsemble(ClassifierMixin, BaseEstimator):
         return self.classes_[np.argmax(self.member_probabilities(X).sum(axis=0), axis=1)]
 
 
-SVM_TRUSTED_TYPES = ("contactkit.classify.models.CalibratedSVC",)
-"""The estimator types an SVM's skops file may build beyond scikit-learn's."""
-ENSEMBLE_TRUSTED_TYPES = (*SVM_TRUSTED_TYPES, "contactkit.classify.models.JointEnsemble")

@@ -5,14 +5,16 @@ they train: ``fit(X, y)``, ``predict``, ``predict_proba`` with X of shape
 This module needs only numpy, scikit-learn and PyTorch (not the feature chain), so a
 GPU machine can train and time the networks without the rest of contactkit's
 dependencies (``benchmarks/bench_gpu.py``). The architectures, the training recipe and
-the registered kinds are described in :mod:`contactkit.classify.nn`.
+the kinds are described in :mod:`contactkit.classify.nn` and declared in
+:mod:`contactkit.classify.nn_kinds`.
 
-Devices: ``device="auto"`` trains on CUDA when PyTorch sees a GPU, else on the CPU;
-``"cuda"`` insists on a GPU (a one-line InputError without one), ``"cpu"`` (the
-default) never uses one. On a machine with several GPUs, a Dask worker of rank k
-trains on GPU k modulo their number (:func:`contactkit.util.parallel.dask_worker_rank`);
-any other process on the first visible GPU, so on a cluster start one single-threaded
-worker per GPU with ``CUDA_VISIBLE_DEVICES`` set. A trained network is moved back to
+Devices (:mod:`contactkit.classify.devices`): ``device="auto"`` trains on CUDA when
+PyTorch sees a GPU, else on the CPU; ``"cuda"`` insists on a GPU (a one-line InputError
+without one), ``"cpu"`` (the default) never uses one. On a machine with several GPUs, a
+Dask worker of rank k trains on GPU k modulo their number
+(:func:`contactkit.util.parallel.dask_worker_rank`); any other process on the first
+visible GPU, so on a cluster start one single-threaded worker per GPU with
+``CUDA_VISIBLE_DEVICES`` set. A trained network is moved back to
 the CPU, so predictions, pickled models and ONNX export do not depend on where it was
 trained.
 
@@ -35,42 +37,7 @@ import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 from sklearn.model_selection import train_test_split
 
-from contactkit.errors import DependencyMissing, InputError
-from contactkit.util.parallel import dask_worker_rank
-
-DEVICES = ("auto", "cpu", "cuda")
-
-
-def require_torch():
-    """Return the torch module, or raise a one-line DependencyMissing naming the extra."""
-    try:
-        import torch
-    except ImportError as err:
-        raise DependencyMissing("neural networks need PyTorch: pip install 'contactkit[nn]' "
-                                "(torch==2.13.0, CPU)") from err
-    return torch
-
-
-def resolve_device(torch, device: str):
-    """Return the ``torch.device`` to train on for ``auto``, ``cpu`` or ``cuda``: a
-    Dask worker of rank k gets GPU k modulo the number of GPUs, any other process the
-    first one.
-
-    Raises InputError for ``cuda`` when PyTorch sees no GPU, or for an unknown name.
-    """
-    if device not in DEVICES:
-        raise InputError(f"unknown device {device!r} (expected one of {', '.join(DEVICES)})")
-    if device == "cpu" or (device == "auto" and not torch.cuda.is_available()):
-        return torch.device("cpu")
-    if not torch.cuda.is_available():
-        raise InputError("device cuda asked for, but PyTorch sees no CUDA GPU")
-    return torch.device("cuda", (dask_worker_rank() or 0) % torch.cuda.device_count())
-
-
-def check_device(device: str) -> None:
-    """Raise InputError now for an unknown device, or for ``cuda`` where PyTorch (or
-    the ``nn`` extra) is missing or sees no GPU; return None otherwise."""
-    resolve_device(require_torch(), device)
+from contactkit.classify.devices import require_torch, resolve_device
 
 
 def _cnn_module(torch, channels: int, steps: int, classes: int, depth: int, width: float,

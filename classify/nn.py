@@ -14,7 +14,7 @@ X of shape (sessions, channels, steps) from :mod:`contactkit.classify.grids`.
   with the same multipliers; default depth 2, width 2, dropout 0.02.
 * :class:`MiniRocketClassifier`: aeon's MiniRocket, a fast modern baseline.
 
-The registered kinds are :data:`CNN`, :data:`LSTM` and :data:`MINIROCKET`.
+The kinds are declared in :mod:`contactkit.classify.nn_kinds`.
 
 Training (section 5.2.1, improved): the given data are split 70/15 into training
 and validation (stratified; the remaining 15 % is the caller's test set, or the
@@ -35,19 +35,7 @@ from __future__ import annotations
 import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 
-from contactkit.classify.grids import CNN_INPUT, GRIDS, LSTM_INPUT
-from contactkit.classify.kind import ModelKind, ModelOptions
-from contactkit.classify.networks import (
-    DEVICES,
-    CNNClassifier,
-    LSTMClassifier,
-    check_device,
-    require_torch,
-)
-from contactkit.classify.onnx_model import ONNX
-from contactkit.classify.skops_format import SKOPS
 from contactkit.errors import DependencyMissing
-from contactkit.schemas import InputError
 
 
 class MiniRocketClassifier(ClassifierMixin, BaseEstimator):
@@ -79,66 +67,9 @@ class MiniRocketClassifier(ClassifierMixin, BaseEstimator):
         return self.model_.predict(np.asarray(X, dtype=np.float64))
 
 
-def _require_aeon() -> None:
+def require_aeon() -> None:
+    """Raise a one-line DependencyMissing naming the extra when aeon is missing."""
     try:
         import aeon  # noqa: F401
     except ImportError as err:
         raise DependencyMissing("MiniRocket needs aeon: pip install 'contactkit[nn]'") from err
-
-
-def _check_epochs(options: ModelOptions) -> None:
-    if options.epochs < 1:
-        raise InputError(f"epochs must be at least 1, got {options.epochs}")
-
-
-def _check_network(options: ModelOptions) -> None:
-    _check_epochs(options)
-    if options.depth is not None and options.depth < 1:
-        raise InputError(f"depth must be at least 1, got {options.depth}")
-    if options.width <= 0:
-        raise InputError(f"width must be positive, got {options.width}")
-    if not 0 <= options.dropout < 1:
-        raise InputError(f"dropout must be in [0, 1), got {options.dropout}")
-    if options.patience < 1:
-        raise InputError(f"patience must be at least 1, got {options.patience}")
-    if options.device not in DEVICES:
-        raise InputError(f"unknown device {options.device!r} (expected one of "
-                         f"{', '.join(DEVICES)})")
-    check_device(options.device)
-
-
-def _torch_params(options: ModelOptions) -> dict:
-    return {"seed": options.seed, "epochs": options.epochs, "depth": options.depth,
-            "width": options.width, "dropout": options.dropout,
-            "patience": options.patience, "device": options.device}
-
-
-def _cnn(options: ModelOptions, channels: list[str]) -> CNNClassifier:
-    return CNNClassifier(**_torch_params(options))
-
-
-def _lstm(options: ModelOptions, channels: list[str]) -> LSTMClassifier:
-    return LSTMClassifier(**_torch_params(options))
-
-
-def _minirocket(options: ModelOptions, channels: list[str]) -> MiniRocketClassifier:
-    return MiniRocketClassifier(seed=options.seed)
-
-
-def _require_torch() -> None:
-    require_torch()
-
-
-CNN = ModelKind("cnn", "the thesis's CNN on window grids (nn extra; .onnx)", GRIDS, _cnn,
-                ONNX, default_timeseries=CNN_INPUT, default_window="planned",
-                check=_check_network, requires=_require_torch, parallel_fits=True)
-LSTM = ModelKind("lstm", "the thesis's LSTM on window grids (nn extra; .onnx)", GRIDS, _lstm,
-                 ONNX, default_timeseries=LSTM_INPUT, default_window="planned",
-                 check=_check_network, requires=_require_torch, parallel_fits=True)
-MINIROCKET = ModelKind(
-    "minirocket", "MiniRocket on window grids (nn extra)", GRIDS, _minirocket, SKOPS,
-    default_timeseries=CNN_INPUT, default_window="planned", check=_check_epochs,
-    requires=_require_aeon, parallel_fits=True,
-    trusted_types=("aeon.classification.convolution_based._minirocket.MiniRocketClassifier",
-                   "aeon.transformations.collection.convolution_based._minirocket.MiniRocket",
-                   "contactkit.classify.nn.MiniRocketClassifier"))

@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 
-from contactkit.classify.kind import ModelFormat
 from contactkit.errors import DependencyMissing
 from contactkit.schemas import InputError
 from contactkit.util.atomic import atomic_write
@@ -101,5 +100,3 @@ def load_onnx_model(path: Path, trusted_types: object = None) -> tuple[OnnxClass
                          "refusing to load it", path)
     return OnnxClassifier(path, meta["classes"]), meta
 
-
-ONNX = ModelFormat("onnx", ".onnx", save_onnx_model, load_onnx_model)

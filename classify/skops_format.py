@@ -5,7 +5,8 @@ Reading (1) checks the archive's sizes from its directory and the digest, so a f
 changed after it was written is refused; (2) asks skops which types the file would build
 and refuses any outside :data:`TRUSTED_TYPES` and the ones the model's kind trusts,
 before anything is constructed; (3) builds the model. This module sits below the kind
-registry: the caller says which types a kind trusts.
+registry: the caller says which types a kind trusts. skops (and with it scikit-learn)
+is imported when a file is written or read, not with this module.
 """
 
 from __future__ import annotations
@@ -19,11 +20,9 @@ import zipfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-import skops.io as sio
-
 from contactkit.classify.kind import ModelFormat
-from contactkit.errors import ContactkitError
-from contactkit.schemas import InputError
+from contactkit.classify.skops_import import skops_io
+from contactkit.errors import ContactkitError, InputError
 from contactkit.util.atomic import atomic_write
 
 META_MEMBER = "contactkit.json"
@@ -97,7 +96,7 @@ def write_skops(path: Path, estimator: object, meta: dict, sample_shape: tuple[i
                 overwrite: bool = False, extra: dict[str, bytes] | None = None) -> Path:
     """Write ``estimator`` and ``meta`` (and ``extra`` members, covered by the digest) as a
     skops model file atomically; return the path."""
-    payload = sio.dumps(estimator)
+    payload = skops_io().dumps(estimator)
     with zipfile.ZipFile(io.BytesIO(payload)) as archive:
         members = {name: archive.read(name) for name in archive.namelist()}
     members |= extra or {}
@@ -144,13 +143,13 @@ def read_skops(path: Path, trusted_types: Callable[[dict], Sequence[str]] = lamb
                          "refusing to load it", path)
     trusted = TRUSTED_TYPES + list(trusted_types(meta))
     try:
-        untrusted = [t for t in sio.get_untrusted_types(data=data) if t not in trusted]
+        untrusted = [t for t in skops_io().get_untrusted_types(data=data) if t not in trusted]
     except Exception as err:  # skops raises many kinds on a malformed archive
         raise InputError(f"unreadable model archive ({type(err).__name__})", path) from err
     if untrusted:
         raise InputError(f"model file would build untrusted types {untrusted}; refusing", path)
     try:
-        return sio.loads(data, trusted=trusted), meta
+        return skops_io().loads(data, trusted=trusted), meta
     except Exception as err:  # skops raises many kinds on a malformed archive
         raise InputError(f"unreadable model ({type(err).__name__})", path) from err
 

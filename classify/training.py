@@ -12,9 +12,10 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from contactkit.classify.data import GROUP_KEYS, FeatureSet
-from contactkit.classify.evaluate import PROTOCOLS, Report, evaluate
+from contactkit.classify.evaluate import Report, evaluate
 from contactkit.classify.kind import ModelKind, ModelOptions
 from contactkit.classify.modelfile import save_model
+from contactkit.classify.names import PROTOCOLS
 from contactkit.classify.registry import get_kind
 from contactkit.classify.schemes import check_scheme, scheme_classes
 from contactkit.errors import check_choice
@@ -40,7 +41,7 @@ def training_set(datasets: Sequence[Path], options: ModelOptions, *, workers: in
     the Dask ``scheduler``); sessions that fail are listed in ``data.problems``.
     ``limited`` keeps the limited context only."""
     kind = get_kind(options.kind)
-    kind.check_options(options)
+    options = kind.check_options(options)
     transformer = kind.transformer(options)
     report = None if progress is None else (
         lambda done, total: progress(f"{kind.input.name} of sessions", done, total))
@@ -77,10 +78,11 @@ def train(datasets: Sequence[Path], out: Path, options: ModelOptions, *, scheme:
     if out.suffix.lower() != kind.file_format.suffix:
         raise InputError(f"a {kind.name} model is saved as {kind.file_format.name}: the file "
                          f"name must end in {kind.file_format.suffix}", out)
+    options = kind.check_options(options)
     found = training_set(datasets, options, workers=workers, limited=limited,
                          progress=progress, scheduler=scheduler)
     data = found.data
-    estimator = kind.make(options, list(data.names))
+    estimator = kind.estimator(options, data.names)
     estimator.fit(data.X, data.labels(scheme))
     classes = [str(c) for c in estimator.classes_]
     training = {"datasets": [str(d) for d in datasets], "limited": limited,
@@ -107,7 +109,7 @@ def evaluate_kind(datasets: Sequence[Path], options: ModelOptions, *, protocol: 
     found = training_set(datasets, options, workers=workers, limited=limited,
                          progress=progress, scheduler=scheduler)
     data, kind = found.data, found.kind
-    template = kind.make(options, list(data.names))
+    template = kind.estimator(options, data.names)
     report = None if progress is None else (
         lambda done, total: progress(f"{protocol} protocol splits", done, total))
     result = evaluate(data.X, data.labels(scheme), lambda: template, protocol=protocol,

@@ -38,7 +38,7 @@ from contactkit.features.timeseries import ChainConfig
 from contactkit.recorder.capture.record import record_session
 from contactkit.recorder.importers.csv_import import import_csv
 from contactkit.recorder.importers.csv_map import load_csv_map
-from contactkit.recorder.importers.writer import import_arrays
+from contactkit.recorder.importers.jobs import import_arrays
 from contactkit.recorder.metadata import session_meta
 from contactkit.recorder.sim.forces import Contact, add_synthetic_touches
 from contactkit.recorder.sim.simulator import SimConfig, plan_session

@@ -25,7 +25,8 @@ import numpy as np
 
 from contactkit.classify.data import FeatureSet, load_features
 from contactkit.classify.evaluate import Report, evaluate
-from contactkit.classify.grids import CNN_INPUT, LSTM_INPUT, GridSpec, load_grids
+from contactkit.classify.grids import GridSpec, load_grids
+from contactkit.classify.inputs import CNN_INPUT, LSTM_INPUT
 from contactkit.classify.registry import make_estimator
 from contactkit.classify.schemes import scheme_classes
 from contactkit.features.extract import SessionFeatures

@@ -26,13 +26,19 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 
 from contactkit.features.chain_cache import BATCH_ROWS
 from contactkit.features.observer import solve_recurrence
-from contactkit.features.timeseries import ChainConfig, ChunkedChain
+from contactkit.features.timeseries import ChainConfig, TimeseriesChain
 from contactkit.robots import RobotSetup
-from contactkit.schemas.session import SessionMeta, iter_session_batches, joint_columns
+from contactkit.schemas.session import (
+    SampleBatch,
+    SessionMeta,
+    iter_session_batches,
+    joint_columns,
+)
 
 DEFAULT_SMOOTH_S = 1.0 / (2.0 * math.pi * 10.0)
 DEFAULT_WARMUP_S = 0.5
@@ -105,28 +111,28 @@ class StreamAgreement:
     out; samples missing an estimate value are left out of the agreement."""
 
     def __init__(self, robot: RobotSetup, config: ChainConfig | None = None) -> None:
-        self.chain = ChunkedChain(config or ChainConfig(), robot, ["r"])
+        self.chain = TimeseriesChain(config, robot, ["r"])
         self.agreement = ResidualAgreement()
 
-    def add(self, block: Mapping[str, np.ndarray]) -> None:
-        """Take the next block of columns (a block without the estimate is skipped)."""
-        if not all(c in block for c in joint_columns("tau_ext_hat")):
+    def add(self, block: pa.RecordBatch | Mapping[str, np.ndarray]) -> None:
+        """Take the next block of session columns (see
+        :meth:`contactkit.schemas.session.SampleBatch.from_columns`; a block without the
+        estimate is skipped)."""
+        batch = SampleBatch.from_columns(block)
+        if batch.tau_ext_hat is None:
             return
-        t = np.asarray(block["t"], dtype=float)
-        q, dq, tau, estimate = (np.column_stack([np.asarray(block[c], dtype=float)
-                                                 for c in joint_columns(prefix)])
-                                for prefix in ("q", "dq", "tau", "tau_ext_hat"))
-        complete = np.isfinite(np.hstack([q, dq, tau])).all(axis=1) & np.isfinite(t)
-        r = self.chain.compute(t[complete], q[complete], dq[complete], tau[complete])["r"]
-        known = np.isfinite(estimate[complete]).all(axis=1)
-        self.agreement.update(t[complete][known], r[known], estimate[complete][known])
+        batch = batch.complete()
+        r = self.chain.feed(batch)["r"]
+        known = np.isfinite(batch.tau_ext_hat).all(axis=1)
+        self.agreement.update(batch.t[known], r[known], batch.tau_ext_hat[known])
 
     def result(self) -> dict | None:
         """Return :meth:`ResidualAgreement.result` (None without any estimate)."""
         return self.agreement.result()
 
 
-def stream_residual_agreement(blocks: Iterable[Mapping[str, np.ndarray]], robot: RobotSetup,
+def stream_residual_agreement(blocks: Iterable[pa.RecordBatch | Mapping[str, np.ndarray]],
+                              robot: RobotSetup,
                               config: ChainConfig | None = None) -> dict | None:
     """Return the agreement of a session streamed as ``blocks`` (see
     :class:`StreamAgreement`); None when no block carries the robot's estimate."""
@@ -146,6 +152,5 @@ def session_residual_agreement(path: str | Path, meta: SessionMeta,
     if not set(names) <= set(pq.read_schema(path).names):
         return None
     config = config or ChainConfig()
-    blocks = ({name: batch.column(name).to_numpy(zero_copy_only=False) for name in names}
-              for batch in iter_session_batches(path, BATCH_ROWS, names))
-    return stream_residual_agreement(blocks, config.robot_setup(meta, path), config)
+    return stream_residual_agreement(iter_session_batches(path, BATCH_ROWS, names),
+                                     config.robot_setup(meta, path), config)

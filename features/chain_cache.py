@@ -11,7 +11,7 @@ differ only in their windows compute the chain once. A changed file or setting i
 another key. Sessions not read from a file, or the cache switched off, compute as
 before.
 
-The cache is computed and written batch by batch (:class:`ChunkedChain`, one Parquet
+The cache is computed and written batch by batch (:meth:`TimeseriesChain.feed`, one Parquet
 row group per batch), so filling it holds one batch of the session, however long
 the session is; :func:`iter_chain_batches` reads it back the same way.
 """
@@ -21,7 +21,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from contextlib import ExitStack
 from dataclasses import asdict
 from pathlib import Path
@@ -34,14 +34,13 @@ from contactkit.features.timeseries import (
     MODEL,
     WORKSPACE,
     ChainConfig,
-    ChunkedChain,
     TimeseriesChain,
     columns_of,
     expand,
 )
 from contactkit.robots import RobotSetup
 from contactkit.schemas import Session
-from contactkit.schemas.session import complete_table, joint_columns
+from contactkit.schemas.session import SampleBatch, iter_sample_batches
 from contactkit.util.atomic import any_regular_file, atomic_write
 from contactkit.util.cache import cache_dir
 
@@ -78,27 +77,22 @@ def _read(path: Path, name: str, rows: int) -> np.ndarray | None:
     return np.column_stack([table.column(c).to_numpy() for c in columns_of(name)])
 
 
-def _joints(table: pa.Table, prefix: str) -> np.ndarray:
-    return np.column_stack([table.column(c).to_numpy() for c in joint_columns(prefix)])
-
-
-def write_chain_files(tables: Iterator[pa.Table], robot: RobotSetup, config: ChainConfig,
+def write_chain_files(batches: Iterable[SampleBatch], robot: RobotSetup, config: ChainConfig,
                       targets: dict[str, Path]) -> None:
-    """Stream a session's complete rows (``tables``, consecutive chunks) through the
-    chunked chain and write each feature in ``targets`` (name -> Parquet path; its
+    """Stream a session's complete samples (``batches``, consecutive chunks) through the
+    chain and write each feature in ``targets`` (name -> Parquet path; its
     columns as in :func:`contactkit.features.timeseries.columns_of`) one row group per
     chunk, each file atomically."""
-    chain = ChunkedChain(config, robot, list(targets))
+    chain = TimeseriesChain(config, robot, list(targets))
     writers: dict[str, pq.ParquetWriter] = {}
     with ExitStack() as stack:
         temps = {name: stack.enter_context(atomic_write(path, owned=any_regular_file))
                  for name, path in targets.items()}
         try:
-            for table in tables:
-                if table.num_rows == 0:
+            for batch in batches:
+                if len(batch) == 0:
                     continue
-                out = chain.compute(table.column("t").to_numpy(), _joints(table, "q"),
-                                    _joints(table, "dq"), _joints(table, "tau"))
+                out = chain.feed(batch)
                 for name, values in out.items():
                     group = pa.table({c: np.ascontiguousarray(v) for c, v in
                                       zip(columns_of(name), values.T, strict=True)})
@@ -110,11 +104,6 @@ def write_chain_files(tables: Iterator[pa.Table], robot: RobotSetup, config: Cha
                 writer.close()
         for name, tmp in temps.items():
             tmp.keep = name in writers
-
-
-def _session_tables(session: Session) -> Iterator[pa.Table]:
-    for batch in session.table.to_batches(max_chunksize=BATCH_ROWS):
-        yield complete_table(pa.Table.from_batches([batch]))
 
 
 def chain_series(session: Session, config: ChainConfig | None = None,
@@ -139,7 +128,7 @@ def chain_series(session: Session, config: ChainConfig | None = None,
     missing = {n: directory / f"{n}.parquet" for n, v in stored.items() if v is None}
     if missing:
         directory.mkdir(parents=True, exist_ok=True)
-        write_chain_files(_session_tables(session), robot, config, missing)
+        write_chain_files(iter_sample_batches(session, BATCH_ROWS), robot, config, missing)
         stored.update({n: _read(path, n, rows) for n, path in missing.items()})
     cheap = [n for n in names if n not in CACHED]
     computed = TimeseriesChain(config, robot).compute(
@@ -147,15 +136,15 @@ def chain_series(session: Session, config: ChainConfig | None = None,
     return {n: stored[n] if n in CACHED else computed[n] for n in names}
 
 
-def iter_chain_batches(tables: Iterator[pa.Table], robot: RobotSetup,
+def iter_chain_batches(batches: Iterable[SampleBatch], robot: RobotSetup,
                        config: ChainConfig | None = None,
                        names: Sequence[str] = ("dq", "tau", "r")
-                       ) -> Iterator[tuple[pa.Table, dict[str, np.ndarray]]]:
-    """Yield each chunk of a session's complete rows (``tables``) with its features
-    (name -> (n, k) array), computed by one :class:`ChunkedChain`: memory is bounded
-    by one chunk."""
-    chain = ChunkedChain(config or ChainConfig(), robot, list(names))
-    for table in tables:
-        if table.num_rows:
-            yield table, chain.compute(table.column("t").to_numpy(), _joints(table, "q"),
-                                       _joints(table, "dq"), _joints(table, "tau"))
+                       ) -> Iterator[tuple[SampleBatch, dict[str, np.ndarray]]]:
+    """Yield each chunk of a session's complete samples (``batches``, see
+    :func:`contactkit.schemas.session.iter_sample_batches`) with its features (name ->
+    (n, k) array), computed by one :class:`TimeseriesChain`: memory is bounded by one
+    chunk."""
+    chain = TimeseriesChain(config, robot, list(names))
+    for batch in batches:
+        if len(batch):
+            yield batch, chain.feed(batch)

@@ -48,7 +48,6 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import linprog
 
 from contactkit.errors import InputError
 from contactkit.robots import RobotSpec
@@ -211,16 +210,20 @@ class Detector:
     def motion(self, t: float, dq: np.ndarray) -> tuple[float, float]:
         """Advance the motion measures to sample ``t``; return (s [rad/s], a [rad/s^2])."""
         hold = self.config.motion_hold_s
+        dq = np.array(dq, dtype=float)  # a copy: kept as dq_prev
+        # |x| as sqrt(x . x), as np.linalg.norm computes it, without its per-call checks
+        # (the detector runs on every sample)
+        speed = math.sqrt(dq.dot(dq))
         if self.t is None:
-            self.speed, self.accel = float(np.linalg.norm(dq)), 0.0
+            self.speed, self.accel = speed, 0.0
         else:
             h = t - self.t
             ddq = (dq - self.dq_prev) / h if h > 0 else self.ddq_f
             self.ddq_f = (self.ddq_f + FILTER_GAIN * h * ddq) / (1.0 + FILTER_GAIN * h)
             decay = math.exp(-h / hold) if hold > 0 else 0.0
-            self.speed = max(float(np.linalg.norm(dq)), self.speed * decay)
-            self.accel = max(float(np.linalg.norm(self.ddq_f)), self.accel * decay)
-        self.dq_prev = np.asarray(dq, dtype=float).copy()
+            self.speed = max(speed, self.speed * decay)
+            self.accel = max(math.sqrt(self.ddq_f.dot(self.ddq_f)), self.accel * decay)
+        self.dq_prev = dq
         return self.speed, self.accel
 
     def update(self, t: float, r: np.ndarray, dq: np.ndarray) -> DetectorState:
@@ -328,6 +331,8 @@ def calibration_samples(t: np.ndarray, r: np.ndarray, dq: np.ndarray,
 
 def _envelope(y: np.ndarray, x: np.ndarray) -> np.ndarray:
     """Smallest mean of x c over the samples with x c >= y, c >= 0 (a linear program)."""
+    from scipy.optimize import linprog  # here: loading a calibration needs no scipy
+
     result = linprog(x.mean(axis=0), A_ub=-x, b_ub=-y, bounds=[(0, None)] * x.shape[1],
                      method="highs")
     if not result.success:

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 from sklearn.base import BaseEstimator, TransformerMixin
 
 from contactkit.errors import DATA_ERRORS, problem_text
@@ -25,6 +26,7 @@ from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns
 from contactkit.features.window_stream import streamed_window_values
 from contactkit.features.windows import Window, WindowSpec, find_window
 from contactkit.schemas import InputError, Session, read_session
+from contactkit.schemas.features import feature_table
 from contactkit.schemas.session import ROW_GROUP_ROWS, read_session_meta
 from contactkit.util.parallel import map_ordered, split_problems
 
@@ -95,9 +97,11 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
         return {k: list(v) if isinstance(v, tuple) else v for k, v in params.items()}
 
     def fit(self, X: Iterable, y=None) -> SessionFeatures:
-        """Nothing to learn; checks the parameters and returns self."""
+        """Nothing to learn from the sessions: checks the parameters, records the
+        per-sample columns the features come from (``channels_``, so scikit-learn sees a
+        fitted transformer) and returns self."""
         self._check()
-        self.n_features_in_ = 1
+        self.channels_ = self.channels()
         return self
 
     def get_feature_names_out(self, input_features=None) -> np.ndarray:
@@ -125,6 +129,14 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
         row, _ = scalar_features(values[first:k + 1], list(self.scalars), self.channels(),
                                  self.fft_k)
         return row
+
+    def window_row(self, t: np.ndarray, values: np.ndarray, window: Window,
+                   path: str | Path | None = None) -> np.ndarray:
+        """Return the scalar features of ``window`` from per-sample ``values`` (N,
+        channels, in :meth:`channels` order) at times ``t`` [s] around it. Raises
+        InputError naming ``path`` when the window holds fewer than 2 samples."""
+        return self._scalar_row(values[window.mask(t)], expand(list(self.timeseries)), window,
+                                path)[0]
 
     def session_row(self, session: Session | str | Path) -> tuple[np.ndarray, list[str], Window]:
         """Return (values, names, window) for one session. A session file longer than
@@ -169,14 +181,28 @@ def session_window(session: Session, spec: WindowSpec,
 
 @dataclass
 class FeatureRows:
-    """Rows of a scalar feature table, the feature names, and files that failed."""
+    """The scalar features of many sessions: the matrix ``X`` (sessions, features), the
+    identifying values of each session (``info``, the keys of
+    :data:`contactkit.schemas.features.ID_COLUMNS`), the feature names, and the files
+    that failed."""
 
-    rows: list[dict]
+    X: np.ndarray
+    info: list[dict]
     names: list[str]
     problems: list[tuple[str, str]]
 
+    def __len__(self) -> int:
+        """Return the number of sessions."""
+        return len(self.info)
 
-def _session_feature_row(job: tuple[str, dict]) -> tuple[str, dict | None, str | None]:
+    def table(self, config: dict) -> pa.Table:
+        """Return the rows as a scalar feature table for the feature configuration
+        ``config`` (:func:`contactkit.schemas.features.feature_table`)."""
+        return feature_table(self.info, self.X, self.names, config)
+
+
+def _session_feature_row(job: tuple[str, dict]
+                         ) -> tuple[str, tuple[np.ndarray, dict] | None, str | None]:
     path, params = job
     extractor = SessionFeatures(**params)
     try:
@@ -189,14 +215,13 @@ def _session_feature_row(job: tuple[str, dict]) -> tuple[str, dict | None, str |
         return Path(path).name, None, (
             f"feature {names[int(np.argmax(bad))]} is not finite ({int(bad.sum())} of "
             f"{bad.size} features): values beyond what the robot can do?")
-    row = {"file": Path(path).name, "session_id": meta.session_id, "action": meta.action,
+    info = {"file": Path(path).name, "session_id": meta.session_id, "action": meta.action,
            "condition": meta.condition, "pose": meta.pose, "target_pose": meta.target_pose,
            "link": meta.link, "operator": meta.operator, "speed_rad_s": meta.speed_rad_s,
            "window_start_s": window.start_s, "window_end_s": window.end_s,
            "window_method": window.method, "window_found": window.found,
            "planned_at_s": meta.planned_at_s}
-    row.update(zip(names, values.tolist(), strict=True))
-    return Path(path).name, row, None
+    return Path(path).name, (np.asarray(values, dtype=float), info), None
 
 
 def feature_rows(paths: Sequence[str | Path], extractor: SessionFeatures, workers: int = 1,
@@ -214,7 +239,8 @@ def feature_rows(paths: Sequence[str | Path], extractor: SessionFeatures, worker
     jobs = [(str(p), params) for p in paths]
     rows, problems = split_problems(map_ordered(_session_feature_row, jobs, workers=workers,
                                                 progress=progress, scheduler=scheduler))
-    return FeatureRows(rows=rows, names=names, problems=problems)
+    X = np.array([values for values, _ in rows]).reshape(len(rows), len(names))
+    return FeatureRows(X, [info for _, info in rows], names, problems)
 
 
 def timeseries_columns(session: Session, config: ChainConfig | None = None

@@ -54,15 +54,24 @@ class ObserverConfig:
         return robot.friction if self.friction else None
 
 
-def observer_coefficients(t: np.ndarray, p: np.ndarray, u: np.ndarray, gain: np.ndarray
+def observer_coefficients(t: np.ndarray, p: np.ndarray, u: np.ndarray, gain: np.ndarray,
+                          before: tuple[float, np.ndarray] | None = None
                           ) -> tuple[np.ndarray, np.ndarray]:
-    """Return (a, b) of the recurrence r_k = a_k r_{k-1} + b_k, each (N, 7); a_0 = 1,
-    b_0 = 0 so that r_0 = 0."""
-    h = np.diff(t)[:, None]
-    a = np.ones_like(p)
-    b = np.zeros_like(p)
-    a[1:] = 1.0 / (1.0 + gain * h)
-    b[1:] = gain * (np.diff(p, axis=0) - h * u[1:]) * a[1:]
+    """Return (a, b) of the recurrence r_k = a_k r_{k-1} + b_k, each (N, 7), for times
+    ``t`` (N,) [s], momenta ``p`` [Nm s] and ``u`` [Nm] (N, 7). ``before`` is the time
+    [s] and momentum of the sample before the first (a stream solved chunk by chunk):
+    every row is then a step from the one before it; without it a_0 = 1, b_0 = 0 so
+    that r_0 = 0."""
+    if before is None:
+        step, dp, u = (t[1:] - t[:-1])[:, None], p[1:] - p[:-1], u[1:]
+    else:
+        step = (t - np.concatenate(([before[0]], t[:-1])))[:, None]
+        dp = p - np.concatenate((before[1][None], p[:-1]))
+    a = 1.0 / (1.0 + gain * step)
+    b = gain * (dp - step * u) * a
+    if before is None:
+        a = np.concatenate((np.ones((1, p.shape[1])), a))
+        b = np.concatenate((np.zeros((1, p.shape[1])), b))
     return a, b
 
 
@@ -77,12 +86,14 @@ def solve_recurrence(a: np.ndarray, b: np.ndarray, r_before: np.ndarray | None =
     result matches the sample-by-sample loop to about 1e-13 relative.
     """
     n = len(a)
+    r_prev = np.zeros(b.shape[1]) if r_before is None else np.asarray(r_before, dtype=float)
+    if n == 1:  # the closed form below with one row, without its bookkeeping
+        return a * (r_prev + b / a)
     out = np.empty_like(b)
     log_a = np.log(a).min(axis=1)
     decay = np.cumsum(log_a)
     edges = np.flatnonzero(np.diff(np.floor(decay / BLOCK_DECAY))) + 1
     start = 0
-    r_prev = np.zeros(b.shape[1]) if r_before is None else np.asarray(r_before, dtype=float)
     for stop in [*edges.tolist(), n]:
         if stop <= start:
             continue
@@ -92,24 +103,3 @@ def solve_recurrence(a: np.ndarray, b: np.ndarray, r_before: np.ndarray | None =
         start = stop
     return out
 
-
-class RecurrenceStep:
-    """The same recurrence advanced one sample at a time (the streaming path)."""
-
-    def __init__(self, gain: np.ndarray) -> None:
-        self.gain = gain
-        self.t: float | None = None
-        self.p = np.zeros(7)
-        self.r = np.zeros(7)
-
-    def update(self, t: float, p: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Advance to time ``t`` [s] with momentum ``p`` [Nm s] and ``u`` [Nm]; return r [Nm]."""
-        if self.t is None:
-            self.r = np.zeros(7)
-        else:
-            h = t - self.t
-            a = 1.0 / (1.0 + self.gain * h)
-            self.r = a * self.r + self.gain * (p - self.p - h * u) * a
-        self.t = t
-        self.p = p
-        return self.r

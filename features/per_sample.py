@@ -17,17 +17,12 @@ from contactkit.features.chain_cache import iter_chain_batches
 from contactkit.features.timeseries import ALL_TIMESERIES, ChainConfig, columns_of
 from contactkit.schemas import InputError
 from contactkit.schemas.session import (
-    complete_table,
+    iter_sample_batches,
     iter_session_batches,
     read_session_meta,
 )
 from contactkit.util.atomic import atomic_write
 from contactkit.util.progress import ProgressCallback
-
-
-def _complete_batches(path: Path) -> Iterator[pa.Table]:
-    for batch in iter_session_batches(path, chain_cache.BATCH_ROWS):
-        yield complete_table(pa.Table.from_batches([batch]))
 
 
 def per_sample_tables(path: str | Path, config: ChainConfig | None = None
@@ -41,11 +36,11 @@ def per_sample_tables(path: str | Path, config: ChainConfig | None = None
     for _ in iter_session_batches(path, chain_cache.BATCH_ROWS):
         pass
     config = config or ChainConfig()
-    for table, series in iter_chain_batches(_complete_batches(path),
+    for batch, series in iter_chain_batches(iter_sample_batches(path, chain_cache.BATCH_ROWS),
                                             config.robot_setup(meta, path), config,
                                             ALL_TIMESERIES):
-        columns = {"session_id": pa.array([meta.session_id] * table.num_rows),
-                   "t": table.column("t")}
+        columns = {"session_id": pa.array([meta.session_id] * len(batch)),
+                   "t": pa.array(batch.t)}
         for name, values in series.items():
             for label, column in zip(columns_of(name), values.T, strict=True):
                 columns[label] = pa.array(column.copy())

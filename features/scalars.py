@@ -29,8 +29,6 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-import scipy.fft
-import scipy.stats
 
 SCALARS = ("mean", "variance", "range", "delta", "skew", "energy", "hjorth_mob",
            "hjorth_comp", "fft")
@@ -93,6 +91,8 @@ def hjorth_complexity(x: np.ndarray) -> np.ndarray:
 def fft_magnitudes(x: np.ndarray, k: int = DEFAULT_FFT_K) -> np.ndarray:
     """First ``k`` FFT magnitudes of each channel, shape (channels, k) (zero-padded when
     the window has fewer than k samples)."""
+    import scipy.fft  # here, not at import: the command line lists SCALARS without scipy
+
     mags = np.abs(scipy.fft.fft(x, axis=0))[:k].T
     if mags.shape[1] < k:
         mags = np.pad(mags, ((0, 0), (0, k - mags.shape[1])))

@@ -1,8 +1,9 @@
 """Timeseries features (thesis Table 3.3 and section B.1.1), batch and streaming.
 
 Every feature is computed per sample, from samples up to and including that one
-(causal), so the batch path (whole session, vectorised) and the streaming path
-(one sample at a time, as on a live robot) give the same numbers.
+(causal), so one engine, :class:`TimeseriesChain`, serves a whole session at once
+(vectorised), a long session or a live source chunk by chunk, and a live robot one
+sample at a time, with the same numbers (to about 1e-12).
 
 =========  ======================  ========  =====================================
 name       columns                 unit      definition
@@ -46,24 +47,28 @@ import numpy as np
 import pinocchio as pin
 
 from contactkit.errors import InputError
+from contactkit.features.names import ALL_TIMESERIES, GROUPS
+from contactkit.features.names import MODEL as MODEL  # re-exported: chain_cache's names
+from contactkit.features.names import SENSOR as SENSOR
+from contactkit.features.names import WORKSPACE as WORKSPACE
 from contactkit.features.observer import (
     ObserverConfig,
-    RecurrenceStep,
     observer_coefficients,
     solve_recurrence,
 )
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
-from contactkit.schemas.session import SessionMeta
+from contactkit.schemas.session import SampleBatch, SessionMeta
 
-SENSOR = ("q", "dq", "tau", "ddq", "p_int")
-MODEL = ("r", "g", "tau_inv", "p_ext")
-WORKSPACE = ("f", "m", "fm_norm")
-GROUPS = {"sensor": SENSOR, "model": MODEL, "workspace": WORKSPACE}
-ALL_TIMESERIES = SENSOR + MODEL + WORKSPACE
 UNITS = {"q": "rad", "dq": "rad/s", "tau": "Nm", "ddq": "rad/s^2", "p_int": "W", "r": "Nm",
          "g": "Nm", "tau_inv": "Nm", "p_ext": "W", "f": "N", "m": "Nm", "fm_norm": "N, Nm"}
 DAMPING = 0.01
+_DAMPED = DAMPING**2 * np.eye(6)
+_WRENCH = frozenset(("f", "m", "fm_norm"))
+_RESIDUAL = frozenset(("r", "p_ext"))
+SHORT_CHUNK = 16
+"""Chunks of at most this many samples (a live stream's) run pinocchio's inverse
+dynamics sample by sample: its batch call costs more to set up than it saves."""
 
 
 def columns_of(name: str) -> list[str]:
@@ -121,13 +126,6 @@ def _frame_id(model: RobotModel, wrench_frame: str | int) -> int:
     return model.frame_id(model.end_effector if wrench_frame == "ee" else wrench_frame)
 
 
-def backward_difference(t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Return dx/dt by backward differences on the actual steps (0 at the first sample)."""
-    out = np.zeros_like(x)
-    out[1:] = np.diff(x, axis=0) / np.diff(t)[:, None]
-    return out
-
-
 @dataclass(frozen=True)
 class ChainState:
     """What the chain carries from one chunk of a stream to the next: the last sample's
@@ -141,86 +139,127 @@ class ChainState:
 
 
 class TimeseriesChain:
-    """Batch chain: all samples of a session at once, or of one chunk of it after the
-    :class:`ChainState` of the chunk before (see :class:`ChunkedChain`)."""
+    """The feature chain: one engine, chunked, with its state carried along a stream.
 
-    def __init__(self, config: ChainConfig | None = None,
-                 robot: RobotSetup | None = None) -> None:
+    :meth:`feed` takes the next chunk of a stream (any size: a session's row group, a
+    source's chunk, or one sample) after the :class:`ChainState` of the chunk before,
+    so the features of the chunks, concatenated, equal those of the whole stream at
+    once (to about 1e-12; the observer's closed form splits at other places), with
+    memory bounded by one chunk. :meth:`update` is the per-sample form (a chunk of one
+    sample), :meth:`compute` a whole session at once, from a fresh state. ``names``
+    are the features :meth:`feed` and :meth:`update` return (groups allowed)."""
+
+    def __init__(self, config: ChainConfig | None = None, robot: RobotSetup | None = None,
+                 names: list[str] | tuple[str, ...] = ALL_TIMESERIES) -> None:
         self.config = config or ChainConfig()
         self.model = self.config.model(robot or RobotSetup())
+        self.names = expand(names)
         self._pool = pin.ModelPool(self.model.model, 1)
         self._gain = self.config.observer.gain_vector()
         self._friction = self.config.observer.friction_model(self.model.spec)
+        self._fid = _frame_id(self.model, self.config.wrench_frame)
+        self._state: ChainState | None = None
 
     @classmethod
     def for_session(cls, meta: SessionMeta, config: ChainConfig | None = None,
-                    path: str | Path | None = None) -> TimeseriesChain:
+                    path: str | Path | None = None,
+                    names: list[str] | tuple[str, ...] = ALL_TIMESERIES) -> TimeseriesChain:
         """Return the chain for a session with metadata ``meta`` (its arm, or the one
         ``config.robot`` names; InputError naming ``path`` for an unknown robot)."""
         config = config or ChainConfig()
-        return cls(config, config.robot_setup(meta, path))
+        return cls(config, config.robot_setup(meta, path), names)
 
-    def _rnea(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
-        out = np.zeros_like(q, order="F")
-        pin.rneaInParallel(1, self._pool, q, v, a, out)
-        return out.T
+    def reset(self) -> None:
+        """Forget the stream: the next chunk starts a new session."""
+        self._state = None
 
     def compute(self, t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.ndarray,
-                names: list[str] | tuple[str, ...] = ALL_TIMESERIES) -> dict[str, np.ndarray]:
-        """Return the requested timeseries features for one session.
+                names: list[str] | tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
+        """Return the features ``names`` (default: the chain's) of one whole session,
+        from a fresh state; the stream's state is left as it was.
 
-        ``t`` (N,) [s]; ``q``, ``dq``, ``tau`` (N, 7). Returns name -> (N, k) array.
+        ``t`` (N,) [s], not empty; ``q`` [rad], ``dq`` [rad/s], ``tau`` [Nm] (N, 7).
+        Returns name -> (N, k) array, units as in the table above.
         """
-        return self.compute_chunk(t, q, dq, tau, names)[0]
+        return self._chunk(t, q, dq, tau, self.names if names is None else expand(names),
+                           None)[0]
 
-    def compute_chunk(self, t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.ndarray,
-                      names: list[str] | tuple[str, ...] = ALL_TIMESERIES,
-                      before: ChainState | None = None
-                      ) -> tuple[dict[str, np.ndarray], ChainState]:
-        """Return the requested features of samples that follow ``before`` (the state
-        after the previous chunk; None: these are the first samples), and the state
-        after them. Arrays as for :meth:`compute`; ``t`` must not be empty."""
-        names = expand(names)
+    def feed(self, batch: SampleBatch) -> dict[str, np.ndarray]:
+        """Return the chain's features (name -> (n, k) array) of the next chunk of the
+        stream, ``batch`` (its times after the previous chunk's; only ``t``, ``q``,
+        ``dq`` and ``tau`` are used), and carry the state to the next chunk. An empty
+        chunk gives empty arrays."""
+        if len(batch) == 0:
+            return {name: np.zeros((0, len(columns_of(name)))) for name in self.names}
+        out, self._state = self._chunk(batch.t, batch.q, batch.dq, batch.tau, self.names,
+                                       self._state)
+        return out
+
+    def update(self, t: float, q: np.ndarray, dq: np.ndarray, tau: np.ndarray
+               ) -> dict[str, np.ndarray]:
+        """Feed one sample (``t`` [s]; ``q`` [rad], ``dq`` [rad/s], ``tau`` [Nm], each
+        (7,)), as a chunk of one; return the chain's features at it, name -> (k,)."""
+        out, self._state = self._chunk(np.array([t], dtype=float),
+                                       np.asarray(q, dtype=float).reshape(1, 7),
+                                       np.asarray(dq, dtype=float).reshape(1, 7),
+                                       np.asarray(tau, dtype=float).reshape(1, 7), self.names,
+                                       self._state)
+        return {name: values[0] for name, values in out.items()}
+
+    def _rnea(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """Return pinocchio's inverse dynamics tau(q, v, a) [Nm] of each sample, (n, 7):
+        a short chunk sample by sample, a longer one in one call."""
+        if len(q) <= SHORT_CHUNK:
+            model, data = self.model.model, self.model.data
+            return np.array([pin.rnea(model, data, q[k], v[k], a[k]) for k in range(len(q))])
+        out = np.zeros((7, len(q)), order="F")
+        pin.rneaInParallel(1, self._pool, np.asfortranarray(q.T), np.asfortranarray(v.T),
+                           np.asfortranarray(a.T), out)
+        return out.T
+
+    def _chunk(self, t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.ndarray,
+               names: list[str], before: ChainState | None
+               ) -> tuple[dict[str, np.ndarray], ChainState]:
+        """Return the features ``names`` (expanded) of samples that follow ``before``
+        (None: these are the first samples), and the state after them."""
         model, data = self.model.model, self.model.data
         n = len(t)
-        qf, dqf = np.asfortranarray(q.T), np.asfortranarray(dq.T)
-        zeros = np.zeros_like(qf, order="F")
+        zeros = np.zeros_like(q)
         out: dict[str, np.ndarray] = {"q": q, "dq": dq, "tau": tau}
-        need_r = bool({"r", "p_ext", "f", "m", "fm_norm"} & set(names))
-        need_wrench = bool({"f", "m", "fm_norm"} & set(names))
-        g = self._rnea(qf, zeros, zeros) if need_r or "g" in names else None
+        need_wrench = not _WRENCH.isdisjoint(names)
+        need_r = need_wrench or not _RESIDUAL.isdisjoint(names)
+        g = self._rnea(q, zeros, zeros) if need_r or "g" in names else None
         if "g" in names:
             out["g"] = g
         if "ddq" in names or "tau_inv" in names:
-            out["ddq"] = _backward_difference_after(t, dq, before)
+            ddq = out["ddq"] = np.zeros_like(dq)
+            ddq[1:] = (dq[1:] - dq[:-1]) / (t[1:] - t[:-1])[:, None]
+            if before is not None:
+                ddq[0] = (dq[0] - before.dq) / (t[0] - before.t)
         if "tau_inv" in names:
-            out["tau_inv"] = self._rnea(qf, dqf, np.asfortranarray(out["ddq"].T))
+            out["tau_inv"] = self._rnea(q, dq, out["ddq"])
         if "p_int" in names:
             out["p_int"] = dq * tau
         p = r = None
         if need_r:
-            p = self._rnea(qf, zeros, dqf) - g
+            p = self._rnea(q, zeros, dq) - g
             coriolis = np.empty((n, 7, 7))
             jac = np.empty((n, 6, 7)) if need_wrench else None
-            fid = _frame_id(self.model, self.config.wrench_frame)
             for k in range(n):
                 coriolis[k] = pin.computeCoriolisMatrix(model, data, q[k], dq[k])
                 if need_wrench:
-                    jac[k] = pin.computeFrameJacobian(model, data, q[k], fid,
+                    jac[k] = pin.computeFrameJacobian(model, data, q[k], self._fid,
                                                       pin.LOCAL_WORLD_ALIGNED)
             u = tau + np.einsum("kji,kj->ki", coriolis, dq) - g
             if self._friction is not None:
                 u -= self._friction.torque(dq)
-            if before is None:
-                r = solve_recurrence(*observer_coefficients(t, p, u, self._gain))
-            else:
-                a, b = observer_coefficients(np.r_[before.t, t], np.vstack([before.p, p]),
-                                             np.vstack([u[:1], u]), self._gain)
-                r = solve_recurrence(a[1:], b[1:], before.r)
+            r = solve_recurrence(*observer_coefficients(
+                t, p, u, self._gain, None if before is None else (before.t, before.p)),
+                None if before is None else before.r)
             out["r"] = r
             out["p_ext"] = r * dq
             if need_wrench:
-                gram = jac @ jac.transpose(0, 2, 1) + DAMPING**2 * np.eye(6)
+                gram = jac @ jac.transpose(0, 2, 1) + _DAMPED
                 wrench = np.linalg.solve(gram, np.einsum("kij,kj->ki", jac, r)[..., None])[..., 0]
                 out.update(_wrench_features(wrench))
         after = ChainState(float(t[-1]), dq[-1].copy(), None if p is None else p[-1].copy(),
@@ -228,80 +267,7 @@ class TimeseriesChain:
         return {name: out[name] for name in names}, after
 
 
-def _backward_difference_after(t: np.ndarray, dq: np.ndarray, before: ChainState | None
-                               ) -> np.ndarray:
-    if before is None:
-        return backward_difference(t, dq)
-    return backward_difference(np.r_[before.t, t], np.vstack([before.dq, dq]))[1:]
-
-
-class ChunkedChain:
-    """The batch chain over consecutive chunks of one stream (row groups of a long
-    session), its state carried from chunk to chunk: the features of the chunks,
-    concatenated, equal :class:`TimeseriesChain` on the whole stream (to about 1e-12;
-    the observer's closed form splits at other places), with memory bounded by one
-    chunk."""
-
-    def __init__(self, config: ChainConfig | None = None, robot: RobotSetup | None = None,
-                 names: list[str] | tuple[str, ...] = ALL_TIMESERIES) -> None:
-        self.chain = TimeseriesChain(config, robot)
-        self.names = expand(names)
-        self.model = self.chain.model
-        self._state: ChainState | None = None
-
-    def compute(self, t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.ndarray
-                ) -> dict[str, np.ndarray]:
-        """Return the features (name -> (n, k) array) of the next chunk: ``t`` (n,) [s]
-        after the previous chunk's, ``q``, ``dq``, ``tau`` (n, 7). An empty chunk gives
-        empty arrays."""
-        if len(t) == 0:
-            return {name: np.zeros((0, len(columns_of(name)))) for name in self.names}
-        out, self._state = self.chain.compute_chunk(t, q, dq, tau, self.names, self._state)
-        return out
-
-
 def _wrench_features(wrench: np.ndarray) -> dict[str, np.ndarray]:
-    force, moment = wrench[..., :3], wrench[..., 3:]
-    norms = np.stack([np.linalg.norm(force, axis=-1), np.linalg.norm(moment, axis=-1)], axis=-1)
-    return {"f": force, "m": moment, "fm_norm": norms}
-
-
-class OnlineChain:
-    """Streaming chain: one sample at a time, the same numbers as :class:`TimeseriesChain`."""
-
-    def __init__(self, config: ChainConfig | None = None,
-                 robot: RobotSetup | None = None) -> None:
-        self.config = config or ChainConfig()
-        self.model = self.config.model(robot or RobotSetup())
-        self._fid = _frame_id(self.model, self.config.wrench_frame)
-        self._friction = self.config.observer.friction_model(self.model.spec)
-        self._observer = RecurrenceStep(self.config.observer.gain_vector())
-        self._zeros = np.zeros(7)
-        self._last: tuple[float, np.ndarray] | None = None
-
-    def reset(self) -> None:
-        """Forget the past: the next sample starts a new session."""
-        self._observer = RecurrenceStep(self.config.observer.gain_vector())
-        self._last = None
-
-    def update(self, t: float, q: np.ndarray, dq: np.ndarray, tau: np.ndarray
-               ) -> dict[str, np.ndarray]:
-        """Feed one sample (t [s], q [rad], dq [rad/s], tau [Nm], each (7,)); return every
-        timeseries feature at this sample, name -> (k,) array."""
-        model, data, z = self.model.model, self.model.data, self._zeros
-        g = pin.rnea(model, data, q, z, z).copy()
-        p = pin.rnea(model, data, q, z, dq) - g
-        ddq = z.copy() if self._last is None else (dq - self._last[1]) / (t - self._last[0])
-        self._last = (t, dq.copy())
-        tau_inv = pin.rnea(model, data, q, dq, ddq).copy()
-        ct_dq = pin.computeCoriolisMatrix(model, data, q, dq).T @ dq
-        u = tau + ct_dq - g
-        if self._friction is not None:
-            u = u - self._friction.torque(dq)
-        r = self._observer.update(t, p, u).copy()
-        jac = pin.computeFrameJacobian(model, data, q, self._fid, pin.LOCAL_WORLD_ALIGNED)
-        wrench = np.linalg.solve(jac @ jac.T + DAMPING**2 * np.eye(6), jac @ r)
-        out = {"q": q, "dq": dq, "tau": tau, "ddq": ddq, "p_int": dq * tau, "r": r, "g": g,
-               "tau_inv": tau_inv, "p_ext": r * dq}
-        out.update(_wrench_features(wrench))
-        return out
+    squares = (wrench * wrench).reshape(*wrench.shape[:-1], 2, 3)
+    norms = np.sqrt(np.add.reduce(squares, axis=-1))  # as np.linalg.norm, without its checks
+    return {"f": wrench[..., :3], "m": wrench[..., 3:], "fm_norm": norms}

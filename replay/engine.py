@@ -3,7 +3,7 @@
 The session is read in batches (row groups of the file, see
 :func:`contactkit.schemas.session.iter_session_batches`), so memory stays bounded by
 one batch however long the session is. Each batch goes through
-:class:`contactkit.features.timeseries.ChunkedChain`, whose state (observer, last
+:class:`contactkit.features.timeseries.TimeseriesChain`, whose state (observer, last
 velocity) is carried from batch to batch: the numbers equal the whole-session chain.
 Every ``hop_s`` seconds, once a full window is available, the scalar features of the
 last ``window_s`` seconds (the window length the model was trained with), or for a
@@ -16,10 +16,10 @@ release), which needs no planned interaction time, and gates the per-hop output:
 without a detected contact a hop's label is ``none`` (probability 1), whatever the
 window classifier says (its own probabilities stay in ``pred_window_proba``), because
 the window classifier was trained on contacts at a planned time and calls fast free
-motion a contact. For a session with a planned time
-the engine also computes the offline answer: the window found by the thesis method
-and the model's label for it, from the samples around the planned time (see
-:meth:`ReplayStream.offline`).
+motion a contact. For a session with a planned time the engine also gives the offline
+answer: the window found by the thesis method and the model's label for it, from the
+features it streamed (:class:`contactkit.features.window_stream.WindowCollector`) and
+through the same predictor as every hop (see :meth:`ReplayStream.offline`).
 
 :meth:`ReplayStream.blocks` yields each batch's samples with their features and
 predictions as a :class:`Block`; a paced replay asks for a block after every hop, so
@@ -42,28 +42,19 @@ from contactkit.classify.modelfile import ModelFile
 from contactkit.features.agreement import ResidualAgreement
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.isolation import robot_isolator
-from contactkit.features.timeseries import ChainConfig, ChunkedChain, columns_of, expand
+from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
+from contactkit.features.window_stream import WindowCollector
 from contactkit.features.windows import Window
+from contactkit.replay.hop import DEFAULT_HOP_S
 from contactkit.robots import get_robot
 from contactkit.schemas import InputError, Session
-from contactkit.schemas.session import (
-    complete_table,
-    iter_session_batches,
-    joint_columns,
-    read_session_meta,
-)
+from contactkit.schemas.session import SampleBatch, iter_sample_batches, read_session_meta
 
-DEFAULT_HOP_S = 0.02
-ROBOT_VIEW_HZ = 60.0
 BATCH_ROWS = 16_384
 """Samples read and computed at a time (about 16 s at 1 kHz)."""
 HISTORY_MARGIN_S = 1.0
-"""Seconds of features kept before a prediction window (a network's baseline)."""
-OFFLINE_SPAN_S = 60.0
-"""The offline answer looks at the samples within this many seconds of the planned time
-(before and after it): the whole of a dataset's session, a minute either side in a long
-one."""
-TRUTH_FORCE = ("f_ext_x", "f_ext_y", "f_ext_z")
+"""Seconds of features kept before a prediction window (a network's baseline), and
+either side of the offline window."""
 
 
 @dataclass
@@ -72,15 +63,11 @@ class Block:
     processed: times ``t`` [s], ``q`` [rad], ``dq`` [rad/s], ``tau`` [Nm] (n, 7), the
     residual ``r`` [Nm] (n, 7), ``force`` [N] and ``moment`` [Nm] (n, 3), their
     ``norms`` (n, 2), the ground truth where the session has it (``true_force`` [N]
-    (n, 3), ``contact`` (n,)), the samples ``robot`` (indices into the block) where the
-    3-D robot is drawn with its end effector at ``ee_position`` [m], the robot's own
-    external-torque estimate with the residual's sign (``robot_estimate``, -tau_ext_hat
-    [Nm] (n, 7), where the session has it), the event
-    pipeline's per-sample ``event_label`` and ``score`` (None without a detector),
-    the simulated contact's true point [m] (base frame) at the ``robot`` samples
-    (``true_point``, None without one), and the predictions made among these
-    samples: ``pred_t`` [s], ``pred_sample``, ``pred_proba`` (m, classes) and
-    ``pred_label``."""
+    (n, 3), ``contact`` (n,)), the robot's own external-torque estimate with the
+    residual's sign (``robot_estimate``, -tau_ext_hat [Nm] (n, 7), where the session
+    has it), the event pipeline's per-sample ``event_label`` and ``score`` (None
+    without a detector), and the predictions made among these samples: ``pred_t`` [s],
+    ``pred_sample``, ``pred_proba`` (m, classes) and ``pred_label``."""
 
     start: int
     stop: int
@@ -92,14 +79,11 @@ class Block:
     force: np.ndarray
     moment: np.ndarray
     norms: np.ndarray
-    robot: np.ndarray
-    ee_position: np.ndarray
     true_force: np.ndarray | None = None
     contact: np.ndarray | None = None
     robot_estimate: np.ndarray | None = None
     event_label: np.ndarray | None = None
     score: np.ndarray | None = None
-    true_point: np.ndarray | None = None
     pred_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
     pred_sample: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     pred_proba: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
@@ -121,10 +105,6 @@ class OfflineAnswer:
     probabilities: np.ndarray
     start_sample: int = 0
     end_sample: int = 0
-
-
-def _joints(table: pa.Table, prefix: str) -> np.ndarray:
-    return np.column_stack([table.column(c).to_numpy() for c in joint_columns(prefix)])
 
 
 def next_hop_after(hop: float, t: float, hop_s: float) -> float:
@@ -199,11 +179,14 @@ class ReplayStream:
         self.estimate_samples: dict[float, int] = {}
         """Session time [s] -> sample index of every contact estimate of an event's
         track (:class:`contactkit.features.isolation.EventTrack`)."""
-        truth = ((self.meta.simulator or {}).get("session") or {}).get("contact")
-        self.true_contact = (int(truth["link"]), np.asarray(truth["point_local"], float)) \
-            if isinstance(truth, dict) else None
-        """The simulated contact's link and point [m] (link frame), None without one."""
+        self.window_spec = self.transformer.window_spec
+        planned = self.meta.planned_at_s
+        self._offline = None if planned is None else \
+            WindowCollector(planned, self.window_spec, HISTORY_MARGIN_S)
         self.n_samples = 0
+        self.rate_hz: float | None = None
+        """The sample rate [Hz] by the median step of the first batch (None while
+        unknown, or for a first batch of one sample)."""
         self.planned_sample: int | None = None
         self.agreement = ResidualAgreement()
         """The residual's agreement with the robot's own estimate (sessions with
@@ -229,67 +212,47 @@ class ReplayStream:
         except (pa.ArrowInvalid, OSError, IndexError, KeyError) as err:
             raise InputError(f"cannot read the sample times ({err})", self.path) from err
 
-    def _tables(self, batch_rows: int | None = None) -> Iterator[pa.Table]:
-        rows = batch_rows or self.batch_rows
-        if self.session is not None:
-            batches = self.session.table.to_batches(max_chunksize=rows)
-        else:
-            batches = iter_session_batches(self.path, rows)
-        for batch in batches:
-            yield complete_table(pa.Table.from_batches([batch]))
+    def _batches(self) -> Iterator[SampleBatch]:
+        return iter_sample_batches(self.session if self.session is not None else self.path,
+                                   self.batch_rows)
 
     def blocks(self, every_hop: bool = False) -> Iterator[Block]:
         """Stream the session; yield a :class:`Block` per batch read, or with
         ``every_hop`` after every prediction (and at the end of each batch)."""
-        chain = ChunkedChain(self.chain_config, self.chain_config.robot_setup(self.meta, self.path),
-                             list(dict.fromkeys([*self.names, "r", "f", "m", "fm_norm"])))
-        model, ee = chain.model, chain.model.end_effector
+        chain = TimeseriesChain(self.chain_config,
+                                self.chain_config.robot_setup(self.meta, self.path),
+                                list(dict.fromkeys([*self.names, "r", "f", "m", "fm_norm",
+                                                    self.window_spec.signal])))
         history_t, history_v = np.zeros(0), np.zeros((0, len(self.channels)))
-        next_hop = robot_stride = None
+        next_hop = None
         start = 0
         planned = self.meta.planned_at_s
-        for table in self._tables():
-            n = table.num_rows
-            if n == 0:
-                continue
-            t = table.column("t").to_numpy()
-            q, dq, tau = _joints(table, "q"), _joints(table, "dq"), _joints(table, "tau")
+        for batch in self._batches():
+            n = len(batch)
+            t, q, dq, tau = batch.t, batch.q, batch.dq, batch.tau
             if next_hop is None:
                 next_hop = t[0] + self.window_s
                 steps = np.diff(t)
-                rate = 1.0 / float(np.median(steps)) if steps.size else ROBOT_VIEW_HZ
-                robot_stride = max(1, round(rate / ROBOT_VIEW_HZ))
+                self.rate_hz = 1.0 / float(np.median(steps)) if steps.size else None
                 self.event_samples[float(t[0])] = 0
             if planned is not None and self.planned_sample is None and t[-1] >= planned:
                 self.planned_sample = start + int(np.searchsorted(t, planned))
-            out = chain.compute(t, q, dq, tau)
+            out = chain.feed(batch)
             values = np.column_stack([out[name] for name in self.names])
             buffer_t, buffer_v = np.r_[history_t, t], np.vstack([history_v, values])
             offset = len(history_t)
             sample = np.arange(start, start + n)
-            robot = np.flatnonzero(sample % robot_stride == 0)
-            ee_position = np.array([model.frame_placement(q[k], ee).translation
-                                    for k in robot]).reshape(-1, 3)
+            if self._offline is not None:
+                self._offline.add(sample, t, values, out[self.window_spec.signal])
             labels = scores = None
             if self.pipeline is not None:
                 labels, scores = np.full(n, NONE, dtype=object), np.zeros(n)
-            truth = np.column_stack([table.column(c).to_numpy() for c in TRUTH_FORCE]) \
-                if all(c in table.column_names for c in TRUTH_FORCE) else None
-            contact = table.column("contact").to_numpy(zero_copy_only=False) \
-                if "contact" in table.column_names else None
-            estimate = -_joints(table, "tau_ext_hat") if all(
-                c in table.column_names for c in joint_columns("tau_ext_hat")) else None
+            truth, contact = batch.f_ext, batch.contact
+            estimate = None if batch.tau_ext_hat is None else -batch.tau_ext_hat
             if estimate is not None:
                 self.agreement.update(t, out["r"], -estimate)
-            true_point = None
-            if self.true_contact is not None:
-                link, point = self.true_contact
-                placements = [model.frame_placement(q[k], link) for k in robot]
-                true_point = np.array([p.rotation @ point + p.translation
-                                       for p in placements]).reshape(-1, 3)
             whole = Block(start, start + n, t, q, dq, tau, out["r"], out["f"], out["m"],
-                          out["fm_norm"], robot, ee_position, truth, contact, estimate,
-                          labels, scores, true_point)
+                          out["fm_norm"], truth, contact, estimate, labels, scores)
             first, predictions = 0, []
             for k in range(n):
                 if self.pipeline is not None:
@@ -352,57 +315,36 @@ class ReplayStream:
 
     def offline(self) -> OfflineAnswer | None:
         """Return the thesis method's window and the model's label for it (None for a
-        session without a planned interaction time).
-
-        Only the samples within ``OFFLINE_SPAN_S`` of the planned time are read (all of
-        a dataset's sessions; a long session's calibration then starts a minute before
-        the planned time, and the observer has long settled when the window begins)."""
-        planned = self.meta.planned_at_s
-        if planned is None:
+        session without a planned interaction time), from the features the stream
+        computed (the session is streamed first if it has not been), through the same
+        predictor as every hop. Raises InputError when the window holds too few
+        samples."""
+        if self._offline is None:
             return None
-        low, high = planned - OFFLINE_SPAN_S, planned + OFFLINE_SPAN_S
-        parts, first, seen = [], None, 0
-        for table in self._tables(batch_rows=65_536):
-            t = table.column("t").to_numpy()
-            inside = (t >= low) & (t <= high)
-            if inside.any():
-                first = seen + int(np.argmax(inside)) if first is None else first
-                parts.append(table.filter(pa.array(inside)))
-            seen += table.num_rows
-            if len(t) and t[-1] > high:
-                break
-        if not parts:
-            raise InputError(f"no samples near the planned time {planned:.3f} s", self.path)
-        table = pa.concat_tables(parts)
-        whole = table.num_rows == seen == self.n_samples
-        session = Session(self.meta, table, self.path if whole else None)
-        values, names, window = self.transformer.session_row(session)
-        self.model.check_features(names, self.path)
-        proba = self.model.estimator.predict_proba(values[None, ...])[0]
-        t = session.t
-        k0 = first + int(np.searchsorted(t, window.start_s))
-        k1 = first + min(int(np.searchsorted(t, window.end_s)), len(t) - 1)
-        return OfflineAnswer(window, self.classes[int(np.argmax(proba))], proba, k0, k1)
+        if self.n_samples == 0:
+            self.run()
+        window, sample, t, values = self._offline.result()
+        row = self.transformer.window_row(t, values, window, self.path)
+        proba = self._predict_proba(row[None, ...])[0]
+        last = len(t) - 1
+        k0 = sample[min(int(np.searchsorted(t, window.start_s)), last)]
+        k1 = sample[min(int(np.searchsorted(t, window.end_s)), last)]
+        return OfflineAnswer(window, self.classes[int(np.argmax(proba))], proba, int(k0),
+                             int(k1))
 
 
 def _part(block: Block, first: int, stop: int,
           predictions: list[tuple[float, int, np.ndarray, str]]) -> Block:
     """Return rows ``[first, stop)`` of a batch's block with the given predictions."""
     s = slice(first, stop)
-    robot = block.robot[(block.robot >= first) & (block.robot < stop)]
-    at = np.searchsorted(block.robot, robot)
-    ee = block.ee_position[at] if len(robot) else np.zeros((0, 3))
-    true_point = None if block.true_point is None else \
-        block.true_point[at] if len(robot) else np.zeros((0, 3))
 
     def rows(x: np.ndarray | None) -> np.ndarray | None:
         return None if x is None else x[s]
 
     part = Block(block.start + first, block.start + stop, block.t[s], block.q[s],
                  block.dq[s], block.tau[s], block.r[s], block.force[s], block.moment[s],
-                 block.norms[s], robot - first, ee, rows(block.true_force),
-                 rows(block.contact), rows(block.robot_estimate), rows(block.event_label),
-                 rows(block.score), true_point)
+                 block.norms[s], rows(block.true_force), rows(block.contact),
+                 rows(block.robot_estimate), rows(block.event_label), rows(block.score))
     if predictions:
         part.pred_t = np.array([p[0] for p in predictions])
         part.pred_sample = np.array([p[1] for p in predictions], dtype=np.int64)

@@ -6,7 +6,10 @@ replay, where the viewer updates live. Both send the same values at the same tim
 stamps. Every time series is logged at the full sample rate unless a log rate thins
 it (:class:`Thinning`: the chain still runs on every sample); the 3-D robot and its
 force arrow are animated at about 60 Hz (every n-th sample), which is all a 3-D view
-needs and keeps files small.
+needs and keeps files small. The kinematics only the view needs (the end effector's
+position, the simulated contact's point) are computed here, at those samples. The
+simulator's applied force, zero outside its contacts, is a sparse column
+(:class:`ZeroRuns`: the same plot from a fraction of the rows).
 :func:`log_contact_events` is where the contact-event pipeline hands over its events
 (one state-timeline bar each) and detector thresholds (lines on the residual plot).
 """
@@ -15,17 +18,21 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
 
-from contactkit.replay.engine import ROBOT_VIEW_HZ, Block, OfflineAnswer, ReplayStream
+from contactkit.classify.events import ContactEvent
+from contactkit.replay.engine import Block, OfflineAnswer, ReplayStream
+from contactkit.robots.model import RobotModel
 from contactkit.robots.surfaces import viewer_urdf_file
 from contactkit.util.atomic import Owned, owned_by_marker
 from contactkit.util.paths import inside
 from contactkit.viewer import layout
+
+ROBOT_VIEW_HZ = 60.0
+"""The 3-D robot is drawn at about this rate [Hz] (every n-th sample)."""
 
 
 def new_recording(session_name: str, recording_id: str) -> rr.RecordingStream:
@@ -92,18 +99,86 @@ class Thinning:
         return keep
 
 
+class ZeroRuns:
+    """Sends a series that is zero most of the time (the simulator's applied force) as a
+    sparse column: its non-zero rows, the zero rows next to them and the first and last
+    row. The viewer draws straight lines between logged points, so the plot is the one
+    of every row, at a fraction of the file size. Carried across blocks: the same rows go
+    out however the series is split."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self._before = True  # the row before the next block is non-zero (or there is none)
+        self._pending: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        """The previous block's last row (t [s], sample, values), when it is zero and
+        not logged yet: it goes out when the next row is non-zero or the series ends."""
+
+    def log(self, rec: rr.RecordingStream, t: np.ndarray, sample: np.ndarray,
+            values: np.ndarray) -> None:
+        """Send the rows of one block that the sparse column keeps: times ``t`` [s],
+        sample indices ``sample`` and ``values`` (N, k)."""
+        if not len(t):
+            return
+        nonzero = np.any(values != 0, axis=1)
+        keep = nonzero | np.concatenate([[self._before], nonzero[:-1]]) | \
+            np.concatenate([nonzero[1:], [False]])
+        rows = (t[keep], sample[keep], values[keep])
+        if self._pending is not None and nonzero[0]:
+            rows = tuple(np.concatenate([p, r]) for p, r in zip(self._pending, rows,
+                                                                 strict=True))
+        self._pending = None if keep[-1] else (t[-1:], sample[-1:], values[-1:])
+        self._before = bool(nonzero[-1])
+        if len(rows[0]):
+            layout.log_scalar_columns(rec, self.path, *rows)
+
+    def finish(self, rec: rr.RecordingStream) -> None:
+        """Send the series' last row if it is still pending."""
+        if self._pending is not None:
+            layout.log_scalar_columns(rec, self.path, *self._pending)
+            self._pending = None
+
+
 class BlockLogger:
-    """Sends blocks of a replay as columns, every series thinned to ``log_rate_hz``
-    [Hz] (None: every sample) and the 3-D robot to at most ``ROBOT_VIEW_HZ``; the
-    predictions always go out in full."""
+    """Sends the blocks of ``stream`` as columns, every series thinned to ``log_rate_hz``
+    [Hz] (None: every sample) and the 3-D robot (every n-th sample, about
+    ``ROBOT_VIEW_HZ`` at the session's rate) to at most that rate; the predictions
+    always go out in full. The 3-D view's kinematics come from the session's robot
+    model: the end effector's position for the force arrow and, in a simulated session,
+    the true contact point [m] (base frame)."""
 
     def __init__(self, rec: rr.RecordingStream, tree: rr.urdf.UrdfTree,
-                 log_rate_hz: float | None = None) -> None:
-        self.rec, self.tree = rec, tree
+                 stream: ReplayStream, log_rate_hz: float | None = None) -> None:
+        self.rec, self.tree, self.stream = rec, tree, stream
         self.series = Thinning(log_rate_hz)
         self.robot = Thinning(None if log_rate_hz is None or log_rate_hz >= ROBOT_VIEW_HZ
                               else log_rate_hz)
         self._contact: bool | None = None
+        self.truth = ZeroRuns(layout.TRUE_FORCE)
+        self._stride: int | None = None
+        self.model = RobotModel(stream.meta.robot_setup(stream.path))
+        truth = ((stream.meta.simulator or {}).get("session") or {}).get("contact")
+        self.true_contact = (int(truth["link"]), np.asarray(truth["point_local"], float)) \
+            if isinstance(truth, dict) else None
+        """The simulated contact's link and point [m] (link frame), None without one."""
+
+    def _robot_rows(self, block: Block) -> np.ndarray:
+        """Return the rows of ``block`` where the 3-D robot is drawn."""
+        if self._stride is None:
+            rate = self.stream.rate_hz
+            self._stride = 1 if rate is None else max(1, round(rate / ROBOT_VIEW_HZ))
+        robot = np.flatnonzero(block.sample % self._stride == 0)
+        return robot[self.robot.keep(block.t[robot])]
+
+    def _points(self, q: np.ndarray, link: int | str, point: np.ndarray) -> np.ndarray:
+        """Return ``point`` [m] (in the frame of ``link``) in the base frame at each
+        configuration ``q`` (m, 7) [rad], (m, 3)."""
+        placements = (self.model.frame_placement(qk, link) for qk in q)
+        return np.array([p.rotation @ point + p.translation for p in placements]
+                        ).reshape(-1, 3)
+
+    def finish(self) -> None:
+        """Send what the last block left pending (call once, after the last block)."""
+        self.truth.finish(self.rec)
 
     def log(self, block: Block) -> None:
         """Send the (thinned) samples and the predictions of one block."""
@@ -123,21 +198,23 @@ class BlockLogger:
             layout.log_scalar_columns(rec, layout.MOMENT_NORM, t, sample,
                                       block.norms[keep, 1:])
             if block.true_force is not None:
+                force = block.true_force[keep]
                 contact = block.contact[keep] if block.contact is not None else \
-                    np.linalg.norm(block.true_force[keep], axis=1) > 0
-                layout.log_ground_truth(rec, t, sample, block.true_force[keep], contact,
-                                        self._contact)
+                    np.linalg.norm(force, axis=1) > 0
+                self.truth.log(rec, t, sample, force)
+                layout.log_contact_lane(rec, t, sample, contact, self._contact)
                 self._contact = bool(contact[-1])
-        rows = block.robot[self.robot.keep(block.t[block.robot])]
+        rows = self._robot_rows(block)
         if len(rows):
-            at = np.searchsorted(block.robot, rows)
-            t, sample = block.t[rows], block.sample[rows]
-            layout.log_joint_transforms(rec, self.tree, t, sample, block.q[rows])
-            layout.log_force_arrows(rec, t, sample, block.ee_position[at], block.force[rows])
-            if block.true_point is not None and block.true_force is not None:
+            t, sample, q = block.t[rows], block.sample[rows], block.q[rows]
+            layout.log_joint_transforms(rec, self.tree, t, sample, q)
+            ee = self._points(q, self.model.end_effector, np.zeros(3))
+            layout.log_force_arrows(rec, t, sample, ee, block.force[rows])
+            if self.true_contact is not None and block.true_force is not None:
                 applied = block.true_force[rows]
-                layout.log_contact_columns(rec, t, sample, block.true_point[at], applied,
-                                           np.linalg.norm(applied, axis=1) > 0, truth=True)
+                layout.log_contact_columns(rec, t, sample, self._points(q, *self.true_contact),
+                                           applied, np.linalg.norm(applied, axis=1) > 0,
+                                           truth=True)
         if len(block.pred_t):
             pt, ps = block.pred_t, block.pred_sample
             layout.log_scalar_columns(rec, layout.PROBABILITY, pt, ps, block.pred_proba)
@@ -159,17 +236,6 @@ def log_offline(rec: rr.RecordingStream, stream: ReplayStream, answer: OfflineAn
                                                      strict=True))
     layout.text_event(rec, layout.OFFLINE_LABEL, window.end_s, k1,
                       f"offline label: {answer.label} ({probs})")
-
-
-@dataclass(frozen=True)
-class ContactEvent:
-    """One contact as the event pipeline decides it: onset, decision and release time
-    [s] and the decided label."""
-
-    onset_s: float
-    decision_s: float
-    release_s: float
-    label: str
 
 
 def log_contact_events(rec: rr.RecordingStream, t: np.ndarray,
@@ -252,6 +318,24 @@ def log_contact_estimates(rec: rr.RecordingStream, stream: ReplayStream) -> None
                                   np.array([r[0] for r in rows]),
                                   np.array([r[1] for r in rows]),
                                   np.array([r[2] for r in rows]))
+
+
+def log_results(rec: rr.RecordingStream, stream: ReplayStream,
+                answer: OfflineAnswer | None) -> None:
+    """Log what a replay knows once its blocks have streamed: the planned time, the
+    contact events with the detector's thresholds and the isolated contacts (with an
+    event pipeline), and the offline ``answer`` (None: the session has no planned time)."""
+    log_planned(rec, stream)
+    if stream.pipeline is not None:
+        times = sorted(stream.event_samples)
+        log_contact_events(rec, np.array(times), stream.events, {
+            f"joint {j} at rest": v for j, v in enumerate(stream.detector.noise, 1)},
+            samples=np.array([stream.event_samples[t] for t in times]))
+        log_contact_estimates(rec, stream)
+    if answer is not None:
+        log_offline(rec, stream, answer)
+
+
 RRD_MAGIC = b"RRF"
 """How every .rrd file starts (``RRF2`` and a version): the test for a recording."""
 owned_recording: Owned = owned_by_marker(RRD_MAGIC, within=len(RRD_MAGIC))

@@ -16,18 +16,13 @@ from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from contactkit.classify.events import ContactEvent
 from contactkit.classify.modelfile import ModelFile
 from contactkit.features.detector import DetectorConfig
 from contactkit.replay.engine import DEFAULT_HOP_S, OfflineAnswer, ReplayStream
 from contactkit.replay.recording import (
     BlockLogger,
-    log_contact_estimates,
-    log_contact_events,
-    log_offline,
-    log_planned,
+    log_results,
     log_static,
     new_recording,
     save_path_for,
@@ -143,20 +138,13 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
                 rec.connect_grpc(connect, default_blueprint=blueprint)
             elif spawn:
                 rec.spawn(default_blueprint=blueprint)
-            logger = BlockLogger(rec, log_static(rec, stream), log_rate_hz)
+            logger = BlockLogger(rec, log_static(rec, stream), stream, log_rate_hz)
             for block in paced(stream.blocks(every_hop=rate is not None), lambda b: b.t[-1],
                                rate, origin_s=t0):
                 logger.log(block)
-            log_planned(rec, stream)
-            if stream.pipeline is not None:
-                times = sorted(stream.event_samples)
-                log_contact_events(rec, np.array(times), stream.events, {
-                    f"joint {j} at rest": v for j, v in enumerate(stream.detector.noise, 1)},
-                    samples=np.array([stream.event_samples[t] for t in times]))
-                log_contact_estimates(rec, stream)
+            logger.finish()
             answer = stream.offline()
-            if answer is not None:
-                log_offline(rec, stream, answer)
+            log_results(rec, stream, answer)
             rec.flush()
         finally:
             rec.disconnect()

@@ -9,8 +9,10 @@ the ordered feature names, so a model can refuse a table made for other features
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
@@ -46,12 +48,22 @@ def feature_table_schema(feature_names: list[str], config: dict) -> pa.Schema:
     return pa.schema(fields, metadata={FEATURES_KEY: json.dumps(doc).encode()})
 
 
-def write_feature_table(path: str | Path, rows: list[dict], feature_names: list[str],
-                        config: dict, overwrite: bool = True) -> Path:
-    """Write a scalar feature table atomically; return the path."""
-    path = Path(path)
+def feature_table(info: Sequence[Mapping[str, object]], X: np.ndarray,
+                  feature_names: list[str], config: dict) -> pa.Table:
+    """Return a scalar feature table: the identifying columns (:data:`ID_COLUMNS`) from
+    ``info``, one mapping per session, and the feature columns from the matrix ``X``
+    (sessions, features), taken as float64 arrays as they are."""
     schema = feature_table_schema(feature_names, config)
-    table = pa.Table.from_pylist(rows, schema=schema)
+    X = np.asarray(X, dtype=float).reshape(len(info), len(feature_names))
+    columns = [pa.array([row[name] for row in info], type=kind) for name, kind in ID_COLUMNS]
+    columns += [pa.array(np.ascontiguousarray(X[:, j])) for j in range(len(feature_names))]
+    return pa.Table.from_arrays(columns, schema=schema)
+
+
+def write_feature_table(path: str | Path, table: pa.Table, overwrite: bool = True) -> Path:
+    """Write a scalar feature table (see :func:`feature_table`) atomically; return the
+    path."""
+    path = Path(path)
     atomic_write_parquet(table, path, overwrite=overwrite)
     return path
 

@@ -458,7 +458,10 @@ def validate_session(path: str | Path) -> Session:
     path = Path(path)
     meta, _ = read_session_meta(path)
     try:
-        table = pq.read_table(path)
+        # ParquetFile, not pq.read_table: that one goes through pyarrow.dataset, whose
+        # import loads pandas (a second of start-up for `recorder info`)
+        with pq.ParquetFile(path) as file:
+            table = file.read()
     except (pa.ArrowInvalid, OSError) as err:
         raise InputError(f"cannot read the Parquet data ({_first_line(err)})", path) from err
     validate_table(table, path, allows_gaps(meta))
@@ -617,6 +620,93 @@ def iter_session_batches(path: str | Path, batch_rows: int = ROW_GROUP_ROWS,
         raise InputError(f"cannot read the Parquet data ({_first_line(err)})", path) from err
     if offset == 0:
         raise InputError("session has no samples", path)
+
+
+@dataclass(frozen=True)
+class SampleBatch:
+    """Consecutive samples of a session, each joint quantity stacked (joints 1..7 as
+    columns): times ``t`` (n,) [s]; ``q`` [rad], ``dq`` [rad/s], ``tau`` [Nm] (n, 7);
+    and the session's optional columns where it has them (None where it has not):
+    ``q_d`` [rad], ``dq_d`` [rad/s], ``tau_ext_hat`` [Nm] (n, 7), ``f_ext`` [N]
+    (n, 3), ``f_ext_hat`` (n, 6: force [N], then moment [Nm]), ``contact`` (n,) bool,
+    ``robot_mode`` (n,) int8 and ``command_success_rate`` (n,). This is what the
+    feature chain, the replay, the statistics and the live listeners take."""
+
+    t: np.ndarray
+    q: np.ndarray
+    dq: np.ndarray
+    tau: np.ndarray
+    q_d: np.ndarray | None = None
+    dq_d: np.ndarray | None = None
+    tau_ext_hat: np.ndarray | None = None
+    f_ext: np.ndarray | None = None
+    f_ext_hat: np.ndarray | None = None
+    contact: np.ndarray | None = None
+    robot_mode: np.ndarray | None = None
+    command_success_rate: np.ndarray | None = None
+
+    @classmethod
+    def from_columns(cls, columns: pa.Table | pa.RecordBatch | Mapping[str, np.ndarray]
+                     ) -> SampleBatch:
+        """Return the batch of session columns (a table, a record batch, or a mapping
+        of column name to array, as a capture's chunk): ``t`` and every joint column
+        of q, dq and tau are required; an optional group is taken where all its
+        columns are present."""
+        if isinstance(columns, (pa.Table, pa.RecordBatch)):
+            names = set(columns.schema.names)
+
+            def get(name: str) -> np.ndarray:
+                return columns.column(name).to_numpy(zero_copy_only=False)
+        else:
+            names = set(columns)
+
+            def get(name: str) -> np.ndarray:
+                return np.asarray(columns[name])
+
+        def stacked(group: Sequence[str]) -> np.ndarray | None:
+            if not names.issuperset(group):
+                return None
+            return np.column_stack([get(c) for c in group]).astype(float, copy=False)
+
+        def single(name: str) -> np.ndarray | None:
+            return get(name) if name in names else None
+
+        return cls(np.asarray(get("t"), dtype=float),
+                   *(stacked(joint_columns(p)) for p in ALL_JOINT_PREFIXES),
+                   stacked(FORCE_COLUMNS), stacked(WRENCH_HAT_COLUMNS), single("contact"),
+                   single("robot_mode"), single("command_success_rate"))
+
+    def __len__(self) -> int:
+        """Return the number of samples."""
+        return len(self.t)
+
+    def take(self, rows: np.ndarray | slice) -> SampleBatch:
+        """Return the samples ``rows`` (indices, a boolean mask or a slice)."""
+        return SampleBatch(**{f.name: None if getattr(self, f.name) is None
+                              else getattr(self, f.name)[rows] for f in fields(self)})
+
+    def complete(self) -> SampleBatch:
+        """Return the samples that have a time and every joint value (q, dq, tau), as
+        :func:`complete_table` keeps them; the batch itself when none is missing."""
+        keep = np.isfinite(self.t) & np.isfinite(self.q).all(axis=1) \
+            & np.isfinite(self.dq).all(axis=1) & np.isfinite(self.tau).all(axis=1)
+        return self if keep.all() else self.take(keep)
+
+
+def iter_sample_batches(source: Session | str | Path, batch_rows: int = ROW_GROUP_ROWS,
+                        columns: Sequence[str] | None = None) -> Iterator[SampleBatch]:
+    """Yield the complete samples (:meth:`SampleBatch.complete`) of a session, a file
+    read and validated by :func:`iter_session_batches` or a :class:`Session` in
+    memory, as :class:`SampleBatch` of at most ``batch_rows`` rows; batches left empty
+    are skipped. ``columns`` as for :func:`iter_session_batches` (files only)."""
+    if isinstance(source, Session):
+        batches: Iterable[pa.RecordBatch] = source.table.to_batches(max_chunksize=batch_rows)
+    else:
+        batches = iter_session_batches(source, batch_rows, columns)
+    for batch in batches:
+        samples = SampleBatch.from_columns(batch).complete()
+        if len(samples):
+            yield samples
 
 
 def _group_batches(file: pq.ParquetFile, batch_rows: int,

@@ -10,7 +10,8 @@ from bag_writers import ROS2_TOPIC, START_NS, write_bag
 from conftest import make_session, run_cli
 
 from contactkit.features.timing import rate_warning
-from contactkit.recorder.importers.bags import BagJob, import_bag, import_bags
+from contactkit.recorder.importers.bags import import_bag
+from contactkit.recorder.importers.jobs import import_files, import_jobs
 from contactkit.recorder.importers.mcap_export import export_mcap
 from contactkit.recorder.metadata import session_meta
 from contactkit.schemas import InputError, read_session, validate_session
@@ -106,9 +107,10 @@ def test_directory_with_one_bad_bag(source, tmp_path):
     (bags / "bad.bag").write_bytes(b"#ROSBAG V2.0\nnot a bag")
     out = tmp_path / "sessions"
     out.mkdir()
-    jobs = [BagJob(p, out, PROTOCOL) for p in (bags / "bad.bag", bags / "one.bag", bags / "two")]
-    sessions, problems = import_bags(jobs, workers=2)
-    assert len(sessions) == 2
+    jobs = import_jobs([bags], "bag", out, protocol=PROTOCOL)
+    assert [job.path for job in jobs] == [bags / "bad.bag", bags / "one.bag", bags / "two"]
+    sessions, problems = import_files(jobs, workers=2)
+    assert [s.recording for s in sessions] == [bags / "one.bag", bags / "two"]
     assert [name for name, _ in problems] == [str(bags / "bad.bag")]
 
 

@@ -22,7 +22,7 @@ from contactkit.recorder.importers.can_codec import (
     session_values,
 )
 from contactkit.recorder.importers.can_map import load_map
-from contactkit.recorder.importers.can_tools import bridge_session, read_log
+from contactkit.recorder.importers.can_tools import CanLogImporter, bridge_session
 from contactkit.recorder.metadata import session_meta
 from contactkit.recorder.sources.can import BusConfig, CanSource
 from contactkit.schemas import InputError, read_session, validate_session
@@ -93,9 +93,9 @@ def test_every_log_format_python_can_writes(source_session: Path, tmp_path: Path
     for suffix in (".trc", ".csv", ".log", ".db"):
         log = tmp_path / f"x{suffix}"
         bridge_session(recorded, FMAP, log=log)
-        columns, assembler = read_log(log, FMAP)
-        assert len(columns["t"]) == recorded.n_samples, suffix
-        assert assembler.stats.incomplete_samples == 0
+        with CanLogImporter.read(log, FMAP) as imported:
+            assert sum(len(t) for t in imported.times()) == recorded.n_samples, suffix
+            assert imported.source_info()["incomplete_samples"] == 0
 
 
 def test_faults_are_counted_not_raised(source_session: Path, tmp_path: Path) -> None:

@@ -22,13 +22,13 @@ def test_cached_chain_equals_the_chain_and_is_computed_once(session_path, tmp_pa
     first = chain_series(session, ChainConfig(), names)
     assert len(list((tmp_path / "cache" / "chain").glob("*/r.parquet"))) == 1
     computed = []
-    original = TimeseriesChain.compute_chunk
+    original = TimeseriesChain._chunk
 
-    def counting(self, t, q, dq, tau, wanted, before=None):
+    def counting(self, t, q, dq, tau, wanted, before):
         computed.append(list(wanted))
         return original(self, t, q, dq, tau, wanted, before)
 
-    monkeypatch.setattr(TimeseriesChain, "compute_chunk", counting)
+    monkeypatch.setattr(TimeseriesChain, "_chunk", counting)
     again = chain_series(session, ChainConfig(), names)
     assert computed == [["dq", "tau"]]  # r and f came from the cache
     for name in names:

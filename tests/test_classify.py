@@ -13,10 +13,11 @@ from sklearn.metrics import balanced_accuracy_score, f1_score, recall_score
 
 from contactkit.classify.data import load_features
 from contactkit.classify.evaluate import confusion, evaluate, metrics_from_confusion, splits
-from contactkit.classify.modelfile import META_MEMBER, load_model, save_model
+from contactkit.classify.modelfile import load_model, save_model
 from contactkit.classify.models import JointEnsemble, feature_joint
 from contactkit.classify.registry import get_kind, make_estimator
 from contactkit.classify.schemes import limited_mask, relabel, scheme_classes
+from contactkit.classify.skops_format import META_MEMBER
 from contactkit.features.extract import SessionFeatures
 from contactkit.schemas import InputError
 from tests.conftest import make_dataset
@@ -160,7 +161,7 @@ def test_model_file_round_trip_and_refusals(features, tmp_path: Path) -> None:
 
 def test_model_file_as_untrusted_input(features, tmp_path: Path) -> None:
     """A relabelled contactkit.json, a zip bomb and flipped bytes: each one line."""
-    from contactkit.classify import modelfile
+    from contactkit.classify import skops_format
 
     model = make_estimator("svm", features.names).fit(features.X, features.labels())
     path = save_model(tmp_path / "m.skops", model, transformer=SessionFeatures(),
@@ -180,7 +181,7 @@ def test_model_file_as_untrusted_input(features, tmp_path: Path) -> None:
     with zipfile.ZipFile(bomb, "w", compression=zipfile.ZIP_DEFLATED) as dst:
         for name, data in members.items():
             dst.writestr(name, data)
-        dst.writestr("big.npy", b"\0" * (modelfile.MAX_MEMBER_BYTES + 1))
+        dst.writestr("big.npy", b"\0" * (skops_format.MAX_MEMBER_BYTES + 1))
     assert bomb.stat().st_size < 2_000_000
     with pytest.raises(InputError, match="would decompress"):
         load_model(bomb)

@@ -103,8 +103,8 @@ def test_experiments_write_table_json_and_plot(static: Path, tmp_path: Path, nam
         data = load_features([static], SessionFeatures(window="difference", window_s=0.5))
         expected = evaluate(data.X, data.labels(), lambda: svm_pipeline(10.0,
                                                                          probability=False),
-                            protocol="group", groups=data.groups("pose"), group_by="pose",
-                            classes=scheme_classes("full"))
+                            protocol="group", model="svm", groups=data.groups("pose"),
+                            group_by="pose", classes=scheme_classes("full"))
         assert rows[-1]["report"]["balanced_accuracy"]["value"] == \
             pytest.approx(expected.balanced_accuracy.value, abs=1e-12)
         assert rows[-1]["report"]["confusion_counts"] == expected.confusion_counts

@@ -158,19 +158,21 @@ def test_gridsearch_and_lstm_evaluate_identical(cluster, tmp_path, monkeypatch):
     pytest.importorskip("torch")
     from contactkit.classify.gridsearch import Protocol, grid_trials, run_trials
     from contactkit.classify.kind import ModelOptions
+    from contactkit.classify.registry import get_kind
     from contactkit.classify.training import evaluate_kind
     from tests.conftest import make_dataset
 
     dataset = make_dataset(tmp_path, poses=("A", "B"), repeats=1)
-    trials = grid_trials([1], [0.5], [0.0, 0.1], [20, 30], [("dq", "tau")])
-    protocol = Protocol(model="lstm", epochs=2, patience=1)
+    trials = grid_trials(get_kind("lstm"), {"depth": [1], "width": [0.5], "dropout": [0.0, 0.1]},
+                         [20, 30], [("dq", "tau")])
+    protocol = Protocol(model="lstm", params={"epochs": 2, "patience": 1})
     local = run_trials([dataset], trials, protocol, scheduler="local")
     remote = run_trials([dataset], trials, protocol, scheduler=CLUSTER)
     assert [r.trial for r in remote] == trials
     assert [r.report.as_dict() for r in remote] == [r.report.as_dict() for r in local]
 
-    options = ModelOptions(kind="lstm", timeseries=("dq", "tau"), steps=20, epochs=2,
-                           depth=1, width=0.5, patience=1)
+    options = ModelOptions(kind="lstm", timeseries=("dq", "tau"), steps=20,
+                           params={"epochs": 2, "depth": 1, "width": 0.5, "patience": 1})
     local_report, _ = evaluate_kind([dataset], options, workers=2)
     remote_report, _ = evaluate_kind([dataset], options, workers=2, scheduler=CLUSTER)
     assert remote_report.as_dict() == local_report.as_dict()

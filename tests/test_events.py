@@ -19,7 +19,7 @@ from contactkit.classify.events import (
 )
 from contactkit.classify.models import svm_pipeline
 from contactkit.features.detector import DetectorConfig, detect
-from contactkit.features.timeseries import OnlineChain, TimeseriesChain
+from contactkit.features.timeseries import TimeseriesChain
 from contactkit.schemas import InputError, read_session
 from tests.conftest import make_session
 
@@ -48,7 +48,7 @@ def shove(tmp_path_factory) -> dict[str, np.ndarray]:
 
 
 def _streamed(data, model, decide_after_s=None, stop=None):
-    chain = OnlineChain()
+    chain = TimeseriesChain(names=["r"])
     pipeline = EventPipeline(DETECTOR, model, decide_after_s)
     labels = []
     for k in range(len(data["t"]) if stop is None else stop):

@@ -33,7 +33,7 @@ def model_path(tmp_path_factory) -> Path:
     events = EventModel(svm_pipeline(1.0).fit(X, y), ["adjust", "bump", "shove"], 0.15,
                         X.min(axis=0) * 0 - 1e9, X.max(axis=0) + 1e9)
     return train([directory], tmp_path_factory.mktemp("model") / "m.skops",
-                 ModelOptions(kind="svm", window="planned", c=10.0),
+                 ModelOptions(kind="svm", window="planned", params={"c": 10.0}),
                  detector=DETECTOR.to_dict(), events=(events.estimator, events.meta())).path
 
 

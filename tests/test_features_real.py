@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from contactkit.features.observer import ObserverConfig
-from contactkit.features.timeseries import ALL_TIMESERIES, ChainConfig, OnlineChain, TimeseriesChain
+from contactkit.features.timeseries import ALL_TIMESERIES, ChainConfig, TimeseriesChain
 from contactkit.features.windows import WindowSpec, find_window
 from contactkit.recorder.importers.arrays import load_joint_arrays
 from contactkit.recorder.sim.simulator import SimConfig, TrackingSimulator, plan_session
@@ -52,7 +52,7 @@ def test_window_methods_find_no_interaction_in_free_motion(real, planned_at: flo
 
 def _assert_stream_equals_batch(t, q, dq, tau, with_hand: bool) -> None:
     batch = TimeseriesChain(robot=RobotSetup(with_hand=with_hand)).compute(t, q, dq, tau)
-    online = OnlineChain(robot=RobotSetup(with_hand=with_hand))
+    online = TimeseriesChain(robot=RobotSetup(with_hand=with_hand))
     stream = {name: [] for name in ALL_TIMESERIES}
     for k in range(len(t)):
         sample = online.update(t[k], q[k], dq[k], tau[k])

@@ -27,7 +27,7 @@ from contactkit.recorder.capture.journal import SessionWriter, journal_path, rec
 from contactkit.recorder.importers.arrays import load_joint_arrays
 from contactkit.recorder.importers.can_map import default_map_path, load_map
 from contactkit.recorder.importers.can_tools import bridge_session, import_can_log
-from contactkit.recorder.importers.writer import import_arrays
+from contactkit.recorder.importers.jobs import import_arrays
 from contactkit.recorder.info import session_info
 from contactkit.recorder.metadata import session_filename
 from contactkit.recorder.stats.summary import build_report

@@ -34,7 +34,12 @@ from contactkit.recorder.importers.csv_map import load_csv_map, mindlab_map_path
 from contactkit.recorder.metadata import session_meta
 from contactkit.recorder.sim.noise import SensorNoise, default_noise
 from contactkit.schemas import InputError, read_session, validate_session
-from contactkit.schemas.features import FEATURES_KEY, read_feature_table, write_feature_table
+from contactkit.schemas.features import (
+    FEATURES_KEY,
+    feature_table,
+    read_feature_table,
+    write_feature_table,
+)
 from tests.bag_writers import write_bag
 from tests.conftest import make_session
 from tests.fuzz_support import (
@@ -378,12 +383,13 @@ def test_fuzz_noise_files(work: Path, data, how: str) -> None:
 
 @pytest.fixture(scope="module")
 def valid_features(work: Path) -> Path:
-    row = {"file": "a.parquet", "session_id": "a", "action": "bump", "condition": "static",
-           "pose": "A", "target_pose": None, "link": 3, "operator": "", "speed_rad_s": None,
-           "window_start_s": 0.1, "window_end_s": 0.2, "window_method": "planned",
-           "window_found": True, "planned_at_s": 0.1, "range(tau_3)": 1.5, "max(r_2)": 0.5}
-    return write_feature_table(work / "features.parquet", [row], ["range(tau_3)", "max(r_2)"],
-                               {"window_s": 0.1})
+    info = {"file": "a.parquet", "session_id": "a", "action": "bump", "condition": "static",
+            "pose": "A", "target_pose": None, "link": 3, "operator": "", "speed_rad_s": None,
+            "window_start_s": 0.1, "window_end_s": 0.2, "window_method": "planned",
+            "window_found": True, "planned_at_s": 0.1}
+    table = feature_table([info], np.array([[1.5, 0.5]]), ["range(tau_3)", "max(r_2)"],
+                          {"window_s": 0.1})
+    return write_feature_table(work / "features.parquet", table)
 
 
 @given(data=st.data(), how=st.sampled_from(["metadata", "document", "columns"]))

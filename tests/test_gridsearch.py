@@ -18,6 +18,7 @@ from contactkit.classify.gridsearch import (
     write_results,
 )
 from contactkit.classify.networks import CNNClassifier, LSTMClassifier, resolve_device
+from contactkit.classify.registry import get_kind
 from contactkit.classify.training import training_set
 from contactkit.schemas import InputError
 from tests.conftest import make_dataset, run_cli
@@ -25,13 +26,15 @@ from tests.conftest import make_dataset, run_cli
 torch = pytest.importorskip("torch")
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = Protocol(model="lstm", epochs=2, patience=1)
+TINY = Protocol(model="lstm", params={"epochs": 2, "patience": 1})
+LSTM = get_kind("lstm")
 NO_CUDA = "no CUDA GPU visible to PyTorch (the nn extra installs the CPU build)"
 
 
 def tiny_trials():
     """Four trials: two dropouts x two step counts of a depth-1, half-width LSTM."""
-    return grid_trials([1], [0.5], [0.0, 0.1], [20, 30], [("dq", "tau")])
+    return grid_trials(LSTM, {"depth": [1], "width": [0.5], "dropout": [0.0, 0.1]}, [20, 30],
+                       [("dq", "tau")])
 
 
 @pytest.fixture(scope="module")
@@ -41,18 +44,20 @@ def dataset(tmp_path_factory) -> Path:
 
 def test_grid_trials_and_checks() -> None:
     trials = tiny_trials()
-    assert len(trials) == 4 and trials[0].label() == "d1 w0.5 p0 s20 dq+tau"
-    assert len(grid_trials([1, 2, 4], [0.5, 1, 2], [0, 0.1, 0.25], [300], [("q",)])) == 27
-    for bad in ({"depths": [0]}, {"widths": [0]}, {"dropouts": [1.0]}, {"steps": [2]},
-                {"inputs": []}):
-        args = {"depths": [1], "widths": [1], "dropouts": [0], "steps": [20],
-                "inputs": [("q",)], **bad}
+    assert len(trials) == 4
+    assert trials[0].label() == "depth=1 width=0.5 dropout=0 steps=20 dq+tau"
+    assert len(grid_trials(LSTM, {}, [300], [("q",)])) == 27  # the declared thesis grid
+    for bad in ({"depth": [0]}, {"width": [0]}, {"dropout": [1.0]}, {"steps": [2]},
+                {"inputs": []}, {"epochs": [3]}, {"depth": []}):
+        grid = {"depth": [1], "width": [1], "dropout": [0]}
+        grid |= {k: v for k, v in bad.items() if k not in ("steps", "inputs")}
         with pytest.raises(InputError):
-            grid_trials(**args)
+            grid_trials(LSTM, grid, bad.get("steps", [20]), bad.get("inputs", [("q",)]))
     with pytest.raises(InputError, match="cnn or lstm"):
         run_trials([], trials, Protocol(model="svm"))
     with pytest.raises(InputError, match="unknown timeseries feature 'no_such'"):
-        run_trials([], grid_trials([1], [1], [0], [20], [("no_such",)]), TINY)
+        run_trials([], grid_trials(LSTM, {"depth": [1], "width": [1], "dropout": [0]}, [20],
+                                   [("no_such",)]), TINY)
     with pytest.raises(InputError, match="no such dataset directory"):
         run_trials([Path("no/such/dataset")], trials, TINY)  # once, before any trial
 

@@ -3,15 +3,18 @@ through train, predict and replay without any change to those."""
 
 from __future__ import annotations
 
+import ast
 import importlib.metadata
+import json
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 
-import numpy as np
 import pytest
-from sklearn.base import BaseEstimator, ClassifierMixin
 
 from contactkit.classify import registry
-from contactkit.classify.data import FEATURES
+from contactkit.classify.inputs import FEATURES
 from contactkit.classify.kind import ModelKind, ModelOptions
 from contactkit.classify.modelfile import load_model
 from contactkit.classify.prediction import predict_sources
@@ -19,34 +22,10 @@ from contactkit.classify.skops_format import SKOPS
 from contactkit.classify.training import evaluate_kind, train
 from contactkit.replay.session_replay import replay_session
 from contactkit.schemas import InputError
-from tests.conftest import make_dataset
+from tests.conftest import make_dataset, run_cli
+from tests.tiny_kind import TINY, _nearest_mean
 
-
-class NearestMean(ClassifierMixin, BaseEstimator):
-    """Class probabilities from the softmax of minus the distance to each class mean."""
-
-    def fit(self, X: np.ndarray, y: np.ndarray) -> NearestMean:
-        self.classes_ = np.unique(y)
-        self.scale_ = X.std(axis=0) + 1e-9
-        self.means_ = np.stack([X[y == c].mean(axis=0) for c in self.classes_]) / self.scale_
-        return self
-
-    def predict_proba(self, X: np.ndarray) -> np.ndarray:
-        d = np.linalg.norm(X[:, None, :] / self.scale_ - self.means_[None], axis=2)
-        e = np.exp(-(d - d.min(axis=1, keepdims=True)))
-        return e / e.sum(axis=1, keepdims=True)
-
-    def predict(self, X: np.ndarray) -> np.ndarray:
-        return self.classes_[np.argmax(self.predict_proba(X), axis=1)]
-
-
-def _nearest_mean(options: ModelOptions, feature_names: list[str]) -> NearestMean:
-    return NearestMean()
-
-
-TINY = ModelKind("nearest-mean", "distance to class means", FEATURES, _nearest_mean, SKOPS,
-                 default_window="planned",
-                 trusted_types=(f"{NearestMean.__module__}.{NearestMean.__qualname__}",))
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
@@ -113,3 +92,84 @@ def test_unknown_kind_and_model_file_of_a_missing_kind(dataset, tiny_kind, tmp_p
     registry.unregister(TINY.name)
     with pytest.raises(InputError, match="is the package that provides it installed"):
         load_model(path)
+
+
+def test_parameters_are_checked_where_they_are_declared(tiny_kind) -> None:
+    checked = TINY.check_options(ModelOptions(kind="nearest-mean", params={"shrink": 1}))
+    assert checked.params == {"shrink": 1.0}
+    assert TINY.check_options(ModelOptions(kind="nearest-mean")).params == {"shrink": 0.0}
+    cases = [("nearest-mean", {"shrink": 2.0}, r"shrink must be in \[0, 1\], got 2.0"),
+             ("nearest-mean", {"c": 1.0}, "takes no parameter 'c'"),
+             ("svm", {"c": 0.0}, "c must be positive, got 0.0"),
+             ("lstm", {"dropout": 1.0}, r"dropout must be in \[0, 1\)"),
+             ("lstm", {"device": "tpu"}, "device must be one of auto, cpu, cuda"),
+             ("minirocket", {"epochs": 5}, "model 'minirocket' takes no parameter 'epochs'")]
+    for kind, params, message in cases:
+        with pytest.raises(InputError, match=message):
+            registry.make_estimator(kind, [], **params)
+    with pytest.raises(InputError, match="seed must be at least 0"):
+        registry.make_estimator("svm", [], seed=-1)
+
+
+def test_declarations_load_without_sklearn_or_torch() -> None:
+    code = textwrap.dedent("""
+        import sys
+        from contactkit.classify import registry
+        for name in registry.kind_names():
+            registry.get_kind(name).params
+        heavy = [m for m in ("sklearn", "torch", "skops", "aeon") if m in sys.modules]
+        assert not heavy, heavy
+    """)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+
+
+def test_a_kind_from_an_entry_point_through_the_command_line(dataset, tiny_kind, tmp_path,
+                                                             monkeypatch) -> None:
+    """One module (tests/tiny_kind.py) and one entry-point line: its parameter becomes
+    an option of train, is checked where declared, and its model predicts."""
+    site = tmp_path / "site"
+    dist = site / "tinykind-0.1.dist-info"
+    dist.mkdir(parents=True)
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: tinykind\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text(
+        "[contactkit.models]\nnearest-mean = tests.tiny_kind:TINY\n")
+    monkeypatch.setenv("PYTHONPATH", f"{site}:{ROOT}")
+    helptext = " ".join(run_cli("classify", "train", "--help").stdout.split())
+    assert "--shrink <float>" in helptext and "(models: nearest-mean)" in helptext
+    out = tmp_path / "tiny.skops"
+    trained = run_cli("classify", "train", str(dataset), "--model", "nearest-mean",
+                      "--shrink", "0.25", "--out", str(out), "--workers", "1")
+    assert trained.returncode == 0, trained.stderr
+    meta = load_model(out).meta
+    assert meta["kind"] == "nearest-mean"
+    assert meta["training"]["options"]["params"] == {"shrink": 0.25}
+    predicted = run_cli("classify", "predict", str(out), str(sorted(dataset.glob("*.parquet"))[0]),
+                        "--json")
+    assert predicted.returncode == 0, predicted.stderr
+    line = json.loads(predicted.stdout.splitlines()[0])
+    assert sum(line["probabilities"].values()) == pytest.approx(1.0, abs=1e-3)
+    for args, message in ((["--shrink", "2"], r"shrink must be in [0, 1], got 2.0"),
+                          (["--C", "1"], "--C is not an option of model 'nearest-mean' (it "
+                                         "belongs to svm, per-joint, three-joint)")):
+        bad = run_cli("classify", "train", str(dataset), "--model", "nearest-mean", *args,
+                      "--out", str(tmp_path / "bad.skops"), "--workers", "1")
+        assert bad.returncode == 2 and message in bad.stderr, bad.stderr
+        assert bad.stderr.count("\n") == 1
+
+
+def test_no_branch_on_a_kind_name_outside_its_module() -> None:
+    """A kind's name appears, as a string, only in the module that declares it: nothing
+    else in the library compares with it or picks it as a default."""
+    from tests.test_layering import all_modules, source_folders
+
+    declared_in = {name: registry.get_kind(name).make.__module__
+                   for name in registry.kind_names() if name != TINY.name}
+    found = []
+    for module, path in all_modules(source_folders()).items():
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.Constant) and node.value in declared_in and \
+                    declared_in[node.value] != module:
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.value!r}")
+    assert found == [], "\n".join(found)

@@ -11,7 +11,7 @@ import pytest
 
 from contactkit.classify.grids import GridSpec, load_grids, resample_window, window_grid
 from contactkit.classify.modelfile import load_model
-from contactkit.classify.nn import CNNClassifier, LSTMClassifier
+from contactkit.classify.networks import CNNClassifier, LSTMClassifier
 from contactkit.features.observer import ObserverConfig
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain
 from contactkit.schemas import read_session
@@ -68,7 +68,7 @@ def test_onnx_model_file_round_trip_and_refusal(dataset: Path, tmp_path: Path) -
                       "--width", "0.5")
     assert trained.returncode == 0, trained.stderr
     options = load_model(model).meta["training"]["options"]
-    assert options["depth"] == 1 and options["width"] == 0.5
+    assert options["params"]["depth"] == 1 and options["params"]["width"] == 0.5
     bad = run_cli("classify", "train", str(dataset), "--model", "cnn", "--depth", "0",
                   "--out", str(tmp_path / "bad.onnx"))
     assert bad.returncode == 2 and "depth must be at least 1" in bad.stderr
@@ -97,7 +97,8 @@ def test_parallel_splits_give_the_same_report(grids) -> None:
 
     def run(workers: int):
         return evaluate(grids.X, grids.labels(), lambda: LSTMClassifier(seed=2, **SMALL),
-                        protocol="group", groups=grids.groups("pose"), workers=workers)
+                        protocol="group", model="lstm", groups=grids.groups("pose"),
+                        workers=workers)
 
     serial, parallel = run(1), run(2)
     assert serial.confusion_counts == parallel.confusion_counts

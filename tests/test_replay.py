@@ -15,6 +15,7 @@ import rerun as rr
 import rerun.chunk as rc
 
 from contactkit.classify.data import load_features
+from contactkit.classify.events import ContactEvent
 from contactkit.classify.modelfile import load_model, save_model
 from contactkit.classify.registry import get_kind, make_estimator
 from contactkit.cli import replay as replay_cli
@@ -23,8 +24,9 @@ from contactkit.errors import InputError
 from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import scalar_features
 from contactkit.features.timeseries import TimeseriesChain, columns_of
+from contactkit.replay import recording
 from contactkit.replay.engine import next_hop_after
-from contactkit.replay.recording import ContactEvent, log_contact_events
+from contactkit.replay.recording import log_contact_events
 from contactkit.replay.session_replay import ReplaySummary, replay_sessions
 from contactkit.robots import RobotSetup
 from contactkit.robots.surfaces import viewer_urdf_file
@@ -367,3 +369,27 @@ def test_replay_jumps_over_a_gap_and_refuses_a_time_jump(model_path, session, tm
     assert code == 2 and "time jumps by 1e+06 s" in err, err
     assert not (tmp_path / "j.rrd").exists()
     assert not [p for p in tmp_path.iterdir() if ".contactkit-" in p.name]
+
+
+def test_a_zero_run_column_keeps_the_same_rows_however_it_is_split(monkeypatch) -> None:
+    """The applied force goes out sparse: its non-zero rows, the zero rows beside them
+    and the first and last row, the same rows whatever blocks the replay streams."""
+    sent = []
+    monkeypatch.setattr(recording.layout, "log_scalar_columns",
+                        lambda rec, path, t, sample, values: sent.append((t, values)))
+    rng = np.random.default_rng(1)
+    values = np.zeros((200, 3))
+    values[40:60] = rng.normal(size=(20, 3))
+    values[120:121, 2] = 1.0
+    values[199] = 0.0
+    t, sample = np.arange(200) / 100.0, np.arange(200)
+    expected = [0, *range(39, 61), 119, 120, 121, 199]
+    for cuts in ([], [1, 39, 40, 61, 120, 121, 198], list(range(1, 200, 7))):
+        sent.clear()
+        runs = recording.ZeroRuns(layout.TRUE_FORCE)
+        for part in np.split(np.arange(200), cuts):
+            runs.log(None, t[part], sample[part], values[part])
+        runs.finish(None)
+        logged = np.concatenate([s[0] for s in sent])
+        assert np.array_equal(np.round(logged * 100).astype(int), expected), cuts
+        assert np.array_equal(np.concatenate([s[1] for s in sent]), values[expected])

@@ -172,3 +172,25 @@ def test_a_plugin_robot_is_one_module_and_one_entry_point(tmp_path: Path,
     assert "tinyarm" in robot_names()
     model = RobotModel(RobotSetup("tinyarm", with_hand=False))
     assert model.model.nq == 7 and model.end_effector == "panda_link8"
+
+
+def test_friction_is_finite_and_silent_at_any_velocity() -> None:
+    """An unstable simulation once reached |dq| > 41 rad/s, where exp() in the logistic
+    overflowed and numpy warned on the user's terminal; the model is now exact without
+    overflow, and unchanged where it was fine."""
+    import warnings
+
+    from contactkit.robots import GAZ_FRICTION
+
+    dq = np.array([[-1e4] * 7, [-50.0] * 7, [-0.3] * 7, [0.0] * 7, [0.3] * 7, [1e4] * 7])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tau = GAZ_FRICTION.torque(dq)
+    assert np.isfinite(tau).all()
+    np.testing.assert_allclose(tau[3], 0.0, atol=1e-12)
+    f = GAZ_FRICTION
+    naive = f.phi1 / (1 + np.exp(-f.phi2 * (dq[2:5] + f.phi3))) \
+        - f.phi1 / (1 + np.exp(-f.phi2 * f.phi3))
+    np.testing.assert_allclose(tau[2:5], naive, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(tau[0], -f.at_rest, atol=1e-9)  # the sigmoid's floor, 0
+    np.testing.assert_allclose(tau[-1], f.phi1 - f.at_rest, atol=1e-9)  # and its top, phi1

@@ -30,6 +30,7 @@ import numpy as np
 from contactkit.recorder.protocol import pose_q
 from contactkit.recorder.sources import Source
 from contactkit.schemas import joint_columns
+from contactkit.util.params import Interval
 
 
 class StillArm(Source):
@@ -41,7 +42,8 @@ class StillArm(Source):
 
     @dataclass(frozen=True)
     class Config:
-        samples: int = field(default=100, metadata={"help": "How many samples."})
+        samples: int = field(default=100, metadata={"help": "How many samples.",
+                                                    "constraints": (Interval(2, None),)})
         period: float = field(default=0.002, metadata={"help": "Sample period.", "unit": "s"})
         motion: Literal["still", "drift"] = field(default="still", metadata={
             "help": "What the arm does."})
@@ -78,10 +80,10 @@ def test_builtin_sources_and_their_options() -> None:
     assert {"sim", "can"} <= set(registered_sources())
     classes, problems = load_sources()
     assert classes["sim"] is SimSource and classes["can"] is CanSource and not problems
-    sim = {o.name: o for o in source_options(SimSource.Config)}
+    sim = {o.option[2:]: o for o in source_options(SimSource.Config)}
     assert sim["rate"].unit == "Hz" and sim["rate"].default == 1000.0
     assert sim["jitter-ms"].describe().startswith("Time-stamp jitter, uniform +- [ms].")
-    can = {o.name: o for o in source_options(CanSource.Config)}
+    can = {o.option[2:]: o for o in source_options(CanSource.Config)}
     assert can["channel"].required and "map" in can and can["timeout"].unit == "s"
 
 
@@ -136,3 +138,7 @@ def test_plugin_source_from_an_entry_point(tmp_path: Path) -> None:
                 "none", "--out", str(tmp_path / "out"))
     assert wrong.returncode == 2
     assert "--rate is not an option of source 'stillarm'" in wrong.stderr
+    refused = run("capture", "--source", "stillarm", "--samples", "1", "--pose", "C",
+                  "--action", "none", "--out", str(tmp_path / "out"))
+    assert refused.returncode == 2
+    assert "source 'stillarm': samples must be at least 2, got 1" in refused.stderr

@@ -21,13 +21,12 @@ from contactkit.features.per_sample import write_per_sample_table
 from contactkit.features.timeseries import (
     ALL_TIMESERIES,
     ChainConfig,
-    ChunkedChain,
     TimeseriesChain,
 )
 from contactkit.replay import engine
 from contactkit.replay.session_replay import replay_session
 from contactkit.schemas import SessionMeta, read_session, write_session
-from contactkit.schemas.session import REQUIRED_COLUMNS
+from contactkit.schemas.session import REQUIRED_COLUMNS, SampleBatch, iter_sample_batches
 from contactkit.viewer import layout
 from tests.conftest import make_session, run_cli
 from tests.rrd_frames import assert_frames_ok
@@ -43,21 +42,35 @@ def shove(tmp_path_factory) -> Path:
 def test_chunked_chain_equals_the_whole_session_chain(shove, size) -> None:
     s = read_session(shove)
     whole = TimeseriesChain().compute(s.t, s.q, s.dq, s.tau)
-    chain = ChunkedChain()
-    parts = [chain.compute(s.t[i:i + size], s.q[i:i + size], s.dq[i:i + size],
-                           s.tau[i:i + size]) for i in range(0, s.n_samples, size)]
+    chain = TimeseriesChain()
+    batch = SampleBatch(s.t, s.q, s.dq, s.tau)
+    parts = [chain.feed(batch.take(slice(i, i + size))) for i in range(0, s.n_samples, size)]
     for name in ALL_TIMESERIES:
         chunked = np.concatenate([part[name] for part in parts])
         assert chunked.shape == whole[name].shape
         assert np.abs(chunked - whole[name]).max() <= 1e-9, name
 
 
+def test_sample_batches_stack_the_session_columns(shove) -> None:
+    s = read_session(shove)
+    (batch,) = list(iter_sample_batches(s, s.n_samples))
+    assert np.array_equal(batch.q, s.q) and np.array_equal(batch.tau, s.tau)
+    assert batch.f_ext.shape == (s.n_samples, 3) and batch.contact.dtype == bool
+    assert batch.tau_ext_hat is None
+    columns = {name: s.column(name).copy() for name in s.table.column_names}
+    columns["q_3"][5] = np.nan
+    gappy = SampleBatch.from_columns(columns).complete()
+    assert len(gappy) == s.n_samples - 1 and gappy.t[5] == s.t[6]
+    assert np.array_equal(gappy.f_ext[5], batch.f_ext[6])
+
+
 def test_an_empty_chunk_changes_nothing(shove) -> None:
     s = read_session(shove)
-    chain = ChunkedChain(names=["r"])
-    first = chain.compute(s.t[:10], s.q[:10], s.dq[:10], s.tau[:10])["r"]
-    assert chain.compute(s.t[:0], s.q[:0], s.dq[:0], s.tau[:0])["r"].shape == (0, 7)
-    rest = chain.compute(s.t[10:], s.q[10:], s.dq[10:], s.tau[10:])["r"]
+    chain = TimeseriesChain(names=["r"])
+    batch = SampleBatch(s.t, s.q, s.dq, s.tau)
+    first = chain.feed(batch.take(slice(10)))["r"]
+    assert chain.feed(batch.take(slice(0)))["r"].shape == (0, 7)
+    rest = chain.feed(batch.take(slice(10, None)))["r"]
     whole = TimeseriesChain().compute(s.t, s.q, s.dq, s.tau, ["r"])["r"]
     assert np.abs(np.vstack([first, rest]) - whole).max() <= 1e-9
 
@@ -150,8 +163,21 @@ def _rows(rrd: Path) -> dict[str, int]:
     return counts
 
 
+def _sparse_rows(force: np.ndarray) -> int:
+    """Return how many rows of the applied force (N, 3) a replay logs: the non-zero
+    rows, the zero rows beside them, the first and the last (replay.recording.ZeroRuns)."""
+    nonzero = np.any(force != 0, axis=1)
+    keep = nonzero.copy()
+    keep[1:] |= nonzero[:-1]
+    keep[:-1] |= nonzero[1:]
+    keep[[0, -1]] = True
+    return int(keep.sum())
+
+
 def test_log_rate_thins_what_goes_to_rerun(tmp_path, shove, quick_model) -> None:
-    t = read_session(shove).t  # 500 Hz: the robot is drawn every 8th sample (about 60 Hz)
+    session = read_session(shove)
+    t = session.t  # 500 Hz: the robot is drawn every 8th sample (about 60 Hz)
+    force = np.column_stack([session.table.column(f"f_ext_{a}").to_numpy() for a in "xyz"])
     rows = {}
     for log_rate in (None, 100.0):
         out = tmp_path / f"thin_{log_rate}.rrd"
@@ -166,12 +192,14 @@ def test_log_rate_thins_what_goes_to_rerun(tmp_path, shove, quick_model) -> None
     expected = {None: (len(t), len(t[::8])), 100.0: (len(t[::5]), len(t[::8])),
                 20.0: (len(t[::25]), len(np.unique(np.floor(t[::8] * 20 + 1e-6))))}
     for log_rate, (series, robot) in expected.items():
-        for entity in (layout.Q, layout.TAU, layout.RESIDUAL, layout.FORCE_NORM,
-                       layout.TRUE_FORCE):
+        for entity in (layout.Q, layout.TAU, layout.RESIDUAL, layout.FORCE_NORM):
             assert rows[log_rate][entity] == series, (log_rate, entity)
+        step = {None: 1, 100.0: 5, 20.0: 25}[log_rate]
+        assert rows[log_rate][layout.TRUE_FORCE] == _sparse_rows(force[::step])
         assert rows[log_rate][f"{layout.JOINT_TRANSFORMS}/panda_joint1"] == robot, log_rate
         # predictions are logged at every hop, thinned or not
         assert rows[log_rate][layout.PROBABILITY] == rows[None][layout.PROBABILITY] > 100
+    assert rows[None][layout.TRUE_FORCE] < len(t) / 2
 
 
 def test_replay_streamed_in_small_batches_logs_the_chain(tmp_path, shove, quick_model,

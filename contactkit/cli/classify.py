@@ -15,45 +15,32 @@ from typing import Annotated
 
 import typer
 
-from contactkit.classify.augmentation import run_augmentation
-from contactkit.classify.calibrate import calibrate_sessions
-from contactkit.classify.data import GROUP_KEYS
-from contactkit.classify.evaluate import PROTOCOLS, report_markdown
-from contactkit.classify.events import session_events
-from contactkit.classify.experiments import EXPERIMENTS, Setting, run_experiment
-from contactkit.classify.gridsearch import (
-    NETWORKS,
-    THESIS_DEPTHS,
-    THESIS_DROPOUTS,
-    THESIS_WIDTHS,
-    best_model_path,
-    best_trial,
-    grid_trials,
-    run_trials,
-    train_best,
-    write_results,
+from contactkit.classify.devices import DEVICES
+from contactkit.classify.kind import SEED, ModelOptions
+from contactkit.classify.names import EXPERIMENTS, GROUP_KEYS, PROTOCOLS
+from contactkit.classify.registry import (
+    DEFAULT_KIND,
+    DEFAULT_SEARCHED,
+    get_kind,
+    kind_names,
+    searchable_kinds,
 )
-from contactkit.classify.gridsearch import Protocol as GridProtocol
-from contactkit.classify.kind import ModelOptions
-from contactkit.classify.modelfile import load_model
-from contactkit.classify.networks import DEVICES
-from contactkit.classify.prediction import predict_sources, session_paths
-from contactkit.classify.registry import get_kind, kind_names
 from contactkit.classify.schemes import SCHEMES
-from contactkit.classify.training import evaluate_kind, train
 from contactkit.cli.common import RobotOpt, exit_if_failed, new_app, run_app, scheduler_of
+from contactkit.cli.flags import command_with_flags, owner_values, shared_flags
 from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.detector import DetectorConfig, load_calibration, save_calibration
-from contactkit.features.extract import SessionFeatures, feature_rows
-from contactkit.features.per_sample import write_per_sample_table
+from contactkit.features.names import ALL_TIMESERIES, GROUPS
 from contactkit.features.scalars import SCALARS
-from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS, ChainConfig
 from contactkit.features.windows import METHODS
 from contactkit.schemas import InputError, read_session
-from contactkit.schemas.features import write_feature_table
 from contactkit.util.atomic import check_target, write_text
 from contactkit.util.parallel import available_cpus
+from contactkit.util.params import Param
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar
+
+# The commands import the library (scikit-learn, skops, the chain, torch for networks)
+# inside their functions: `classify --help` loads none of it (tests/test_startup.py).
 
 app = new_app("classify", help="Turn sessions into features and contact predictions.",
               root_options=True)
@@ -71,7 +58,7 @@ Group = _choices("Group", GROUP_KEYS)
 Method = _choices("Method", METHODS)
 Experiment = _choices("Experiment", (*EXPERIMENTS, "augmentation"))
 Device = _choices("Device", DEVICES)
-Network = _choices("Network", NETWORKS)
+Network = _choices("Network", searchable_kinds())
 
 
 def _split(value: str | None) -> tuple[str, ...] | None:
@@ -112,6 +99,12 @@ def features_command(
 ) -> None:
     """Compute features of a session or dataset: one row per session (scalar features
     of the interaction window), or with --per-sample one row per sample."""
+    from contactkit.classify.prediction import session_paths
+    from contactkit.features.extract import SessionFeatures, feature_rows
+    from contactkit.features.per_sample import write_per_sample_table
+    from contactkit.features.timeseries import ChainConfig
+    from contactkit.schemas.features import write_feature_table
+
     files = session_paths(source)
     _refuse_existing(out, overwrite)
     with progress_bar("per-sample features" if per_sample else "features") as bar:
@@ -129,11 +122,10 @@ def features_command(
         result = feature_rows(files, extractor, workers, progress,
                               scheduler=scheduler_of(ctx))
     _skipped(result.problems)
-    if not result.rows:
+    if not len(result):
         raise InputError("no session could be processed", source)
-    write_feature_table(out, result.rows, result.names, extractor.config(),
-                        overwrite=overwrite)
-    err_console.print(f"{len(result.rows)} sessions x {len(result.names)} features")
+    write_feature_table(out, result.table(extractor.config()), overwrite=overwrite)
+    err_console.print(f"{len(result)} sessions x {len(result.names)} features")
     print(out)
     exit_if_failed(result.problems)
 
@@ -151,58 +143,57 @@ SchemeOpt = Annotated[Scheme, typer.Option(help="Class scheme.")]
 LimitedOpt = Annotated[bool, typer.Option(
     help="Limited context: drop shove from static and adjust from dynamic.")]
 COpt = Annotated[float, typer.Option("--C", help="SVM regularisation C.")]
-SeedOpt = Annotated[int, typer.Option(help="Random seed (same seed, same result).")]
+SeedOpt = Annotated[int, typer.Option(help=SEED.help)]
 WorkersOpt = Annotated[int, typer.Option(
     help="Parallel processes for features (and, for networks, for evaluation splits).")]
-EpochsOpt = Annotated[int, typer.Option(help="Networks: most training epochs (early "
-                                             "stopping on a validation split).")]
 StepsOpt = Annotated[int, typer.Option(help="Networks: time steps of a window grid.")]
-DepthOpt = Annotated[int | None, typer.Option(
-    help="CNN/LSTM: layer multiplier (thesis grid 1, 2, 4; default CNN 4, LSTM 2).")]
-WidthOpt = Annotated[float, typer.Option(
-    help="CNN/LSTM: kernel and neuron multiplier (thesis grid 0.5, 1, 2).")]
-DropoutOpt = Annotated[float, typer.Option(
-    help="CNN/LSTM: dropout after each pooling and dense layer (thesis grid 0, 0.1, 0.25).")]
-DeviceOpt = Annotated[Device, typer.Option(
-    help="CNN/LSTM: where to train (auto: CUDA when PyTorch sees a GPU; a Dask worker "
-         "uses its own GPU). Repeatable under --seed on the CPU.")]
 DatasetsArg = Annotated[list[Path], typer.Argument(
     help="Dataset directories (or feature tables from `classify features`); several are "
          "combined, e.g. a static and a dynamic set.")]
+MODEL_OPTIONS = {"--out", "--model", "--features", "--scalars", "--window", "--window-s",
+                 "--scheme", "--limited", "--no-limited", "--seed", "--workers", "--overwrite",
+                 "--no-overwrite", "--steps", "--protocol", "--group", "--json", "--help"}
+"""The options of train and evaluate themselves, which no kind's parameter may take."""
+KIND_FLAGS, _ = shared_flags({name: get_kind(name).params for name in kind_names()},
+                             MODEL_OPTIONS, what="models")
+"""Every kind's parameters as options of train and evaluate (a kind whose parameter
+clashes with a command's option or another kind's of another type gets none)."""
 
 
-def _options(model, features, scalars, window, window_s, c, seed, epochs, steps, depth,
-             width, dropout, device) -> ModelOptions:
-    """Return the model options of the command line, checked for their kind before any
-    data is read (or a progress bar drawn)."""
-    options = ModelOptions(kind=Kind(model).value, timeseries=_split(features),
-                           scalars=_split(scalars), window=None if window is None
-                           else Method(window).value, window_s=window_s, steps=steps, c=c,
-                           seed=seed, epochs=epochs, depth=depth, width=width,
-                           dropout=dropout, device=Device(device).value)
-    get_kind(options.kind).check_options(options)
-    return options
+def _options(ctx: typer.Context, model: str, features: str | None, scalars: str,
+             window: str | None, window_s: float, seed: int, steps: int) -> ModelOptions:
+    """Return the model options of the command line, the kind's parameters among them
+    (from its generated options, ``ctx.meta["params"]``), checked for their kind before
+    any data is read (or a progress bar drawn)."""
+    kind = get_kind(Kind(model).value)
+    options = ModelOptions(
+        kind=kind.name, timeseries=_split(features), scalars=_split(scalars),
+        window=None if window is None else Method(window).value, window_s=window_s,
+        steps=steps, seed=seed,
+        params=owner_values(KIND_FLAGS, ctx.meta["params"], kind.name, "model"))
+    return kind.check_options(options)
 
 
-@app.command("train")
+@command_with_flags(app, "train", list(KIND_FLAGS.values()), key="params")
 def train_command(
     ctx: typer.Context,
     datasets: DatasetsArg,
     out: Annotated[Path, typer.Option(
         help="Model file to write: .skops (SVMs, MiniRocket) or .onnx (CNN, LSTM).")],
-    model: ModelOpt = "svm", features: FeaturesOpt = None, scalars: ScalarsOpt = "range",
-    window: WindowOpt = None, window_s: WindowSOpt = 0.5, scheme: SchemeOpt = "full",
-    limited: LimitedOpt = False, c: COpt = 1.0, seed: SeedOpt = 0,
+    model: ModelOpt = DEFAULT_KIND, features: FeaturesOpt = None,
+    scalars: ScalarsOpt = "range", window: WindowOpt = None, window_s: WindowSOpt = 0.5,
+    scheme: SchemeOpt = "full", limited: LimitedOpt = False, seed: SeedOpt = 0,
     workers: WorkersOpt = DEFAULT_WORKERS,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing model file.")] = False,
-    epochs: EpochsOpt = 100, steps: StepsOpt = 300, depth: DepthOpt = None,
-    width: WidthOpt = 2.0, dropout: DropoutOpt = 0.02, device: DeviceOpt = "cpu",
+    steps: StepsOpt = 300,
 ) -> None:
     """Train a classifier on every session of the datasets and save it as a safe model file
-    (.skops; a CNN or LSTM as .onnx)."""
+    (.skops; a CNN or LSTM as .onnx). The model's own parameters are the options after
+    --steps (each names the models that take it)."""
+    from contactkit.classify.training import train
+
     _refuse_existing(out, overwrite)
-    options = _options(model, features, scalars, window, window_s, c, seed, epochs, steps,
-                       depth, width, dropout, device)
+    options = _options(ctx, model, features, scalars, window, window_s, seed, steps)
     with progress_bar("train") as bar:
         trained = train(datasets, out, options, scheme=Scheme(scheme).value, limited=limited,
                         workers=workers, overwrite=overwrite, progress=labelled_progress(bar),
@@ -214,7 +205,7 @@ def train_command(
     exit_if_failed(trained.problems)
 
 
-@app.command("evaluate")
+@command_with_flags(app, "evaluate", list(KIND_FLAGS.values()), key="params")
 def evaluate_command(
     ctx: typer.Context,
     datasets: DatasetsArg,
@@ -222,22 +213,25 @@ def evaluate_command(
         help="thesis: 25 random 80/20 splits; group: no group on both sides of a split.")
                         ] = "group",
     group: Annotated[Group, typer.Option(help="Grouping for the group protocol.")] = "pose",
-    model: ModelOpt = "svm", features: FeaturesOpt = None, scalars: ScalarsOpt = "range",
-    window: WindowOpt = None, window_s: WindowSOpt = 0.5, scheme: SchemeOpt = "full",
-    limited: LimitedOpt = False, c: COpt = 1.0, seed: SeedOpt = 0,
+    model: ModelOpt = DEFAULT_KIND, features: FeaturesOpt = None,
+    scalars: ScalarsOpt = "range", window: WindowOpt = None, window_s: WindowSOpt = 0.5,
+    scheme: SchemeOpt = "full", limited: LimitedOpt = False, seed: SeedOpt = 0,
     workers: WorkersOpt = DEFAULT_WORKERS,
     json_out: Annotated[Path | None, typer.Option(
         "--json", help="Also write the report as JSON.")] = None,
-    epochs: EpochsOpt = 100, steps: StepsOpt = 300, depth: DepthOpt = None,
-    width: WidthOpt = 2.0, dropout: DropoutOpt = 0.02, device: DeviceOpt = "cpu",
+    steps: StepsOpt = 300,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing --json file.")] = False,
 ) -> None:
     """Evaluate a classifier honestly and print accuracy, balanced accuracy, macro-F1,
-    per-class recall with 95 % confidence intervals, and the confusion matrix."""
+    per-class recall with 95 % confidence intervals, and the confusion matrix. The
+    model's own parameters are the options after --overwrite (each names the models
+    that take it)."""
+    from contactkit.classify.evaluate import report_markdown
+    from contactkit.classify.training import evaluate_kind
+
     if json_out is not None:
         check_target(json_out, overwrite=overwrite)
-    options = _options(model, features, scalars, window, window_s, c, seed, epochs, steps,
-                       depth, width, dropout, device)
+    options = _options(ctx, model, features, scalars, window, window_s, seed, steps)
     with progress_bar("evaluate") as bar:
         report, problems = evaluate_kind(
             datasets, options, protocol=Protocol(protocol).value, group=Group(group).value,
@@ -267,6 +261,9 @@ def predict_command(
 ) -> None:
     """Predict the contact class of sessions with a trained model, or (--events) the
     contact events the model's detector finds and the intent decided for each."""
+    from contactkit.classify.modelfile import load_model
+    from contactkit.classify.prediction import predict_sources
+
     model = load_model(model_path)
     if events or calibration is not None:
         detector = (load_calibration(calibration) if calibration is not None
@@ -301,6 +298,8 @@ def _print_events(model, source: Path, detector: DetectorConfig, decide_after: f
     ``robot`` instead of each session's own when given; return the sessions that failed
     as ``(path, problem)``."""
     from contactkit.classify.event_listener import contact_text
+    from contactkit.classify.events import session_events
+    from contactkit.classify.prediction import session_paths
 
     events_model = model.event_model()
     problems = []
@@ -343,6 +342,9 @@ def calibrate_command(
     """Calibrate the contact detector on a robot's no-contact sessions: record a minute
     of free motion and holds, calibrate, then pass --calibration robot.json to replay
     and predict."""
+    from contactkit.classify.calibrate import calibrate_sessions
+    from contactkit.classify.prediction import session_paths
+
     check_target(out, overwrite=overwrite)
     if margin < 1:
         raise InputError(f"--margin must be at least 1, got {margin}")
@@ -375,18 +377,24 @@ def experiment_command(
     workers: WorkersOpt = DEFAULT_WORKERS,
     model: Annotated[Kind, typer.Option(
         help="augmentation: the network (the thesis used its CNN, hours per training on "
-             "a CPU).")] = "lstm",
+             "a CPU).")] = DEFAULT_SEARCHED,
     repeats: Annotated[int, typer.Option(
         help="augmentation: repetitions, each with its own real test split.")] = 3,
-    epochs: EpochsOpt = 60, steps: StepsOpt = 300,
+    epochs: Annotated[int, typer.Option(help="augmentation: the network's most training "
+                                             "epochs, where it takes them.")] = 60,
+    steps: StepsOpt = 300,
     noise_file: Annotated[Path | None, typer.Option(
         help="augmentation: noise baseline from `recorder stats --deep` (default: "
              "measured on the real set's no-contact sessions).")] = None,
-    device: DeviceOpt = "cpu",
+    device: Annotated[Device, typer.Option(
+        help="augmentation: where the network trains, where it takes a device.")] = "cpu",
 ) -> None:
     """Regenerate a thesis table on any dataset: features (Appendix B), rfe, speed
     (Figure 6.5), window (accuracy against window length), or augmentation REAL SIM
     (Algorithm 3: less real data, added simulated data and noise augmentation)."""
+    from contactkit.classify.augmentation import run_augmentation
+    from contactkit.classify.experiments import Setting, run_experiment
+
     name = Experiment(name).value
     setting = Setting(protocol=Protocol(protocol).value, group_by=Group(group).value,
                       scheme=Scheme(scheme).value, seed=seed, workers=workers, c=c,
@@ -397,8 +405,10 @@ def experiment_command(
             if len(datasets) != 2:
                 raise InputError("augmentation takes two datasets: REAL_DIR SIM_DIR")
             kind = get_kind(Kind(model).value)
-            options = ModelOptions(kind=kind.name, steps=steps, epochs=epochs, seed=seed,
-                                   device=Device(device).value)
+            takes = {p.name for p in kind.params}
+            params = {"epochs": epochs, "device": Device(device).value}
+            options = ModelOptions(kind=kind.name, steps=steps, seed=seed, params={
+                k: v for k, v in params.items() if k in takes})
             paths = run_augmentation(datasets[0], datasets[1], out, kind=kind,
                                      options=options, repeats=repeats, workers=workers,
                                      noise_file=noise_file, progress=progress,
@@ -410,26 +420,41 @@ def experiment_command(
 
 
 def _numbers(option: str, text: str, kind: type) -> list:
+    """Return the comma-separated numbers of ``text`` converted by ``kind``; raise
+    InputError naming ``option`` when one is not a number."""
     try:
         return [kind(v) for v in _split(text) or ()]
     except ValueError as err:
         raise InputError(f"{option}: {text!r} is not a list of numbers") from err
 
 
-@app.command("gridsearch")
+def _values_param(param: Param) -> Param:
+    """Return the declaration of the grid search's option for a searched parameter: its
+    values to try, comma-separated (``--depths`` for ``depth``)."""
+    grid = ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in param.grid)
+    return Param(f"{param.name}s", str, grid, f"{param.help.split(' (')[0].rstrip('.')}: "
+                 f"values to try, comma-separated.", flag=f"{param.option[2:]}s")
+
+
+GRID_OPTIONS = {"--out", "--model", "--steps", "--inputs", "--protocol", "--group", "--scheme",
+                "--window", "--window-s", "--seed", "--workers", "--overwrite", "--no-overwrite",
+                "--help"}
+"""The grid search's own options, which no kind's parameter may take."""
+GRID_FLAGS, _ = shared_flags({name: [_values_param(p) if p.grid else p
+                                     for p in get_kind(name).params]
+                              for name in searchable_kinds()}, GRID_OPTIONS, what="models")
+"""The searchable kinds' parameters as options of the grid search: the values to try of
+each searched parameter (``--depths``), the single value of the others (``--epochs``)."""
+
+
+@command_with_flags(app, "gridsearch", list(GRID_FLAGS.values()), key="params")
 def gridsearch_command(
     ctx: typer.Context,
     datasets: DatasetsArg,
     out: Annotated[Path, typer.Option(
         help="Output directory: gridsearch.md, gridsearch.json and the best network "
              "trained on every session (best.onnx).")],
-    model: Annotated[Network, typer.Option(help="The network.")] = "lstm",
-    depths: Annotated[str, typer.Option(help="Layer multipliers to try, comma-separated.")
-                      ] = ",".join(f"{v:g}" for v in THESIS_DEPTHS),
-    widths: Annotated[str, typer.Option(help="Kernel and neuron multipliers to try.")
-                      ] = ",".join(f"{v:g}" for v in THESIS_WIDTHS),
-    dropouts: Annotated[str, typer.Option(help="Dropouts to try.")
-                        ] = ",".join(f"{v:g}" for v in THESIS_DROPOUTS),
+    model: Annotated[Network, typer.Option(help="The network.")] = DEFAULT_SEARCHED,
     steps: Annotated[str, typer.Option(help="Time steps of a window grid to try.")] = "300",
     inputs: Annotated[list[str] | None, typer.Option(
         "--inputs", help="Input timeseries of one set of trials, comma-separated; repeat "
@@ -439,31 +464,39 @@ def gridsearch_command(
                         ] = "group",
     group: Annotated[Group, typer.Option(help="Grouping for the group protocol.")] = "pose",
     scheme: SchemeOpt = "full", window: WindowOpt = None, window_s: WindowSOpt = 0.5,
-    epochs: EpochsOpt = 100,
-    patience: Annotated[int, typer.Option(
-        help="Early stopping: epochs without a better validation loss before a training "
-             "stops.")] = 20,
-    seed: SeedOpt = 0, device: DeviceOpt = "cpu",
+    seed: SeedOpt = 0,
     workers: Annotated[int, typer.Option(
         help="Parallel processes: grids, then one trial per process.")] = DEFAULT_WORKERS,
     overwrite: Annotated[bool, typer.Option(help="Replace existing results.")] = False,
 ) -> None:
-    """Search the thesis's network grid (depth, width, dropout, steps, inputs): every
-    trial evaluated under the protocol with early stopping, a ranked table with 95 %
-    intervals (gridsearch.md, .json), and the best network saved as a model file that
-    predict and replay --model take."""
+    """Search the network's declared grid (for the thesis's networks depth, width and
+    dropout) with steps and inputs: every trial evaluated under the protocol with early
+    stopping, a ranked table with 95 % intervals (gridsearch.md, .json), and the best
+    network saved as a model file that predict and replay --model take. The network's
+    parameters are the options after --overwrite."""
+    from contactkit.classify.gridsearch import Protocol as GridProtocol
+    from contactkit.classify.gridsearch import (
+        best_model_path,
+        best_trial,
+        grid_trials,
+        run_trials,
+        train_best,
+        write_results,
+    )
+
     kind = get_kind(Network(model).value)
+    given = owner_values(GRID_FLAGS, ctx.meta["params"], kind.name, "model")
+    grid = {p.name: _numbers(p.option + "s", given.pop(p.name + "s"), p.type)
+            for p in kind.params if p.grid and p.name + "s" in given}
     setting = GridProtocol(model=kind.name, protocol=Protocol(protocol).value,
                            group_by=Group(group).value, scheme=Scheme(scheme).value,
-                           seed=seed, epochs=epochs, patience=patience,
-                           device=Device(device).value,
+                           seed=seed, params=given,
                            window=kind.default_window if window is None
                            else Method(window).value, window_s=window_s)
+    setting.check()
     best_path = best_model_path(out, setting)
     _refuse_existing(best_path, overwrite)
-    trials = grid_trials(_numbers("--depths", depths, int), _numbers("--widths", widths, float),
-                         _numbers("--dropouts", dropouts, float),
-                         _numbers("--steps", steps, int),
+    trials = grid_trials(kind, grid, _numbers("--steps", steps, int),
                          [_split(i) for i in inputs] if inputs else [kind.default_timeseries])
     with progress_bar("grid search") as bar:
         progress = labelled_progress(bar)

@@ -40,6 +40,7 @@ from contactkit.classify.events import DEFAULT_DECIDE_AFTER_S, EVENT_FEATURES
 from contactkit.classify.kind import ModelOptions
 from contactkit.classify.modelfile import FORMAT as MODEL_FORMAT
 from contactkit.classify.modelfile import ModelFile, load_model
+from contactkit.classify.registry import DEFAULT_KIND
 from contactkit.classify.training import train
 from contactkit.features.detector import MIN_NOISE, DetectorConfig
 from contactkit.recorder.sim.dataset import simulate_dataset
@@ -52,7 +53,7 @@ RECIPE = {
     "presets": ["default-static", "default-dynamic"],
     "event_presets": ["free-motion", "mixed-motion"],
     "seed": 0,
-    "model": "svm",
+    "model": DEFAULT_KIND,
     "C": 100.0,
     "features": {"timeseries": ["dq", "tau", "r"],
                  "scalars": ["range", "hjorth_mob", "hjorth_comp"],
@@ -114,7 +115,8 @@ def build_default_model(workers: int = 2, progress: Progress | None = None,
     features = RECIPE["features"]
     options = ModelOptions(kind=RECIPE["model"], timeseries=tuple(features["timeseries"]),
                            scalars=tuple(features["scalars"]), window=features["window"],
-                           window_s=features["window_s"], c=RECIPE["C"], seed=RECIPE["seed"])
+                           window_s=features["window_s"], seed=RECIPE["seed"],
+                           params={"c": RECIPE["C"]})
     return train(sources, path, options, workers=workers, overwrite=True, progress=progress,
                  detector=detector.to_dict(),
                  events=(event_model.estimator, event_model.meta())).path

@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-import inspect
 import json
 import sys
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-import numpy as np
 import typer
-from rich.console import Console
 
 from contactkit.cli.capture import (
     Action,
@@ -22,25 +19,13 @@ from contactkit.cli.capture import (
 from contactkit.cli.common import exit_if_failed, new_app, run_app, scheduler_of
 from contactkit.recorder.capture.journal import recover_directory
 from contactkit.recorder.capture.record import output_directory
-from contactkit.recorder.importers.bags import BagJob, find_bags, import_bag_job, import_bags
-from contactkit.recorder.importers.can_map import load_map
-from contactkit.recorder.importers.can_tools import bridge_session, decoding_summary, import_can_log
-from contactkit.recorder.importers.csv_import import import_csv
-from contactkit.recorder.importers.csv_map import load_csv_map
-from contactkit.recorder.importers.mcap_export import export_mcap
-from contactkit.recorder.importers.writer import import_arrays
-from contactkit.recorder.info import print_info, session_info
-from contactkit.recorder.metadata import session_filename, session_meta, set_session_robot
-from contactkit.recorder.sim.dataset import PRESETS, simulate_dataset
-from contactkit.recorder.sim.simulator import SimConfig
-from contactkit.recorder.sources.can import BusConfig
-from contactkit.recorder.stats.report import OWNED_REPORT, print_summary, report_path, write_report
-from contactkit.recorder.stats.summary import build_report, write_noise_file
-from contactkit.robots import DEFAULT_ROBOT, URDF_PREFIX, get_robot, robot_names
+from contactkit.recorder.metadata import set_session_robot
+from contactkit.recorder.sim.presets import PRESETS
+from contactkit.robots import URDF_PREFIX, get_robot, robot_names
 from contactkit.schemas import InputError, SessionMeta, read_session
-from contactkit.schemas.dataset import rebuild_index
 from contactkit.util.atomic import check_target
 from contactkit.util.parallel import available_cpus
+from contactkit.util.params import Param
 from contactkit.util.progress import (
     bar_callback,
     err_console,
@@ -48,17 +33,19 @@ from contactkit.util.progress import (
     progress_bar,
 )
 
+if TYPE_CHECKING:
+    from contactkit.recorder.importers.jobs import Imported
+
+# The commands import the libraries they run (simulator, importers, statistics, plots)
+# inside their functions, so that `recorder --help` and `recorder info` load none of them:
+# tests/test_startup.py checks which modules they import.
+
 app = new_app("recorder", help="Record Panda joint streams while a person touches the arm on "
               "cue, and manage the resulting sessions. Without a robot, sessions come from a "
               "physics simulation.", root_options=True)
 DEFAULT_WORKERS = available_cpus()
 Preset = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
 ReportFormat = Literal["html", "md", "json"]
-
-
-def _event_option(name: str, kind: Any, default: Any, help: str) -> inspect.Parameter:
-    return inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=default,
-                             annotation=Annotated[kind, typer.Option(help=help)])
 
 
 def _start_events(values: dict[str, Any], meta: SessionMeta) -> Any:
@@ -98,32 +85,18 @@ def _start_events(values: dict[str, Any], meta: SessionMeta) -> Any:
 
 
 EVENTS = CaptureExtension((
-    _event_option("events", bool, False, "Run the contact-event pipeline on every sample as "
-                  "it arrives: print each onset, decision and release, and store the events "
-                  "in the session metadata (recorder info shows them)."),
-    _event_option("model", Path | None, None, "Events: model file from `classify train` "
-                  "(default: the built-in model, built and cached on first use)."),
-    _event_option("calibration", Path | None, None, "Events: contact detector calibration "
-                  "from `classify calibrate` (overrides the model's detector settings)."),
-    _event_option("decide_after", float | None, None, "Events: time after a contact's onset "
-                  "at which its intent is decided [s] (default: the model's)."),
+    Param("events", bool, False, "Run the contact-event pipeline on every sample as it "
+          "arrives: print each onset, decision and release, and store the events in the "
+          "session metadata (recorder info shows them)."),
+    Param("model", Path, None, "Events: model file from `classify train` (default: the "
+          "built-in model, built and cached on first use)."),
+    Param("calibration", Path, None, "Events: contact detector calibration from `classify "
+          "calibrate` (overrides the model's detector settings)."),
+    Param("decide_after", float, None, "Events: time after a contact's onset at which its "
+          "intent is decided (default: the model's).", unit="s"),
 ), _start_events)
 register_capture(app, (EVENTS,))
 
-# The protocol options of the import-* commands, declared once.
-PoseOption = Annotated[Pose, typer.Option(help="Pose of the session (thesis Table 3.1).")]
-ActionOption = Annotated[Action, typer.Option(help="What the person did.")]
-ConditionOption = Annotated[Condition, typer.Option(help="Protocol condition.")]
-TargetPoseOption = Annotated[Pose | None, typer.Option(help="Dynamic: target pose.")]
-PlannedAtOption = Annotated[float | None, typer.Option(
-    help="Planned interaction time [s from the first sample].")]
-LinkOption = Annotated[int | None, typer.Option(help="Touched link 1-7.")]
-OperatorOption = Annotated[str, typer.Option(help="Who touched the robot.")]
-HandOption = Annotated[bool, typer.Option(help="The robot carried its hand.")]
-RobotOption = Annotated[str | None, typer.Option(
-    help="The arm: panda, fr3, a plugin's name or urdf:PATH (`recorder robots` lists "
-         "them; default: the map's, else panda).")]
-OutOption = Annotated[Path, typer.Option(help="Output directory.")]
 
 
 @app.command("simulate")
@@ -151,6 +124,9 @@ def simulate_command(
 
     A session that fails is reported and the others are still written (exit code 2).
     """
+    from contactkit.recorder.sim.dataset import simulate_dataset
+    from contactkit.recorder.sim.simulator import SimConfig
+
     chosen = PRESETS[preset]
     config = SimConfig(rate_hz=rate or chosen.rate_hz, noise_scale=noise_scale, robot=robot,
                        robot_seed=chosen.robot_seed if robot_seed is None else robot_seed)
@@ -173,6 +149,8 @@ def simulate_command(
 def robots_command() -> None:
     """List the robot models a session can name: built-in, installed plugins (the
     contactkit.robots entry-point group) and the urdf:PATH form, with their limits."""
+    import numpy as np
+
     for name in robot_names():
         try:
             spec = get_robot(name)
@@ -212,6 +190,8 @@ def index_command(
     directory: Annotated[Path, typer.Argument(help="Dataset directory.")],
 ) -> None:
     """Rebuild DIR/index.parquet (one metadata row per session) from the session files."""
+    from contactkit.schemas.dataset import rebuild_index
+
     result = rebuild_index(directory)
     err_console.print(f"{result.table.num_rows} sessions indexed")
     _print_problems(result.problems)
@@ -235,78 +215,178 @@ def recover_command(
     exit_if_failed([rec for rec in recoveries if rec.failed])
 
 
-@app.command("import-arrays")
-def import_arrays_command(
-    t: Annotated[Path, typer.Option("--t", help="Time stamps [s], one per line.")],
-    q: Annotated[Path, typer.Option("--q", help="Joint positions [rad].")],
-    dq: Annotated[Path, typer.Option("--dq", help="Joint velocities [rad/s].")],
-    tau: Annotated[Path, typer.Option("--tau", help="Measured joint torques [Nm].")],
-    out: OutOption,
-    meta: Annotated[list[str] | None, typer.Option(
-        help="Metadata KEY=VALUE (repeatable), e.g. action=none, with_hand=false, "
-             "planned_at_s=10, pose=A, operator=lab1, notes=...")] = None,
-    name: Annotated[str | None, typer.Option(help="Output file name (default from the "
-                                                   "metadata).")] = None,
-    robot: RobotOption = None,
-    overwrite: Annotated[bool, typer.Option(help="Replace an existing session file.")
-                         ] = False,
-) -> None:
-    """Turn plain arrays (text, CSV or .npy) into a validated session; print its path.
+# The import command: its options, declared once. Protocol choices left out (None) come
+# from the file where it states them, else from the metadata's defaults.
+ImportFiles = Annotated[list[Path] | None, typer.Argument(
+    metavar="FILE", show_default=False,
+    help="Recordings, one session each; a directory imports every recording of --format "
+         "in it (a ROS 2 bag folder is one recording).")]
+FormatOption = Annotated[str | None, typer.Option(
+    "--format", help="The files' format: csv, can, bag, arrays or a plugin's (`recorder "
+                     "importers` lists them; default: from each file's suffix).")]
+PoseOption = Annotated[Pose | None, typer.Option(help="Pose of the session (thesis Table "
+                                                      "3.1), if the robot held one.")]
+ActionOption = Annotated[Action | None, typer.Option(
+    help="What the person did (default: none; a log with several touches keeps them in "
+         "its contact column).")]
+ConditionOption = Annotated[Condition | None, typer.Option(
+    help="Protocol condition (default: static).")]
+TargetPoseOption = Annotated[Pose | None, typer.Option(help="Dynamic: target pose.")]
+PlannedAtOption = Annotated[float | None, typer.Option(
+    help="Planned interaction time [s from the first sample] (a bag's label topic gives "
+         "one).")]
+LinkOption = Annotated[int | None, typer.Option(help="Touched link 1-7.")]
+OperatorOption = Annotated[str | None, typer.Option(help="Who touched the robot.")]
+HandOption = Annotated[bool | None, typer.Option(
+    "--hand/--no-hand", help="The robot carried its hand (default: yes).")]
+RobotOption = Annotated[str | None, typer.Option(
+    help="The arm: panda, fr3, a plugin's name or urdf:PATH (`recorder robots` lists "
+         "them; default: the map's, else panda).")]
+NotesOption = Annotated[str | None, typer.Option(help="Free text stored in the metadata.")]
+MetaOption = Annotated[list[str] | None, typer.Option(
+    help="Any other metadata field KEY=VALUE (repeatable), e.g. speed_rad_s=0.5, "
+         "pose_q=[...], session_id=...; values read as JSON where they can be.")]
+MapOption = Annotated[Path | None, typer.Option(
+    "--map", help="csv: column map TOML (required; example for the MindLab ZHAW files: "
+                  "recorder/data/mindlab_csv_map.toml). can: frame map TOML (default: "
+                  "CANopen CiA 402).")]
+TopicOption = Annotated[str | None, typer.Option(
+    help="bag: joint-state topic (FrankaState, FrankaRobotState or JointState; default: "
+         "the usual franka_ros/franka_ros2 topics).")]
+LabelTopicOption = Annotated[str | None, typer.Option(
+    help="bag: std_msgs/String or Bool topic of labels or cue events: String events are "
+         "stored with their times (the first is the planned time), Bool is the "
+         "ground-truth contact.")]
+ArraysTOption = Annotated[Path | None, typer.Option(
+    "--t", help="arrays: time stamps [s], one per line (the FILE of --format arrays).")]
+ArraysQOption = Annotated[Path | None, typer.Option(
+    "--q", help="arrays: joint positions [rad], 7 values a line or one per line.")]
+ArraysDqOption = Annotated[Path | None, typer.Option(
+    "--dq", help="arrays: joint velocities [rad/s].")]
+ArraysTauOption = Annotated[Path | None, typer.Option(
+    "--tau", help="arrays: measured joint torques [Nm].")]
+FormatOptionPairs = Annotated[list[str] | None, typer.Option(
+    "--option", help="A format's own option NAME=VALUE (repeatable), for plugins "
+                     "(`recorder importers` lists each format's options).")]
+NameOption = Annotated[str | None, typer.Option(
+    help="Output file name (one FILE only; default: from the metadata).")]
+OutOption = Annotated[Path, typer.Option(help="Output directory.")]
+OverwriteOption = Annotated[bool, typer.Option(help="Replace an existing session file.")]
+WorkersOption = Annotated[int, typer.Option(help="Parallel processes for several files.")]
+IMPORT_ALIASES = {"import-csv": "csv", "import-can": "can", "import-bag": "bag",
+                  "import-arrays": "arrays"}
+"""The import verbs of earlier versions: each is `recorder import --format FORMAT`."""
+NAMED_FORMAT_OPTIONS = ("map", "topic", "label_topic", "q", "dq", "tau")
+"""The format options `recorder import` offers as flags of their own."""
 
-    Joint files hold 7 values per line, or one per line (7 lines a sample); the time
-    file one value per line. Time is shifted to start at 0 s.
-    """
-    pairs = [*(meta or []), *([] if robot is None else [f"robot={robot}"])]
-    print(import_arrays(t, q, dq, tau, output_directory(out), pairs, name, overwrite))
 
-
-@app.command("import-csv")
-def import_csv_command(
-    csv_files: Annotated[list[Path], typer.Argument(help="CSV exports, one session each.")],
-    column_map: Annotated[Path, typer.Option(
-        "--map", help="Column map TOML (example for the MindLab ZHAW files: "
-                      "recorder/data/mindlab_csv_map.toml).")],
-    pose: Annotated[Pose | None, typer.Option(
-        help="Pose (thesis Table 3.1), if the robot held one.")] = None,
-    action: Annotated[Action, typer.Option(
-        help="What the person did (a log with several touches keeps them in its contact "
-             "column).")] = "none",
-    condition: ConditionOption = "static",
+def import_command(
+    ctx: typer.Context,
+    files: ImportFiles = None,
+    fmt: FormatOption = None,
+    pose: PoseOption = None,
+    action: ActionOption = None,
+    condition: ConditionOption = None,
+    target_pose: TargetPoseOption = None,
     planned_at: PlannedAtOption = None,
     link: LinkOption = None,
-    operator: OperatorOption = "",
-    hand: HandOption = True,
+    operator: OperatorOption = None,
+    hand: HandOption = None,
     robot: RobotOption = None,
-    notes: Annotated[str, typer.Option(help="Free text stored in the metadata.")] = "",
+    notes: NotesOption = None,
+    meta: MetaOption = None,
+    column_or_frame_map: MapOption = None,
+    topic: TopicOption = None,
+    label_topic: LabelTopicOption = None,
+    t: ArraysTOption = None,
+    q: ArraysQOption = None,
+    dq: ArraysDqOption = None,
+    tau: ArraysTauOption = None,
+    option: FormatOptionPairs = None,
+    name: NameOption = None,
     out: OutOption = Path("sessions"),
+    overwrite: OverwriteOption = False,
+    workers: WorkersOption = DEFAULT_WORKERS,
 ) -> None:
-    """Turn CSV exports into validated sessions, one per file, and print their paths.
+    """Turn recordings of other tools into validated sessions, one per file, and print
+    their paths.
 
-    The map names the time, q, dq, tau (and optional q_d, dq_d, tau_ext_hat, contact
-    label) columns and their units; rows repeating the previous row are dropped and
-    counted.
+    The format comes from each file's suffix (.csv; .asc, .blf, .trc, .log, .mf4, .db;
+    .bag, .mcap, .db3 or a ROS 2 bag folder) or from --format; `recorder importers`
+    lists the formats, plugins included, and their options. Every format streams
+    through one writer in bounded memory. Several files import in parallel; one that
+    fails is reported and the others are still written (exit code 2).
     """
-    cmap = load_csv_map(column_map)
-    directory = output_directory(out)
-    problems = []
-    for csv_file in csv_files:
-        meta = session_meta(source="csv", action=action, condition=condition, pose=pose,
-                            link=link, planned_at_s=planned_at, operator=operator,
-                            with_hand=hand, notes=notes,
-                            robot=robot or cmap.robot or DEFAULT_ROBOT)
-        try:
-            path = import_csv(csv_file, cmap, meta, directory)
-        except InputError as err:
-            if len(csv_files) == 1:
-                raise
-            problems.append((str(csv_file), err.problem))
-            continue
-        info = read_session(path).meta.source_info
-        err_console.print(f"{csv_file}: {info['samples']} samples from {info['rows']} rows, "
-                          f"{info['repeated_rows']} repeated rows dropped")
-        print(path)
+    from contactkit.recorder.importers.jobs import (
+        checked_meta,
+        format_options,
+        import_file,
+        import_files,
+        import_jobs,
+        protocol_from,
+    )
+
+    alias = IMPORT_ALIASES.get(ctx.info_name or "")
+    if alias is not None and fmt not in (None, alias):
+        raise InputError(f"{ctx.info_name} reads format {alias}; for {fmt} use "
+                         f"`recorder import --format {fmt}`")
+    fmt = fmt or alias or ("arrays" if t is not None else None)
+    paths = [*(files or []), *([] if t is None else [t])]
+    if not paths:
+        raise InputError("give the files to import" + (" (--t for arrays)" if fmt == "arrays"
+                                                       else ""))
+    protocol = protocol_from({
+        "pose": pose, "action": action, "condition": condition, "target_pose": target_pose,
+        "planned_at_s": planned_at, "link": link, "operator": operator, "with_hand": hand,
+        "robot": robot, "notes": notes}, meta or [])
+    checked_meta({"action": "none", "source": "import", **protocol})
+    options = format_options({"map": column_or_frame_map, "topic": topic,
+                              "label_topic": label_topic, "q": q, "dq": dq, "tau": tau},
+                             option or [])
+    jobs = import_jobs(paths, fmt, output_directory(out), protocol=protocol,
+                       options=options, name=name, overwrite=overwrite)
+    if len(jobs) == 1:
+        _report_import(import_file(jobs[0]))
+        return
+    with progress_bar("importing") as bar:
+        imported, problems = import_files(jobs, workers, bar_callback(bar, "files"),
+                                          scheduler=scheduler_of(ctx))
+    for result in imported:
+        _report_import(result)
+    err_console.print(f"{len(imported)} of {len(jobs)} files imported")
     _print_problems(problems)
     exit_if_failed(problems)
+
+
+def _report_import(result: Imported) -> None:
+    err_console.print(f"{result.recording}: {result.summary}", markup=False, highlight=False)
+    print(result.session)
+
+
+app.command("import")(import_command)
+for _alias, _format in IMPORT_ALIASES.items():
+    app.command(_alias, help=f"Alias of `recorder import --format {_format}` (the verb of "
+                             "earlier versions; same options).")(import_command)
+
+
+@app.command("importers")
+def importers_command() -> None:
+    """List the import formats: built-in, installed plugins (the contactkit.importers
+    entry-point group), with the suffixes each claims and its options."""
+    from contactkit.recorder.importers.registry import load_importers, registered_importers
+
+    classes, problems = load_importers()
+    for fmt in registered_importers():
+        if fmt in problems:
+            print(f"{fmt}: unusable ({problems[fmt]})")
+            continue
+        cls = classes[fmt]
+        suffixes = f" ({', '.join(cls.suffixes)})" if cls.suffixes else ""
+        print(f"{fmt}: {cls.description or cls.__doc__}{suffixes}")
+        for key, text in cls.options.items():
+            flag = (f"--{key.replace('_', '-')}" if key in NAMED_FORMAT_OPTIONS
+                    else f"--option {key}=VALUE")
+            print(f"  {flag}  {text}")
 
 
 @app.command("stats")
@@ -330,6 +410,14 @@ def stats_command(
 ) -> None:
     """Summarise a dataset on the terminal and write a report of what it holds and of
     its problems (bad files, duplicates, sessions too short)."""
+    from contactkit.recorder.stats.report import (
+        OWNED_REPORT,
+        print_summary,
+        report_path,
+        write_report,
+    )
+    from contactkit.recorder.stats.summary import build_report, write_noise_file
+
     default = out is None
     out = report_path(out or Path(f"report.{fmt}"), fmt)
     check_target(out, overwrite=overwrite, owned=OWNED_REPORT if default else None)
@@ -346,100 +434,6 @@ def stats_command(
     print(write_report(report, out, fmt, overwrite=overwrite, default=default))
 
 
-@app.command("import-can")
-def import_can_command(
-    log: Annotated[Path, typer.Argument(help="CAN log: .asc, .blf, .trc, .csv, .log "
-                                             "(candump), .mf4 (with asammdf), .db (SQLite).")],
-    pose: PoseOption,
-    action: ActionOption,
-    can_map: Annotated[Path | None, typer.Option(
-        "--map", help="Frame map TOML (default: CANopen CiA 402).")] = None,
-    planned_at: PlannedAtOption = None,
-    condition: ConditionOption = "static",
-    target_pose: TargetPoseOption = None,
-    link: LinkOption = None,
-    operator: OperatorOption = "",
-    hand: HandOption = True,
-    robot: RobotOption = None,
-    out: OutOption = Path("sessions"),
-) -> None:
-    """Convert a CAN log into a validated session and print its path."""
-    fmap = load_map(can_map)
-    meta = session_meta(source="can-log", action=action, condition=condition, pose=pose,
-                        target_pose=target_pose, link=link, planned_at_s=planned_at,
-                        operator=operator, with_hand=hand,
-                        robot=robot or fmap.robot or DEFAULT_ROBOT)
-    path = import_can_log(log, fmap, meta, output_directory(out), session_filename(meta))
-    err_console.print(decoding_summary(read_session(path).meta.source_info))
-    print(path)
-
-
-@app.command("import-bag")
-def import_bag_command(
-    ctx: typer.Context,
-    bag: Annotated[Path, typer.Argument(help="ROS 1 .bag, ROS 2 bag directory, .mcap or .db3 "
-                                             "file, or a directory of bags.")],
-    pose: PoseOption,
-    action: ActionOption,
-    topic: Annotated[str | None, typer.Option(
-        help="Joint-state topic (FrankaState, FrankaRobotState or JointState; default: the "
-             "usual franka_ros/franka_ros2 topics).")] = None,
-    label_topic: Annotated[str | None, typer.Option(
-        help="std_msgs/String or Bool topic of labels or cue events: String events are "
-             "stored with their times (the first is the planned time), Bool is the "
-             "ground-truth contact.")] = None,
-    planned_at: PlannedAtOption = None,
-    condition: ConditionOption = "static",
-    target_pose: TargetPoseOption = None,
-    link: LinkOption = None,
-    operator: OperatorOption = "",
-    hand: HandOption = True,
-    robot: RobotOption = None,
-    out: OutOption = Path("sessions"),
-    workers: Annotated[int, typer.Option(help="Parallel processes for a directory.")
-                       ] = DEFAULT_WORKERS,
-) -> None:
-    """Convert ROS bags (franka_ros, franka_ros2, JointState) into validated sessions and
-    print their paths; a directory imports in parallel and reports the bags that failed."""
-    protocol = {"action": action, "condition": condition, "pose": pose,
-                "target_pose": target_pose, "link": link, "planned_at_s": planned_at,
-                "operator": operator, "with_hand": hand, "robot": robot or DEFAULT_ROBOT}
-    session_meta(source="ros-bag", **protocol)
-    directory = output_directory(out)
-    single = not bag.is_dir() or (bag / "metadata.yaml").exists()
-    paths = [bag] if single else find_bags(bag)
-    if not paths:
-        raise InputError("no bags found (.bag, .mcap, .db3 or ROS 2 bag directories)", bag)
-    jobs = [BagJob(p, directory, protocol, topic, label_topic) for p in paths]
-    if single:
-        _, session, problem = import_bag_job(jobs[0])
-        if problem is not None:
-            raise InputError(problem)
-        _report_bag(session)
-        return
-    with progress_bar("importing") as bar:
-        sessions, problems = import_bags(jobs, workers, bar_callback(bar, "bags"),
-                                         scheduler=scheduler_of(ctx))
-    for session in sessions:
-        _report_bag(session)
-    err_console.print(f"{len(sessions)} of {len(paths)} bags imported")
-    _print_problems(problems)
-    exit_if_failed(problems)
-
-
-def _report_bag(session: Path) -> None:
-    info = read_session(session).meta.source_info
-    info = info.get("imported_from_bag", info)
-    lost = f", {info['lost_messages']} lost" if info["lost_messages"] else ""
-    err_console.print(f"{info['messages']} messages from {info['topic']} ({info['msgtype']}"
-                      f"{lost}), {info['rate_hz']:.1f} Hz, time from the "
-                      f"{info['time_source']} stamps")
-    if "read_error" in info:
-        err_console.print(f"[yellow]bag ends early[/]: {info['read_error']}; what was "
-                          "readable is kept")
-    print(session)
-
-
 @app.command("export-mcap")
 def export_mcap_command(
     session: Annotated[Path, typer.Argument(help="Session file (.parquet).")],
@@ -450,6 +444,8 @@ def export_mcap_command(
 ) -> None:
     """Write a session as a ROS 2 MCAP bag (JointState, WrenchStamped) for Foxglove or
     the Rerun viewer; print the .mcap file's path. `import-bag` reads it back."""
+    from contactkit.recorder.importers.mcap_export import export_mcap
+
     print(export_mcap(session, out or session.with_suffix(""), overwrite=overwrite))
 
 
@@ -470,6 +466,10 @@ def can_bridge_command(
 ) -> None:
     """Publish a recorded or simulated session onto a CAN bus per the frame map (or into
     a CAN log), to test a CAN setup end to end without a robot."""
+    from contactkit.recorder.importers.can_map import load_map
+    from contactkit.recorder.importers.can_tools import bridge_session
+    from contactkit.recorder.sources.can import BusConfig
+
     if log is None and not channel:
         raise InputError("give --channel (and --interface) for a bus, or --log FILE")
     if log is not None:
@@ -488,6 +488,10 @@ def info_command(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead.")] = False,
 ) -> None:
     """Show a session's metadata, duration, measured rate, gaps and ground truth."""
+    from rich.console import Console
+
+    from contactkit.recorder.info import print_info, session_info
+
     info = session_info(session)
     if as_json:
         print(json.dumps(info, indent=2, default=str))

@@ -14,23 +14,14 @@ from typing import Annotated
 import typer
 
 from contactkit.cli.common import QuietOpt, RobotOpt, VerboseOpt, new_app, run_app, set_verbosity
-from contactkit.cli.default_model import (
-    build_default_model,
-    default_model_missing,
-    model_or_default,
-)
-from contactkit.features.detector import load_calibration
-from contactkit.replay.engine import DEFAULT_HOP_S
-from contactkit.replay.recording import owned_recording, save_path_for
-from contactkit.replay.session_replay import (
-    ReplaySummary,
-    replay_sessions,
-    session_inputs,
-)
+from contactkit.replay.hop import DEFAULT_HOP_S
 from contactkit.schemas import InputError
 from contactkit.util.atomic import check_target
 from contactkit.util.progress import err_console, labelled_progress, progress_bar
 from contactkit.viewer.web import has_display, start_web_viewer
+
+# The command imports the classifier, the chain and rerun when it runs, not at start-up
+# (tests/test_startup.py checks what `replay --help` imports).
 
 DEFAULT_SAVE = Path("replay.rrd")
 
@@ -105,6 +96,15 @@ def replay_command(
     Example: replay session.parquet --viewer rerun
     """
     set_verbosity(verbose, quiet)
+    from contactkit.cli.default_model import (
+        build_default_model,
+        default_model_missing,
+        model_or_default,
+    )
+    from contactkit.features.detector import load_calibration
+    from contactkit.replay.recording import owned_recording, save_path_for
+    from contactkit.replay.session_replay import ReplaySummary, replay_sessions, session_inputs
+
     if build_default_model_:
         with progress_bar() as bar:
             print(build_default_model(progress=labelled_progress(bar), rebuild=True))

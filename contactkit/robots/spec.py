@@ -39,6 +39,11 @@ class JointLimits:
     dtau_max: np.ndarray
 
 
+def _sigmoid(x: np.ndarray) -> np.ndarray:
+    """Return the logistic function 1 / (1 + exp(-x)), without overflow for large |x|."""
+    return 0.5 * (1.0 + np.tanh(0.5 * x))
+
+
 @dataclass(frozen=True)
 class FrictionModel:
     """Joint friction of Gaz et al. 2019, per joint j:
@@ -46,7 +51,9 @@ class FrictionModel:
     tau_f = phi1 / (1 + exp(-phi2 (dq + phi3))) - phi1 / (1 + exp(-phi2 phi3))  [Nm]
 
     It is zero at rest and sits on the link side of the torque sensor, so the
-    measured torque is tau_J = M ddq + C dq + g + tau_f - tau_ext.
+    measured torque is tau_J = M ddq + C dq + g + tau_f - tau_ext. The sigmoid is
+    evaluated as (1 + tanh(x / 2)) / 2, which equals 1 / (1 + exp(-x)) and cannot
+    overflow, whatever the velocity.
     """
 
     phi1: np.ndarray
@@ -62,14 +69,14 @@ class FrictionModel:
         phi1, phi2, phi3, rest = self.phi1, self.phi2, self.phi3, self.at_rest
         if dq.ndim == 2 and dq.shape[0] == N_JOINTS and dq.shape[1] != N_JOINTS:
             phi1, phi2, phi3, rest = phi1[:, None], phi2[:, None], phi3[:, None], rest[:, None]
-        return phi1 / (1.0 + np.exp(-phi2 * (dq + phi3))) - rest
+        return phi1 * _sigmoid(phi2 * (dq + phi3)) - rest
 
     @property
     def at_rest(self) -> np.ndarray:
         """The sigmoid's value at dq = 0, subtracted so that friction is zero at rest [Nm]."""
         cached = self.__dict__.get("_at_rest")
         if cached is None:
-            cached = self.phi1 / (1.0 + np.exp(-self.phi2 * self.phi3))
+            cached = self.phi1 * _sigmoid(self.phi2 * self.phi3)
             object.__setattr__(self, "_at_rest", cached)
         return cached
 

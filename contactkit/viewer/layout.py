@@ -19,7 +19,8 @@ entity                                content
 ``events/window``                     the offline window, a state lane
 ``events/contact``                    contact events, one bar each with its label
 ``events/offline_label``              the offline label at the window end
-``ground_truth/force``                applied force [N] (simulated sessions)
+``ground_truth/force``                applied force [N] (simulated sessions; zero
+                                      runs logged at their ends only)
 ``ground_truth/contact``              contact on/off, a state lane
 ``ground_truth/action``               the recorded action (text event)
 ``capture/cue``                       operator cue countdown (capture only)
@@ -168,12 +169,10 @@ def log_scalar_columns(rec: rr.RecordingStream, path: str, t: np.ndarray, sample
                      columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=float)))
 
 
-def log_ground_truth(rec: rr.RecordingStream, t: np.ndarray, sample: np.ndarray,
-                     force: np.ndarray, contact: np.ndarray, before: bool | None = None
-                     ) -> None:
-    """Send the applied force [N] (N, 3) and the contact lane (state changes only;
-    ``before`` is the contact state logged last, None at the start of a session)."""
-    log_scalar_columns(rec, TRUE_FORCE, t, sample, force)
+def log_contact_lane(rec: rr.RecordingStream, t: np.ndarray, sample: np.ndarray,
+                     contact: np.ndarray, before: bool | None = None) -> None:
+    """Send the true contact lane at times ``t`` [s]: its state changes only (``before``
+    is the contact state logged last, None at the start of a session)."""
     contact = np.asarray(contact, dtype=bool)
     changes = np.flatnonzero(np.diff(contact.astype(int),
                                      prepend=-1 if before is None else int(before)))

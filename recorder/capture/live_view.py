@@ -16,7 +16,8 @@ import rerun as rr
 
 from contactkit.errors import InputError
 from contactkit.robots.surfaces import viewer_urdf_file
-from contactkit.schemas import SessionMeta, joint_columns
+from contactkit.schemas import SessionMeta
+from contactkit.schemas.session import SampleBatch
 from contactkit.util.atomic import atomic_write
 from contactkit.viewer import layout
 from contactkit.viewer.layout import capture_blueprint
@@ -54,16 +55,14 @@ class CaptureViewer:
         t = chunk["t"]
         sample = self.sample + np.arange(len(t))
         self.sample += len(t)
-        q = np.column_stack([chunk[c] for c in joint_columns("q")])
-        dq = np.column_stack([chunk[c] for c in joint_columns("dq")])
-        tau = np.column_stack([chunk[c] for c in joint_columns("tau")])
-        layout.log_joint_columns(self.rec, t, sample, q, dq, tau)
-        if "f_ext_x" in chunk:
-            force = np.column_stack([chunk[c] for c in ("f_ext_x", "f_ext_y", "f_ext_z")])
-            layout.log_scalar_columns(self.rec, layout.TRUE_FORCE, t, sample, force)
+        batch = SampleBatch.from_columns(chunk)
+        layout.log_joint_columns(self.rec, t, sample, batch.q, batch.dq, batch.tau)
+        if batch.f_ext is not None:
+            layout.log_scalar_columns(self.rec, layout.TRUE_FORCE, t, sample, batch.f_ext)
         keep = sample % self.stride == 0
         if keep.any():
-            layout.log_joint_transforms(self.rec, self.tree, t[keep], sample[keep], q[keep])
+            layout.log_joint_transforms(self.rec, self.tree, t[keep], sample[keep],
+                                        batch.q[keep])
 
     def close(self) -> None:
         """Flush the recording, disconnect from the viewer and move a saved .rrd into

@@ -8,11 +8,10 @@ import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from contactkit.features.agreement import StreamAgreement
 from contactkit.recorder.capture.journal import SessionWriter
 from contactkit.recorder.metadata import session_filename
 from contactkit.recorder.sources.base import Source
@@ -20,6 +19,9 @@ from contactkit.robots import get_robot
 from contactkit.schemas import InputError, SessionMeta, joint_columns
 from contactkit.util.atomic import remove_stale_temporaries
 from contactkit.util.pacing import paced
+
+if TYPE_CHECKING:
+    from contactkit.features.agreement import StreamAgreement
 
 ChunkCallback = Callable[[dict[str, np.ndarray]], None]
 
@@ -103,18 +105,25 @@ class AgreementListener:
     def __init__(self, meta: SessionMeta, source: Source) -> None:
         self.meta, self.source = meta, source
         self.robot = self._robot()
-        self.stream = StreamAgreement(self.meta.with_robot(self.robot).robot_setup())
+        self.stream = self._stream()
         self.first = True
         self.pending: list[dict[str, np.ndarray]] = []
 
     def _robot(self) -> str:
         return self.source.metadata().get("robot", self.meta.robot)
 
+    def _stream(self) -> StreamAgreement:
+        """Return a new agreement measure for the current arm. The chain (pinocchio) is
+        imported here, not when the command line imports this module."""
+        from contactkit.features.agreement import StreamAgreement
+
+        return StreamAgreement(self.meta.with_robot(self.robot).robot_setup())
+
     def on_chunk(self, chunk: dict[str, np.ndarray]) -> None:
         """Take the next chunk of session columns."""
         if self.first and self._robot() != self.robot:
             self.robot = self._robot()
-            self.stream = StreamAgreement(self.meta.with_robot(self.robot).robot_setup())
+            self.stream = self._stream()
         self.first = False
         self.pending.append(chunk)
         if sum(len(c["t"]) for c in self.pending) >= self.BATCH_ROWS:

@@ -12,16 +12,20 @@ or text values, format 3.0, a truncated file) is read whole with ``np.load``.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
+from typing import Any, ClassVar
 
 import numpy as np
 
-from contactkit.recorder.importers.spill import RowSpill
+from contactkit.recorder.importers.base import Importer
+from contactkit.recorder.importers.spill import RowSpill, spilled_session_chunks, spilled_times
 from contactkit.schemas import N_JOINTS, InputError
 
 BLOCK_LINES = 65_536
 """Text lines (or .npy rows) read at a time."""
+BLOCK_ROWS = 16_384
+"""Samples handed to the writer at a time."""
 
 
 def spill_array(path: str | Path, width: int) -> RowSpill:
@@ -203,3 +207,53 @@ def load_joint_arrays(t_path: str | Path, q_path: str | Path, dq_path: str | Pat
             spill.close()
     arrays["t"] = arrays["t"][:, 0]
     return arrays
+
+
+class ArraysImporter(Importer):
+    """Plain arrays: the time file [s] is the file imported, and the q [rad], dq [rad/s]
+    and tau [Nm] files are its options (:func:`spill_joint_arrays`). Read a block at a
+    time into temporary files, so memory stays bounded however long the recording."""
+
+    name = "arrays"
+    source = "arrays"
+    options: ClassVar[Mapping[str, str]] = {
+        "q": "Joint positions [rad].", "dq": "Joint velocities [rad/s].",
+        "tau": "Measured joint torques [Nm]."}
+    description = ("Plain arrays (text, CSV or .npy): FILE holds the time stamps, --q, --dq "
+                   "and --tau the joints.")
+
+    def __init__(self, paths: list[Path], spills: dict[str, RowSpill]) -> None:
+        self.paths, self.spills = paths, spills
+
+    @classmethod
+    def open(cls, path: Path, options: Mapping[str, Any]) -> ArraysImporter:
+        """Read the time file ``path`` and the joint files ``options["q"]``, ``["dq"]``
+        and ``["tau"]``; InputError naming a file that cannot be used."""
+        missing = [f"--{key}" for key in ("q", "dq", "tau") if options.get(key) is None]
+        if missing:
+            raise InputError(f"plain arrays need {', '.join(missing)} (joint files) besides "
+                             "the time file", path)
+        paths = [Path(p) for p in (path, options["q"], options["dq"], options["tau"])]
+        return cls(paths, spill_joint_arrays(*paths))
+
+    def times(self) -> Iterator[np.ndarray]:
+        """Yield the time stamps [s], a block at a time."""
+        return spilled_times(self.spills["t"], BLOCK_ROWS)
+
+    def chunks(self) -> Iterator[dict[str, np.ndarray]]:
+        """Yield the session columns ``t``, ``q_*``, ``dq_*``, ``tau_*``, a block at a
+        time."""
+        return spilled_session_chunks(self.spills, BLOCK_ROWS)
+
+    def source_info(self) -> dict[str, Any]:
+        """Return the files imported (time, q, dq, tau)."""
+        return {"imported_from": [str(p) for p in self.paths]}
+
+    def summary(self) -> str:
+        """Return the number of samples."""
+        return f"{self.spills['t'].rows} samples"
+
+    def close(self) -> None:
+        """Remove the temporary files."""
+        for spill in self.spills.values():
+            spill.close()

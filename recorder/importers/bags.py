@@ -27,24 +27,21 @@ Only the label topic's messages stay in memory.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections.abc import Iterator, Mapping
 from functools import cache
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from contactkit.features.timing import streamed_sampling_stats
 from contactkit.recorder.importers.bag_salvage import SalvageReader
+from contactkit.recorder.importers.base import Importer
 from contactkit.recorder.importers.spill import RowSpill
-from contactkit.recorder.importers.writer import write_imported_chunks
-from contactkit.recorder.metadata import session_meta
+from contactkit.recorder.importers.writer import write_importer
 from contactkit.schemas import InputError, SessionMeta, joint_columns
 from contactkit.schemas.session import WRENCH_HAT_COLUMNS
-from contactkit.util.parallel import map_ordered, split_problems
-from contactkit.util.progress import ProgressCallback
 
 FRANKA_STATE = "franka_msgs/msg/FrankaState"
 FRANKA_ROBOT_STATE = "franka_msgs/msg/FrankaRobotState"
@@ -563,6 +560,101 @@ def exported_meta(bag: BagSpill, path: Path) -> dict | None:
     return doc
 
 
+class BagImporter(Importer):
+    """A ROS bag's joint stream (:func:`read_bag`, :class:`BagSession`): ROS 1 ``.bag``,
+    ROS 2 bag folders and bare ``.mcap`` or ``.db3`` files."""
+
+    name = "bag"
+    source = "ros-bag"
+    suffixes = BAG_SUFFIXES
+    options: ClassVar[Mapping[str, str]] = {
+        "topic": "Joint-state topic (FrankaState, FrankaRobotState or JointState; default: "
+                 "the usual franka_ros/franka_ros2 topics).",
+        "label_topic": "std_msgs/String or Bool topic of labels or cue events: String "
+                       "events are stored with their times (the first is the planned time), "
+                       "Bool is the ground-truth contact."}
+    description = "ROS 1 .bag, ROS 2 bag folders, .mcap and .db3 (franka_ros, franka_ros2, " \
+                  "JointState)."
+
+    def __init__(self, path: Path, bag: BagSpill, session: BagSession,
+                 stored: dict | None) -> None:
+        self.path, self.bag, self.session, self.stored = path, bag, session, stored
+
+    @classmethod
+    def open(cls, path: Path, options: Mapping[str, Any]) -> BagImporter:
+        """Read the bag at ``path`` (options ``topic``, ``label_topic``; see :meth:`read`)."""
+        return cls.read(path, options.get("topic"), options.get("label_topic"))
+
+    @classmethod
+    def read(cls, path: Path, topic: str | None = None, label_topic: str | None = None
+             ) -> BagImporter:
+        """Read the joint stream (and label topic) of the bag at ``path`` into temporary
+        files; raise InputError naming the bag when it holds no usable stream."""
+        bag = read_bag(path, topic, label_topic)
+        try:
+            stored = exported_meta(bag, path)
+            return cls(path, bag, BagSession(bag, path), stored)
+        except BaseException:
+            bag.close()
+            raise
+
+    def times(self) -> Iterator[np.ndarray]:
+        """Yield the kept samples' session times [s], a chunk at a time."""
+        return self.session.times()
+
+    def chunks(self) -> Iterator[dict[str, np.ndarray]]:
+        """Yield the kept samples' session columns, a chunk at a time."""
+        return self.session.chunks()
+
+    def source_info(self) -> dict[str, Any]:
+        """Return the bag's statistics (topic, messages, time source, rate [Hz]...)."""
+        return self.session.info
+
+    def metadata(self, meta: SessionMeta) -> SessionMeta:
+        """Return the metadata export-mcap stored in the bag, with the import under
+        ``source_info.imported_from_bag``; else ``meta`` with the bag's statistics, the
+        first label's time as the planned time and the measured rate, where ``meta``
+        has none."""
+        info = self.session.info
+        if self.stored is not None:
+            return SessionMeta.from_dict({**self.stored, "source_info": {
+                **self.stored.get("source_info", {}), "imported_from_bag": info}})
+        meta.source_info = info
+        events = info.get("label_events", [])
+        if meta.planned_at_s is None and events:
+            meta.planned_at_s = events[0]["t"]
+        if meta.nominal_rate_hz is None:
+            meta.nominal_rate_hz = float(round(info["rate_hz"], 3))
+        return meta
+
+    def summary(self) -> str:
+        """Return the messages, topic, rate and time source in a line, and one more for
+        a bag that ends early."""
+        info = self.session.info
+        lost = f", {info['lost_messages']} lost" if info["lost_messages"] else ""
+        text = (f"{info['messages']} messages from {info['topic']} ({info['msgtype']}"
+                f"{lost}), {info['rate_hz']:.1f} Hz, time from the {info['time_source']} "
+                "stamps")
+        if "read_error" in info:
+            text += f"\nbag ends early: {info['read_error']}; what was readable is kept"
+        return text
+
+    def close(self) -> None:
+        """Remove the temporary files."""
+        self.bag.close()
+
+    @classmethod
+    def claims(cls, path: Path) -> bool:
+        """Return whether ``path`` is a bag: a file with a bag suffix or a ROS 2 bag
+        folder (with ``metadata.yaml``)."""
+        return super().claims(path) or (path.is_dir() and (path / "metadata.yaml").is_file())
+
+    @classmethod
+    def find(cls, directory: Path) -> list[Path]:
+        """Return the bags in ``directory`` (:func:`find_bags`)."""
+        return find_bags(directory)
+
+
 def import_bag(path: Path, meta: SessionMeta, out_dir: Path, *, topic: str | None = None,
                label_topic: str | None = None, name: str | None = None) -> Path:
     """Write one bag's joint stream as a validated session in ``out_dir``; return its path.
@@ -571,27 +663,14 @@ def import_bag(path: Path, meta: SessionMeta, out_dir: Path, *, topic: str | Non
     ``meta.source_info``. A session export-mcap wrote gets its stored metadata back
     (session id, protocol, source), with the import recorded in ``source_info``. With a
     label topic, the first label's time is the planned interaction time unless
-    ``meta`` has one.
+    ``meta`` has one (:meth:`BagImporter.metadata`).
 
     The messages are read once and spilled to temporary files (:class:`BagSpill`), then
     the session is written from them a row group at a time: memory stays bounded
     however long the bag (the label messages excepted, which stay in memory).
     """
-    with read_bag(path, topic, label_topic) as bag:
-        stored = exported_meta(bag, path)
-        session = BagSession(bag, path)
-        info = session.info
-        if stored is not None:
-            meta = SessionMeta.from_dict({**stored, "source_info": {
-                **stored.get("source_info", {}), "imported_from_bag": info}})
-        else:
-            meta.source_info = info
-            events = info.get("label_events", [])
-            if meta.planned_at_s is None and events:
-                meta.planned_at_s = events[0]["t"]
-            if meta.nominal_rate_hz is None:
-                meta.nominal_rate_hz = float(round(info["rate_hz"], 3))
-        return write_imported_chunks(session.times, session.chunks, meta, out_dir, name)
+    with BagImporter.read(path, topic, label_topic) as bag:
+        return write_importer(bag, meta, out_dir, name)
 
 
 def find_bags(directory: Path) -> list[Path]:
@@ -601,34 +680,3 @@ def find_bags(directory: Path) -> list[Path]:
     files = [p for p in sorted(directory.rglob("*")) if p.suffix in BAG_SUFFIXES and p.is_file()
              and not any(d in p.parents for d in bag_dirs)]
     return sorted(bag_dirs + files)
-
-
-@dataclass(frozen=True)
-class BagJob:
-    """One bag to import: where it is, where the session goes, the protocol choices
-    (keyword arguments of :func:`contactkit.recorder.metadata.session_meta`) and topics."""
-
-    path: Path
-    out_dir: Path
-    protocol: dict
-    topic: str | None = None
-    label_topic: str | None = None
-
-
-def import_bag_job(job: BagJob) -> tuple[str, Path | None, str | None]:
-    """Import one bag; return ``(bag, session path, None)`` or ``(bag, None, problem)``."""
-    try:
-        meta = session_meta(source="ros-bag", **job.protocol)
-        return str(job.path), import_bag(job.path, meta, job.out_dir, topic=job.topic,
-                                         label_topic=job.label_topic), None
-    except InputError as err:
-        return str(job.path), None, str(err)
-
-
-def import_bags(jobs: list[BagJob], workers: int = 1, progress: ProgressCallback | None = None,
-                *, scheduler: str | None = None) -> tuple[list[Path], list[tuple[str, str]]]:
-    """Import bags in ``workers`` processes (or on the Dask ``scheduler``); return the
-    written sessions and ``(bag, problem)`` pairs for the bags that could not be imported
-    (one bad bag never stops the others)."""
-    return split_problems(map_ordered(import_bag_job, jobs, workers=workers, progress=progress,
-                                      scheduler=scheduler))

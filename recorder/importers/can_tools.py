@@ -1,53 +1,138 @@
 """CAN log import and the session-to-bus bridge.
 
-``import_can_log`` reads any log python-can reads (ASC, BLF, TRC, CSV, candump
-``.log``, MF4 with asammdf installed, SQLite ``.db``) and writes a validated
-session. ``bridge_session`` publishes a session onto a bus (paced by ``rate``,
-1 = real time) or writes the same frames, time-stamped as on the bus, to a log
-file with python-can's writers.
+:class:`CanLogImporter` (format ``can`` of ``recorder import``) reads any log python-can
+reads (ASC, BLF, TRC, CSV, candump ``.log``, MF4 with asammdf installed, SQLite ``.db``)
+frame by frame, in bounded memory. ``bridge_session`` publishes a session onto a bus
+(paced by ``rate``, 1 = real time) or writes the same frames, time-stamped as on the
+bus, to a log file with python-can's writers.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
+from typing import Any, ClassVar
 
 import can
 import numpy as np
 
 from contactkit.errors import DependencyMissing
+from contactkit.recorder.importers.base import Importer
 from contactkit.recorder.importers.can_codec import (
+    COLUMNS,
     SampleAssembler,
-    rows_to_columns,
     session_frames,
     session_values,
 )
-from contactkit.recorder.importers.can_map import FrameMap
-from contactkit.recorder.importers.writer import write_imported_session
+from contactkit.recorder.importers.can_map import FrameMap, load_map
+from contactkit.recorder.importers.spill import RowSpill
+from contactkit.recorder.importers.writer import write_importer
 from contactkit.recorder.sources.can import BusConfig
 from contactkit.schemas import InputError, Session, SessionMeta
 from contactkit.util.atomic import atomic_write
 from contactkit.util.pacing import paced
 
 LOG_SUFFIXES = (".asc", ".blf", ".trc", ".csv", ".log", ".mf4", ".db")
+BLOCK_ROWS = 16_384
+"""Decoded samples gathered before they are spilled, and rows written at a time."""
 
 
-def read_log(path: Path, fmap: FrameMap) -> tuple[dict[str, np.ndarray], SampleAssembler]:
-    """Decode a CAN log file into session columns; return them and the assembler."""
-    if not path.is_file():
-        raise InputError("no such log file", path)
-    if path.suffix.lower() not in LOG_SUFFIXES:
-        raise InputError(f"unknown log format {path.suffix!r} (python-can reads "
-                         f"{', '.join(LOG_SUFFIXES)})", path)
-    assembler = SampleAssembler(fmap)
-    rows = []
-    for msg in _messages(path):
-        rows += assembler.feed(msg)
-    rows += assembler.finish()
-    if not rows:
-        raise InputError("no complete sample in this log (no SYNC frame of the map?)", path)
-    return rows_to_columns(rows), assembler
+class CanLogImporter(Importer):
+    """A CAN log python-can reads, decoded per a frame map into samples (a SYNC frame
+    closes each, :class:`~contactkit.recorder.importers.can_codec.SampleAssembler`).
+
+    The frames are read once, and the decoded samples go to a temporary file a block
+    at a time (:data:`BLOCK_ROWS` of them), so memory holds one block however long the
+    log; the session is then written from that file.
+    """
+
+    name = "can"
+    source = "can-log"
+    suffixes = tuple(s for s in LOG_SUFFIXES if s != ".csv")  # .csv: a CSV export
+    options: ClassVar[Mapping[str, str]] = {"map": "Frame map TOML (default: CANopen CiA 402)."}
+    description = ("CAN logs python-can reads: ASC, BLF, TRC, CSV (with --format can), "
+                   "candump .log, SQLite .db, MF4 with asammdf.")
+
+    def __init__(self, path: Path, fmap: FrameMap, rows: RowSpill,
+                 stats: dict[str, int]) -> None:
+        self.path, self.fmap, self.rows, self.stats = path, fmap, rows, stats
+
+    @classmethod
+    def open(cls, path: Path, options: Mapping[str, Any]) -> CanLogImporter:
+        """Decode the log at ``path`` with the frame map ``options["map"]`` (default:
+        CANopen CiA 402); see :meth:`read`."""
+        return cls.read(path, load_map(options.get("map")))
+
+    @classmethod
+    def read(cls, path: Path, fmap: FrameMap) -> CanLogImporter:
+        """Decode the log at ``path`` per ``fmap`` into a temporary file of samples (t
+        [s] from the first SYNC, then q [rad], dq [rad/s], tau [Nm] per joint).
+
+        Raises InputError naming the file for an unknown format, an unreadable log or
+        one without a complete sample (the counts of what was decoded say why).
+        """
+        if not path.is_file():
+            raise InputError("no such log file", path)
+        if path.suffix.lower() not in LOG_SUFFIXES:
+            raise InputError(f"unknown log format {path.suffix!r} (python-can reads "
+                             f"{', '.join(LOG_SUFFIXES)})", path)
+        assembler = SampleAssembler(fmap)
+        spill = RowSpill(len(COLUMNS))
+        pending: list[np.ndarray] = []
+        complete = False
+
+        def flush() -> bool:
+            block = np.array(pending).reshape(-1, len(COLUMNS))
+            pending.clear()
+            spill.append(block)
+            return bool(np.isfinite(block[:, 1:]).all(axis=1).any())
+
+        try:
+            for msg in _messages(path):
+                pending += assembler.feed(msg)
+                if len(pending) >= BLOCK_ROWS:
+                    complete = flush() or complete
+            pending += assembler.finish()
+            complete = flush() or complete
+            stats = assembler.stats.as_dict()
+            if not spill.rows:
+                raise InputError("no complete sample in this log (no SYNC frame of the "
+                                 "map?)", path)
+            if not complete:
+                raise InputError(f"no complete sample in this log "
+                                 f"({decoding_summary(stats)}): do the CAN ids and SYNC of "
+                                 "the map match the log?", path)
+        except BaseException:
+            spill.close()
+            raise
+        return cls(path, fmap, spill, stats)
+
+    def times(self) -> Iterator[np.ndarray]:
+        """Yield the samples' times [s] from the first SYNC, a block at a time."""
+        return (rows[:, 0] for rows in self.rows.chunks(BLOCK_ROWS))
+
+    def chunks(self) -> Iterator[dict[str, np.ndarray]]:
+        """Yield the session columns (``t``, ``q_1`` .. ``tau_7``), a block at a time; a
+        value no frame delivered is NaN."""
+        for rows in self.rows.chunks(BLOCK_ROWS):
+            yield {name: np.ascontiguousarray(rows[:, i]) for i, name in enumerate(COLUMNS)}
+
+    def source_info(self) -> dict[str, Any]:
+        """Return the log, the map and the decoding counts (:class:`BusStatistics`)."""
+        return {"log": str(self.path), "map": self.fmap.describe(), **self.stats}
+
+    def defaults(self) -> dict[str, Any]:
+        """Return the robot the map names, if it names one."""
+        return {} if self.fmap.robot is None else {"robot": self.fmap.robot}
+
+    def summary(self) -> str:
+        """Return the decoding counts in one line."""
+        return decoding_summary(self.stats)
+
+    def close(self) -> None:
+        """Remove the temporary file of samples."""
+        self.rows.close()
 
 
 def _messages(path: Path) -> Iterator[can.Message]:
@@ -76,22 +161,11 @@ def _messages(path: Path) -> Iterator[can.Message]:
 
 
 def import_can_log(path: Path, fmap: FrameMap, meta: SessionMeta, out_dir: Path,
-                   name: str) -> Path:
-    """Write the session decoded from a CAN log; return its path."""
-    columns, assembler = read_log(path, fmap)
-    if not complete_rows(columns).any():
-        summary = decoding_summary(assembler.stats.as_dict())
-        raise InputError(f"no complete sample in this log ({summary}): do the CAN ids and "
-                         "SYNC of the map match the log?", path)
-    meta.source_info = {"log": str(path), "map": fmap.describe(), **assembler.stats.as_dict()}
-    return write_imported_session(columns, meta, out_dir, name)
-
-
-def complete_rows(columns: dict[str, np.ndarray]) -> np.ndarray:
-    """Return which samples hold every joint value (q, dq and tau of all joints)."""
-    names = [n for n in columns if n.split("_")[0] in ("q", "dq", "tau")
-             and n.split("_")[-1].isdigit()]
-    return np.all(np.isfinite(np.column_stack([columns[n] for n in names])), axis=1)
+                   name: str | None = None) -> Path:
+    """Write the session decoded from a CAN log, streamed (:class:`CanLogImporter`);
+    return its path."""
+    with CanLogImporter.read(path, fmap) as log:
+        return write_importer(log, meta, out_dir, name)
 
 
 def decoding_summary(stats: dict) -> str:

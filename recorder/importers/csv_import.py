@@ -17,15 +17,17 @@ written from them a row group at a time.
 from __future__ import annotations
 
 import io
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
+from typing import Any, ClassVar
 
 import numpy as np
 import polars as pl
 
-from contactkit.recorder.importers.csv_map import CsvMap
+from contactkit.recorder.importers.base import Importer
+from contactkit.recorder.importers.csv_map import CsvMap, load_csv_map
 from contactkit.recorder.importers.spill import RowSpill, spilled_session_chunks, spilled_times
-from contactkit.recorder.importers.writer import write_imported_chunks
+from contactkit.recorder.importers.writer import write_importer
 from contactkit.recorder.metadata import session_filename
 from contactkit.schemas import InputError, SessionMeta
 
@@ -251,6 +253,65 @@ def read_csv_columns(path: Path, cmap: CsvMap) -> tuple[dict[str, np.ndarray], d
         return columns, spill.counts
 
 
+class CsvImporter(Importer):
+    """A CSV export of the joint streams, read per a column map (:class:`CsvSpill`)."""
+
+    name = "csv"
+    source = "csv"
+    suffixes = (".csv",)
+    options: ClassVar[Mapping[str, str]] = {
+        "map": "Column map TOML (required; e.g. recorder/data/mindlab_csv_map.toml)."}
+    description = "CSV exports, read per a column map (--map)."
+
+    def __init__(self, path: Path, cmap: CsvMap, spill: CsvSpill) -> None:
+        self.path, self.cmap, self.spill = path, cmap, spill
+
+    @classmethod
+    def open(cls, path: Path, options: Mapping[str, Any]) -> CsvImporter:
+        """Read the CSV file at ``path`` per the column map ``options["map"]``."""
+        if options.get("map") is None:
+            raise InputError("a CSV import needs --map, the column map (TOML; example: "
+                             "recorder/data/mindlab_csv_map.toml)")
+        return cls.read(path, load_csv_map(options["map"]))
+
+    @classmethod
+    def read(cls, path: Path, cmap: CsvMap) -> CsvImporter:
+        """Read the CSV file at ``path`` per ``cmap`` into temporary files
+        (:func:`spill_csv`, which raises InputError naming the file and the problem)."""
+        return cls(path, cmap, spill_csv(path, cmap))
+
+    def times(self) -> Iterator[np.ndarray]:
+        """Yield the kept samples' times [s], a block at a time."""
+        return self.spill.times()
+
+    def chunks(self) -> Iterator[dict[str, np.ndarray]]:
+        """Yield the session columns of the kept samples, a block at a time."""
+        return self.spill.chunks()
+
+    def source_info(self) -> dict[str, Any]:
+        """Return the CSV path, the map and the row counts (rows, repeated_rows,
+        samples)."""
+        return {"csv": str(self.path), "map": self.cmap.describe(), **self.spill.counts}
+
+    def defaults(self) -> dict[str, Any]:
+        """Return the robot the map names, if it names one."""
+        return {} if self.cmap.robot is None else {"robot": self.cmap.robot}
+
+    def file_name(self, meta: SessionMeta) -> str:
+        """Return ``<csv stem>_<session file name>``."""
+        return f"{self.path.stem}_{session_filename(meta)}"
+
+    def summary(self) -> str:
+        """Return the row counts in one line."""
+        counts = self.spill.counts
+        return (f"{counts['samples']} samples from {counts['rows']} rows, "
+                f"{counts['repeated_rows']} repeated rows dropped")
+
+    def close(self) -> None:
+        """Remove the temporary files."""
+        self.spill.__exit__()
+
+
 def import_csv(path: Path, cmap: CsvMap, meta: SessionMeta, out_dir: Path) -> Path:
     """Write the session read from one CSV file; return its path.
 
@@ -258,7 +319,5 @@ def import_csv(path: Path, cmap: CsvMap, meta: SessionMeta, out_dir: Path) -> Pa
     ``source_info`` records the CSV path, the map and the row counts. Memory stays
     bounded however long the file (:func:`spill_csv`).
     """
-    with spill_csv(path, cmap) as spill:
-        meta.source_info = {"csv": str(path), "map": cmap.describe(), **spill.counts}
-        return write_imported_chunks(spill.times, spill.chunks, meta, out_dir,
-                                     f"{path.stem}_{session_filename(meta)}")
+    with CsvImporter.read(path, cmap) as csv:
+        return write_importer(csv, meta, out_dir)

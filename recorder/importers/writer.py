@@ -1,4 +1,10 @@
-"""Importing recordings that labs export as plain arrays."""
+"""The one writer of every importer, and the parsing of ``--meta KEY=VALUE`` pairs.
+
+:func:`write_imported_chunks` turns a recording streamed in chunks into a validated
+session file (time from 0 s, the nominal rate measured, the residual's agreement with
+the robot's own estimate), in bounded memory; :func:`write_importer` runs an opened
+:class:`~contactkit.recorder.importers.base.Importer` through it.
+"""
 
 from __future__ import annotations
 
@@ -12,18 +18,15 @@ import pyarrow as pa
 
 from contactkit.features.agreement import stream_residual_agreement
 from contactkit.features.timing import chunked_steps
-from contactkit.recorder.importers.arrays import spill_joint_arrays
-from contactkit.recorder.importers.spill import spilled_session_chunks, spilled_times
-from contactkit.recorder.metadata import session_filename, session_meta
-from contactkit.schemas import InputError, SessionMeta, write_session
+from contactkit.recorder.importers.base import Importer
+from contactkit.recorder.metadata import session_filename
+from contactkit.schemas import InputError, SessionMeta
 from contactkit.schemas.dataset import INDEX_NAME
 from contactkit.schemas.session import table_from_columns, write_session_batches
 from contactkit.util.exact_median import exact_medians
 from contactkit.util.paths import inside, safe_name
 from contactkit.util.text import quote
 
-BLOCK_ROWS = 16_384
-"""Samples of array files written at a time."""
 _FIELDS = {f.name: f for f in fields(SessionMeta)}
 _NOT_SETTABLE = {"schema_version", "recovered", "recovered_samples", "simulator", "source_info",
                  "tool_version", "created_utc", "urdf_sha256"}
@@ -82,46 +85,25 @@ def output_name(name: str) -> str:
     return name
 
 
-def write_imported_session(columns: dict[str, np.ndarray], meta: SessionMeta, out_dir: Path,
-                           name: str | None = None) -> Path:
-    """Write an imported recording as a validated session; return its path.
-
-    The one path from arrays to a session file that every importer (plain arrays, CAN
-    logs, CSV, bags) takes: time [s] is shifted to start at 0, the nominal rate [Hz] is
-    measured from the median time step where the metadata has none, and the file name
-    comes from the metadata unless ``name`` is given (a safe file name that stays inside
-    ``out_dir``). The write is atomic and the file is validated (an InputError names the
-    problem).
-    """
-    columns = dict(columns)
-    t = np.asarray(columns["t"], dtype=float)
-    if t.size:
-        columns["t"] = t - t[0]
-    steps = np.diff(t)
-    if meta.nominal_rate_hz is None and steps.size and (steps > 0).all():
-        meta.nominal_rate_hz = float(round(1.0 / np.median(steps), 3))
-    filename = session_filename(meta) if name is None else output_name(name)
-    return write_session(inside(out_dir, filename), columns, meta)
-
-
 def write_imported_chunks(times: Callable[[], Iterable[np.ndarray]],
                           chunks: Callable[[], Iterable[Mapping[str, np.ndarray]]],
                           meta: SessionMeta, out_dir: Path, name: str | None = None,
                           overwrite: bool = False) -> Path:
-    """Write an imported recording streamed in chunks, as :func:`write_imported_session`
-    writes it whole; return the path. An existing file is replaced only with
-    ``overwrite``. Memory holds one Parquet row group however long
-    the recording is.
+    """Write an imported recording streamed in chunks as a validated session; return
+    the path. Time [s] is shifted to start at 0, the nominal rate [Hz] is measured from
+    the exact median time step where the metadata has none, and the file name comes
+    from the metadata unless ``name`` is given (a safe file name that stays inside
+    ``out_dir``). The write is atomic; an existing file is replaced only with
+    ``overwrite``. Memory holds one Parquet row group however long the recording is.
 
     ``times()`` and ``chunks()`` each return a fresh iterable over the recording from
     its start: of the time stamps [s], and of dicts of session columns (``t`` among
-    them) for consecutive samples. The times are read once, and a few more times when
-    the nominal rate must be measured (its exact median step); the chunks once, while
-    writing. The written table equals :func:`write_imported_session`'s on the
-    concatenated columns (in row groups of
+    them) for consecutive samples. The times are read twice, and a few more times when
+    the nominal rate must be measured (its exact median step); the chunks twice: for
+    the residual's agreement, then while writing (row groups of
     :data:`contactkit.schemas.session.ROW_GROUP_ROWS`). A recording with the robot's
-    own estimate (``tau_ext_hat``) is run through the chain of its robot once more
-    first, and the residual's agreement with that estimate is stored in the metadata
+    own estimate (``tau_ext_hat``) is run through the chain of its robot first, and
+    the residual's agreement with that estimate is stored in the metadata
     (``residual_agreement``, :mod:`contactkit.features.agreement`), which
     ``recorder info`` shows without running the chain.
     """
@@ -149,31 +131,16 @@ def write_imported_chunks(times: Callable[[], Iterable[np.ndarray]],
     return path
 
 
-def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out_dir: Path,
-                  meta_pairs: list[str], name: str | None = None,
-                  overwrite: bool = False) -> Path:
-    """Write a validated session from array files; return its path. The files are read a
-    block at a time into temporary files and the session written a row group at a time
-    (:func:`contactkit.recorder.importers.arrays.spill_joint_arrays`), in bounded memory."""
-    if name is not None:
-        output_name(name)
-    spills = spill_joint_arrays(t_path, q_path, dq_path, tau_path)
-    try:
-        doc = {"action": "none", "source": "arrays", **parse_meta(meta_pairs)}
-        for key, argument in (("pose_q", "pose_q_rad"), ("target_q", "target_q_rad")):
-            if key in doc:
-                doc[argument] = doc.pop(key)
-        doc.setdefault("with_hand", True)
-        try:
-            meta = session_meta(**doc, source_info={
-                "imported_from": [str(p) for p in (t_path, q_path, dq_path, tau_path)]})
-            meta.check()
-        except (InputError, TypeError) as err:
-            raise InputError(f"bad metadata: {err}") from err
+def write_importer(importer: Importer, meta: SessionMeta, out_dir: Path,
+                   name: str | None = None, overwrite: bool = False) -> Path:
+    """Write an opened importer's recording as a validated session in ``out_dir``;
+    return its path.
 
-        return write_imported_chunks(lambda: spilled_times(spills["t"], BLOCK_ROWS),
-                                     lambda: spilled_session_chunks(spills, BLOCK_ROWS),
-                                     meta, out_dir, name, overwrite)
-    finally:
-        for spill in spills.values():
-            spill.close()
+    ``meta`` is the metadata of the protocol choices; the importer completes it
+    (``source_info``, what the file states, :meth:`Importer.metadata`) and may name the
+    file (``name`` overrides it). The chunks are streamed through
+    :func:`write_imported_chunks`, the one writer of every importer.
+    """
+    meta = importer.metadata(meta)
+    return write_imported_chunks(importer.times, importer.chunks, meta, out_dir,
+                                 name or importer.file_name(meta), overwrite)

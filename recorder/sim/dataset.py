@@ -45,7 +45,8 @@ import numpy as np
 
 from contactkit.features.limits import limit_violation
 from contactkit.recorder.metadata import session_filename
-from contactkit.recorder.protocol import POSES, START_POSE
+from contactkit.recorder.protocol import START_POSE
+from contactkit.recorder.sim.presets import PRESETS, Preset
 from contactkit.recorder.sim.simulator import (
     ArmSimulator,
     SessionSpec,
@@ -55,52 +56,13 @@ from contactkit.recorder.sim.simulator import (
 )
 from contactkit.recorder.sources.sim import SIM_COLUMNS, SimSource
 from contactkit.robots import DEFAULT_ROBOT, RobotSetup, get_robot
-from contactkit.schemas import ACTIONS, InputError, write_session
+from contactkit.schemas import InputError, write_session
 from contactkit.schemas.dataset import IndexResult, rebuild_index
 from contactkit.util.atomic import remove_stale_temporaries
 from contactkit.util.parallel import map_ordered
 
 OPERATORS = tuple(f"sim-op-{i}" for i in range(1, 6))
 MAX_BATCH = 32
-
-
-@dataclass(frozen=True)
-class Preset:
-    """How a preset draws its sessions. Speeds in rad/s, jitter in rad, rate in Hz."""
-
-    name: str
-    sessions: int
-    condition: str
-    poses: tuple[str, ...]
-    pose_jitter_rad: float
-    speed_range: tuple[float, float] | None = None
-    rate_hz: float = 600.0
-    duration_s: float | None = None
-    robot_seed: int = 0
-    variability: float = 1.0
-    links: tuple[int, ...] | None = None
-    free_motion: bool = False
-    actions: tuple[str, ...] = ACTIONS
-
-
-PRESETS: dict[str, Preset] = {
-    "thesis-static": Preset("thesis-static", 1233, "static", tuple(POSES), 0.1),
-    "thesis-dynamic": Preset("thesis-dynamic", 1380, "dynamic",
-                             tuple(p for p in POSES if p != START_POSE), 0.1, (0.1, 0.5)),
-    "smoke": Preset("smoke", 8, "static", ("A", "B"), 0.0, rate_hz=500.0),
-    "default-static": Preset("default-static", 96, "static", tuple(POSES), 0.1, rate_hz=500.0),
-    "default-dynamic": Preset("default-dynamic", 56, "dynamic",
-                              tuple(p for p in POSES if p != START_POSE), 0.1, (0.2, 0.5),
-                              rate_hz=500.0),
-    "aug-real": Preset("aug-real", 256, "static", tuple(POSES), 0.1, rate_hz=500.0,
-                       robot_seed=7, variability=1.5),
-    "aug-sim": Preset("aug-sim", 512, "static", tuple(POSES), 0.1, rate_hz=500.0,
-                      robot_seed=0, variability=1.0, links=(5, 6, 7)),
-    "free-motion": Preset("free-motion", 96, "dynamic", tuple(POSES), 0.1, rate_hz=500.0,
-                          duration_s=8.0, free_motion=True, actions=("none",)),
-    "mixed-motion": Preset("mixed-motion", 128, "dynamic", tuple(POSES), 0.1, rate_hz=500.0,
-                           duration_s=8.0, free_motion=True),
-}
 
 
 def preset_specs(preset: Preset, n: int, seed: int, robot: RobotSetup | None = None,

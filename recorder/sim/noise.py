@@ -35,10 +35,8 @@ from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
-from scipy.signal import butter, sosfiltfilt
 
 from contactkit.robots import GAZ_FRICTION, RobotSetup
-from contactkit.robots.model import RobotModel
 from contactkit.schemas import InputError
 
 
@@ -162,6 +160,10 @@ def estimate_noise(t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.ndarray
     ``t`` [s] (N,), ``q`` [rad], ``dq`` [rad/s], ``tau`` [Nm] (N, 7). See the module
     docstring for the method.
     """
+    from scipy.signal import butter, sosfiltfilt  # here: the simulator's import needs no scipy
+
+    from contactkit.robots.model import RobotModel
+
     model = RobotModel(RobotSetup("panda", with_hand))
     step = float(np.median(np.diff(t)))
     sos = butter(2, min(20.0 * 2.0 * step, 0.9), output="sos")

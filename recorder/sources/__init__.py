@@ -39,7 +39,7 @@ import inspect
 
 from contactkit.errors import ContactkitError
 from contactkit.recorder.sources.base import ProtocolChoices, Source
-from contactkit.recorder.sources.options import SourceOption, make_config, source_options
+from contactkit.recorder.sources.options import make_config, source_options
 from contactkit.schemas import InputError
 
 ENTRY_POINT_GROUP = "contactkit.sources"
@@ -105,6 +105,6 @@ def open_source(name: str, options: dict, choices: ProtocolChoices) -> Source:
     return cls.from_config(make_config(name, cls.Config, options), choices)
 
 
-__all__ = ["ENTRY_POINT_GROUP", "SOURCES", "ProtocolChoices", "Source", "SourceOption",
+__all__ = ["ENTRY_POINT_GROUP", "SOURCES", "ProtocolChoices", "Source",
            "load_sources", "open_source", "registered_sources", "source_class",
            "source_options"]

@@ -8,15 +8,19 @@ import secrets
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from contactkit.recorder.metadata import session_meta
-from contactkit.recorder.sim.noise import SensorNoise, default_noise
-from contactkit.recorder.sim.simulator import ArmSimulator, SessionSpec, SimConfig, plan_session
 from contactkit.recorder.sources.base import ProtocolChoices, Source
 from contactkit.schemas import InputError, SessionMeta, joint_columns
+
+if TYPE_CHECKING:
+    from contactkit.recorder.sim.simulator import SessionSpec, SimConfig
+
+# The simulator (pinocchio, scipy) is imported where a session is planned or run: the
+# command line imports every source to list its options.
 
 SIM_COLUMNS = ["t", *joint_columns("q"), *joint_columns("dq"), *joint_columns("tau"),
                *joint_columns("q_d"), *joint_columns("dq_d"), "f_ext_x", "f_ext_y", "f_ext_z",
@@ -80,6 +84,9 @@ class SimSource(Source):
             raise InputError(f"noise scale must be >= 0, got {config.noise_scale}")
         if choices.pose is None:
             raise InputError("the simulator needs a start pose")
+        from contactkit.recorder.sim.noise import SensorNoise, default_noise
+        from contactkit.recorder.sim.simulator import SimConfig, plan_session
+
         noise = default_noise() if config.noise_file is None else \
             SensorNoise.from_file(config.noise_file)
         sim_config = SimConfig(rate_hz=config.rate, robot=config.robot,
@@ -97,6 +104,8 @@ class SimSource(Source):
 
     def stream(self) -> Iterator[dict[str, np.ndarray]]:
         """Yield the session's rows, ``chunk`` samples at a time."""
+        from contactkit.recorder.sim.simulator import ArmSimulator
+
         for _, columns, _ in ArmSimulator(self.config).run([self.spec], chunk=self.chunk):
             yield columns
 

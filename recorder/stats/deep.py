@@ -13,7 +13,7 @@ Difference window (:class:`contactkit.features.windows.WindowSearch`); the media
 (median step, the robust noise sigmas, the residual's median) are exact, found by
 radix selection in a few more passes (:func:`contactkit.util.exact_median.exact_medians`);
 one pass runs the feature chain batch by batch
-(:class:`contactkit.features.timeseries.ChunkedChain`) and spills the residual after
+(:class:`contactkit.features.timeseries.TimeseriesChain`) and spills the residual after
 the first second to a temporary file (:class:`contactkit.recorder.importers.spill.RowSpill`)
 for its median. The numbers equal
 those of the whole session held at once up to rounding (1e-12 relative for the
@@ -28,13 +28,12 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
 
 from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features import chain_cache
 from contactkit.features.agreement import session_residual_agreement
 from contactkit.features.limits import robot_limits
-from contactkit.features.timeseries import ChunkedChain
+from contactkit.features.timeseries import TimeseriesChain
 from contactkit.features.timing import streamed_sampling_stats
 from contactkit.features.windows import WindowSearch, WindowSpec
 from contactkit.recorder.importers.spill import RowSpill
@@ -42,9 +41,8 @@ from contactkit.schemas import InputError, SessionMeta
 from contactkit.schemas.session import (
     REQUIRED_COLUMNS,
     ROW_GROUP_ROWS,
-    complete_table,
-    iter_session_batches,
-    joint_columns,
+    SampleBatch,
+    iter_sample_batches,
     read_session_meta,
 )
 from contactkit.util.exact_median import exact_medians
@@ -69,17 +67,16 @@ def file_sha256(path: Path) -> str:
 
 class _Chunks:
     """One session's complete samples (every joint value present), batch by batch on
-    each call; each chunk is (t (n,) [s], q, dq, tau (n, 7)). A file of at most
+    each call, as :class:`contactkit.schemas.session.SampleBatch`. A file of at most
     ``ROW_GROUP_ROWS`` samples is read once, by the first, validating call, and its
     chunks are kept for the later passes; a longer one is read again on each call."""
 
     def __init__(self, path: Path, rows: int) -> None:
         self.path = path
         self._keep = rows <= ROW_GROUP_ROWS
-        self._kept: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = None
+        self._kept: list[SampleBatch] | None = None
 
-    def __call__(self, validate_all: bool = False
-                 ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    def __call__(self, validate_all: bool = False) -> Iterator[SampleBatch]:
         if self._kept is not None:
             return iter(self._kept)
         chunks = self._read(validate_all)
@@ -88,15 +85,9 @@ class _Chunks:
             return iter(self._kept)
         return chunks
 
-    def _read(self, validate_all: bool
-              ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    def _read(self, validate_all: bool) -> Iterator[SampleBatch]:
         columns = None if validate_all else REQUIRED_COLUMNS
-        for batch in iter_session_batches(self.path, chain_cache.BATCH_ROWS, columns):
-            table = complete_table(pa.Table.from_batches([batch]))
-            if table.num_rows:
-                yield (table.column("t").to_numpy(), *(
-                    np.column_stack([table.column(c).to_numpy() for c in joint_columns(p)])
-                    for p in ("q", "dq", "tau")))
+        return iter_sample_batches(self.path, chain_cache.BATCH_ROWS, columns)
 
 
 def _second_differences(chunks: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
@@ -177,7 +168,8 @@ def _summary(path: Path, meta: SessionMeta, rows: int) -> dict:
     q_low, q_high = np.full(7, np.inf), np.full(7, -np.inf)
     dq_peak, tau_peak = np.zeros(7), np.zeros(7)
     first_t = last_t = math.nan
-    for t, q, dq, tau in chunks(validate_all=True):
+    for batch in chunks(validate_all=True):
+        t, q, dq, tau = batch.t, batch.q, batch.dq, batch.tau
         if tau_moments.count == 0:
             first_t = float(t[0])
         q_low, q_high = np.minimum(q_low, q.min(axis=0)), np.maximum(q_high, q.max(axis=0))
@@ -190,18 +182,17 @@ def _summary(path: Path, meta: SessionMeta, rows: int) -> dict:
     if tau_moments.count == 0:
         raise InputError("no sample has every joint value", path)
     duration = last_t - first_t if tau_moments.count > 1 else 0.0
-    sampling = streamed_sampling_stats(lambda: (t for t, *_ in chunks())).as_dict()
-    sigmas = _robust_noise_sigmas(lambda: (np.hstack([tau, dq, q])
-                                           for _, q, dq, tau in chunks()))
+    sampling = streamed_sampling_stats(lambda: (b.t for b in chunks())).as_dict()
+    sigmas = _robust_noise_sigmas(lambda: (np.hstack([b.tau, b.dq, b.q]) for b in chunks()))
     window = search.finish() if search is not None else None
     onset = None if window is None else (window.onset_s if window.found else planned)
     profile = _Profile(onset + PROFILE_T) if onset is not None else None
-    chain = ChunkedChain(None, meta.robot_setup(path), ["r", "fm_norm"])
+    chain = TimeseriesChain(None, meta.robot_setup(path), ["r", "fm_norm"])
     peak_residual = peak_force = -math.inf
     settled = RowSpill(7)
     try:
-        for t, q, dq, tau in chunks():
-            series = chain.compute(t, q, dq, tau)
+        for batch in chunks():
+            t, series = batch.t, chain.feed(batch)
             residual, force = series["r"], series["fm_norm"][:, 0]
             peak_residual = max(peak_residual, float(np.linalg.norm(residual, axis=1).max()))
             peak_force = max(peak_force, float(force.max()))

@@ -1,0 +1,104 @@
+"""Importers chosen by file suffix or by name (like python-can's log readers).
+
+The built-in formats are listed in :data:`IMPORTERS`, one line each. A lab adds its own
+format from its own package without touching contactkit: one module with a subclass of
+:class:`~contactkit.recorder.importers.base.Importer`, and one entry point in the group
+``contactkit.importers``, for example in its ``pyproject.toml``::
+
+    [project.entry-points."contactkit.importers"]
+    toy = "mylab.toy:ToyImporter"
+
+after which ``recorder import run.toy --pose B --action bump`` works (``--format toy``
+for a file whose suffix does not say). Listing the names reads the entry points' names
+only: a plugin is imported when its format is asked for by name, when a file's suffix
+is claimed by no built-in format, or by ``recorder importers``. A built-in name cannot
+be taken over.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.metadata
+import inspect
+from pathlib import Path
+
+from contactkit.errors import InputError
+from contactkit.recorder.importers.base import Importer
+
+ENTRY_POINT_GROUP = "contactkit.importers"
+IMPORTERS: dict[str, str] = {
+    "csv": "contactkit.recorder.importers.csv_import:CsvImporter",
+    "can": "contactkit.recorder.importers.can_tools:CanLogImporter",
+    "bag": "contactkit.recorder.importers.bags:BagImporter",
+    "arrays": "contactkit.recorder.importers.arrays:ArraysImporter",
+}
+"""The built-in formats: name -> ``module:Class``. Suffixes are tried in this order."""
+
+
+def registered_importers() -> dict[str, str]:
+    """Return every format name with its ``module:Class``: the built-in ones, then those
+    installed packages declare in the ``contactkit.importers`` entry-point group (nothing
+    is imported)."""
+    found = dict(IMPORTERS)
+    for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        found.setdefault(entry.name, entry.value)
+    return found
+
+
+def _load(name: str, target: str) -> type[Importer]:
+    module, _, attr = target.partition(":")
+    try:
+        cls = getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError) as err:
+        raise InputError(f"importer {name!r} ({target}) cannot be loaded: {err}") from err
+    if not (inspect.isclass(cls) and issubclass(cls, Importer)) or inspect.isabstract(cls):
+        raise InputError(f"importer {name!r} ({target}) is not a complete Importer subclass")
+    if getattr(cls, "name", None) != name or not isinstance(getattr(cls, "source", None), str):
+        raise InputError(f"importer {name!r} ({target}) must set name = {name!r} and a "
+                         "source")
+    return cls
+
+
+def importer_class(name: str) -> type[Importer]:
+    """Return the importer registered under ``name``; raise InputError for an unknown
+    name or an importer that cannot be loaded."""
+    found = registered_importers()
+    if name not in found:
+        raise InputError(f"unknown import format {name!r} (available: {', '.join(found)})")
+    return _load(name, found[name])
+
+
+def importer_for(path: Path) -> type[Importer]:
+    """Return the importer that claims ``path`` (by its suffix, or a ROS 2 bag's folder):
+    the built-in formats first, then plugins, each imported only when the ones before
+    did not claim it. Raises InputError naming the file when none does."""
+    found = registered_importers()
+    for name, target in found.items():
+        try:
+            cls = _load(name, target)
+        except InputError:
+            if name in IMPORTERS:
+                raise
+            continue  # a broken plugin must not break the other formats
+        if cls.claims(path):
+            return cls
+    what = f"{path.suffix!r} files" if path.suffix else "this file"
+    raise InputError(f"no import format reads {what} (formats: {', '.join(found)}; give "
+                     "--format)", path)
+
+
+def load_importers() -> tuple[dict[str, type[Importer]], dict[str, str]]:
+    """Return the loadable importers by name, and the problem of each one that is not (a
+    broken plugin must not hide the others)."""
+    classes: dict[str, type[Importer]] = {}
+    problems: dict[str, str] = {}
+    for name, target in registered_importers().items():
+        try:
+            classes[name] = _load(name, target)
+        except InputError as err:
+            problems[name] = str(err)
+    return classes, problems
+
+
+__all__ = ["ENTRY_POINT_GROUP", "IMPORTERS", "Importer", "importer_class", "importer_for",
+           "load_importers", "registered_importers"]

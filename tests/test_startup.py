@@ -1,0 +1,107 @@
+"""Start-up: `--help` of every command and `recorder info` import no heavy library.
+
+An import-set test, not a timing test: each command runs in a fresh interpreter through
+its console script's ``main``, and the modules it left in ``sys.modules`` are checked.
+The heavy libraries are imported only where they are used: torch and onnxruntime for
+network kinds, skops for model files, scikit-learn for classifying, rerun for logging,
+pinocchio for the chain, scipy where its functions run, dask with --scheduler,
+matplotlib and polars for reports and imports.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from contactkit.classify import registry
+from contactkit.errors import InputError
+from tests.conftest import make_session
+
+HEAVY = ("torch", "onnxruntime", "onnx", "skops", "sklearn", "rerun", "pinocchio", "scipy",
+         "dask", "distributed", "matplotlib", "polars", "aeon")
+
+# Runs ``main`` of a command with the given argv, then prints the modules it loaded.
+PROBE = """
+import json, sys
+from importlib import import_module
+tool, argv = sys.argv[1], sys.argv[2:]
+sys.argv = [tool, *argv]
+try:
+    import_module(f"contactkit.cli.{tool}").main()
+except SystemExit as done:
+    code = done.code
+else:
+    code = 0
+print("\\n" + json.dumps({"code": code, "modules": sorted(sys.modules)}))
+"""
+
+
+def _loaded(tool: str, *argv: str) -> tuple[int, set[str], str]:
+    """Run ``tool argv`` in a fresh interpreter; return its exit code, the top-level
+    packages it imported and its output."""
+    proc = subprocess.run([sys.executable, "-c", PROBE, tool, *argv], capture_output=True,
+                          text=True, timeout=300, env=dict(os.environ, COLUMNS="200"))
+    report = json.loads(proc.stdout.strip().splitlines()[-1])
+    return report["code"], {m.split(".")[0] for m in report["modules"]}, proc.stdout
+
+
+@pytest.mark.parametrize("argv", [
+    ("recorder", "--help"),
+    ("recorder", "capture", "--help"),
+    ("replay", "--help"),
+    ("classify", "--help"),
+    ("classify", "train", "--help"),
+])
+def test_help_imports_no_heavy_library(argv) -> None:
+    code, modules, out = _loaded(*argv)
+    assert code == 0, out
+    assert "Usage" in out
+    assert sorted(modules & set(HEAVY)) == []
+
+
+def test_recorder_info_imports_no_heavy_library(tmp_path: Path) -> None:
+    session = make_session(tmp_path, duration_s=1.0, planned_at_s=0.5)
+    code, modules, out = _loaded("recorder", "info", str(session))
+    assert code == 0, out
+    assert "shove" in out
+    assert sorted(modules & set(HEAVY)) == []
+
+
+def test_skops_is_imported_without_torch_or_dask() -> None:
+    """skops' trusted-type table is built without the array-API shims that import torch
+    and dask, and still trusts scikit-learn's estimators."""
+    probe = ("import json, sys\n"
+             "from contactkit.classify.skops_import import WALK_SKIPS, skops_io\n"
+             "skops_io()\n"
+             "from skops.io._trusted_types import SKLEARN_ESTIMATOR_TYPE_NAMES as names\n"
+             "print(json.dumps({'torch': 'torch' in sys.modules, 'dask': 'dask' in "
+             "sys.modules, 'left': [n for n in WALK_SKIPS if n in sys.modules], "
+             "'svc': 'sklearn.svm._classes.SVC' in names, "
+             "'pipeline': 'sklearn.pipeline.Pipeline' in names}))")
+    proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                          timeout=300, check=True)
+    assert json.loads(proc.stdout.strip().splitlines()[-1]) == {
+        "torch": False, "dask": False, "left": [], "svc": True, "pipeline": True}
+
+
+def test_listing_model_kinds_imports_no_plugin(monkeypatch) -> None:
+    """An entry point's kind is listed by name and imported only when asked for: a
+    plugin that cannot even be imported does not break the listing."""
+    point = importlib.metadata.EntryPoint(name="absent-kind", group=registry.ENTRY_POINT_GROUP,
+                                          value="contactkit_absent_plugin:KIND")
+    monkeypatch.setattr(importlib.metadata, "entry_points",
+                        lambda group: [point] if group == registry.ENTRY_POINT_GROUP else [])
+    monkeypatch.setattr(registry, "_entry_points_loaded", False)
+    try:
+        assert registry.kind_names()[-1] == "absent-kind"
+        assert "contactkit_absent_plugin" not in sys.modules
+        with pytest.raises(InputError, match=r"'absent-kind' .* cannot be loaded"):
+            registry.get_kind("absent-kind")
+    finally:
+        registry.unregister("absent-kind")
