@@ -1,4 +1,4 @@
-"""``skops.io``, imported on first use and without torch and dask.
+"""``skops.io``, imported on first use and without torch or Dask.
 
 When skops.io is first imported it lists the estimator types it trusts by walking
 scikit-learn's packages (``sklearn.utils.all_estimators``). The walk imports every

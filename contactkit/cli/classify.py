@@ -75,7 +75,7 @@ def _refuse_existing(out: Path, overwrite: bool) -> None:
 def _skipped(problems) -> None:
     for problem in problems:
         name, text = problem if isinstance(problem, tuple) else (problem.path, problem.problem)
-        err_console.print(f"[yellow]skipped[/] {name}: {text}")
+        err_console.print(f"[yellow]skipped[/] {name}: {text}", soft_wrap=True)
 
 
 @app.command("features")

@@ -501,7 +501,7 @@ def info_command(
 
 def _print_problems(problems: list[tuple[str, str]]) -> None:
     for name, problem in problems:
-        err_console.print(f"[yellow]skipped[/] {name}: {problem}")
+        err_console.print(f"[yellow]skipped[/] {name}: {problem}", soft_wrap=True)
 
 
 def main() -> None:
