@@ -197,11 +197,13 @@ class BlockLogger:
             layout.log_scalar_columns(rec, layout.FORCE_NORM, t, sample, block.norms[keep, :1])
             layout.log_scalar_columns(rec, layout.MOMENT_NORM, t, sample,
                                       block.norms[keep, 1:])
+            contact = None if block.contact is None else block.contact[keep]
             if block.true_force is not None:
                 force = block.true_force[keep]
-                contact = block.contact[keep] if block.contact is not None else \
-                    np.linalg.norm(force, axis=1) > 0
+                if contact is None:
+                    contact = np.linalg.norm(force, axis=1) > 0
                 self.truth.log(rec, t, sample, force)
+            if contact is not None:  # a labelled contact column, simulated or imported
                 layout.log_contact_lane(rec, t, sample, contact, self._contact)
                 self._contact = bool(contact[-1])
         rows = self._robot_rows(block)

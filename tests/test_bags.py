@@ -127,6 +127,23 @@ def test_export_mcap_round_trip(source, tmp_path):
     assert back.meta.simulator == original.meta.simulator
 
 
+def test_export_mcap_out_is_a_file_with_mcap_suffix_else_a_bag_directory(source, tmp_path):
+    """`--out run.mcap` writes exactly that file (once a directory run.mcap/ holding
+    run.mcap.mcap); `--out run` is a rosbag2 directory, as before. Both read back."""
+    result = run_cli("recorder", "export-mcap", str(source), "--out", str(tmp_path / "run.mcap"))
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "run.mcap").is_file() and result.stdout.strip() == str(tmp_path /
+                                                                               "run.mcap")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.mcap"]  # no scratch left
+    (tmp_path / "in").mkdir()
+    back = validate_session(import_bag(tmp_path / "run.mcap", meta(), tmp_path / "in"))
+    assert np.array_equal(back.q, read_session(source).q)
+    again = run_cli("recorder", "export-mcap", str(source), "--out", str(tmp_path / "run.mcap"))
+    assert again.returncode == 2 and "--overwrite" in again.stderr
+    bag = export_mcap(source, tmp_path / "run")
+    assert bag == tmp_path / "run" / "run.mcap" and (tmp_path / "run" / "metadata.yaml").is_file()
+
+
 def test_rate_warning_flags_franka_ros_default_rate():
     assert rate_warning(30.0) and "30.0 Hz" in rate_warning(30.0)
     assert rate_warning(600.0) is None

@@ -393,3 +393,23 @@ def test_a_zero_run_column_keeps_the_same_rows_however_it_is_split(monkeypatch) 
         logged = np.concatenate([s[0] for s in sent])
         assert np.array_equal(np.round(logged * 100).astype(int), expected), cuts
         assert np.array_equal(np.concatenate([s[1] for s in sent]), values[expected])
+
+
+def test_a_labelled_contact_column_is_shown_without_a_simulated_force(session, model_path,
+                                                                      tmp_path) -> None:
+    """An imported session (a MindLab CSV with its label column) has ``contact`` but no
+    applied force: the view still shows the labelled contact lane."""
+    import pyarrow.parquet as pq
+
+    from contactkit.schemas.session import FORCE_COLUMNS
+
+    table = pq.read_table(session)
+    imported = tmp_path / "imported.parquet"
+    pq.write_table(table.drop_columns(list(FORCE_COLUMNS)), imported)
+    assert read_session(imported).has("contact")
+    summaries, problems = replay_sessions([imported], load_model(model_path),
+                                          save=tmp_path / "i.rrd")
+    assert not problems
+    entities = read_rrd(summaries[0].saved)
+    assert layout.TRUE_CONTACT in entities and layout.TRUE_FORCE not in entities
+    assert_frames_ok(summaries[0].saved)

@@ -438,12 +438,14 @@ def stats_command(
 def export_mcap_command(
     session: Annotated[Path, typer.Argument(help="Session file (.parquet).")],
     out: Annotated[Path | None, typer.Option(
-        help="ROS 2 bag directory to write (default: the session's name beside it).")] = None,
-    overwrite: Annotated[bool, typer.Option(help="Replace an existing bag directory.")
+        help="Where to write: a name ending in .mcap is one MCAP file; any other name is a "
+             "ROS 2 bag directory (rosbag2's convention: metadata.yaml and NAME.mcap "
+             "inside; default: the session's name without suffix, beside it).")] = None,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing file or bag directory.")
                          ] = False,
 ) -> None:
-    """Write a session as a ROS 2 MCAP bag (JointState, WrenchStamped) for Foxglove or
-    the Rerun viewer; print the .mcap file's path. `import-bag` reads it back."""
+    """Write a session as MCAP (JointState, WrenchStamped) for Foxglove, PlotJuggler or
+    the Rerun viewer; print the .mcap file's path. `recorder import` reads it back."""
     from contactkit.recorder.importers.mcap_export import export_mcap
 
     print(export_mcap(session, out or session.with_suffix(""), overwrite=overwrite))

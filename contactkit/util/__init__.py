@@ -1,7 +1,7 @@
-"""Shared helpers below every subpackage: progress bars, pacing, parallel work, CLI runner."""
+"""Shared helpers below every subpackage: atomic writes, progress bars, pacing, parallel
+work, parameter declarations and plugin registries."""
 
 # The public modules, for the API reference (submodule names: importing the package
-# stays light).
-# The helpers other code builds on; dask_executor and workers sit behind parallel, and
-# exact_median, moments and pacing serve one caller each.
-__all__ = ["atomic", "cache", "parallel", "paths", "progress", "text"]
+# stays light). dask_executor and workers sit behind parallel; exact_median, moments and
+# pacing serve one caller each. params and plugins are what extensions declare with.
+__all__ = ["atomic", "cache", "parallel", "params", "paths", "plugins", "progress", "text"]

@@ -214,6 +214,24 @@ def atomic_directory(path: str | Path, *, overwrite: bool = False,
             shutil.rmtree(holder)
 
 
+@contextmanager
+def scratch_directory(target: str | Path) -> Iterator[Path]:
+    """Yield an empty private directory beside ``target`` for a writer that must build
+    its output in several files first (a rosbags writer makes a bag directory); it is
+    removed at the end, and its name is recognisable like every temporary here, so the
+    leftover of a killed run is cleaned up by :func:`remove_stale_temporaries`."""
+    target = Path(target)
+    with _write_errors(target):
+        holder = Path(tempfile.mkdtemp(prefix=temporary_prefix(target), suffix=".tmp",
+                                       dir=target.parent))
+    try:
+        with _write_errors(target):
+            yield holder
+    finally:
+        with suppress(OSError):
+            shutil.rmtree(holder)
+
+
 def write_bytes(path: str | Path, data: bytes, *, overwrite: bool = False,
                 flag: str = "--overwrite", owned: Owned | None = None) -> Path:
     """Write ``data`` to ``path`` with :func:`atomic_write`; return the path."""

@@ -14,6 +14,7 @@ estimate) and ``/contactkit/applied_force`` (ground truth), and ``std_msgs/Bool`
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +30,7 @@ from contactkit.recorder.importers.bags import (
 from contactkit.robots import get_robot
 from contactkit.schemas import Session, joint_columns, read_session
 from contactkit.schemas.session import FORCE_COLUMNS, WRENCH_HAT_COLUMNS
-from contactkit.util.atomic import atomic_directory
+from contactkit.util.atomic import atomic_directory, atomic_write, scratch_directory
 
 
 def _stamps_ns(t: np.ndarray, start_ns: int) -> np.ndarray:
@@ -38,17 +39,28 @@ def _stamps_ns(t: np.ndarray, start_ns: int) -> np.ndarray:
 
 def export_mcap(session_path: Path, out: Path, *, start_ns: int = 0,
                 overwrite: bool = False) -> Path:
-    """Write the session at ``session_path`` as a ROS 2 bag directory ``out`` with one
-    MCAP file; return the MCAP file's path. Time stamps are ``start_ns`` plus the
-    session time [ns]. The bag is written into a temporary directory and renamed into
-    place at the end (a failure leaves nothing); an existing ``out`` is replaced only
-    with ``overwrite``."""
+    """Write the session at ``session_path`` as MCAP; return the MCAP file's path.
+
+    ``out`` ending in ``.mcap`` is that one file; any other ``out`` is a ROS 2 bag
+    directory (rosbag2's convention: a folder without suffix, holding ``metadata.yaml``
+    and ``<name>.mcap``). Time stamps are ``start_ns`` plus the session time [ns]. The
+    output is written aside and moved into place at the end (a failure leaves nothing);
+    an existing ``out`` is replaced only with ``overwrite``."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
     session = read_session(session_path)
     store = get_typestore(Stores.ROS2_HUMBLE)
     stamps = _stamps_ns(session.t, start_ns)
+    if out.suffix.lower() == ".mcap":
+        with atomic_write(out, overwrite=overwrite) as target, \
+                scratch_directory(out) as scratch:
+            bag = scratch / out.stem
+            _write_bag(Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP), session,
+                       store, stamps)
+            with next(bag.glob("*.mcap")).open("rb") as written:
+                shutil.copyfileobj(written, target.file)
+        return out
     with atomic_directory(out, overwrite=overwrite) as bag:
         _write_bag(Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP), session,
                    store, stamps)

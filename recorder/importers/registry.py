@@ -17,13 +17,11 @@ be taken over.
 
 from __future__ import annotations
 
-import importlib
-import importlib.metadata
-import inspect
 from pathlib import Path
 
 from contactkit.errors import InputError
 from contactkit.recorder.importers.base import Importer
+from contactkit.util.plugins import load_class, registered
 
 ENTRY_POINT_GROUP = "contactkit.importers"
 IMPORTERS: dict[str, str] = {
@@ -39,20 +37,11 @@ def registered_importers() -> dict[str, str]:
     """Return every format name with its ``module:Class``: the built-in ones, then those
     installed packages declare in the ``contactkit.importers`` entry-point group (nothing
     is imported)."""
-    found = dict(IMPORTERS)
-    for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
-        found.setdefault(entry.name, entry.value)
-    return found
+    return registered(IMPORTERS, ENTRY_POINT_GROUP)
 
 
 def _load(name: str, target: str) -> type[Importer]:
-    module, _, attr = target.partition(":")
-    try:
-        cls = getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError) as err:
-        raise InputError(f"importer {name!r} ({target}) cannot be loaded: {err}") from err
-    if not (inspect.isclass(cls) and issubclass(cls, Importer)) or inspect.isabstract(cls):
-        raise InputError(f"importer {name!r} ({target}) is not a complete Importer subclass")
+    cls = load_class("importer", name, target, Importer)
     if getattr(cls, "name", None) != name or not isinstance(getattr(cls, "source", None), str):
         raise InputError(f"importer {name!r} ({target}) must set name = {name!r} and a "
                          "source")

@@ -33,14 +33,11 @@ works. A source module should import heavy or optional packages (robot SDKs) ins
 
 from __future__ import annotations
 
-import importlib
-import importlib.metadata
-import inspect
-
 from contactkit.errors import ContactkitError
 from contactkit.recorder.sources.base import ProtocolChoices, Source
 from contactkit.recorder.sources.options import make_config, source_options
 from contactkit.schemas import InputError
+from contactkit.util.plugins import load_class, registered
 
 ENTRY_POINT_GROUP = "contactkit.sources"
 SOURCES: dict[str, str] = {
@@ -54,20 +51,11 @@ def registered_sources() -> dict[str, str]:
     """Return every source name with its ``module:Class``: the built-in ones, then those
     that installed packages declare in the ``contactkit.sources`` entry-point group (a
     built-in name cannot be taken over)."""
-    found = dict(SOURCES)
-    for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
-        found.setdefault(entry.name, entry.value)
-    return found
+    return registered(SOURCES, ENTRY_POINT_GROUP)
 
 
 def _load(name: str, target: str) -> type[Source]:
-    module, _, attr = target.partition(":")
-    try:
-        cls = getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError) as err:
-        raise InputError(f"source {name!r} ({target}) cannot be loaded: {err}") from err
-    if not (inspect.isclass(cls) and issubclass(cls, Source)) or inspect.isabstract(cls):
-        raise InputError(f"source {name!r} ({target}) is not a complete Source subclass")
+    cls = load_class("source", name, target, Source)
     try:
         source_options(cls.Config)
     except (AttributeError, TypeError, NameError) as err:
