@@ -16,7 +16,7 @@ from contactkit.recorder.sim import dataset
 from contactkit.recorder.sim.simulator import SimConfig, plan_session
 from contactkit.recorder.stats.summary import beyond_limits
 from contactkit.schemas import SessionMeta, read_session
-from tests.conftest import make_session
+from tests.conftest import make_session, run_cli
 
 
 def test_hard_limits_are_refused_on_read_naming_column_and_row(tmp_path: Path) -> None:
@@ -64,3 +64,22 @@ def test_limit_violation_names_the_first_sample() -> None:
     summary = {"file": "x", "max_torque_fraction": [0.1] * 2 + [823 / 87] + [0.1] * 4,
                "max_speed_fraction": [0.1] * 7, "limit_margin_rad": [0.1] * 7}
     assert "torque of joint 3" in beyond_limits(summary)
+
+
+def test_recorder_info_flags_a_sample_beyond_the_robots_limits(tmp_path: Path) -> None:
+    """Plain `recorder info` (not only `stats --deep`) names the first sample beyond the
+    session robot's limits: physically impossible, yet below the hard limits of read."""
+    from contactkit.recorder.info import session_info
+
+    path = make_session(tmp_path)
+    assert session_info(path)["beyond_limits"] is None
+    table = pq.read_table(path)
+    dq = table.column("dq_4").to_numpy().copy()
+    dq[42] = 9.0  # rad/s: 3.6x the Panda's joint 4 speed limit
+    bad = tmp_path / "fast.parquet"
+    pq.write_table(table.set_column(table.column_names.index("dq_4"), "dq_4", pa.array(dq)),
+                   bad)
+    why = session_info(bad)["beyond_limits"]
+    assert why.startswith("dq_4 = 9 rad/s") and "(row 42)" in why
+    result = run_cli("recorder", "info", str(bad))
+    assert result.returncode == 0 and "limits" in result.stdout and "dq_4" in result.stdout
