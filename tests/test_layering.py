@@ -16,6 +16,7 @@ imports inside functions. Third-party imports are not checked here.
 from __future__ import annotations
 
 import ast
+import functools
 import tomllib
 from pathlib import Path
 
@@ -88,8 +89,10 @@ def imported_modules(name: str, path: Path, modules: dict[str, Path]
     return found
 
 
-def _bare_tops() -> set[str]:
-    return {n.split(".")[1] for n in source_folders() if n != "contactkit"}
+@functools.cache
+def _bare_tops() -> frozenset[str]:
+    """Return the folder names that install under contactkit (schemas, features, ...)."""
+    return frozenset(n.split(".")[1] for n in source_folders() if n != "contactkit")
 
 
 def layer_of(module: str) -> str:

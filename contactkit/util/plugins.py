@@ -8,9 +8,9 @@ from __future__ import annotations
 import importlib
 import importlib.metadata
 import inspect
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
-from contactkit.errors import InputError
+from contactkit.errors import ContactkitError, InputError
 
 
 def registered(builtin: Mapping[str, str], group: str) -> dict[str, str]:
@@ -36,3 +36,18 @@ def load_class(what: str, name: str, target: str, base: type) -> type:
         raise InputError(f"{what} {name!r} ({target}) is not a complete {base.__name__} "
                          "subclass")
     return cls
+
+
+def load_all(targets: Mapping[str, str], load: Callable[[str, str], type]
+             ) -> tuple[dict[str, type], dict[str, str]]:
+    """Return the classes ``load(name, target)`` gives for each of ``targets`` (name ->
+    ``module:Class``), and the one-line problem of each that cannot be loaded: a broken
+    plugin must not hide the others."""
+    classes: dict[str, type] = {}
+    problems: dict[str, str] = {}
+    for name, target in targets.items():
+        try:
+            classes[name] = load(name, target)
+        except ContactkitError as err:
+            problems[name] = str(err)
+    return classes, problems

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from contactkit.errors import InputError
 from contactkit.recorder.importers.base import Importer
-from contactkit.util.plugins import load_class, registered
+from contactkit.util.plugins import load_all, load_class, registered
 
 ENTRY_POINT_GROUP = "contactkit.importers"
 IMPORTERS: dict[str, str] = {
@@ -79,14 +79,7 @@ def importer_for(path: Path) -> type[Importer]:
 def load_importers() -> tuple[dict[str, type[Importer]], dict[str, str]]:
     """Return the loadable importers by name, and the problem of each one that is not (a
     broken plugin must not hide the others)."""
-    classes: dict[str, type[Importer]] = {}
-    problems: dict[str, str] = {}
-    for name, target in registered_importers().items():
-        try:
-            classes[name] = _load(name, target)
-        except InputError as err:
-            problems[name] = str(err)
-    return classes, problems
+    return load_all(registered_importers(), _load)
 
 
 __all__ = ["ENTRY_POINT_GROUP", "IMPORTERS", "Importer", "importer_class", "importer_for",

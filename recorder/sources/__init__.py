@@ -33,11 +33,10 @@ works. A source module should import heavy or optional packages (robot SDKs) ins
 
 from __future__ import annotations
 
-from contactkit.errors import ContactkitError
 from contactkit.recorder.sources.base import ProtocolChoices, Source
 from contactkit.recorder.sources.options import make_config, source_options
 from contactkit.schemas import InputError
-from contactkit.util.plugins import load_class, registered
+from contactkit.util.plugins import load_all, load_class, registered
 
 ENTRY_POINT_GROUP = "contactkit.sources"
 SOURCES: dict[str, str] = {
@@ -76,14 +75,7 @@ def source_class(name: str) -> type[Source]:
 def load_sources() -> tuple[dict[str, type[Source]], dict[str, str]]:
     """Return the loadable sources by name, and the problem of each one that is not (a
     broken plugin must not break the others)."""
-    classes: dict[str, type[Source]] = {}
-    problems: dict[str, str] = {}
-    for name, target in registered_sources().items():
-        try:
-            classes[name] = _load(name, target)
-        except ContactkitError as err:
-            problems[name] = str(err)
-    return classes, problems
+    return load_all(registered_sources(), _load)
 
 
 def open_source(name: str, options: dict, choices: ProtocolChoices) -> Source:
