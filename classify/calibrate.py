@@ -24,6 +24,7 @@ from contactkit.features.detector import (
     calibrate,
     calibration_samples,
 )
+from contactkit.features.limits import session_limit_violation
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain
 from contactkit.robots import canonical_robot_name
 from contactkit.schemas import InputError, Session, read_session
@@ -58,8 +59,12 @@ def session_calibration_data(path: str | Path, template: DetectorConfig | None =
                              robot: str | None = None) -> list[CalibrationData]:
     """Read one session and return the detector's calibration samples of each of its
     no-contact stretches (the observer restarts on each stretch); ``robot`` names the
-    arm's model instead of the session's own."""
+    arm's model instead of the session's own. A session with a sample beyond the robot's
+    limits raises InputError: its thresholds would be meaningless."""
     session = read_session(path).complete()
+    beyond = session_limit_violation(session, robot)
+    if beyond is not None:  # a blown-up simulation or a mis-scaled log sets no threshold
+        raise InputError(beyond, path)
     template = template or DetectorConfig()
     chain = TimeseriesChain.for_session(session.meta, ChainConfig(robot=robot), path)
     r = chain.compute(session.t, session.q, session.dq, session.tau, ["r"])["r"]

@@ -23,6 +23,7 @@ import numpy as np
 from sklearn.base import clone
 from sklearn.model_selection import LeaveOneGroupOut, ShuffleSplit, StratifiedGroupKFold
 
+from contactkit.classify.schemes import check_two_classes
 from contactkit.schemas import InputError
 from contactkit.util.parallel import map_ordered
 
@@ -184,9 +185,8 @@ def evaluate(X: np.ndarray, y: np.ndarray, make_estimator: Callable[[], object],
     result does not depend on it.
     """
     classes = classes or sorted(set(y))
+    check_two_classes(y, "evaluation")
     classes = [c for c in classes if c in set(y)]
-    if len(classes) < 2:
-        raise InputError("evaluation needs at least two classes in the data")
     folds = splits(protocol, y, groups, seed)
     tasks = ((clone(make_estimator()), X[train], y[train], X[test]) for train, test in folds)
     try:

@@ -29,6 +29,7 @@ from contactkit.classify.events import (
     batch_events,
 )
 from contactkit.classify.kind import ModelOptions
+from contactkit.classify.schemes import check_two_classes
 from contactkit.classify.svm_kinds import SVM
 from contactkit.features.detector import DetectorConfig, detect
 from contactkit.features.timeseries import TimeseriesChain
@@ -124,6 +125,7 @@ def fit_event_model(sessions: Sequence[SessionEvents], decide_after_s: float,
     names, counts = np.unique(y, return_counts=True)
     keep = np.isin(y, names[counts >= 2])  # a class seen once cannot be calibrated
     X, y = X[keep], y[keep]
+    check_two_classes(y, "the event model's training (a class needs at least two events)")
     options = ModelOptions(kind=SVM.name, seed=seed, params={"c": c})
     estimator = SVM.estimator(options, []).fit(X, y)
     return EventModel(estimator, [str(c) for c in estimator.classes_], decide_after_s,

@@ -17,7 +17,7 @@ from contactkit.classify.kind import ModelKind, ModelOptions
 from contactkit.classify.modelfile import save_model
 from contactkit.classify.names import PROTOCOLS
 from contactkit.classify.registry import get_kind
-from contactkit.classify.schemes import check_scheme, scheme_classes
+from contactkit.classify.schemes import check_scheme, check_two_classes, scheme_classes
 from contactkit.errors import check_choice
 from contactkit.schemas import InputError
 from contactkit.util.atomic import check_target
@@ -82,8 +82,10 @@ def train(datasets: Sequence[Path], out: Path, options: ModelOptions, *, scheme:
     found = training_set(datasets, options, workers=workers, limited=limited,
                          progress=progress, scheduler=scheduler)
     data = found.data
+    labels = data.labels(scheme)
+    check_two_classes(labels, "training")
     estimator = kind.estimator(options, data.names)
-    estimator.fit(data.X, data.labels(scheme))
+    estimator.fit(data.X, labels)
     classes = [str(c) for c in estimator.classes_]
     training = {"datasets": [str(d) for d in datasets], "limited": limited,
                 "sessions": len(data), "options": asdict(options),

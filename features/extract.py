@@ -124,8 +124,10 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
     def online_row(self, t: np.ndarray, values: np.ndarray, k: int) -> np.ndarray:
         """Return the scalar features of the ``window_s`` seconds ending at sample ``k``,
         from per-sample ``values`` (N, channels, in :meth:`channels` order) at times
-        ``t`` [s]; only samples up to ``k`` are used."""
+        ``t`` [s]; only samples up to ``k`` are used. A window that holds fewer than 2
+        samples (a session sampled slower than the window) is widened to the last 2."""
         first = int(np.searchsorted(t, t[k] - self.window_s, side="right"))
+        first = max(0, min(first, k - 1))
         row, _ = scalar_features(values[first:k + 1], list(self.scalars), self.channels(),
                                  self.fft_k)
         return row

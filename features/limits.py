@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from contactkit.errors import InputError
 from contactkit.robots import JointLimits, get_robot
-from contactkit.schemas import SessionMeta
+from contactkit.schemas import Session, SessionMeta
 
 SPEED_MARGIN = 1.5
 """A session is unstable when a joint moves faster than this multiple of its speed limit."""
@@ -56,3 +57,17 @@ def limit_violation(t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.ndarra
         first = (row, f"{name}_{joint + 1} = {values[row, joint]:.4g} {unit} at "
                       f"{t[row]:.3f} s (row {row}) is beyond the robot's limit ({limit})")
     return None if first is None else first[1]
+
+
+def session_limit_violation(session: Session, robot: str | None = None) -> str | None:
+    """Return one line naming the column, value, time and row of the first sample of
+    ``session`` beyond its robot's limits (``robot`` names the arm's model instead of
+    the session's own), or None when every sample is within them or the robot's model is
+    not available here (a plugin robot or URDF not installed: nothing to check)."""
+    if not session.n_samples:
+        return None
+    try:
+        limits = get_robot(robot or session.meta.robot).limits
+    except InputError:
+        return None
+    return limit_violation(session.t, session.q, session.dq, session.tau, limits)

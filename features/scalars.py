@@ -21,7 +21,8 @@ fft            |FFT(s)[j]| for j = 0..k-1 (scipy.fft), k = 3        u
 
 Hjorth parameters are three lines of numpy: antropy implements the same formulas
 but would add numba to the install for no gain. A constant signal has zero
-variance; its skew and Hjorth parameters are defined as 0 rather than NaN.
+variance; its skew and Hjorth parameters are defined as 0 rather than NaN, and so are
+the Hjorth parameters of a window too short to difference (one or two samples).
 """
 
 from __future__ import annotations
@@ -75,6 +76,8 @@ def energy(x: np.ndarray) -> np.ndarray:
 
 
 def _mobility(x: np.ndarray) -> np.ndarray:
+    if len(x) < 2:  # no difference to take: defined as 0, like a constant signal
+        return np.zeros(x.shape[1:])
     return np.sqrt(_safe_ratio(np.diff(x, axis=0).var(axis=0), x.var(axis=0)))
 
 

@@ -9,9 +9,9 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from contactkit.features.limits import limit_violation, robot_limits
+from contactkit.features.limits import session_limit_violation
 from contactkit.features.timing import rate_warning, sampling_stats
-from contactkit.schemas import InputError, Session, validate_session
+from contactkit.schemas import Session, validate_session
 from contactkit.util.text import printable
 
 
@@ -34,20 +34,6 @@ def peak_force_n(session: Session) -> float | None:
     return float(np.linalg.norm(force, axis=1).max())
 
 
-def beyond_robot_limits(session: Session) -> str | None:
-    """Return one line naming the column, value, time and row of the first sample beyond
-    the session robot's limits (with the margins of :mod:`contactkit.features.limits`:
-    a simulation that blew up, or a corrupt or mis-scaled recording), or None when every
-    sample is within them or the robot's model is not available here."""
-    if not session.n_samples:
-        return None
-    try:
-        limits = robot_limits(session.meta)
-    except InputError:  # a plugin robot or URDF not installed here: nothing to check
-        return None
-    return limit_violation(session.t, session.q, session.dq, session.tau, limits)
-
-
 def session_info(path: str | Path) -> dict:
     """Return metadata, sampling statistics (with a warning when the rate is too slow for
     the feature chain), ground truth and the first sample beyond the robot's limits (None
@@ -62,7 +48,7 @@ def session_info(path: str | Path) -> dict:
         "rate_warning": rate_warning(stats.rate_hz),
         "contact_interval_s": contact_interval(session),
         "peak_force_n": peak_force_n(session),
-        "beyond_limits": beyond_robot_limits(session),
+        "beyond_limits": session_limit_violation(session),
     }
 
 

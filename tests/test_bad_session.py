@@ -79,3 +79,14 @@ def test_can_ids_that_do_not_match_the_map_are_an_error_saying_so(tmp_path, caps
     assert code == 2, err
     assert "no complete sample" in err and "unknown ids" in err and "map" in err, err
     assert not list((tmp_path / "o").glob("*.parquet"))
+
+
+def test_training_on_one_class_is_one_line(dataset, tmp_path, capsys) -> None:
+    """Sessions of a single class cannot train a classifier: one line naming the class,
+    exit 2, not scikit-learn's traceback."""
+    code, _, err = _run(classify_app, "classify", capsys, "train", dataset, "--out",
+                        tmp_path / "m.skops")
+    err = " ".join(err.split())
+    assert code == 2 and "Traceback" not in err, err
+    assert "training needs at least two classes in the data; it has only 'none'" in err
+    assert not (tmp_path / "m.skops").exists()

@@ -83,3 +83,26 @@ def test_recorder_info_flags_a_sample_beyond_the_robots_limits(tmp_path: Path) -
     assert why.startswith("dq_4 = 9 rad/s") and "(row 42)" in why
     result = run_cli("recorder", "info", str(bad))
     assert result.returncode == 0 and "limits" in result.stdout and "dq_4" in result.stdout
+
+
+def test_calibration_leaves_out_a_session_beyond_the_robots_limits(tmp_path: Path) -> None:
+    """A mis-scaled session (torques scaled 100x) would set thresholds of hundreds of
+    Nm: calibrate names it, leaves it out, calibrates on the rest and exits 2."""
+    from contactkit.classify.calibrate import calibrate_sessions
+
+    good = make_session(tmp_path, action="none", duration_s=2.0)
+    table = pq.read_table(good)
+    scaled = table
+    for j in range(1, 8):
+        name = f"tau_{j}"
+        scaled = scaled.set_column(scaled.column_names.index(name), name,
+                                   pa.array(table.column(name).to_numpy() * 100.0))
+    pq.write_table(scaled, tmp_path / "scaled.parquet")
+    problems: list[tuple[str, str]] = []
+    config = calibrate_sessions([good, tmp_path / "scaled.parquet"], problems=problems)
+    assert [Path(name).name for name, _ in problems] == ["scaled.parquet"]
+    assert "beyond the robot's limit" in problems[0][1]
+    assert config.source["sessions"] == 1 and max(config.noise) < 5.0
+    result = run_cli("classify", "calibrate", str(tmp_path), "--out", str(tmp_path / "c.json"))
+    assert result.returncode == 2 and "scaled.parquet" in result.stderr
+    assert "Traceback" not in result.stderr and (tmp_path / "c.json").is_file()

@@ -54,6 +54,9 @@ def test_index_report_counts_and_problems(dataset: Path, tmp_path: Path) -> None
     assert "not a readable Parquet file" in named["corrupt_a.parquet"]
     assert "corrupt_b.parquet" in named
     assert "duplicate session id" in named["zz_duplicate.parquet"]
+    also = named["zz_duplicate.parquet"].split("(also in ", 1)[1].rstrip(")").split(", ")
+    assert also and all((dataset / name).is_file() for name in also)
+    assert "zz_duplicate.parquet" not in also
     assert report["deep"] is None and report["fingerprint"]["kind"].startswith("index")
     assert "problems" in result.stderr and "corrupt_a.parquet" in result.stderr
 

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 import scipy.stats
 
+from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import (
+    SCALARS,
     fft_magnitudes,
     hjorth_complexity,
     hjorth_mobility,
@@ -97,3 +99,25 @@ def test_window_search_over_chunks_equals_find_window() -> None:
                 for first in range(0, rows, size):
                     search.feed(t[first:first + size], values[first:first + size])
                 assert search.finish() == find_window(t, planned, spec, values)
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_scalars_of_a_window_too_short_to_difference_are_finite(n: int) -> None:
+    """A window of one or two samples (a session sampled slower than the window) gives
+    finite features and no numpy warning: Hjorth parameters are 0 there."""
+    x = np.arange(2.0 * n).reshape(n, 2)
+    values, names = scalar_features(x, SCALARS, ["a", "b"])
+    assert np.isfinite(values).all() and len(values) == len(names)
+
+
+@pytest.mark.filterwarnings("error")
+def test_online_row_holds_at_least_two_samples() -> None:
+    """A hop whose window holds one sample (2 Hz data, 0.5 s window) uses the last two."""
+    features = SessionFeatures()
+    t = np.arange(10) * 0.5
+    values = np.random.default_rng(0).normal(size=(10, len(features.channels())))
+    row = features.online_row(t, values, 5)
+    widened = scalar_features(values[4:6], list(features.scalars), features.channels(),
+                              features.fft_k)[0]
+    np.testing.assert_array_equal(row, widened)

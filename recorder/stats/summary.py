@@ -105,8 +105,8 @@ def index_stats(index: pl.LazyFrame) -> dict:
                         "chain models each with its own robot model, but a classifier trained "
                         "on them all mixes their data")
     problems = [{"file": f, "problem": f"duplicate session id {sid} (also in "
-                                       f"{', '.join(files[:1] + files[2:])})"}
-                for sid, files in zip(dupes["session_id"], dupes["file"], strict=True)
+                                       f"{', '.join(g for g in files if g != f)})"}
+                for sid, files in zip(dupes["session_id"], dupes["file"].to_list(), strict=True)
                 for f in files[1:]]
     short = frame.filter((pl.col("duration_s") < WINDOW_S)
                          | (pl.col("planned_at_s") + WINDOW_S > pl.col("t_end_s")))
