@@ -5,6 +5,7 @@ STAMP   := $(VENV)/.installed-stamp
 DEMO    := demo
 
 CHECK   := viewer-check
+SHOTS   := build/screenshots
 GAZ     := ../shared/reference/gaz2019-exciting-traj
 
 .PHONY: install test lint docs demo viewer-check chromium clean
@@ -24,14 +25,22 @@ install: $(STAMP)
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
-test: $(STAMP) lint docs chromium
+# The site is built after the unit tests, which build and cache the default model the
+# demo replay (and so the docs' screenshots) needs, while the second worker runs tests.
+test: $(STAMP) lint chromium
 	$(PY) -m pytest -q -n 2 -m "not slow and not browser" --durations=25
+	@$(MAKE) --no-print-directory docs
 	$(PY) -m pytest -q -m "browser and not slow"
 
 # The documentation site (mkdocs.yml, docs/): strict, so a broken link or reference fails.
-# The command reference and the session format are generated at build time (docs/hooks.py).
-docs: $(STAMP)
+# The command reference and the session format are generated at build time (docs/hooks.py);
+# the screenshots of the view are taken afresh from the demo replay by the browser check
+# (docs/screenshots.py; without a browser the site keeps the committed ones and says so).
+docs: $(STAMP) demo chromium
+	@rm -f $(SHOTS)/demo.png
 	@if $(PY) -c "import mkdocs, material, mkdocstrings_handlers.python" 2>/dev/null; then \
+	  $(PY) tools/viewer_check.py demo.rrd --cursor 0.5 --timeout 200 --out $(SHOTS) \
+	    || echo "the browser check did not screenshot the demo replay (above)"; \
 	  NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet --site-dir site; \
 	else echo "mkdocs, mkdocs-material or mkdocstrings not installed: docs build skipped"; fi
 

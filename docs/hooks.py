@@ -7,7 +7,10 @@
 * ``build/api-src/contactkit``: the package as it installs, one symbolic link per part
   (from ``[tool.setuptools.package-dir]``), so that mkdocstrings finds
   ``contactkit.schemas`` and the other subpackages, whose folders sit at the repository
-  root, by reading the source (``paths`` in ``mkdocs.yml``).
+  root, by reading the source (``paths`` in ``mkdocs.yml``);
+* ``viewer.png`` and ``viewer-annotated.png``: the browser check's screenshot of the demo
+  replay that `make docs` has just taken (``docs/screenshots.py``), numbered for the
+  "Read the Rerun view" tutorial; without one (no browser here) the committed copies.
 
 Registered in ``mkdocs.yml`` under ``hooks:``; nothing is written into ``docs/``.
 """
@@ -18,6 +21,7 @@ import dataclasses
 import inspect
 import itertools
 import os
+import sys
 import textwrap
 import tomllib
 from pathlib import Path
@@ -31,6 +35,7 @@ TOOLS = (("recorder", "contactkit.cli.recorder"), ("classify", "contactkit.cli.c
 HELP_WIDTH = "100"
 ROOT = Path(__file__).resolve().parents[1]
 API_SRC = ROOT / "build" / "api-src"
+SHOTS = ROOT / "build" / "screenshots"
 
 
 def stage_package() -> Path:
@@ -172,8 +177,26 @@ def on_startup(command, dirty, **kwargs):
     stage_package()
 
 
+def screenshots(files, config) -> None:
+    """Put the demo replay's fresh screenshot and its numbered copy on the site in place
+    of the committed ones, when `make docs` has taken one."""
+    sys.path.insert(0, str(ROOT / "docs"))
+    from screenshots import SHOT, annotate
+
+    if not SHOT.is_file():
+        print("docs: no fresh screenshot of the demo replay (the browser check did not run "
+              "here): the site keeps the committed docs/viewer*.png", file=sys.stderr)
+        return
+    fresh = {"viewer.png": SHOT,
+             "viewer-annotated.png": annotate(SHOT, SHOTS / "viewer-annotated.png")}
+    for uri, path in fresh.items():
+        files.remove(files.get_file_from_path(uri))
+        files.append(File.generated(config, uri, abs_src_path=str(path)))
+
+
 def on_files(files, config, **kwargs):
-    """Add the generated pages to the site."""
+    """Add the generated pages and the fresh screenshots to the site."""
     for uri, render in GENERATED.items():
         files.append(File.generated(config, uri, content=render()))
+    screenshots(files, config)
     return files
