@@ -42,13 +42,20 @@ print("\\n" + json.dumps({"code": code, "modules": sorted(sys.modules)}))
 """
 
 
-def _loaded(tool: str, *argv: str) -> tuple[int, set[str], str]:
-    """Run ``tool argv`` in a fresh interpreter; return its exit code, the top-level
-    packages it imported and its output."""
+def _modules(tool: str, *argv: str) -> tuple[int, set[str], str]:
+    """Run ``tool argv`` in a fresh interpreter; return its exit code, the modules it
+    imported and its output."""
     proc = subprocess.run([sys.executable, "-c", PROBE, tool, *argv], capture_output=True,
                           text=True, timeout=300, env=dict(os.environ, COLUMNS="200"))
     report = json.loads(proc.stdout.strip().splitlines()[-1])
-    return report["code"], {m.split(".")[0] for m in report["modules"]}, proc.stdout
+    return report["code"], set(report["modules"]), proc.stdout
+
+
+def _loaded(tool: str, *argv: str) -> tuple[int, set[str], str]:
+    """Run ``tool argv`` in a fresh interpreter; return its exit code, the top-level
+    packages it imported and its output."""
+    code, modules, out = _modules(tool, *argv)
+    return code, {m.split(".")[0] for m in modules}, out
 
 
 @pytest.mark.parametrize("argv", [
@@ -63,6 +70,36 @@ def test_help_imports_no_heavy_library(argv) -> None:
     assert code == 0, out
     assert "Usage" in out
     assert sorted(modules & set(HEAVY)) == []
+
+
+def test_recorder_help_loads_no_source() -> None:
+    """`recorder --help` lists capture and sources without loading a source (whose
+    modules, plugins included, may import robot SDKs and python-can); capture's own help
+    loads them all, to list their options."""
+    code, modules, out = _modules("recorder", "--help")
+    assert code == 0 and "capture" in out and "sources" in out, out
+    sources = {f"contactkit.recorder.sources.{name}" for name in ("sim", "can", "franka")}
+    assert sorted(modules & (sources | {"can"})) == []
+    code, modules, out = _modules("recorder", "capture", "--help")
+    assert code == 0 and "--channel" in out, out
+    assert sources <= modules
+
+
+def test_deferred_commands_list_the_help_they_have_once_built() -> None:
+    """The one-line help `recorder --help` shows for capture and sources before they are
+    built is the first line of their own help."""
+    import typer
+
+    from contactkit.cli.recorder import app
+
+    group = typer.main.get_group(app)
+    ctx = group.context_class(group)
+    listed = {name: group.get_command(ctx, name).help for name in group.deferred}
+    assert set(listed) == {"capture", "sources"}
+    for name, summary in listed.items():
+        group.build(name)
+        built = group.get_command(ctx, name)
+        assert " ".join(built.help.split("\n\n")[0].split()) == summary
 
 
 def test_recorder_info_imports_no_heavy_library(tmp_path: Path) -> None:

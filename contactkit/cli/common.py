@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import logging
 import sys
-from typing import Annotated
+from collections.abc import Callable
+from typing import Annotated, Any, ClassVar
 
 import typer
+from typer.core import TyperCommand, TyperGroup
 
 from contactkit.errors import ContactkitError
 from contactkit.util.parallel import SCHEDULER_ENV, resolve_scheduler
@@ -83,6 +85,52 @@ def exit_if_failed(problems: object) -> None:
     empty; return otherwise."""
     if problems:
         raise typer.Exit(SOME_FAILED)
+
+
+CommandsBuilder = Callable[[], dict[str, Any]]
+"""Builds a group's deferred commands: returns their click commands by name."""
+
+
+class DeferredCommands(TyperGroup):
+    """A command group some of whose commands are built only when they run or show their
+    own help, so that the group's ``--help`` does not import what they need (the capture
+    command's flags come from every installed source plugin). ``deferred`` maps each such
+    command's name to its one-line help and the builder that makes it (one builder may
+    make several commands); subclass it per app with :func:`deferred_commands`."""
+
+    deferred: ClassVar[dict[str, tuple[str, CommandsBuilder]]] = {}
+
+    def build(self, name: str) -> None:
+        """Build the deferred command ``name`` (and those its builder makes with it)."""
+        if name in self.deferred and name not in self.commands:
+            self.commands.update(self.deferred[name][1]())
+
+    def list_commands(self, ctx: Any) -> list[str]:
+        """Return the command names, the deferred ones first, built or not."""
+        return [*self.deferred, *(n for n in super().list_commands(ctx)
+                                 if n not in self.deferred)]
+
+    def get_command(self, ctx: Any, cmd_name: str) -> Any:
+        """Return a command; a deferred one not yet built is a stand-in with its one-line
+        help, which is all that the group's ``--help`` shows."""
+        command = super().get_command(ctx, cmd_name)
+        if command is None and cmd_name in self.deferred:
+            summary = self.deferred[cmd_name][0]
+            command = TyperCommand(name=cmd_name, help=summary)
+        return command
+
+    def resolve_command(self, ctx: Any, args: list[str]) -> Any:
+        """Build the command the arguments name before it runs (or shows its help)."""
+        if args:
+            self.build(args[0])
+        return super().resolve_command(ctx, args)
+
+
+def deferred_commands(commands: dict[str, tuple[str, CommandsBuilder]]
+                      ) -> type[DeferredCommands]:
+    """Return a :class:`DeferredCommands` class for an app (``new_app(cls=...)``) whose
+    commands in ``commands`` (name: (one-line help, builder)) are built on first use."""
+    return type("AppCommands", (DeferredCommands,), {"deferred": dict(commands)})
 
 
 def new_app(name: str | None = None, help: str | None = None, *,

@@ -14,9 +14,15 @@ from contactkit.cli.capture import (
     CaptureExtension,
     Condition,
     Pose,
-    register_capture,
+    deferred_capture,
 )
-from contactkit.cli.common import exit_if_failed, new_app, run_app, scheduler_of
+from contactkit.cli.common import (
+    deferred_commands,
+    exit_if_failed,
+    new_app,
+    run_app,
+    scheduler_of,
+)
 from contactkit.recorder.capture.journal import recover_directory
 from contactkit.recorder.capture.record import output_directory
 from contactkit.recorder.metadata import set_session_robot
@@ -40,9 +46,6 @@ if TYPE_CHECKING:
 # inside their functions, so that `recorder --help` and `recorder info` load none of them:
 # tests/test_startup.py checks which modules they import.
 
-app = new_app("recorder", help="Record Panda joint streams while a person touches the arm on "
-              "cue, and manage the resulting sessions. Without a robot, sessions come from a "
-              "physics simulation.", root_options=True)
 DEFAULT_WORKERS = available_cpus()
 Preset = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
 ReportFormat = Literal["html", "md", "json"]
@@ -95,7 +98,12 @@ EVENTS = CaptureExtension((
     Param("decide_after", float, None, "Events: time after a contact's onset at which its "
           "intent is decided (default: the model's).", unit="s"),
 ), _start_events)
-register_capture(app, (EVENTS,))
+# capture's flags come from every installed source: capture and sources are built only
+# when one of them runs, so the other commands and `recorder --help` load no source.
+app = new_app("recorder", help="Record Panda joint streams while a person touches the arm on "
+              "cue, and manage the resulting sessions. Without a robot, sessions come from a "
+              "physics simulation.", root_options=True,
+              cls=deferred_commands(deferred_capture((EVENTS,))))
 
 
 

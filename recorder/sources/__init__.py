@@ -28,7 +28,9 @@ without touching contactkit: it declares an entry point in the group
 
 after which ``recorder capture --source myarm --my-option 3 --pose B --action adjust``
 works. A source module should import heavy or optional packages (robot SDKs) inside
-``from_config`` or ``stream``, since the CLI imports every source to list its options.
+``from_config`` or ``stream``, since ``recorder capture`` and ``recorder sources`` import
+every source to list its options (``recorder --help`` and the other commands import
+none).
 """
 
 from __future__ import annotations
