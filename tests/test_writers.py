@@ -89,6 +89,22 @@ def test_owned_outputs_are_replaced_and_foreign_ones_kept(tmp_path: Path) -> Non
     assert target.read_text() == "someone else's notes"
 
 
+@pytest.mark.parametrize("umask", [0o022, 0o077, 0o002])
+def test_written_files_get_the_umask_s_permissions(umask: int, tmp_path: Path) -> None:
+    """A file written through a temporary has the permissions ``open()`` would give it
+    (a session in a shared lab directory is as readable as any file), not the
+    owner-only mode of a temporary file."""
+    old = os.umask(umask)
+    try:
+        atomic.write_text(tmp_path / "a.txt", "x")
+        plain = tmp_path / "plain.txt"
+        plain.write_text("x")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "a.txt").stat().st_mode & 0o777 == 0o666 & ~umask
+    assert (tmp_path / "a.txt").stat().st_mode & 0o777 == plain.stat().st_mode & 0o777
+
+
 def test_an_error_while_writing_leaves_nothing(tmp_path: Path) -> None:
     with pytest.raises(RuntimeError), atomic.atomic_write(tmp_path / "x") as tmp:
         tmp.file.write(b"half")

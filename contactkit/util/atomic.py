@@ -8,6 +8,9 @@ failure (full disk, read-only directory, kill) leaves no partial target.
   unpredictable, created exclusively (``O_CREAT | O_EXCL | O_NOFOLLOW`` through
   :func:`tempfile.mkstemp`), so a symbolic link or file planted under any name is
   never followed or reused.
+- The file gets the permissions a plain ``open()`` would give it (``0o666`` less the
+  umask, :func:`new_file_mode`), not the owner-only mode of a temporary file, so that
+  colleagues read a shared lab directory's sessions as they read any other file.
 - The target is replaced with one ``rename`` (``overwrite``), or linked into place only
   when it does not exist (no overwrite), so two writers never both win.
 - Whether an existing target may be replaced is the caller's policy: a file the user
@@ -126,6 +129,20 @@ def _safe_owned(owned: Owned, path: Path) -> bool:
         return False
 
 
+def new_file_mode() -> int:
+    """Return the permission bits a new file gets from ``open()``: ``0o666`` less the
+    process umask (read from ``/proc/self/status`` where it is, so no other thread sees
+    the umask changed)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as status:
+            umask = next(int(line.split()[1], 8) for line in status
+                         if line.startswith("Umask:"))
+    except (OSError, StopIteration, ValueError, IndexError):
+        umask = os.umask(0o022)
+        os.umask(umask)
+    return 0o666 & ~umask
+
+
 @contextmanager
 def atomic_write(path: str | Path, *, overwrite: bool = False, flag: str = "--overwrite",
                  owned: Owned | None = None, suffix: str = "") -> Iterator[Temporary]:
@@ -145,6 +162,7 @@ def atomic_write(path: str | Path, *, overwrite: bool = False, flag: str = "--ov
     with _write_errors(path):
         fd, name = tempfile.mkstemp(prefix=temporary_prefix(path), suffix=".tmp" + suffix,
                                     dir=path.parent)
+        os.fchmod(fd, new_file_mode())
     tmp = Path(name)
     handle = os.fdopen(fd, "wb")
     try:
