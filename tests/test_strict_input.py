@@ -84,3 +84,27 @@ def test_info_escapes_control_characters(tmp_path, capsys) -> None:
     assert "\x1b" not in shown and "\x07" not in shown and "\r" not in shown
     assert "\\x1b[2J" in shown and "[red]x[/]" in shown
     assert printable("a\u202eb") == "a\\u202eb"
+
+
+def test_file_names_cannot_drive_the_terminal(tmp_path, capsys) -> None:
+    """A file named with escape sequences or console markup is printed as named, escaped,
+    in error lines and in the problem lists of directory commands."""
+    from contactkit.cli.classify import app as classify_app
+    from contactkit.cli.replay import app as replay_app
+
+    make_session(tmp_path, duration_s=2.0, planned_at_s=1.0)
+    hostile = ["bad\x1b]0;title\x07\x1b[2J.parquet", "[bold red]styled.parquet"]
+    for name in hostile:
+        (tmp_path / name).write_bytes(b"garbage")
+    runs = [(replay_app, "replay", [str(tmp_path / hostile[0]), "--viewer", "none"]),
+            (classify_app, "classify", ["features", str(tmp_path), "--out",
+                                        str(tmp_path / "f.parquet")]),
+            (app, "recorder", ["stats", str(tmp_path), "--out", str(tmp_path / "r")])]
+    for tool, prog, argv in runs:
+        code = run_app(tool, prog, argv)
+        out, err = capsys.readouterr()
+        assert code == 2 or prog == "recorder", (prog, err)
+        assert "\x1b" not in out + err and "\x07" not in out + err, (prog, err)
+        assert "bad\\x1b]0;title\\x07\\x1b[2J.parquet" in " ".join((out + err).split()), err
+        if prog != "replay":
+            assert "[bold red]styled.parquet" in err + out, (prog, err)

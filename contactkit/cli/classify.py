@@ -26,7 +26,14 @@ from contactkit.classify.registry import (
     searchable_kinds,
 )
 from contactkit.classify.schemes import SCHEMES
-from contactkit.cli.common import RobotOpt, exit_if_failed, new_app, run_app, scheduler_of
+from contactkit.cli.common import (
+    RobotOpt,
+    exit_if_failed,
+    new_app,
+    print_problems,
+    run_app,
+    scheduler_of,
+)
 from contactkit.cli.flags import command_with_flags, owner_values, shared_flags
 from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.detector import DetectorConfig, load_calibration, save_calibration
@@ -38,6 +45,7 @@ from contactkit.util.atomic import check_target, write_text
 from contactkit.util.parallel import available_cpus
 from contactkit.util.params import Param
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar
+from contactkit.util.text import printable
 
 # The commands import the library (scikit-learn, skops, the chain, torch for networks)
 # inside their functions: `classify --help` loads none of it (tests/test_startup.py).
@@ -70,12 +78,6 @@ def _refuse_existing(out: Path, overwrite: bool) -> None:
     exist yet holds nothing to refuse; commands that write results create it)."""
     if out.parent.is_dir():
         check_target(out, overwrite=overwrite)
-
-
-def _skipped(problems) -> None:
-    for problem in problems:
-        name, text = problem if isinstance(problem, tuple) else (problem.path, problem.problem)
-        err_console.print(f"[yellow]skipped[/] {name}: {text}", soft_wrap=True)
 
 
 @app.command("features")
@@ -112,7 +114,7 @@ def features_command(
         if per_sample:
             _, problems = write_per_sample_table(files, out, progress,
                                                  ChainConfig(robot=robot), overwrite=overwrite)
-            _skipped(problems)
+            print_problems(problems)
             print(out)
             exit_if_failed(problems)
             return
@@ -121,7 +123,7 @@ def features_command(
             robot=robot).fit(None)
         result = feature_rows(files, extractor, workers, progress,
                               scheduler=scheduler_of(ctx))
-    _skipped(result.problems)
+    print_problems(result.problems)
     if not len(result):
         raise InputError("no session could be processed", source)
     write_feature_table(out, result.table(extractor.config()), overwrite=overwrite)
@@ -198,7 +200,7 @@ def train_command(
         trained = train(datasets, out, options, scheme=Scheme(scheme).value, limited=limited,
                         workers=workers, overwrite=overwrite, progress=labelled_progress(bar),
                         scheduler=scheduler_of(ctx))
-    _skipped(trained.problems)
+    print_problems(trained.problems)
     err_console.print(f"trained {trained.kind} on {trained.sessions} sessions, classes "
                       f"{', '.join(trained.classes)}")
     print(trained.path)
@@ -237,7 +239,7 @@ def evaluate_command(
             datasets, options, protocol=Protocol(protocol).value, group=Group(group).value,
             scheme=Scheme(scheme).value, limited=limited, workers=workers,
             progress=labelled_progress(bar), scheduler=scheduler_of(ctx))
-    _skipped(problems)
+    print_problems(problems)
     print(report_markdown(report))
     if json_out is not None:
         write_text(json_out, json.dumps(report.as_dict(), indent=2), overwrite=overwrite)
@@ -274,11 +276,11 @@ def predict_command(
         problems = []
         for source in sessions:
             problems += _print_events(model, source, detector, decide_after, as_json, robot)
-        _skipped(problems)
+        print_problems(problems)
         exit_if_failed(problems)
         return
     predictions, problems = predict_sources(model, sessions, robot)
-    _skipped(problems)
+    print_problems(problems)
     if not predictions:
         raise InputError("nothing to predict")
     for p in predictions:
@@ -288,7 +290,8 @@ def predict_command(
                               {c: round(v, 4) for c, v in p.probabilities.items()}}))
         else:
             probs = " ".join(f"{c}={v:.2f}" for c, v in p.probabilities.items())
-            print(f"{p.source}: {p.predicted} ({probs}; recorded action {p.recorded})")
+            print(f"{printable(p.source)}: {p.predicted} ({probs}; recorded action "
+                  f"{p.recorded})")
     exit_if_failed(problems)
 
 
@@ -315,7 +318,7 @@ def _print_events(model, source: Path, detector: DetectorConfig, decide_after: f
                 print(json.dumps({"session": str(path), "event": event.to_dict()}))
             else:
                 release = "open" if event.release_s is None else f"{event.release_s:.2f} s"
-                print(f"{path}: contact {event.label} onset {event.onset_s:.2f} s, "
+                print(f"{printable(path)}: contact {event.label} onset {event.onset_s:.2f} s, "
                       f"release {release}; at the decision "
                       f"{contact_text(event.contact_at_decision)}; at the peak "
                       f"{contact_text(event.contact_at_peak)}")
@@ -357,7 +360,7 @@ def calibrate_command(
                                     progress=bar_callback(bar, "sessions"),
                                     motion_margin=motion_margin, robot=robot,
                                     problems=problems, scheduler=scheduler_of(ctx))
-    _skipped(problems)
+    print_problems(problems)
     save_calibration(out, config, overwrite=overwrite)
     print(f"{out}: thresholds at rest {[round(v, 2) for v in config.noise]} Nm, "
           f"per rad/s {[round(v, 2) for v in config.speed]}, "

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import logging
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Annotated, Any, ClassVar
 
 import typer
@@ -13,6 +13,7 @@ from typer.core import TyperCommand, TyperGroup
 
 from contactkit.errors import ContactkitError
 from contactkit.util.parallel import SCHEDULER_ENV, resolve_scheduler
+from contactkit.util.text import console_text, printable
 
 SchedulerOpt = Annotated[str | None, typer.Option(
     "--scheduler", envvar=SCHEDULER_ENV, show_envvar=True,
@@ -57,6 +58,11 @@ class _StderrHandler(logging.StreamHandler):
         super().__init__()
         self.setFormatter(logging.Formatter(f"{prog}: %(message)s"))
 
+    def format(self, record: logging.LogRecord) -> str:
+        """Return the record as one line with control characters escaped (messages
+        quote file names and file contents)."""
+        return printable(super().format(record))
+
     @property
     def stream(self):  # type: ignore[override]
         """The current ``sys.stderr``."""
@@ -78,6 +84,18 @@ def set_verbosity(verbose: int = 0, quiet: bool = False) -> None:
 SOME_FAILED = 2
 """Exit code of a command over many sessions (or bags, logs) when some of them failed:
 each failure is listed on stderr, and the output of the others is written."""
+
+
+def print_problems(problems: Sequence[object], verb: str = "skipped") -> None:
+    """Print each problem of a command over many sessions on stderr: ``verb name:
+    problem``, from ``(name, problem)`` pairs or errors with ``path`` and ``problem``,
+    with control characters and console markup in them escaped."""
+    from contactkit.util.progress import err_console
+
+    for problem in problems:
+        name, text = problem if isinstance(problem, tuple) else (problem.path, problem.problem)
+        err_console.print(f"[yellow]{verb}[/] {console_text(name)}: {console_text(text)}",
+                          soft_wrap=True)
 
 
 def exit_if_failed(problems: object) -> None:
@@ -183,7 +201,7 @@ def _run(app: typer.Typer, prog: str, argv: list[str] | None) -> int:
     try:
         result = app(args=argv, prog_name=prog, standalone_mode=False)
     except ContactkitError as err:
-        print(f"{prog}: error: {err}", file=sys.stderr)
+        print(f"{prog}: error: {printable(err)}", file=sys.stderr)
         return 2
     except typer.TyperException as err:
         ctx = getattr(err, "ctx", None)
@@ -192,7 +210,7 @@ def _run(app: typer.Typer, prog: str, argv: list[str] | None) -> int:
             return 2
         hint = f" (see {ctx.command_path} --help)" if ctx is not None else ""
         message = f"{prog}: error: {err.format_message()}{hint}"
-        print(" ".join(message.split()), file=sys.stderr)
+        print(printable(" ".join(message.split())), file=sys.stderr)
         return getattr(err, "exit_code", 2) or 2
     except typer.Exit as err:
         return err.exit_code

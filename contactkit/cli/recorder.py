@@ -20,6 +20,7 @@ from contactkit.cli.common import (
     deferred_commands,
     exit_if_failed,
     new_app,
+    print_problems,
     run_app,
     scheduler_of,
 )
@@ -145,9 +146,8 @@ def simulate_command(
     err_console.print(f"{result.written} written, {result.skipped} already there"
                       + (f", {len(result.failed)} failed" if result.failed else "")
                       + f"; index has {result.index.table.num_rows} sessions")
-    for name, problem in result.failed:
-        err_console.print(f"[red]failed[/] {name}: {problem}")
-    _print_problems(result.index.problems)
+    print_problems(result.failed, "failed")
+    print_problems(result.index.problems)
     print(out_dir / "index.parquet")
     if result.failed:
         raise typer.Exit(2)
@@ -202,7 +202,7 @@ def index_command(
 
     result = rebuild_index(directory)
     err_console.print(f"{result.table.num_rows} sessions indexed")
-    _print_problems(result.problems)
+    print_problems(result.problems)
     print(directory / "index.parquet")
 
 
@@ -362,7 +362,7 @@ def import_command(
     for result in imported:
         _report_import(result)
     err_console.print(f"{len(imported)} of {len(jobs)} files imported")
-    _print_problems(problems)
+    print_problems(problems)
     exit_if_failed(problems)
 
 
@@ -507,11 +507,6 @@ def info_command(
         print(json.dumps(info, indent=2, default=str))
     else:
         print_info(info, Console())
-
-
-def _print_problems(problems: list[tuple[str, str]]) -> None:
-    for name, problem in problems:
-        err_console.print(f"[yellow]skipped[/] {name}: {problem}", soft_wrap=True)
 
 
 def main() -> None:

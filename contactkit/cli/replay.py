@@ -18,6 +18,7 @@ from contactkit.replay.hop import DEFAULT_HOP_S
 from contactkit.schemas import InputError
 from contactkit.util.atomic import check_target
 from contactkit.util.progress import err_console, labelled_progress, progress_bar
+from contactkit.util.text import console_text, printable
 from contactkit.viewer.web import has_display, start_web_viewer
 
 # The command imports the classifier, the chain and rerun when it runs, not at start-up
@@ -145,9 +146,9 @@ def replay_command(
 
         def report(result: ReplaySummary | InputError) -> None:
             if isinstance(result, InputError):
-                print(f"replay: error: {result}", file=sys.stderr)
+                print(f"replay: error: {printable(result)}", file=sys.stderr)
             else:
-                bar.console.print(result.line())
+                bar.console.print(console_text(result.line()))
             bar.advance(task)
 
         summaries, problems = replay_sessions(

@@ -23,6 +23,14 @@ def printable(value: object) -> str:
     return "".join(out)
 
 
+def console_text(value: object) -> str:
+    """Return :func:`printable` text with Rich's markup escaped, for a message printed
+    through a Rich console: a file named ``[bold]x`` prints as it is named."""
+    from rich.markup import escape
+
+    return escape(printable(value))
+
+
 def quote(value: object, limit: int = MAX_QUOTE_CHARS) -> str:
     """Return ``repr(value)`` cut to about ``limit`` characters for a one-line message."""
     text = repr(value)

@@ -27,6 +27,7 @@ from rich.table import Table
 from contactkit.recorder.stats.deep import PROFILE_T
 from contactkit.schemas import ACTIONS
 from contactkit.util.atomic import Owned, owned_by_marker, write_bytes, write_text
+from contactkit.util.text import console_text
 from contactkit.viewer.palette import CLASS_COLORS, JOINT_COLORS
 
 FORMATS = ("html", "md", "json")
@@ -284,7 +285,8 @@ def print_summary(report: dict, console: Console) -> None:
     if report["problems"]:
         console.print(f"[red]{len(report['problems'])} problems[/] (see the report):")
         for problem in report["problems"][:10]:
-            console.print(f"  {problem['file']}: {problem['problem']}")
+            console.print(f"  {console_text(problem['file'])}: "
+                          f"{console_text(problem['problem'])}")
 
 
 def _markdown_table(frame: pl.DataFrame) -> str:
