@@ -28,6 +28,9 @@ HOLD_BEFORE_S = 3.0
 STATIC_PHASE_S = 4.0
 HOLD_AFTER_S = 5.0
 MAX_ONSET_DELAY_S = 0.25
+MAX_DURATION_S = 24 * 3600.0
+"""The longest session a capture or simulation may be asked for [s]: a day (hour-long
+sessions are supported; a longer one is a typo or a unit error)."""
 
 
 def pose_q(name: str) -> np.ndarray:
@@ -36,6 +39,15 @@ def pose_q(name: str) -> np.ndarray:
     if key not in POSES:
         raise InputError(f"unknown pose {name!r} (expected one of {', '.join(POSES)})")
     return np.array(POSES[key])
+
+
+def check_duration(duration_s: float) -> float:
+    """Return ``duration_s`` [s] when it is a usable session length (more than 0, at
+    most :data:`MAX_DURATION_S`); raise one InputError line otherwise (NaN included)."""
+    if not 0.0 < duration_s <= MAX_DURATION_S:
+        raise InputError(f"duration must be positive and at most {MAX_DURATION_S:g} s "
+                         f"(a day), got {duration_s} s")
+    return float(duration_s)
 
 
 def check_action(action: str) -> str:

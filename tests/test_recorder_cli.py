@@ -45,6 +45,7 @@ BAD = [
     (["--pose", "A", "--action", "hug"], "'hug' is not one of"),
     (["--pose", "A", "--action", "bump", "--link", "0"], "unknown link 0"),
     (["--pose", "A", "--action", "bump", "--duration", "-2"], "duration must be positive"),
+    (["--pose", "A", "--action", "bump", "--duration", "1e308"], "at most 86400 s"),
     (["--pose", "A", "--action", "bump", "--planned-at", "30"], "outside the session"),
     (["--pose", "A", "--action", "bump", "--rate", "0"], "rate must be between"),
     (["--pose", "A", "--action", "bump", "--source", "ros"], "'ros' is not one of"),

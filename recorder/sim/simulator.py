@@ -60,6 +60,7 @@ import pinocchio as pin
 from contactkit.recorder.protocol import (
     check_action,
     check_condition,
+    check_duration,
     default_timing,
     motion_duration_s,
     pose_q,
@@ -214,8 +215,7 @@ def plan_session(*, seed: int, condition: str, action: str, pose: str,
         raise InputError("a target pose and a speed need the dynamic condition")
     timing = default_timing(condition, motion_s)
     duration = timing.duration_s if duration_s is None else duration_s
-    if duration <= 0:
-        raise InputError(f"duration must be positive, got {duration} s")
+    check_duration(duration)
     planned = timing.planned_at_s if planned_at_s is None else planned_at_s
     if not 0.0 <= planned < duration:
         raise InputError(f"planned interaction time {planned} s is outside the session "
@@ -260,6 +260,7 @@ def plan_free_session(*, seed: int, action: str, pose: str, duration_s: float,
     if contact_timing not in CONTACT_TIMING:
         raise InputError(f"unknown contact timing {contact_timing!r} (expected "
                          f"{', '.join(CONTACT_TIMING)})")
+    check_duration(duration_s)
     if duration_s < 3.0:
         raise InputError(f"a free-motion session needs at least 3 s, got {duration_s} s")
     rng = np.random.default_rng(seed)

@@ -10,7 +10,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from contactkit.recorder.metadata import session_meta
-from contactkit.recorder.protocol import default_timing
+from contactkit.recorder.protocol import check_duration, default_timing
 from contactkit.schemas import InputError, SessionMeta
 
 
@@ -41,7 +41,8 @@ class ProtocolChoices:
         timing = default_timing("static")
         duration = timing.duration_s if self.duration_s is None else self.duration_s
         planned = timing.planned_at_s if self.planned_at_s is None else self.planned_at_s
-        if duration <= 0 or not 0 <= planned < duration:
+        check_duration(duration)
+        if not 0 <= planned < duration:
             raise InputError(f"planned interaction time {planned} s must lie within the "
                              f"session (0 to {duration} s)")
         return planned, duration
