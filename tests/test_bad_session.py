@@ -90,3 +90,13 @@ def test_training_on_one_class_is_one_line(dataset, tmp_path, capsys) -> None:
     assert code == 2 and "Traceback" not in err, err
     assert "training needs at least two classes in the data; it has only 'none'" in err
     assert not (tmp_path / "m.skops").exists()
+
+
+@pytest.mark.parametrize(("flag", "value"), [("--margin", "nan"), ("--margin", "inf"),
+                                             ("--margin", "0.5"), ("--motion-margin", "nan")])
+def test_calibration_margins_are_checked_before_any_work(flag, value, dataset, tmp_path,
+                                                         capsys) -> None:
+    code, _, err = _run(classify_app, "classify", capsys, "calibrate", dataset, "--out",
+                        tmp_path / "c.json", flag, value)
+    assert code == 2 and "Traceback" not in err, err
+    assert f"{flag} must be a finite number of at least 1, got {value}" in err

@@ -38,3 +38,26 @@ def test_default_workers_follow_the_container_cpu_quota(tmp_path, monkeypatch) -
     quota.write_text("50000\n")
     period.write_text("100000\n")
     assert parallel.available_cpus() == 1  # half a CPU still gets one worker
+
+
+def test_a_pool_is_never_larger_than_the_machine_or_the_jobs(monkeypatch, caplog) -> None:
+    """`--workers 100000` starts at most WORKERS_PER_CPU processes per usable CPU (with a
+    warning), and never more processes than jobs."""
+    import concurrent.futures
+
+    from contactkit.util import parallel
+
+    sizes: list[int] = []
+
+    class Recording(concurrent.futures.ThreadPoolExecutor):
+        def __init__(self, workers, **kwargs) -> None:
+            sizes.append(workers)
+            super().__init__(workers)
+
+    monkeypatch.setattr(parallel, "ProcessPoolExecutor", Recording)
+    monkeypatch.setattr(parallel, "available_cpus", lambda: 2)
+    assert list(parallel.map_ordered(abs, [-1, -2, -3], workers=100_000)) == [1, 2, 3]
+    assert list(parallel.map_ordered(abs, range(-50, 0), workers=100_000)) == list(
+        range(50, 0, -1))
+    assert sizes == [3, 2 * parallel.WORKERS_PER_CPU]
+    assert "100000 workers asked for; using 8" in caplog.text

@@ -8,6 +8,7 @@ options, draws progress bars and prints results.
 from __future__ import annotations
 
 import json
+import math
 import sys
 from enum import Enum
 from pathlib import Path
@@ -349,10 +350,9 @@ def calibrate_command(
     from contactkit.classify.prediction import session_paths
 
     check_target(out, overwrite=overwrite)
-    if margin < 1:
-        raise InputError(f"--margin must be at least 1, got {margin}")
-    if motion_margin is not None and motion_margin < 1:
-        raise InputError(f"--motion-margin must be at least 1, got {motion_margin}")
+    for flag, value in (("--margin", margin), ("--motion-margin", motion_margin)):
+        if value is not None and not 1.0 <= value < math.inf:  # NaN fails too
+            raise InputError(f"{flag} must be a finite number of at least 1, got {value}")
     paths = [p for source in sessions for p in session_paths(source)]
     problems: list[tuple[str, str]] = []
     with progress_bar("calibrating") as bar:
