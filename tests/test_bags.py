@@ -199,3 +199,17 @@ def test_a_clock_switch_in_a_bag_is_refused_not_read_as_years(source, tmp_path):
     with pytest.raises(InputError, match=r"time jumps by 1\.7e\+09 s at row 50"):
         import_bag(bag, meta(), tmp_path)
     assert not list(tmp_path.glob("*.parquet"))
+
+
+def test_export_mcap_overwrites_a_bag_but_never_another_directory(source, tmp_path):
+    """`--overwrite` replaces a bag directory the exporter wrote; a folder of other files
+    named by mistake is refused in one line and left as it was."""
+    bag = export_mcap(source, tmp_path / "run")
+    assert export_mcap(source, tmp_path / "run", overwrite=True) == bag
+    keep = tmp_path / "keep"
+    keep.mkdir()
+    (keep / "notes.txt").write_text("precious")
+    with pytest.raises(InputError, match="is not a ROS 2 bag directory: not replaced, even "
+                                         "with --overwrite"):
+        export_mcap(source, keep, overwrite=True)
+    assert [p.name for p in keep.iterdir()] == ["notes.txt"]

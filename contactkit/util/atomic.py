@@ -199,20 +199,25 @@ def atomic_write(path: str | Path, *, overwrite: bool = False, flag: str = "--ov
 
 @contextmanager
 def atomic_directory(path: str | Path, *, overwrite: bool = False,
-                     flag: str = "--overwrite") -> Iterator[Path]:
+                     flag: str = "--overwrite", kind: Owned | None = None,
+                     what: str = "output") -> Iterator[Path]:
     """Write the directory ``path`` atomically: yield a path to create it at (inside a
     private temporary directory beside ``path``), then rename it into place.
 
     An existing ``path`` is refused (one line naming ``flag``) unless ``overwrite``,
     which moves it (a link itself, never what it points to) into the temporary
-    directory and removes it there. On any error nothing new is left at ``path`` and
-    the temporary directory is removed.
+    directory and removes it there; with ``kind`` (a test of an existing directory)
+    only a directory it accepts is replaced (a file or a link, itself), never another
+    directory the user named by mistake (``what`` names the kind in the refusal). On
+    any error nothing new is left at ``path`` and the temporary directory is removed.
     """
     path = Path(path)
     if not path.parent.is_dir():
         raise InputError("output directory does not exist", path.parent)
     if os.path.lexists(path) and not overwrite:
         raise _already_exists(path, flag, "output")
+    if kind is not None and path.is_dir() and not path.is_symlink() and not kind(path):
+        raise InputError(f"exists and is not a {what}: not replaced, even with {flag}", path)
     with _write_errors(path):
         holder = Path(tempfile.mkdtemp(prefix=temporary_prefix(path), suffix=".tmp",
                                        dir=path.parent))

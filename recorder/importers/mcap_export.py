@@ -45,7 +45,8 @@ def export_mcap(session_path: Path, out: Path, *, start_ns: int = 0,
     directory (rosbag2's convention: a folder without suffix, holding ``metadata.yaml``
     and ``<name>.mcap``). Time stamps are ``start_ns`` plus the session time [ns]. The
     output is written aside and moved into place at the end (a failure leaves nothing);
-    an existing ``out`` is replaced only with ``overwrite``."""
+    an existing ``out`` is replaced only with ``overwrite``, and a directory only when it
+    is such a bag (:func:`is_mcap_bag`), never another folder named by mistake."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -61,10 +62,24 @@ def export_mcap(session_path: Path, out: Path, *, start_ns: int = 0,
             with next(bag.glob("*.mcap")).open("rb") as written:
                 shutil.copyfileobj(written, target.file)
         return out
-    with atomic_directory(out, overwrite=overwrite) as bag:
+    with atomic_directory(out, overwrite=overwrite, kind=is_mcap_bag,
+                          what="ROS 2 bag directory") as bag:
         _write_bag(Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP), session,
                    store, stamps)
     return next(out.glob("*.mcap"))
+
+
+def is_mcap_bag(path: Path) -> bool:
+    """Return whether ``path`` is a ROS 2 bag directory as this exporter writes one: a
+    folder holding ``metadata.yaml`` and ``.mcap`` files and nothing else."""
+    try:
+        entries = list(path.iterdir())
+    except OSError:
+        return False
+    names = {e.name for e in entries}
+    return "metadata.yaml" in names and all(
+        e.is_file() and not e.is_symlink() and (e.name == "metadata.yaml" or e.suffix == ".mcap")
+        for e in entries)
 
 
 def _write_bag(bag: Any, session: Session, store: Any, stamps: np.ndarray) -> None:
