@@ -112,6 +112,21 @@ def test_an_error_while_writing_leaves_nothing(tmp_path: Path) -> None:
     assert list(tmp_path.iterdir()) == []
 
 
+def test_the_next_write_of_a_target_removes_its_killed_writers_leftovers(tmp_path) -> None:
+    """`replay --save x.rrd` killed, then run again: the dead writer's temporary of
+    x.rrd goes; a live writer's, and other targets' leftovers, stay."""
+    proc = subprocess.Popen(["true"])
+    proc.wait()
+    dead = tmp_path / f".x.rrd.contactkit-{proc.pid}-abc123.tmp"
+    live = tmp_path / f".x.rrd.contactkit-{os.getppid()}-abc123.tmp"
+    other = tmp_path / f".y.rrd.contactkit-{proc.pid}-abc123.tmp"
+    for path in (dead, live, other):
+        path.write_bytes(b"half")
+    atomic.write_bytes(tmp_path / "x.rrd", b"whole")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["x.rrd", live.name, other.name])
+
+
 def test_stale_temporaries_go_only_when_their_writer_is_gone_or_old(tmp_path: Path) -> None:
     dead = subprocess.run(["true"], check=True)  # noqa: F841 (a pid that has exited)
     proc = subprocess.Popen(["true"])

@@ -22,7 +22,7 @@ failure (full disk, read-only directory, kill) leaves no partial target.
   the device is full).
 - Leftovers of killed writers are recognised by their name and removed by
   :func:`remove_stale_temporaries` only when their writer's process is gone or they are
-  older than :data:`STALE_AGE_S`.
+  older than :data:`STALE_AGE_S`: the next write of the same target removes its own.
 """
 
 from __future__ import annotations
@@ -159,6 +159,7 @@ def atomic_write(path: str | Path, *, overwrite: bool = False, flag: str = "--ov
     path = Path(path)
     replace = overwrite or owned is not None
     check_target(path, overwrite=overwrite, flag=flag, owned=owned)
+    remove_stale_temporaries(path.parent, target=path.name)
     with _write_errors(path):
         fd, name = tempfile.mkstemp(prefix=temporary_prefix(path), suffix=".tmp" + suffix,
                                     dir=path.parent)
@@ -218,6 +219,7 @@ def atomic_directory(path: str | Path, *, overwrite: bool = False,
         raise _already_exists(path, flag, "output")
     if kind is not None and path.is_dir() and not path.is_symlink() and not kind(path):
         raise InputError(f"exists and is not a {what}: not replaced, even with {flag}", path)
+    remove_stale_temporaries(path.parent, target=path.name)
     with _write_errors(path):
         holder = Path(tempfile.mkdtemp(prefix=temporary_prefix(path), suffix=".tmp",
                                        dir=path.parent))
@@ -244,6 +246,7 @@ def scratch_directory(target: str | Path) -> Iterator[Path]:
     removed at the end, and its name is recognisable like every temporary here, so the
     leftover of a killed run is cleaned up by :func:`remove_stale_temporaries`."""
     target = Path(target)
+    remove_stale_temporaries(target.parent, target=target.name)
     with _write_errors(target):
         holder = Path(tempfile.mkdtemp(prefix=temporary_prefix(target), suffix=".tmp",
                                        dir=target.parent))
@@ -304,12 +307,13 @@ def any_regular_file(path: Path) -> bool:
     return path.is_file() and not path.is_symlink()
 
 
-def remove_stale_temporaries(directory: str | Path, max_age_s: float = STALE_AGE_S
-                             ) -> list[Path]:
+def remove_stale_temporaries(directory: str | Path, max_age_s: float = STALE_AGE_S,
+                             target: str | None = None) -> list[Path]:
     """Remove the temporary files and directories that killed writers left in
     ``directory`` (named as :func:`atomic_write` names them, or the older
-    ``.<name>.<pid>.tmp``); return them. One is removed only when its writer's process
-    is gone or it is older than ``max_age_s`` [s]; others stay."""
+    ``.<name>.<pid>.tmp``), only those of the file named ``target`` when given; return
+    them. One is removed only when its writer's process is gone or it is older than
+    ``max_age_s`` [s]; others stay."""
     removed = []
     try:
         entries = list(os.scandir(directory))
@@ -318,7 +322,7 @@ def remove_stale_temporaries(directory: str | Path, max_age_s: float = STALE_AGE
     now = time.time()
     for entry in entries:
         match = _TEMPORARY.fullmatch(entry.name)
-        if match is None:
+        if match is None or (target is not None and match.group("name") != target):
             continue
         pid = int(match.group("pid") or match.group("oldpid"))
         try:
