@@ -60,6 +60,7 @@ from contactkit.robots.surfaces import LinkSurface, link_surface
 
 N_JOINTS = 7
 REFINE_LINKS = 3
+PRUNE_SHARE = 0.25
 MIN_DETERMINED = 5
 GRID_SIDE = 15
 GRID_POINTS = GRID_SIDE * GRID_SIDE
@@ -114,7 +115,17 @@ _GRID_PRODUCTS = np.zeros((9, 6))
 _GRID_PRODUCTS[[0, 1, 2, 3, 4, 5, 6, 7, 8], [0, 1, 2, 1, 3, 5, 2, 5, 4]] = 1.0
 """The products c d of a grid point's coordinates c, d in (1, s, t) (9, row-major) as
 its monomials 1, s, t, ss, tt, st (6)."""
-_LINK_INDEX = np.arange(N_JOINTS)
+
+
+def _decide(errors: list[float], tie_nm: float) -> tuple[int, int, int]:
+    """Return the link indices (0..6) of the smallest error of ``errors`` [Nm] (7), of
+    the link chosen (the lowest whose squared error exceeds the smallest by at most
+    ``tie_nm``^2 per link between them) and of the best other link."""
+    order = range(len(errors))
+    last = min(order, key=errors.__getitem__)
+    limit = errors[last] ** 2
+    link = next(k for k in order if errors[k] ** 2 <= limit + tie_nm ** 2 * (last - k))
+    return last, link, min((k for k in order if k != link), key=errors.__getitem__)
 
 
 def _solve(v: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -140,14 +151,14 @@ def _coarse_fit(v: np.ndarray, rr: float, normals: np.ndarray, cone_cos2: float
                 ) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
     """Fit the force at the surface samples (see :func:`_fit`), without the search
     along the cone's boundary: a sample whose least-squares force does not push into
-    the surface within the cone explains nothing (error |r|). Return the errors [Nm]
-    (m, n) and forces (fx, fy, fz) [N]."""
+    the surface within the cone explains nothing (error |r|). Return the squared
+    errors [Nm^2] (m, n) and forces (fx, fy, fz) [N]."""
     fx, fy, fz, gain = _solve(v)
     nx, ny, nz = normals
     inward = -(nx * fx + ny * fy + nz * fz)
     feasible = (inward > 0) & (inward * inward >= cone_cos2 * (fx * fx + fy * fy + fz * fz))
     gain *= feasible
-    return np.sqrt(np.maximum(rr - gain, 0.0)), (fx, fy, fz)
+    return rr - gain, (fx, fy, fz)
 
 
 def _fit(v: np.ndarray, rr: float, normals: np.ndarray, cone: tuple[float, float]
@@ -310,6 +321,7 @@ class ContactIsolator:
             self.samples.append(None if mesh is None else sample_surface(mesh, config.spacing_m))
         parts = [(k, s) for k, s in enumerate(self.samples) if s is not None]
         self._links = np.array([k for k, _ in parts], dtype=np.int64)
+        self._surface = {k for k, _ in parts}
         self._bare = [k for k, s in enumerate(self.samples) if s is None]
         self._counts = np.array([len(s.points) for _, s in parts], dtype=np.int64)
         # every link's samples padded to the longest with copies of its first sample,
@@ -324,13 +336,15 @@ class ContactIsolator:
                 if parts else np.zeros((0, 0, 3))
 
         self._points = padded(lambda s: s.points)                          # (L, n, 3)
-        self._tangents = (padded(lambda s: s.tangents[0]), padded(lambda s: s.tangents[1]))
         self._normals = padded(lambda s: s.normals).transpose(2, 0, 1).copy()  # (3, L, n)
         self._monomials = _monomials(self._points)                         # (L, 10, n)
-        self._fitted = np.empty((9, len(parts), width))  # the coarse fit's input
+        # each sample's refinement grid p + s u + t v, (s, t) in [-spacing, spacing]^2
+        self._lifted = _lift(np.stack([self._points,
+                                       padded(lambda s: s.tangents[0]) * config.spacing_m,
+                                       padded(lambda s: s.tangents[1]) * config.spacing_m],
+                                      axis=-1))                            # (L, n, 10, 6)
         half = np.radians(config.cone_deg)
         self._cone = (float(np.cos(half)), float(np.sin(half)))
-        self._half = config.spacing_m
         s, t = (x.ravel() for x in np.meshgrid(*[np.linspace(-1.0, 1.0, GRID_SIDE)] * 2,
                                                 indexing="ij"))
         self._grid_monomials = np.stack([np.ones_like(s), s, t, s * s, t * t, s * t])
@@ -352,86 +366,112 @@ class ContactIsolator:
         for k in self._bare:
             errors[k] = _wrench_error(jac[k], r, rr)
         coeffs = _coefficients(jac, r)                             # (7, 9, 10)
-        links = self._links
-        err, forces = np.zeros((0, 0)), (np.zeros((0, 0)),) * 3
-        best = np.zeros(0, np.int64)
-        if len(links):
-            np.matmul(coeffs[links], self._monomials, out=self._fitted.transpose(1, 0, 2))
-            err, forces = _coarse_fit(self._fitted, rr, self._normals, self._cone[0] ** 2)
-            np.copyto(err, np.inf, where=self._pad)
-            best = np.argmin(err, axis=1)
-            errors[links] = err[np.arange(len(links)), best]
-        fits = self._refine(coeffs, rr, best, errors)
-        last = int(np.argmin(errors))
-        squared = errors * errors
-        allowance = self.config.tie_nm ** 2 * (last - _LINK_INDEX)
-        link = int(np.argmax(squared <= squared[last] + allowance)) + 1
-        squared[link - 1] = np.inf
-        other = int(np.argmin(squared))
+        # a link's error is at least the residual on the joints after it: links whose
+        # bound leaves them no chance are not searched unless the decision needs them
+        bound = np.sqrt(np.maximum(rr - np.cumsum(r * r), 0.0))
+        errors[self._links] = bound[self._links]
+        limit = PRUNE_SHARE * rr + self.config.tie_nm ** 2 * N_JOINTS
+        reach = [k not in self._surface or b * b <= limit for k, b in enumerate(bound.tolist())]
+        rows = np.flatnonzero(np.array(reach)[self._links])
+        errors, fits, middle = self._search(rows, coeffs, rr, errors.copy())
+        last, link, other = _decide(errors.tolist(), self.config.tie_nm)
+        if not (reach[last] and reach[link] and reach[other]):
+            rows = np.arange(len(self._links))
+            errors, fits, middle = self._search(rows, coeffs, rr, errors)
+            last, link, other = _decide(errors.tolist(), self.config.tie_nm)
+        link += 1
         e_link, e_other = float(errors[link - 1]), float(errors[other])
         noise = self.config.noise_nm
-        found = np.isfinite(e_other)
+        rival = np.isfinite(e_other)
         confidence = min(max(1.0 - (e_link + noise) / (e_other + noise), 0.0), 1.0) \
-            if found else 1.0
+            if rival else 1.0
         common = dict(link=link, error_nm=e_link, residual_nm=norm,
-                      runner_up=other + 1 if found else None, runner_up_error_nm=e_other,
+                      runner_up=other + 1 if rival else None, runner_up_error_nm=e_other,
                       confidence=confidence, ambiguous=confidence < self.config.ambiguous_below)
         if link - 1 not in fits:
             return ContactEstimate(t, NO_SURFACE, **common)
         point, force = fits[link - 1]
         if link < MIN_DETERMINED:
-            point, force = self._middle(link - 1, err, forces, best)
+            point, force = self._middle(link - 1, *middle)
         placement = data.oMf[self.frames[link - 1]]
         return ContactEstimate(t, OK, point_link=point,
                                point_base=placement.rotation @ point + placement.translation,
                                force=placement.rotation @ force, **common)
 
-    def _refine(self, coeffs: np.ndarray, rr: float, best: np.ndarray, errors: np.ndarray
-                ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-        """Refine the best links' points (see the module docstring, step 3) from each
-        link's best sample ``best`` (L,); ``coeffs`` (7, 9, 10) are every link's fit
-        coefficients. Update ``errors`` [Nm] (per link) in place and return link index
-        -> (point [m], force [N]) in the link frame, for the refined links."""
-        reach = [int(k) for k in np.argsort(errors)[:REFINE_LINKS]
-                 if np.isfinite(errors[k]) and self.samples[k] is not None]
-        if not reach:
-            return {}
-        rows = np.searchsorted(self._links, reach)
-        at = best[rows]
-        # the grid's points are p0 + s u + t v, (s, t) in [-half, half]^2: their
-        # monomials are linear in those of (s, t), with coefficients from p0, u, v
-        axes = np.stack([self._points[rows, at], self._tangents[0][rows, at] * self._half,
-                         self._tangents[1][rows, at] * self._half], axis=2)   # (m, 3, 3)
-        square = np.einsum("mac,mbd->mabcd", axes, axes)[:, _PAIRS_A, _PAIRS_B]
-        lifted = np.zeros((len(reach), 10, 6))
-        lifted[:, 0, 0] = 1.0
-        lifted[:, 1:4, :3] = axes
-        lifted[:, 4:] = square.reshape(len(reach), 6, 9) @ _GRID_PRODUCTS
-        fitted = np.empty((9, len(reach), len(self._grid_monomials[0])))
-        np.matmul(coeffs[reach] @ lifted, self._grid_monomials, out=fitted.transpose(1, 0, 2))
-        normals = self._normals[:, rows, at][:, :, None]                  # (3, m, 1)
-        local_err, local_force = _fit(fitted, rr, normals, self._cone)
-        local_best = np.argmin(local_err, axis=1)
-        fits = {}
-        for i, k in enumerate(reach):
-            errors[k] = float(local_err[i, local_best[i]])
-            offset = self._grid_monomials[:3, local_best[i]]              # 1, s, t
-            fits[k] = (axes[i] @ offset, local_force[:, i, local_best[i]].copy())
-        return fits
+    def _search(self, rows: np.ndarray, coeffs: np.ndarray, rr: float, errors: np.ndarray
+                ) -> tuple[np.ndarray, dict[int, tuple[np.ndarray, np.ndarray]], tuple]:
+        """Search the samples of the surface links ``rows`` (indices into the links with
+        a surface) and refine the best ones; ``coeffs`` (7, 9, 10) are every link's fit
+        coefficients, ``errors`` [Nm] (7,) the links' errors so far (updated in place).
+        Return the errors, link index -> refined (point [m], force [N]) in the link
+        frame, and what :meth:`_middle` needs: the rows, their samples' squared errors
+        [Nm^2] (rows, n), forces [N] (3 of (rows, n)) and best samples (rows,)."""
+        every = len(rows) == len(self._links)
+        monomials, normals, pad = ((self._monomials, self._normals, self._pad) if every else
+                                   (self._monomials[rows], self._normals[:, rows],
+                                    self._pad[rows]))
+        fitted = np.empty((9, len(rows), monomials.shape[2]))
+        np.matmul(coeffs[self._links[rows]], monomials, out=fitted.transpose(1, 0, 2))
+        err, forces = _coarse_fit(fitted, rr, normals, self._cone[0] ** 2)
+        np.copyto(err, np.inf, where=pad)
+        best = np.argmin(err, axis=1)
+        errors[self._links[rows]] = np.sqrt(np.maximum(err[np.arange(len(rows)), best], 0.0))
+        return errors, self._refine(rows, coeffs, rr, best, errors), (rows, err, forces, best)
 
-    def _middle(self, k: int, err: np.ndarray, forces: tuple[np.ndarray, ...],
-                best: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _refine(self, searched: np.ndarray, coeffs: np.ndarray, rr: float, best: np.ndarray,
+                errors: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Refine the best links' points (see the module docstring, step 3) from the best
+        sample ``best`` of each searched row ``searched``; ``coeffs`` (7, 9, 10) are
+        every link's fit coefficients. Update ``errors`` [Nm] (per link) in place and
+        return link index -> (point [m], force [N]) in the link frame, for the refined
+        links."""
+        links = self._links[searched]
+        order = np.argsort(errors[links])[:REFINE_LINKS]
+        reach = links[order]
+        rows, at = searched[order], best[order]
+        # the grid's points are p0 + s u + t v, (s, t) in [-half, half]^2: their
+        # monomials are those of (s, t) times a matrix precomputed per sample
+        lifted = self._lifted[rows, at]
+        fitted = np.empty((9, len(reach), self._grid_monomials.shape[1]))
+        np.matmul(coeffs[reach] @ lifted, self._grid_monomials, out=fitted.transpose(1, 0, 2))
+        local_err, local_force = _fit(fitted, rr, self._normals[:, rows, at][:, :, None],
+                                      self._cone)
+        local_best = np.argmin(local_err, axis=1)
+        m = np.arange(len(reach))
+        errors[reach] = local_err[m, local_best]
+        points = np.einsum("mij,jm->mi", lifted[:, 1:4, :3], self._grid_monomials[:3, local_best])
+        forces = local_force[:, m, local_best].T
+        return {k: (points[i], forces[i]) for i, k in enumerate(reach.tolist())}
+
+    def _middle(self, k: int, rows: np.ndarray, err: np.ndarray,
+                forces: tuple[np.ndarray, ...], best: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
         """Return the point [m] and force [N] (link frame) reported on link index ``k``
         (fewer than 5 loaded joints: the point is undetermined): the sample nearest
-        the middle of the link's samples whose coarse error [Nm] ``err`` is within
-        ``tie_nm`` of its best, with its coarse ``forces``."""
+        the middle of the link's samples whose coarse error [Nm] (from the squared
+        errors ``err`` [Nm^2] of the searched ``rows``) is within ``tie_nm`` of its
+        best, with its coarse ``forces``."""
         row = int(np.searchsorted(self._links, k))
-        coarse = err[row, :self._counts[row]]
-        close = np.flatnonzero(coarse <= coarse[best[row]] + self.config.tie_nm)
+        at = rows.tolist().index(row)
+        coarse = err[at, :self._counts[row]]
+        reach = (np.sqrt(max(float(coarse[best[at]]), 0.0)) + self.config.tie_nm) ** 2
+        close = np.flatnonzero(coarse <= reach)
         points = self._points[row, close]
-        offset = points - points.mean(axis=0)
-        mid = close[int(np.argmin(np.einsum("ni,ni->n", offset, offset)))]
-        return self._points[row, mid].copy(), np.array([f[row, mid] for f in forces])
+        offset = points - points.sum(axis=0) / len(close)
+        mid = close[int(np.argmin((offset * offset).sum(axis=1)))]
+        return self._points[row, mid].copy(), np.array([f[at, mid] for f in forces])
+
+
+def _lift(axes: np.ndarray) -> np.ndarray:
+    """Return (..., 10, 6) matrices taking the monomials 1, s, t, ss, tt, st of plane
+    coordinates to the monomials (see :func:`_monomials`) of the points p + s u + t v,
+    for ``axes`` (..., 3, 3) with columns p, u, v [m]."""
+    square = np.einsum("...ac,...bd->...abcd", axes, axes)[..., _PAIRS_A, _PAIRS_B, :, :]
+    lifted = np.zeros((*axes.shape[:-2], 10, 6))
+    lifted[..., 0, 0] = 1.0
+    lifted[..., 1:4, :3] = axes
+    lifted[..., 4:, :] = square.reshape(*axes.shape[:-2], 6, 9) @ _GRID_PRODUCTS
+    return lifted
 
 
 def _monomials(points: np.ndarray) -> np.ndarray:
