@@ -6,9 +6,14 @@ A single point force F [N] at point p on link k gives the joint torque
     r = J_k(q, p)^T F = Jv^T F + Jw^T (p x F)        (Nm; joints after k see nothing)
 
 with Jv, Jw the linear and angular rows of link k's frame Jacobian. The estimator is a
-least-squares search over precomputed samples of each link's collision surface (the
-meshes the simulator uses, about ``spacing_m`` apart), in the link frame so that the
-samples never move, followed by a local refinement:
+weighted least-squares search over precomputed samples of each link's collision
+surface (the meshes the simulator uses, about ``spacing_m`` apart), in the link frame
+so that the samples never move, followed by a local refinement. Each joint's torque
+is divided by its noise, sqrt(``joint_noise_nm``^2 + (``threshold_share`` x the
+contact detector's threshold)^2): the residual at rest is about eight times noisier
+on the shoulder joints than on the wrist, and an unweighted fit lets the shoulder's
+noise hide the wrist's evidence; the threshold (0.3 Nm at rest, growing with speed
+and acceleration where the model is wrong) stands for model error.
 
 1. Per update one ``computeJointJacobians`` gives every link's Jacobian. Per sample
    point, the normal equations of F are in closed form: b = A^T r = a + c x p is
@@ -16,32 +21,36 @@ samples never move, followed by a local refinement:
    the Gram matrix's six entries for all samples of all links are one batched
    product of the samples' monomials (1, x, y, z, xx, ..., yz; precomputed) with
    per-link coefficients, themselves one product of [J J^T, J r] with a constant
-   matrix; the 3x3 solves are elementwise (cofactors).
+   matrix; the 3x3 solves are elementwise (Cholesky). A link's error is at least
+   the residual on the joints after it; links whose bound leaves them no chance are
+   not searched (all are, when the decision turns out to need one of them).
 2. The force must push into the surface, within ``cone_deg`` of the inward normal.
-   Where the free least-squares force does not, the best force on ``CONE_RAYS`` rays
-   of the cone's boundary or along the normal is taken instead (the optimum of a
-   convex problem whose free optimum lies outside the cone is on its boundary), but
-   only for samples whose free error could still beat the link's best.
+   On the samples, a force outside the cone explains nothing (error |r|); on the
+   refinement grids, where the free least-squares force lies outside the cone and
+   could still beat the link's best feasible one, the best force along the cone's
+   boundary ray nearest to it is taken (the optimum of a convex problem whose free
+   optimum lies outside the cone is on its boundary).
 3. The ``REFINE_LINKS`` links with the smallest errors are refined from their best
-   sample: the same fit on a ``GRID_SIDE`` x ``GRID_SIDE`` grid in the sample's face
-   plane, one spacing either side, then on a grid as wide as the first one's step
-   (about 1.2 mm apart at the end), which removes most of the sampling error.
+   sample on the ``GRIDS`` in the sample's face plane (one spacing either side, then
+   one step of that grid either side: 2 mm apart at the end), which removes most of
+   the sampling error. A grid's monomials are a per-sample matrix (precomputed for
+   the first) times those of the plane coordinates.
 4. The link is the lowest one whose squared error exceeds the smallest (on link m)
-   by at most ``tie_nm``^2 per link between them: a link-k contact is generically
-   also explained by a point on link k + 1 whose force line meets joint k + 1's axis,
-   and each more distal link absorbs one more joint's noise, so the proximal
-   explanation wins unless the distal one is better by more than noise. With fewer
-   than five loaded joints (links 1-4) the torques leave the point undetermined along
-   a curve: the reported point is the sample nearest the middle of the link's samples
-   within ``tie_nm`` of its best, the least-risk guess.
+   by at most ``tie``^2 per link between them (errors in noise units): a link-k
+   contact is generically also explained by a point on link k + 1 whose force line
+   meets joint k + 1's axis, and each more distal link absorbs one more joint's
+   noise, so the proximal explanation wins unless the distal one is better by more
+   than noise. With fewer than five loaded joints (links 1-4) the torques leave the
+   point undetermined along a curve: the reported point is the sample nearest the
+   middle of the link's samples within ``tie`` of its best, the least-risk guess.
 
-The confidence compares the chosen link's error with the best other link's:
-1 - (e_chosen + noise) / (e_other + noise), clipped to 0..1, with ``noise_nm`` the
-residual noise; ``ambiguous`` when it is below ``ambiguous_below``. A residual below
-``min_residual_nm`` or a best link without a collision surface gives an estimate with
-no point and no force and a ``status`` that says why (not an error).
+The confidence compares the chosen link's error e with the best other link's, in
+noise units: 1 - (e + 1) / (e_other + 1), clipped to 0..1; ``ambiguous`` when it is
+below ``ambiguous_below``. A residual below ``min_residual_nm`` or a best link without
+a collision surface gives an estimate with no point and no force and a ``status``
+that says why (not an error).
 
-Units: q [rad], r [Nm], points [m], forces [N], errors [Nm].
+Units: q [rad], r [Nm], points [m], forces [N], reported errors [Nm].
 """
 
 from __future__ import annotations
@@ -54,6 +63,7 @@ from typing import Protocol
 import numpy as np
 import pinocchio as pin
 
+from contactkit.features.detector import MIN_NOISE
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
 from contactkit.robots.surfaces import LinkSurface, link_surface
@@ -62,13 +72,17 @@ N_JOINTS = 7
 REFINE_LINKS = 3
 PRUNE_SHARE = 0.25
 MIN_DETERMINED = 5
-GRID_SIDE = 15
-GRID_POINTS = GRID_SIDE * GRID_SIDE
+GRIDS = ((11, 1.0), (7, 0.2))
+"""Refinement grids: points per side and half-width [sample spacings]; each is centred
+on the previous one's best point and spans one step of it either side."""
 DEFAULT_SPACING_M = 0.03
 DEFAULT_CONE_DEG = 60.0
 RIDGE = 1e-9
 TINY = 1e-12  # m^2, keeps a point whose Jacobian vanishes (on joint 1's axis) finite
 OK, NO_SURFACE, TOO_SMALL = "ok", "no-surface", "too-small"
+REST_NOISE_NM = (0.077, 0.068, 0.05, 0.043, 0.009, 0.01, 0.009)
+"""Standard deviation [Nm] of the simulated Panda's residual at rest, per joint, 0.3 s
+after a baseline of 50 ms (10 contact-free thesis-static sessions of seed 7)."""
 
 
 class Surface(Protocol):
@@ -117,14 +131,14 @@ _GRID_PRODUCTS[[0, 1, 2, 3, 4, 5, 6, 7, 8], [0, 1, 2, 1, 3, 5, 2, 5, 4]] = 1.0
 its monomials 1, s, t, ss, tt, st (6)."""
 
 
-def _decide(errors: list[float], tie_nm: float) -> tuple[int, int, int]:
+def _decide(errors: list[float], tie: float) -> tuple[int, int, int]:
     """Return the link indices (0..6) of the smallest error of ``errors`` [Nm] (7), of
     the link chosen (the lowest whose squared error exceeds the smallest by at most
-    ``tie_nm``^2 per link between them) and of the best other link."""
+    ``tie``^2 per link between them) and of the best other link."""
     order = range(len(errors))
     last = min(order, key=errors.__getitem__)
     limit = errors[last] ** 2
-    link = next(k for k in order if errors[k] ** 2 <= limit + tie_nm ** 2 * (last - k))
+    link = next(k for k in order if errors[k] ** 2 <= limit + tie * tie * (last - k))
     return last, link, min((k for k in order if k != link), key=errors.__getitem__)
 
 
@@ -243,9 +257,11 @@ def _thin(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
 class ContactEstimate:
     """One estimate at time ``t_s`` [s]: the touched ``link`` (None without one), the
     contact point in the link frame ``point_link`` and the base frame ``point_base``
-    [m], the force on the arm ``force`` [N] (base frame), the fit's residual error
-    ``error_nm`` [Nm] against the residual's norm ``residual_nm`` [Nm], the best other
-    link ``runner_up`` and its error [Nm], ``confidence`` (0..1), ``ambiguous``, and
+    [m], the force on the arm ``force`` [N] (base frame), the residual error [Nm] of
+    the link's best fit ``error_nm`` (for links 1-4 that of the best point, not of the
+    reported middle one) against the residual's norm ``residual_nm`` [Nm], the best
+    other link ``runner_up`` and its error [Nm] (NaN where it was not refined),
+    ``confidence`` (0..1, from the noise-weighted errors), ``ambiguous``, and
     ``status``: ok, no-surface (the best link has no collision surface: link known, no
     point or force) or too-small (the residual is too small to isolate)."""
 
@@ -282,21 +298,22 @@ class ContactEstimate:
 @dataclass(frozen=True)
 class IsolatorConfig:
     """Estimator settings: sample spacing [m], friction-cone half-angle [deg], the
-    smallest residual norm it isolates [Nm], the error margin per link within which
-    the more proximal link wins [Nm, in quadrature], the residual noise for the
-    confidence [Nm] and the confidence below which an estimate is ambiguous.
-    ``tie_nm`` = 0.15: on residuals of random contacts on links 1-7 with 0.1 Nm noise
-    per joint (benchmarks/bench_isolation.py's), 0.05 / 0.15 / 0.2 / 0.3 named the
-    link in 73 / 82 / 81 / 77 % of 300; at the peak of the 104 detected contacts of
-    the default model's simulated sessions (not the evaluation's), 0 / 0.05 / 0.1 /
-    0.15 / 0.25 named it in 61 / 66 / 76 / 80 / 70 % (too distal at 0, too proximal
-    at 0.25)."""
+    smallest residual norm it isolates [Nm], the residual's noise per joint
+    ``joint_noise_nm`` (7) [Nm] that weighs the joints (errors are in units of it),
+    the error margin per link within which the more proximal link wins (``tie``, in
+    noise units, in quadrature) and the confidence below which an estimate is
+    ambiguous. ``joint_noise_nm`` is the standard deviation of the residual at rest
+    of the simulated Panda (contact-free sessions of seed 7, not the evaluation's):
+    the observer passes the velocity noise times the joint inertia, so the shoulder
+    joints are about eight times noisier than the wrist's. ``tie``: see
+    docs/isolation.md."""
 
     spacing_m: float = DEFAULT_SPACING_M
     cone_deg: float = DEFAULT_CONE_DEG
     min_residual_nm: float = 0.5
-    tie_nm: float = 0.15
-    noise_nm: float = 0.1
+    joint_noise_nm: tuple[float, ...] = REST_NOISE_NM
+    threshold_share: float = 0.1
+    tie: float = 2.0
     ambiguous_below: float = 0.2
 
 
@@ -315,6 +332,7 @@ class ContactIsolator:
         self.model = model.model
         self.data = self.model.createData()
         self.frames = [model.frame_id(k) for k in range(1, N_JOINTS + 1)]
+        self._noise2 = np.square(config.joint_noise_nm)                    # Nm^2
         self.samples: list[SurfaceSamples | None] = []
         for k in range(1, N_JOINTS + 1):
             mesh = surface(k)
@@ -338,62 +356,74 @@ class ContactIsolator:
         self._points = padded(lambda s: s.points)                          # (L, n, 3)
         self._normals = padded(lambda s: s.normals).transpose(2, 0, 1).copy()  # (3, L, n)
         self._monomials = _monomials(self._points)                         # (L, 10, n)
-        # each sample's refinement grid p + s u + t v, (s, t) in [-spacing, spacing]^2
-        self._lifted = _lift(np.stack([self._points,
-                                       padded(lambda s: s.tangents[0]) * config.spacing_m,
-                                       padded(lambda s: s.tangents[1]) * config.spacing_m],
+        # each sample's first refinement grid p + s u + t v, |s|, |t| <= its half-width
+        half = GRIDS[0][1] * config.spacing_m
+        self._lifted = _lift(np.stack([self._points, padded(lambda s: s.tangents[0]) * half,
+                                       padded(lambda s: s.tangents[1]) * half],
                                       axis=-1))                            # (L, n, 10, 6)
         half = np.radians(config.cone_deg)
         self._cone = (float(np.cos(half)), float(np.sin(half)))
-        s, t = (x.ravel() for x in np.meshgrid(*[np.linspace(-1.0, 1.0, GRID_SIDE)] * 2,
-                                                indexing="ij"))
-        self._grid_monomials = np.stack([np.ones_like(s), s, t, s * s, t * t, s * t])
-        """(6, GRID_POINTS): 1, s, t, ss, tt, st of the refinement grid's offsets."""
+        self._grids = [_grid_monomials(side) for side, _ in GRIDS]
 
-    def estimate(self, t: float, q: np.ndarray, r: np.ndarray) -> ContactEstimate:
+    def estimate(self, t: float, q: np.ndarray, r: np.ndarray,
+                 threshold: np.ndarray | None = None) -> ContactEstimate:
         """Return the estimate for joint positions ``q`` [rad] (7,) and residual ``r``
-        [Nm] (7,) (relative to the contact-free baseline) at time ``t`` [s]."""
+        [Nm] (7,) (relative to the contact-free baseline) at time ``t`` [s], with the
+        contact detector's threshold (7,) [Nm] at that sample (it grows with the
+        motion that the model gets wrong; default: the detector's floor at rest)."""
         r = np.asarray(r, dtype=float)
         norm = float(np.linalg.norm(r))
         if norm < self.config.min_residual_nm:
             return ContactEstimate(t, TOO_SMALL, residual_nm=norm)
-        model, data, rr = self.model, self.data, norm * norm
+        model, data = self.model, self.data
         pin.computeJointJacobians(model, data, np.asarray(q, dtype=float))
         pin.updateFramePlacements(model, data)
         jac = np.stack([pin.getFrameJacobian(model, data, fid, pin.LOCAL)
                         for fid in self.frames])                   # (7, 6, 7) link frames
+        # each joint's torque in units of its noise (so are all errors below): the
+        # residual's noise at rest and a share of the detector's threshold (model error)
+        share = self.config.threshold_share * (MIN_NOISE if threshold is None
+                                               else np.asarray(threshold, dtype=float))
+        weights = 1.0 / np.sqrt(self._noise2 + share * share)
+        weighted, rw = jac * weights, r * weights
+        rr = float(rw @ rw)
         errors = np.full(N_JOINTS, np.inf)
+        wrenches = {}
         for k in self._bare:
-            errors[k] = _wrench_error(jac[k], r, rr)
-        coeffs = _coefficients(jac, r)                             # (7, 9, 10)
+            errors[k], wrenches[k] = _wrench_fit(weighted[k], rw)
+        coeffs = _coefficients(weighted, rw)                       # (7, 9, 10)
         # a link's error is at least the residual on the joints after it: links whose
         # bound leaves them no chance are not searched unless the decision needs them
-        bound = np.sqrt(np.maximum(rr - np.cumsum(r * r), 0.0))
+        bound = np.sqrt(np.maximum(rr - np.cumsum(rw * rw), 0.0))
         errors[self._links] = bound[self._links]
-        limit = PRUNE_SHARE * rr + self.config.tie_nm ** 2 * N_JOINTS
+        tie = self.config.tie
+        limit = PRUNE_SHARE * rr + tie * tie * N_JOINTS
         reach = [k not in self._surface or b * b <= limit for k, b in enumerate(bound.tolist())]
         rows = np.flatnonzero(np.array(reach)[self._links])
         errors, fits, middle = self._search(rows, coeffs, rr, errors.copy())
-        last, link, other = _decide(errors.tolist(), self.config.tie_nm)
+        last, link, other = _decide(errors.tolist(), tie)
         if not (reach[last] and reach[link] and reach[other]):
             rows = np.arange(len(self._links))
             errors, fits, middle = self._search(rows, coeffs, rr, errors)
-            last, link, other = _decide(errors.tolist(), self.config.tie_nm)
-        link += 1
-        e_link, e_other = float(errors[link - 1]), float(errors[other])
-        noise = self.config.noise_nm
+            last, link, other = _decide(errors.tolist(), tie)
+        e_link, e_other = float(errors[link]), float(errors[other])
         rival = np.isfinite(e_other)
-        confidence = min(max(1.0 - (e_link + noise) / (e_other + noise), 0.0), 1.0) \
+        # the errors are in noise units: 1 is the noise floor
+        confidence = min(max(1.0 - (e_link + 1.0) / (e_other + 1.0), 0.0), 1.0) \
             if rival else 1.0
-        common = dict(link=link, error_nm=e_link, residual_nm=norm,
-                      runner_up=other + 1 if rival else None, runner_up_error_nm=e_other,
+        rival_error = _torque_error(jac[other], r, fits.get(other), wrenches.get(other))
+        common = dict(link=link + 1, residual_nm=norm,
+                      error_nm=_torque_error(jac[link], r, fits.get(link), wrenches.get(link)),
+                      runner_up=other + 1 if rival else None,
+                      runner_up_error_nm=rival_error if rival else float("nan"),
                       confidence=confidence, ambiguous=confidence < self.config.ambiguous_below)
-        if link - 1 not in fits:
+        if link in fits and link + 1 < MIN_DETERMINED:
+            # the point is undetermined: report the middle one (the error is the best's)
+            fits[link] = self._middle(link, *middle)
+        if link not in fits:
             return ContactEstimate(t, NO_SURFACE, **common)
-        point, force = fits[link - 1]
-        if link < MIN_DETERMINED:
-            point, force = self._middle(link - 1, *middle)
-        placement = data.oMf[self.frames[link - 1]]
+        point, force = fits[link]
+        placement = data.oMf[self.frames[link]]
         return ContactEstimate(t, OK, point_link=point,
                                point_base=placement.rotation @ point + placement.translation,
                                force=placement.rotation @ force, **common)
@@ -430,16 +460,23 @@ class ContactIsolator:
         reach = links[order]
         rows, at = searched[order], best[order]
         # the grid's points are p0 + s u + t v, (s, t) in [-half, half]^2: their
-        # monomials are those of (s, t) times a matrix precomputed per sample
+        # monomials are those of (s, t) times a matrix, precomputed per sample for the
+        # first grid; each further grid is centred on the last one's best point
         lifted = self._lifted[rows, at]
-        fitted = np.empty((9, len(reach), self._grid_monomials.shape[1]))
-        np.matmul(coeffs[reach] @ lifted, self._grid_monomials, out=fitted.transpose(1, 0, 2))
-        local_err, local_force = _fit(fitted, rr, self._normals[:, rows, at][:, :, None],
-                                      self._cone)
-        local_best = np.argmin(local_err, axis=1)
+        normals = self._normals[:, rows, at][:, :, None]
         m = np.arange(len(reach))
+        points, previous = lifted[:, 1:4, 0], GRIDS[0][1]
+        for i, ((_, half), grid) in enumerate(zip(GRIDS, self._grids, strict=True)):
+            if i:
+                lifted = _lift(np.stack([points, lifted[:, 1:4, 1] * (half / previous),
+                                         lifted[:, 1:4, 2] * (half / previous)], axis=-1))
+                previous = half
+            fitted = np.empty((9, len(reach), grid.shape[1]))
+            np.matmul(coeffs[reach] @ lifted, grid, out=fitted.transpose(1, 0, 2))
+            local_err, local_force = _fit(fitted, rr, normals, self._cone)
+            local_best = np.argmin(local_err, axis=1)
+            points = np.einsum("mij,jm->mi", lifted[:, 1:4, :3], grid[:3, local_best])
         errors[reach] = local_err[m, local_best]
-        points = np.einsum("mij,jm->mi", lifted[:, 1:4, :3], self._grid_monomials[:3, local_best])
         forces = local_force[:, m, local_best].T
         return {k: (points[i], forces[i]) for i, k in enumerate(reach.tolist())}
 
@@ -454,12 +491,20 @@ class ContactIsolator:
         row = int(np.searchsorted(self._links, k))
         at = rows.tolist().index(row)
         coarse = err[at, :self._counts[row]]
-        reach = (np.sqrt(max(float(coarse[best[at]]), 0.0)) + self.config.tie_nm) ** 2
+        reach = (np.sqrt(max(float(coarse[best[at]]), 0.0)) + self.config.tie) ** 2
         close = np.flatnonzero(coarse <= reach)
         points = self._points[row, close]
         offset = points - points.sum(axis=0) / len(close)
         mid = close[int(np.argmin((offset * offset).sum(axis=1)))]
         return self._points[row, mid].copy(), np.array([f[at, mid] for f in forces])
+
+
+def _grid_monomials(side: int) -> np.ndarray:
+    """Return the monomials 1, s, t, ss, tt, st (6, side^2) of a square grid of
+    ``side`` x ``side`` offsets (s, t) in [-1, 1]^2."""
+    s, t = (x.ravel() for x in np.meshgrid(*[np.linspace(-1.0, 1.0, side)] * 2,
+                                            indexing="ij"))
+    return np.stack([np.ones_like(s), s, t, s * s, t * t, s * t])
 
 
 def _lift(axes: np.ndarray) -> np.ndarray:
@@ -530,10 +575,25 @@ def _coefficients(jac: np.ndarray, r: np.ndarray) -> np.ndarray:
     return (inputs @ _COEFFICIENT_MAP + _COEFFICIENT_CONSTANT).reshape(len(jac), 9, 10)
 
 
-def _wrench_error(jac: np.ndarray, r: np.ndarray, rr: float) -> float:
-    """Return the residual error [Nm] of the best wrench at a link frame (no point)."""
+def _torque_error(jac: np.ndarray, r: np.ndarray, fit: tuple[np.ndarray, np.ndarray] | None,
+                  wrench: np.ndarray | None) -> float:
+    """Return the residual error [Nm] |r - J^T w| of a link's fit, from its Jacobian
+    ``jac`` (6, 7, link frame), the residual ``r`` [Nm] and its (point [m], force [N])
+    ``fit`` or else its ``wrench`` [N, Nm]; NaN with neither."""
+    if fit is not None:
+        point, force = fit
+        wrench = np.r_[force, np.cross(point, force)]
+    if wrench is None:
+        return float("nan")
+    return float(np.linalg.norm(r - jac.T @ wrench))
+
+
+def _wrench_fit(jac: np.ndarray, r: np.ndarray) -> tuple[float, np.ndarray]:
+    """Return the residual error of the best wrench at a link frame (no point) and the
+    wrench [N, Nm] for a link's (weighted) Jacobian ``jac`` (6, 7) and residual ``r``
+    (7,), in the residual's units."""
     w, *_ = np.linalg.lstsq(jac.T, r, rcond=None)
-    return float(np.sqrt(max(rr - float(r @ (jac.T @ w)), 0.0)))
+    return float(np.linalg.norm(r - jac.T @ w)), w
 
 
 DEFAULT_TRACK_HZ = 50.0
@@ -554,27 +614,31 @@ class EventTrack:
         self.track: list[ContactEstimate] = []
         self.peak: ContactEstimate | None = None
         self._peak_norm = -1.0
-        self._pending: tuple[float, np.ndarray, np.ndarray] | None = None
+        self._pending: tuple[float, np.ndarray, np.ndarray, np.ndarray | None] | None = None
 
-    def update(self, t: float, q: np.ndarray, e: np.ndarray) -> None:
+    def update(self, t: float, q: np.ndarray, e: np.ndarray,
+               threshold: np.ndarray | None = None) -> None:
         """Feed one sample of the event: time [s], q [rad] (7,), deviation of the
-        residual from its contact-free baseline e [Nm] (7,)."""
+        residual from its contact-free baseline e [Nm] (7,) and the detector's
+        threshold [Nm] (7,) (see :meth:`ContactIsolator.estimate`)."""
         norm = float(np.linalg.norm(e))
         if norm > self._peak_norm:
             self._peak_norm = norm
-            self._pending = (t, np.array(q, dtype=float), np.array(e, dtype=float))
+            self._pending = (t, np.array(q, dtype=float), np.array(e, dtype=float),
+                             None if threshold is None else np.array(threshold, dtype=float))
         if t >= self.next_s - 1e-12:
-            self.track.append(self.isolator.estimate(t, q, e))
+            self.track.append(self.isolator.estimate(t, q, e, threshold))
             while self.next_s <= t + 1e-12:
                 self.next_s += self.period
             self._settle_peak()
 
-    def at(self, t: float, q: np.ndarray, e: np.ndarray) -> ContactEstimate:
-        """Return the estimate at this sample (time [s], q [rad], e [Nm]): the track's
-        when it has one for ``t``, else a new one."""
+    def at(self, t: float, q: np.ndarray, e: np.ndarray,
+           threshold: np.ndarray | None = None) -> ContactEstimate:
+        """Return the estimate at this sample (time [s], q [rad], e [Nm], threshold
+        [Nm]): the track's when it has one for ``t``, else a new one."""
         if self.track and self.track[-1].t_s == t:
             return self.track[-1]
-        return self.isolator.estimate(t, q, e)
+        return self.isolator.estimate(t, q, e, threshold)
 
     def finish(self) -> ContactEstimate | None:
         """Return the estimate at the peak of |e| so far (computing a pending one)."""
@@ -584,9 +648,8 @@ class EventTrack:
     def _settle_peak(self) -> None:
         if self._pending is None:
             return
-        t, q, e = self._pending
-        self._pending = None
-        self.peak = self.at(t, q, e)
+        self._pending, pending = None, self._pending
+        self.peak = self.at(*pending)
 
 
 @cache
