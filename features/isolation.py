@@ -459,23 +459,27 @@ class ContactIsolator:
         order = np.argsort(errors[links])[:REFINE_LINKS]
         reach = links[order]
         rows, at = searched[order], best[order]
-        # the grid's points are p0 + s u + t v, (s, t) in [-half, half]^2: their
-        # monomials are those of (s, t) times a matrix, precomputed per sample for the
-        # first grid; each further grid is centred on the last one's best point
+        # the grids' points are p0 + s u + t v with (s, t) in units of the first grid's
+        # half-width: their monomials are those of (s, t) times a matrix precomputed
+        # per sample; each further grid is centred on the previous one's best point
         lifted = self._lifted[rows, at]
+        fit_coeffs = coeffs[reach] @ lifted                               # (m, 9, 6)
         normals = self._normals[:, rows, at][:, :, None]
         m = np.arange(len(reach))
-        points, previous = lifted[:, 1:4, 0], GRIDS[0][1]
+        centre = np.zeros((len(reach), 2, 1))
         for i, ((_, half), grid) in enumerate(zip(GRIDS, self._grids, strict=True)):
+            plane = grid[1:3] * (half / GRIDS[0][1])                      # (2, n)
             if i:
-                lifted = _lift(np.stack([points, lifted[:, 1:4, 1] * (half / previous),
-                                         lifted[:, 1:4, 2] * (half / previous)], axis=-1))
-                previous = half
-            fitted = np.empty((9, len(reach), grid.shape[1]))
-            np.matmul(coeffs[reach] @ lifted, grid, out=fitted.transpose(1, 0, 2))
+                plane = centre + plane                                    # (m, 2, n)
+                s_, t_ = plane[:, 0], plane[:, 1]
+                grid = np.stack([np.ones_like(s_), s_, t_, s_ * s_, t_ * t_, s_ * t_], axis=1)
+            fitted = np.empty((9, len(reach), grid.shape[-1]))
+            np.matmul(fit_coeffs, grid, out=fitted.transpose(1, 0, 2))
             local_err, local_force = _fit(fitted, rr, normals, self._cone)
             local_best = np.argmin(local_err, axis=1)
-            points = np.einsum("mij,jm->mi", lifted[:, 1:4, :3], grid[:3, local_best])
+            centre = (plane[:, local_best].T if plane.ndim == 2
+                      else plane[m, :, local_best])[:, :, None]
+        points = lifted[:, 1:4, 0] + np.einsum("mia,ma->mi", lifted[:, 1:4, 1:3], centre[:, :, 0])
         errors[reach] = local_err[m, local_best]
         forces = local_force[:, m, local_best].T
         return {k: (points[i], forces[i]) for i, k in enumerate(reach.tolist())}
@@ -581,8 +585,8 @@ def _torque_error(jac: np.ndarray, r: np.ndarray, fit: tuple[np.ndarray, np.ndar
     ``jac`` (6, 7, link frame), the residual ``r`` [Nm] and its (point [m], force [N])
     ``fit`` or else its ``wrench`` [N, Nm]; NaN with neither."""
     if fit is not None:
-        point, force = fit
-        wrench = np.r_[force, np.cross(point, force)]
+        (px, py, pz), (fx, fy, fz) = fit[0].tolist(), fit[1].tolist()
+        wrench = np.array([fx, fy, fz, py * fz - pz * fy, pz * fx - px * fz, px * fy - py * fx])
     if wrench is None:
         return float("nan")
     return float(np.linalg.norm(r - jac.T @ wrench))
