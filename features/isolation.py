@@ -246,9 +246,13 @@ def sample_surface(surface: Surface, spacing_m: float = DEFAULT_SPACING_M) -> Su
 
 
 def _thin(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Keep one point per cubic cell of ``cell_m`` [m]; return the points and indices."""
+    """Keep one point per cubic cell of ``cell_m`` [m] (the first listed); return the
+    points and indices."""
     cells = np.floor(points / cell_m).astype(np.int64)
-    _, keep = np.unique(cells, axis=0, return_index=True)
+    cells -= cells.min(axis=0)
+    size = cells.max(axis=0) + 1
+    key = (cells[:, 0] * size[1] + cells[:, 1]) * size[2] + cells[:, 2]
+    _, keep = np.unique(key, return_index=True)
     keep = np.sort(keep)
     return points[keep], keep
 
