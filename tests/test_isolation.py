@@ -161,3 +161,13 @@ def test_a_torque_on_joint_1_alone_is_link_1_and_ambiguous(isolator) -> None:
     est = isolator.estimate(0.0, pose_q("B"), np.array([2.0, 0, 0, 0, 0, 0, 0]))
     assert est.status == OK and est.link == 1 and est.ambiguous
     assert np.isfinite(est.error_nm) and np.all(np.isfinite(est.force))
+
+
+def test_model_error_the_detector_expects_does_not_move_the_link(isolator, model) -> None:
+    # 0.3 Nm of model error on joint 6 is thirty times its noise at rest, but a joint
+    # whose detector threshold has grown to 5 Nm (the arm moving) weighs that much less
+    threshold = np.full(7, 0.3)
+    threshold[5] = 5.0
+    for q, _, _, r in _contacts(model, 5, 6, seed=3):
+        biased = r + np.eye(7)[5] * 0.3
+        assert isolator.estimate(0.0, q, biased, threshold).link == 5
