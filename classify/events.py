@@ -201,16 +201,17 @@ class EventPipeline:
         return event
 
     def _isolate(self, t: float, q: np.ndarray | None, r: np.ndarray, decided: bool,
-                 released: bool) -> None:
-        """Feed one sample of the current event to its isolation track; store the
+                 released: bool, threshold: np.ndarray | None = None) -> None:
+        """Feed one sample of the current event to its isolation track (with the
+        detector's threshold [Nm] at that sample, which weighs the joints); store the
         estimate at the decision and at the peak."""
         if self._track is None or q is None:
             return
         e = r - self._baseline
-        self._track.update(t, q, e)
+        self._track.update(t, q, e, threshold)
         event = self.current
         if decided:
-            event.contact_at_decision = self._track.at(t, q, e)
+            event.contact_at_decision = self._track.at(t, q, e, threshold)
         event.contact_track = self._track.track
         event.contact_at_peak = self._track.finish() if released else self._track.peak
 
@@ -237,7 +238,8 @@ class EventPipeline:
             self._window.append(sample)
             if t - event.onset_s >= self.decide_after_s - 1e-12 or state.release:
                 out.decided = self._decide(t)
-        self._isolate(t, q, sample[1], out.decided is not None, state.release)
+        self._isolate(t, q, sample[1], out.decided is not None, state.release,
+                      state.threshold)
         out.label = event.label
         if state.release:
             event.release_s = t
@@ -279,7 +281,8 @@ def batch_events(t: np.ndarray, r: np.ndarray, detection: Detection,
             pipeline._track = EventTrack(isolator, float(t[onset]))
             for k in range(onset, last + 1):
                 pipeline._isolate(float(t[k]), q[k], np.asarray(r[k], dtype=float),
-                                  decided and k == decision, k == release)
+                                  decided and k == decision, k == release,
+                                  detection.threshold[k])
         event = pipeline.finish()[-1]
         event.release_s = None if release is None else float(t[release])
         event.peak_score = float(detection.score[onset:last + 1].max())

@@ -5,8 +5,8 @@
 
 Simulates sessions of the thesis sets (``thesis-static``, ``thesis-dynamic``) and of
 contacts during motion (``mixed-motion``) with seeds of their own (nothing in the
-isolator is fitted on them: its few settings were set on synthetic residuals, see
-:class:`contactkit.features.isolation.IsolatorConfig`), runs the default model's
+isolator is fitted on them: its few settings were set on simulated sessions of other
+seeds, see :class:`contactkit.features.isolation.IsolatorConfig`), runs the default model's
 detector and the event pipeline with contact isolation on each, and scores the
 estimate at the peak (and the link at the decision) against the simulator's contact:
 link accuracy over detected events (confusion matrix), missed contacts separately,

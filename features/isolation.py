@@ -6,40 +6,51 @@ A single point force F [N] at point p on link k gives the joint torque
     r = J_k(q, p)^T F = Jv^T F + Jw^T (p x F)        (Nm; joints after k see nothing)
 
 with Jv, Jw the linear and angular rows of link k's frame Jacobian. The estimator is a
-least-squares search over precomputed samples of each link's collision surface (the
-meshes the simulator uses, about ``spacing_m`` apart), in the link frame so that the
-samples never move, followed by a local refinement:
+weighted least-squares search over precomputed samples of each link's collision
+surface (the meshes the simulator uses, about ``spacing_m`` apart), in the link frame
+so that the samples never move, followed by a local refinement. Each joint's torque
+is divided by its noise, sqrt(``joint_noise_nm``^2 + (``threshold_share`` x the
+contact detector's threshold)^2): the residual at rest is about eight times noisier
+on the shoulder joints than on the wrist, and an unweighted fit lets the shoulder's
+noise hide the wrist's evidence; the threshold (0.3 Nm at rest, growing with speed
+and acceleration where the model is wrong) stands for model error.
 
 1. Per update one ``computeJointJacobians`` gives every link's Jacobian. Per sample
    point, the normal equations of F are in closed form: b = A^T r = a + c x p is
-   linear in p and the Gram matrix A^T A (A = Jv^T + Jw^T S(p)) quadratic, so its six
-   entries for all samples are one product of the samples' monomials with
-   coefficients computed once per link; the 3x3 solve is elementwise (cofactors).
+   linear in p and the Gram matrix A^T A (A = Jv^T + Jw^T S(p)) quadratic, so b and
+   the Gram matrix's six entries for all samples of all links are one batched
+   product of the samples' monomials (1, x, y, z, xx, ..., yz; precomputed) with
+   per-link coefficients, themselves one product of [J J^T, J r] with a constant
+   matrix; the 3x3 solves are elementwise (Cholesky). A link's error is at least
+   the residual on the joints after it; links whose bound leaves them no chance are
+   not searched (all are, when the decision turns out to need one of them).
 2. The force must push into the surface, within ``cone_deg`` of the inward normal.
-   Where the free least-squares force does not, the best force on ``CONE_RAYS`` rays
-   of the cone's boundary or along the normal is taken instead (the optimum of a
-   convex problem whose free optimum lies outside the cone is on its boundary), but
-   only for samples whose free error could still beat the link's best.
+   On the samples, a force outside the cone explains nothing (error |r|); on the
+   refinement grids, where the free least-squares force lies outside the cone and
+   could still beat the link's best feasible one, the best force along the cone's
+   boundary ray nearest to it is taken (the optimum of a convex problem whose free
+   optimum lies outside the cone is on its boundary).
 3. The ``REFINE_LINKS`` links with the smallest errors are refined from their best
-   sample: the same fit on a 7 x 7 grid in the sample's face plane, one spacing
-   either side, then on grids a third and a ninth as wide around the best point
-   (about 1 mm apart at the end), which removes most of the sampling error.
+   sample on the ``GRIDS`` in the sample's face plane (one spacing either side, then
+   one step of that grid either side: 2 mm apart at the end), which removes most of
+   the sampling error. A grid's monomials are a per-sample matrix (precomputed for
+   the first) times those of the plane coordinates.
 4. The link is the lowest one whose squared error exceeds the smallest (on link m)
-   by at most ``tie_nm``^2 per link between them: a link-k contact is generically
-   also explained by a point on link k + 1 whose force line meets joint k + 1's axis,
-   and each more distal link absorbs one more joint's noise, so the proximal
-   explanation wins unless the distal one is better by more than noise. With fewer
-   than five loaded joints (links 1-4) the torques leave the point undetermined along
-   a curve: the reported point is the sample nearest the middle of the link's samples
-   within ``tie_nm`` of its best, the least-risk guess.
+   by at most ``tie``^2 per link between them (errors in noise units): a link-k
+   contact is generically also explained by a point on link k + 1 whose force line
+   meets joint k + 1's axis, and each more distal link absorbs one more joint's
+   noise, so the proximal explanation wins unless the distal one is better by more
+   than noise. With fewer than five loaded joints (links 1-4) the torques leave the
+   point undetermined along a curve: the reported point is the sample nearest the
+   middle of the link's samples within ``tie`` of its best, the least-risk guess.
 
-The confidence compares the chosen link's error with the best other link's:
-1 - (e_chosen + noise) / (e_other + noise), clipped to 0..1, with ``noise_nm`` the
-residual noise; ``ambiguous`` when it is below ``ambiguous_below``. A residual below
-``min_residual_nm`` or a best link without a collision surface gives an estimate with
-no point and no force and a ``status`` that says why (not an error).
+The confidence compares the chosen link's error e with the best other link's, in
+noise units: 1 - (e + 1) / (e_other + 1), clipped to 0..1; ``ambiguous`` when it is
+below ``ambiguous_below``. A residual below ``min_residual_nm`` or a best link without
+a collision surface gives an estimate with no point and no force and a ``status``
+that says why (not an error).
 
-Units: q [rad], r [Nm], points [m], forces [N], errors [Nm].
+Units: q [rad], r [Nm], points [m], forces [N], reported errors [Nm].
 """
 
 from __future__ import annotations
@@ -52,21 +63,26 @@ from typing import Protocol
 import numpy as np
 import pinocchio as pin
 
+from contactkit.features.detector import MIN_NOISE
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
 from contactkit.robots.surfaces import LinkSurface, link_surface
 
 N_JOINTS = 7
-CONE_RAYS = 8
 REFINE_LINKS = 3
+PRUNE_SHARE = 0.25
 MIN_DETERMINED = 5
-GRID_SIDE, GRID_PASSES = 7, 3
-GRID_POINTS = GRID_SIDE * GRID_SIDE
+GRIDS = ((11, 1.0), (7, 0.2))
+"""Refinement grids: points per side and half-width [sample spacings]; each is centred
+on the previous one's best point and spans one step of it either side."""
 DEFAULT_SPACING_M = 0.03
 DEFAULT_CONE_DEG = 60.0
 RIDGE = 1e-9
 TINY = 1e-12  # m^2, keeps a point whose Jacobian vanishes (on joint 1's axis) finite
 OK, NO_SURFACE, TOO_SMALL = "ok", "no-surface", "too-small"
+REST_NOISE_NM = (0.077, 0.068, 0.05, 0.043, 0.009, 0.01, 0.009)
+"""Standard deviation [Nm] of the simulated Panda's residual at rest, per joint, 0.3 s
+after a baseline of 50 ms (10 contact-free thesis-static sessions of seed 7)."""
 
 
 class Surface(Protocol):
@@ -95,139 +111,148 @@ class ArmModel(Protocol):
 @dataclass(frozen=True)
 class SurfaceSamples:
     """Sample points (n, 3) [m] on a link's surface, their unit outward normals (n, 3)
-    and two unit tangents (n, 3) each; per point the unit force directions on the
-    boundary of its friction cone and the inward normal, ``rays`` (3, n, CONE_RAYS +
-    1) (components first). All in the link frame."""
+    and two unit tangents (n, 3) each, in the link frame."""
 
     points: np.ndarray
     normals: np.ndarray
     tangents: tuple[np.ndarray, np.ndarray]
-    rays: np.ndarray
 
 
-@dataclass(frozen=True)
-class PointSet:
-    """Candidate contact points in blocks (one link each): points (n, 3) [m] and unit
-    outward normals (n, 3) in their link's frame, the friction-cone ``rays`` (3, n, R)
-    of each point, block boundaries ``starts`` (blocks + 1,), the squared cosine of the
-    cone's half-angle, and the products of each ray's components (6, n, R; computed
-    when not given)."""
-
-    points: np.ndarray
-    normals: np.ndarray
-    rays: np.ndarray
-    starts: np.ndarray
-    cone_cos2: float
-    ray_products: np.ndarray | None = None
-
-    def __post_init__(self) -> None:
-        d = self.rays
-        derived = {"columns": np.ascontiguousarray(self.points.T),
-                   "normal_columns": np.ascontiguousarray(self.normals.T),
-                   "monomials": _monomials(self.points).T.copy(),
-                   "owner": np.repeat(np.arange(len(self.starts) - 1), np.diff(self.starts))}
-        if self.ray_products is None:
-            derived["ray_products"] = np.stack([d[0] ** 2, d[1] ** 2, d[2] ** 2,
-                                                2 * d[0] * d[1], 2 * d[0] * d[2],
-                                                2 * d[1] * d[2]])
-        for name, value in derived.items():
-            object.__setattr__(self, name, value)
+_UNIT_SKEW = np.array([[[0, 0, 0], [0, 0, -1], [0, 1, 0]],
+                       [[0, 0, 1], [0, 0, 0], [-1, 0, 0]],
+                       [[0, -1, 0], [1, 0, 0], [0, 0, 0]]], dtype=float)
+"""S(e_i) for the unit vectors: S(p) = sum_i p_i S(e_i), S(p) F = p x F."""
+_PAIRS = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
+"""The Gram entries xx yy zz xy xz yz, and monomials 4..9, as pairs of coordinates."""
+_PAIRS_A, _PAIRS_B = (np.array(x) for x in zip(*_PAIRS, strict=True))
+_GRID_PRODUCTS = np.zeros((9, 6))
+_GRID_PRODUCTS[[0, 1, 2, 3, 4, 5, 6, 7, 8], [0, 1, 2, 1, 3, 5, 2, 5, 4]] = 1.0
+"""The products c d of a grid point's coordinates c, d in (1, s, t) (9, row-major) as
+its monomials 1, s, t, ss, tt, st (6)."""
 
 
-def _fit(a: np.ndarray, c: np.ndarray, coeffs: np.ndarray, rr: float, points: PointSet
-         ) -> tuple[np.ndarray, np.ndarray]:
-    """Return each candidate point's residual error [Nm] (n,) and force [N] (n, 3, link
-    frame): the least-squares force if it lies in the friction cone, else the best one
-    on the cone's rays. Per block (its link): ``a`` = Jv r and ``c`` = Jw r (blocks, 3)
-    and the Gram coefficients (blocks, 10, 6) of :func:`_gram_coefficients`, with Jv,
-    Jw the link's Jacobian rows in its frame; ``rr`` = |r|^2 [Nm^2]. Points whose
-    constrained error cannot beat their block's best feasible one keep that bound as
-    their error (they are never the block's best)."""
-    owner, starts = points.owner, points.starts
-    a, c = a[owner].T, c[owner].T                                   # (3, n)
-    px, py, pz = points.columns
-    bx = a[0] + c[1] * pz - c[2] * py
-    by = a[1] + c[2] * px - c[0] * pz
-    bz = a[2] + c[0] * py - c[1] * px
-    g = np.empty((6, len(owner)))
-    for i in range(len(coeffs)):
-        s = slice(starts[i], starts[i + 1])
-        g[:, s] = np.einsum("me,mn->en", coeffs[i], points.monomials[:, s])
-    ridge = RIDGE * (g[0] + g[1] + g[2]) + TINY
-    g00, g11, g22, g01, g02, g12 = g[0] + ridge, g[1] + ridge, g[2] + ridge, g[3], g[4], g[5]
-    c00, c11, c22 = g11 * g22 - g12 * g12, g00 * g22 - g02 * g02, g00 * g11 - g01 * g01
-    c01, c02, c12 = g02 * g12 - g01 * g22, g01 * g12 - g02 * g11, g01 * g02 - g00 * g12
-    inv_det = 1.0 / (g00 * c00 + g01 * c01 + g02 * c02)
-    fx = (c00 * bx + c01 * by + c02 * bz) * inv_det
-    fy = (c01 * bx + c11 * by + c12 * bz) * inv_det
-    fz = (c02 * bx + c12 * by + c22 * bz) * inv_det
-    gain = bx * fx + by * fy + bz * fz
-    nx, ny, nz = points.normal_columns
+def _decide(errors: list[float], tie: float) -> tuple[int, int, int]:
+    """Return the link indices (0..6) of the smallest error of ``errors`` [Nm] (7), of
+    the link chosen (the lowest whose squared error exceeds the smallest by at most
+    ``tie``^2 per link between them) and of the best other link."""
+    order = range(len(errors))
+    last = min(order, key=errors.__getitem__)
+    limit = errors[last] ** 2
+    link = next(k for k in order if errors[k] ** 2 <= limit + tie * tie * (last - k))
+    return last, link, min((k for k in order if k != link), key=errors.__getitem__)
+
+
+def _solve(v: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Return the least-squares force (fx, fy, fz) [N] and its gain b^T G^-1 b [Nm^2]
+    at each candidate point from ``v`` (9, ...): b = A^T r (3) and the Gram matrix G
+    = A^T A (xx yy zz xy xz yz), by an elementwise Cholesky factorisation G = L L^T."""
+    bx, by, bz, g00, g11, g22, g01, g02, g12 = v
+    i00 = 1.0 / np.sqrt(g00)
+    l10, l20 = g01 * i00, g02 * i00
+    i11 = 1.0 / np.sqrt(g11 - l10 * l10)
+    l21 = (g12 - l20 * l10) * i11
+    i22 = 1.0 / np.sqrt(g22 - l20 * l20 - l21 * l21)
+    y0 = bx * i00
+    y1 = (by - l10 * y0) * i11
+    y2 = (bz - l20 * y0 - l21 * y1) * i22
+    fz = y2 * i22
+    fy = (y1 - l21 * fz) * i11
+    fx = (y0 - l10 * fy - l20 * fz) * i00
+    return fx, fy, fz, y0 * y0 + y1 * y1 + y2 * y2
+
+
+def _coarse_fit(v: np.ndarray, rr: float, normals: np.ndarray, cone_cos2: float
+                ) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+    """Fit the force at the surface samples (see :func:`_fit`), without the search
+    along the cone's boundary: a sample whose least-squares force does not push into
+    the surface within the cone explains nothing (error |r|). Return the squared
+    errors [Nm^2] (m, n) and forces (fx, fy, fz) [N]."""
+    fx, fy, fz, gain = _solve(v)
+    nx, ny, nz = normals
     inward = -(nx * fx + ny * fy + nz * fz)
-    feasible = (inward > 0) & (inward * inward >= points.cone_cos2
-                               * (fx * fx + fy * fy + fz * fz))
-    # the best feasible gain per block bounds which infeasible points can still win
-    bound = np.maximum.reduceat(np.where(feasible, gain, -np.inf), starts[:-1])
-    outside = np.flatnonzero(~feasible & (gain > bound[owner]))
-    if len(outside):
-        dx, dy, dz = points.rays[:, outside]
-        bd = dx * bx[outside, None] + dy * by[outside, None] + dz * bz[outside, None]
-        prods, go = points.ray_products[:, outside], g[:, outside, None]
-        dgd = (prods[0] * go[0] + prods[1] * go[1] + prods[2] * go[2]
-               + prods[3] * go[3] + prods[4] * go[4] + prods[5] * go[5])
-        ray_gain = np.where(bd > 0, bd * bd / dgd, 0.0)
-        best = np.argmax(ray_gain, axis=1)
-        rows = np.arange(len(best))
-        scale = np.maximum(bd[rows, best], 0.0) / dgd[rows, best]
-        fx[outside], fy[outside], fz[outside] = (dx[rows, best] * scale,
-                                                 dy[rows, best] * scale,
-                                                 dz[rows, best] * scale)
-        gain[outside] = ray_gain[rows, best]
-    rest = ~feasible
-    rest[outside] = False
-    gain[rest] = np.minimum(gain[rest], bound[owner[rest]])
-    err = np.sqrt(np.maximum(rr - gain, 0.0))
-    return np.where(np.isfinite(err), err, np.inf), np.stack([fx, fy, fz], axis=1)
+    feasible = (inward > 0) & (inward * inward >= cone_cos2 * (fx * fx + fy * fy + fz * fz))
+    gain *= feasible
+    return rr - gain, (fx, fy, fz)
 
 
-def sample_surface(surface: Surface, spacing_m: float = DEFAULT_SPACING_M,
-                   cone_deg: float = DEFAULT_CONE_DEG) -> SurfaceSamples:
+def _fit(v: np.ndarray, rr: float, normals: np.ndarray, cone: tuple[float, float]
+         ) -> tuple[np.ndarray, np.ndarray]:
+    """Fit the force at candidate points, m links x n points each, on one face plane
+    per link, and return each point's residual error [Nm] (m, n) and force [N] (3, m,
+    n, link frame).
+
+    ``v`` (9, m, n): per point b = A^T r (3) and the Gram matrix's entries (xx yy zz
+    xy xz yz); ``rr`` = |r|^2 [Nm^2]; the unit outward ``normals`` (3, m, 1) of each
+    link's face; ``cone`` the cosine and sine of the friction cone's half-angle. The
+    force is the least-squares one if it lies in the cone, else the best one along
+    the cone's boundary ray nearest to it (in the plane of the normal and the free
+    force). That search is made only where a point's free gain beats its link's best
+    feasible one; any other point outside the cone cannot be its link's best, and
+    its error is given as |r| (its force as the free one)."""
+    fx, fy, fz, gain = _solve(v)
+    nx, ny, nz = normals
+    cos, sin = cone
+    inward = -(nx * fx + ny * fy + nz * fz)
+    size2 = fx * fx + fy * fy + fz * fz
+    feasible = (inward > 0) & (inward * inward >= cos * cos * size2)
+    gain_in = gain * feasible
+    force = np.array([fx, fy, fz])
+    search = gain > gain_in.max(axis=1, keepdims=True)
+    if search.any():
+        bx, by, bz, g00, g11, g22, g01, g02, g12 = v
+        # the boundary ray: cos (-n) + sin (the free force's unit component along the face)
+        scale = sin / (np.sqrt(np.maximum(size2 - inward * inward, 0.0)) + TINY)
+        dx = (fx + inward * nx) * scale - cos * nx
+        dy = (fy + inward * ny) * scale - cos * ny
+        dz = (fz + inward * nz) * scale - cos * nz
+        pushed = np.maximum(bx * dx + by * dy + bz * dz, 0.0)
+        size = pushed / (dx * dx * g00 + dy * dy * g11 + dz * dz * g22
+                         + 2.0 * (dx * dy * g01 + dx * dz * g02 + dy * dz * g12))
+        gain_in = np.where(search, pushed * size, gain_in)
+        np.copyto(force, np.array([dx, dy, dz]) * size, where=search)
+    return np.sqrt(np.maximum(rr - gain_in, 0.0)), force
+
+
+def sample_surface(surface: Surface, spacing_m: float = DEFAULT_SPACING_M) -> SurfaceSamples:
     """Return points on ``surface`` about ``spacing_m`` [m] apart: each triangle is
     split into k^2 similar ones (k from its longest edge) and their centroids are kept,
-    deterministic, with the triangle's normal and the cone rays of half-angle
-    ``cone_deg`` [deg] around the inward normal."""
-    points, normals = [], []
-    for tri, normal in zip(surface.vertices, surface.normals, strict=True):
-        edge = max(np.linalg.norm(tri[1] - tri[0]), np.linalg.norm(tri[2] - tri[1]),
-                   np.linalg.norm(tri[0] - tri[2]))
-        k = max(1, int(np.ceil(edge / spacing_m)))
+    deterministic, with the triangle's normal and two tangents."""
+    tri = np.asarray(surface.vertices, dtype=float)
+    edges = np.linalg.norm(tri - np.roll(tri, -1, axis=1), axis=2).max(axis=1)
+    splits = np.maximum(1, np.ceil(edges / spacing_m).astype(np.int64))
+    points, owner, order = [], [], []
+    for k in np.unique(splits):
+        chosen = np.flatnonzero(splits == k)
         i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
-        up = (i + j) <= k - 1
-        down = (i + j) <= k - 2
-        bary = [np.column_stack([(i[up] + 1 / 3) / k, (j[up] + 1 / 3) / k]),
-                np.column_stack([(i[down] + 2 / 3) / k, (j[down] + 2 / 3) / k])]
-        ab = np.concatenate(bary)
-        points.append(tri[0] + ab[:, :1] * (tri[1] - tri[0]) + ab[:, 1:] * (tri[2] - tri[0]))
-        normals.append(np.broadcast_to(normal, (len(ab), 3)))
-    pts, nrm = np.concatenate(points), np.concatenate(normals)
+        up, down = (i + j) <= k - 1, (i + j) <= k - 2
+        ab = np.concatenate([np.column_stack([(i[up] + 1 / 3) / k, (j[up] + 1 / 3) / k]),
+                             np.column_stack([(i[down] + 2 / 3) / k, (j[down] + 2 / 3) / k])])
+        t = tri[chosen]
+        points.append((t[:, None, 0] + ab[None, :, :1] * (t[:, None, 1] - t[:, None, 0])
+                       + ab[None, :, 1:] * (t[:, None, 2] - t[:, None, 0])).reshape(-1, 3))
+        owner.append(np.repeat(chosen, len(ab)))
+        order.append(np.tile(np.arange(len(ab)), len(chosen)))
+    owner_all, order_all = np.concatenate(owner), np.concatenate(order)
+    sort = np.lexsort((order_all, owner_all))  # triangle by triangle, as listed
+    pts = np.concatenate(points)[sort]
+    nrm = np.asarray(surface.normals, dtype=float)[owner_all[sort]]
     pts, keep = _thin(pts, spacing_m)
     nrm = nrm[keep]
     helper = np.where(np.abs(nrm[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
     u = np.cross(nrm, helper)
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     v = np.cross(nrm, u)
-    phi = np.arange(CONE_RAYS) * 2 * np.pi / CONE_RAYS
-    half = np.radians(cone_deg)
-    side = np.cos(phi)[None, :, None] * u[:, None] + np.sin(phi)[None, :, None] * v[:, None]
-    rays = -np.cos(half) * nrm[:, None] + np.sin(half) * side
-    rays = np.concatenate([rays, -nrm[:, None]], axis=1).transpose(2, 0, 1).copy()
-    return SurfaceSamples(pts, nrm.copy(), (u, v), rays)
+    return SurfaceSamples(pts, nrm.copy(), (u, v))
 
 
 def _thin(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Keep one point per cubic cell of ``cell_m`` [m]; return the points and indices."""
+    """Keep one point per cubic cell of ``cell_m`` [m] (the first listed); return the
+    points and indices."""
     cells = np.floor(points / cell_m).astype(np.int64)
-    _, keep = np.unique(cells, axis=0, return_index=True)
+    cells -= cells.min(axis=0)
+    size = cells.max(axis=0) + 1
+    key = (cells[:, 0] * size[1] + cells[:, 1]) * size[2] + cells[:, 2]
+    _, keep = np.unique(key, return_index=True)
     keep = np.sort(keep)
     return points[keep], keep
 
@@ -236,9 +261,11 @@ def _thin(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
 class ContactEstimate:
     """One estimate at time ``t_s`` [s]: the touched ``link`` (None without one), the
     contact point in the link frame ``point_link`` and the base frame ``point_base``
-    [m], the force on the arm ``force`` [N] (base frame), the fit's residual error
-    ``error_nm`` [Nm] against the residual's norm ``residual_nm`` [Nm], the best other
-    link ``runner_up`` and its error [Nm], ``confidence`` (0..1), ``ambiguous``, and
+    [m], the force on the arm ``force`` [N] (base frame), the residual error [Nm] of
+    the link's best fit ``error_nm`` (for links 1-4 that of the best point, not of the
+    reported middle one) against the residual's norm ``residual_nm`` [Nm], the best
+    other link ``runner_up`` and its error [Nm] (NaN where it was not refined),
+    ``confidence`` (0..1, from the noise-weighted errors), ``ambiguous``, and
     ``status``: ok, no-surface (the best link has no collision surface: link known, no
     point or force) or too-small (the residual is too small to isolate)."""
 
@@ -275,21 +302,24 @@ class ContactEstimate:
 @dataclass(frozen=True)
 class IsolatorConfig:
     """Estimator settings: sample spacing [m], friction-cone half-angle [deg], the
-    smallest residual norm it isolates [Nm], the error margin per link within which
-    the more proximal link wins [Nm, in quadrature], the residual noise for the
-    confidence [Nm] and the confidence below which an estimate is ambiguous.
-    ``tie_nm`` = 0.15: on residuals of random contacts on links 1-7 with 0.1 Nm noise
-    per joint (benchmarks/bench_isolation.py's), 0.05 / 0.15 / 0.2 / 0.3 named the
-    link in 73 / 82 / 81 / 77 % of 300; at the peak of the 104 detected contacts of
-    the default model's simulated sessions (not the evaluation's), 0 / 0.05 / 0.1 /
-    0.15 / 0.25 named it in 61 / 66 / 76 / 80 / 70 % (too distal at 0, too proximal
-    at 0.25)."""
+    smallest residual norm it isolates [Nm], the residual's noise at rest per joint
+    ``joint_noise_nm`` (7) [Nm] and the share of the detector's threshold added to it
+    in quadrature for model error (together they weigh the joints; errors are in
+    units of them), the error margin per link within which the more proximal link
+    wins (``tie``, noise units, in quadrature) and the confidence below which an
+    estimate is ambiguous. Set on 112 detected contacts of simulated sessions of
+    seeds 7 and 8 (thesis-static, thesis-dynamic, mixed-motion; not the
+    evaluation's), link right at the peak, static links 3-7 / all: unweighted with
+    the former 0.15 Nm tie 81.5 / 73.2 %; weighted, tie 1.5 / 2 / 3: 90.7 / 73.2,
+    88.9 / 76.8, 87.0 / 76.8 %; threshold share 0.05 / 0.1: 92.6 / 72.3, 88.9 /
+    76.8 %; a fixed 0.03 Nm instead of the threshold's share 90.7 / 75.9 %."""
 
     spacing_m: float = DEFAULT_SPACING_M
     cone_deg: float = DEFAULT_CONE_DEG
     min_residual_nm: float = 0.5
-    tie_nm: float = 0.15
-    noise_nm: float = 0.1
+    joint_noise_nm: tuple[float, ...] = REST_NOISE_NM
+    threshold_share: float = 0.1
+    tie: float = 2.0
     ambiguous_below: float = 0.2
 
 
@@ -308,162 +338,272 @@ class ContactIsolator:
         self.model = model.model
         self.data = self.model.createData()
         self.frames = [model.frame_id(k) for k in range(1, N_JOINTS + 1)]
+        self._noise2 = np.square(config.joint_noise_nm)                    # Nm^2
         self.samples: list[SurfaceSamples | None] = []
         for k in range(1, N_JOINTS + 1):
             mesh = surface(k)
-            self.samples.append(None if mesh is None else sample_surface(
-                mesh, config.spacing_m, config.cone_deg))
+            self.samples.append(None if mesh is None else sample_surface(mesh, config.spacing_m))
         parts = [(k, s) for k, s in enumerate(self.samples) if s is not None]
         self._links = np.array([k for k, _ in parts], dtype=np.int64)
+        self._surface = {k for k, _ in parts}
         self._bare = [k for k, s in enumerate(self.samples) if s is None]
-        empty = np.zeros((0, 3))
-        self._points = np.concatenate([s.points for _, s in parts]) if parts else empty
-        self._normals = np.concatenate([s.normals for _, s in parts]) if parts else empty
-        self._tangents = [np.concatenate([s.tangents[i] for _, s in parts]) if parts
-                          else empty for i in (0, 1)]
-        rays = np.concatenate([s.rays for _, s in parts], axis=1) if parts else \
-            np.zeros((3, 0, CONE_RAYS + 1))
-        self._set = PointSet(self._points, self._normals, rays,
-                             np.cumsum([0, *(len(s.points) for _, s in parts)]),
-                             float(np.cos(np.radians(config.cone_deg))) ** 2)
-        self._grid_halves = [config.spacing_m / 3.0 ** i for i in range(GRID_PASSES)]
+        self._counts = np.array([len(s.points) for _, s in parts], dtype=np.int64)
+        # every link's samples padded to the longest with copies of its first sample,
+        # whose errors are set to inf (never a link's best)
+        width = int(self._counts.max()) if parts else 0
+        self._pad = np.arange(width)[None, :] >= self._counts[:, None]    # (L, n)
+        fill = [np.minimum(np.arange(width), np.where(np.arange(width) < len(s.points),
+                                                      width, 0)) for _, s in parts]
 
-    def estimate(self, t: float, q: np.ndarray, r: np.ndarray) -> ContactEstimate:
+        def padded(get: Callable[[SurfaceSamples], np.ndarray]) -> np.ndarray:
+            return np.stack([get(s)[f] for (_, s), f in zip(parts, fill, strict=True)]) \
+                if parts else np.zeros((0, 0, 3))
+
+        self._points = padded(lambda s: s.points)                          # (L, n, 3)
+        self._normals = padded(lambda s: s.normals).transpose(2, 0, 1).copy()  # (3, L, n)
+        self._monomials = _monomials(self._points)                         # (L, 10, n)
+        # each sample's first refinement grid p + s u + t v, |s|, |t| <= its half-width
+        half = GRIDS[0][1] * config.spacing_m
+        self._lifted = _lift(np.stack([self._points, padded(lambda s: s.tangents[0]) * half,
+                                       padded(lambda s: s.tangents[1]) * half],
+                                      axis=-1))                            # (L, n, 10, 6)
+        half = np.radians(config.cone_deg)
+        self._cone = (float(np.cos(half)), float(np.sin(half)))
+        self._grids = [_grid_monomials(side) for side, _ in GRIDS]
+
+    def estimate(self, t: float, q: np.ndarray, r: np.ndarray,
+                 threshold: np.ndarray | None = None) -> ContactEstimate:
         """Return the estimate for joint positions ``q`` [rad] (7,) and residual ``r``
-        [Nm] (7,) (relative to the contact-free baseline) at time ``t`` [s]."""
+        [Nm] (7,) (relative to the contact-free baseline) at time ``t`` [s], with the
+        contact detector's threshold (7,) [Nm] at that sample (it grows with the
+        motion that the model gets wrong; default: the detector's floor at rest)."""
         r = np.asarray(r, dtype=float)
         norm = float(np.linalg.norm(r))
         if norm < self.config.min_residual_nm:
             return ContactEstimate(t, TOO_SMALL, residual_nm=norm)
-        model, data, rr = self.model, self.data, norm * norm
+        model, data = self.model, self.data
         pin.computeJointJacobians(model, data, np.asarray(q, dtype=float))
         pin.updateFramePlacements(model, data)
         jac = np.stack([pin.getFrameJacobian(model, data, fid, pin.LOCAL)
-                        for fid in self.frames])                   # link frames
-        jv, jw = jac[:, :3], jac[:, 3:]
+                        for fid in self.frames])                   # (7, 6, 7) link frames
+        # each joint's torque in units of its noise (so are all errors below): the
+        # residual's noise at rest and a share of the detector's threshold (model error)
+        share = self.config.threshold_share * (MIN_NOISE if threshold is None
+                                               else np.asarray(threshold, dtype=float))
+        weights = 1.0 / np.sqrt(self._noise2 + share * share)
+        weighted, rw = jac * weights, r * weights
+        rr = float(rw @ rw)
         errors = np.full(N_JOINTS, np.inf)
+        wrenches = {}
         for k in self._bare:
-            errors[k] = _wrench_error(np.vstack([jv[k], jw[k]]), r, rr)
-        terms = (jv @ r, jw @ r, _gram_coefficients(jv, jw))
-        links = self._links
-        err, force = _fit(*(x[links] for x in terms), rr, self._set)
-        if len(err):
-            errors[links] = np.minimum.reduceat(err, self._set.starts[:-1])
-        fits = self._refine(terms, rr, err, force, errors)
-        last = int(np.argmin(errors))
-        allowance = self.config.tie_nm ** 2 * (last - np.arange(N_JOINTS))
-        squared = errors * errors
-        link = int(np.flatnonzero(squared <= squared[last] + allowance)[0]) + 1
-        others = np.delete(errors, link - 1)
-        other = int(np.argmin(others))
-        e_link, e_other = float(errors[link - 1]), float(others[other])
-        noise = self.config.noise_nm
-        confidence = float(np.clip(1.0 - (e_link + noise) / (e_other + noise), 0.0, 1.0)) \
-            if np.isfinite(e_other) else 1.0
-        common = dict(link=link, error_nm=e_link, residual_nm=norm,
-                      runner_up=other + 1 + (other + 1 >= link) if np.isfinite(e_other)
-                      else None, runner_up_error_nm=e_other, confidence=confidence,
-                      ambiguous=confidence < self.config.ambiguous_below)
-        if link - 1 not in fits:
+            errors[k], wrenches[k] = _wrench_fit(weighted[k], rw)
+        coeffs = _coefficients(weighted, rw)                       # (7, 9, 10)
+        # a link's error is at least the residual on the joints after it: links whose
+        # bound leaves them no chance are not searched unless the decision needs them
+        bound = np.sqrt(np.maximum(rr - np.cumsum(rw * rw), 0.0))
+        errors[self._links] = bound[self._links]
+        tie = self.config.tie
+        limit = PRUNE_SHARE * rr + tie * tie * N_JOINTS
+        reach = [k not in self._surface or b * b <= limit for k, b in enumerate(bound.tolist())]
+        rows = np.flatnonzero(np.array(reach)[self._links])
+        errors, fits, middle = self._search(rows, coeffs, rr, errors.copy())
+        last, link, other = _decide(errors.tolist(), tie)
+        if not (reach[last] and reach[link] and reach[other]):
+            rows = np.arange(len(self._links))
+            errors, fits, middle = self._search(rows, coeffs, rr, errors)
+            last, link, other = _decide(errors.tolist(), tie)
+        e_link, e_other = float(errors[link]), float(errors[other])
+        rival = np.isfinite(e_other)
+        # the errors are in noise units: 1 is the noise floor
+        confidence = min(max(1.0 - (e_link + 1.0) / (e_other + 1.0), 0.0), 1.0) \
+            if rival else 1.0
+        rival_error = _torque_error(jac[other], r, fits.get(other), wrenches.get(other))
+        common = dict(link=link + 1, residual_nm=norm,
+                      error_nm=_torque_error(jac[link], r, fits.get(link), wrenches.get(link)),
+                      runner_up=other + 1 if rival else None,
+                      runner_up_error_nm=rival_error if rival else float("nan"),
+                      confidence=confidence, ambiguous=confidence < self.config.ambiguous_below)
+        if link in fits and link + 1 < MIN_DETERMINED:
+            # the point is undetermined: report the middle one (the error is the best's)
+            fits[link] = self._middle(link, *middle)
+        if link not in fits:
             return ContactEstimate(t, NO_SURFACE, **common)
-        point, force = fits[link - 1]
-        placement = data.oMf[self.frames[link - 1]]
+        point, force = fits[link]
+        placement = data.oMf[self.frames[link]]
         return ContactEstimate(t, OK, point_link=point,
                                point_base=placement.rotation @ point + placement.translation,
                                force=placement.rotation @ force, **common)
 
-    def _refine(self, terms: tuple[np.ndarray, np.ndarray, np.ndarray], rr: float,
-                err: np.ndarray, force: np.ndarray, errors: np.ndarray
-                ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-        """Refine the best links' points (see the module docstring, step 3) from the
-        samples' errors ``err`` [Nm] and forces [N]; ``terms`` are every link's inputs
-        to :func:`_fit`. Update ``errors`` [Nm] (per link) in place and return link
-        index -> (point [m], force [N]) in the link frame, for the refined links."""
-        tie = self.config.tie_nm
-        reach = [int(k) for k in np.argsort(errors)[:REFINE_LINKS]
-                 if np.isfinite(errors[k]) and self.samples[k] is not None]
-        if not reach:
-            return {}
-        owner, idx, middle = [], [], {}
-        for k in reach:
-            i = int(np.searchsorted(self._links, k))
-            s0, s1 = self._set.starts[i], self._set.starts[i + 1]
-            idx.append(s0 + int(np.argmin(err[s0:s1])))
-            owner.append(k)
-            if k + 1 < MIN_DETERMINED:
-                close = s0 + np.flatnonzero(err[s0:s1] <= errors[k] + tie)
-                offset = self._points[close] - self._points[close].mean(axis=0)
-                centre = close[int(np.argmin(np.einsum("ni,ni->n", offset, offset)))]
-                middle[k] = (self._points[centre].copy(), force[centre].copy())
-        idx = np.array(idx)
-        points, chosen, fit_err = self._points[idx], force[idx], err[idx]
-        for half in self._grid_halves:
-            grid = self._local_set(idx, points, half)
-            local_err, local_force = _fit(*(x[owner] for x in terms), rr, grid)
-            at = grid.starts[:-1] + np.argmin(local_err.reshape(-1, GRID_POINTS), axis=1)
-            better = local_err[at] < fit_err
-            fit_err = np.where(better, local_err[at], fit_err)
-            points = np.where(better[:, None], grid.points[at], points)
-            chosen = np.where(better[:, None], local_force[at], chosen)
-        fits = {}
-        for m, k in enumerate(owner):
-            errors[k] = float(fit_err[m])
-            # with fewer than 5 loaded joints the point is undetermined: keep the middle
-            fits[k] = middle.get(k, (points[m].copy(), chosen[m].copy()))
-        return fits
+    def _search(self, rows: np.ndarray, coeffs: np.ndarray, rr: float, errors: np.ndarray
+                ) -> tuple[np.ndarray, dict[int, tuple[np.ndarray, np.ndarray]], tuple]:
+        """Search the samples of the surface links ``rows`` (indices into the links with
+        a surface) and refine the best ones; ``coeffs`` (7, 9, 10) are every link's fit
+        coefficients, ``errors`` [Nm] (7,) the links' errors so far (updated in place).
+        Return the errors, link index -> refined (point [m], force [N]) in the link
+        frame, and what :meth:`_middle` needs: the rows, their samples' squared errors
+        [Nm^2] (rows, n), forces [N] (3 of (rows, n)) and best samples (rows,)."""
+        every = len(rows) == len(self._links)
+        monomials, normals, pad = ((self._monomials, self._normals, self._pad) if every else
+                                   (self._monomials[rows], self._normals[:, rows],
+                                    self._pad[rows]))
+        fitted = np.empty((9, len(rows), monomials.shape[2]))
+        np.matmul(coeffs[self._links[rows]], monomials, out=fitted.transpose(1, 0, 2))
+        err, forces = _coarse_fit(fitted, rr, normals, self._cone[0] ** 2)
+        np.copyto(err, np.inf, where=pad)
+        best = np.argmin(err, axis=1)
+        errors[self._links[rows]] = np.sqrt(np.maximum(err[np.arange(len(rows)), best], 0.0))
+        return errors, self._refine(rows, coeffs, rr, best, errors), (rows, err, forces, best)
 
-    def _local_set(self, idx: np.ndarray, points: np.ndarray, half: float) -> PointSet:
-        """Return a ``GRID_SIDE`` x ``GRID_SIDE`` grid of points of half-width ``half``
-        [m] in the face plane of each sample ``idx``, around ``points`` (m, 3)."""
-        u, v = self._tangents[0][idx], self._tangents[1][idx]
-        grid = (points[:, None] + _GRID[None, :, :1] * half * u[:, None]
-                + _GRID[None, :, 1:] * half * v[:, None]).reshape(-1, 3)
-        rows = np.repeat(idx, GRID_POINTS)
-        return PointSet(grid, self._normals[rows], self._set.rays[:, rows],
-                        np.arange(0, len(grid) + 1, GRID_POINTS), self._set.cone_cos2,
-                        self._set.ray_products[:, rows])
+    def _refine(self, searched: np.ndarray, coeffs: np.ndarray, rr: float, best: np.ndarray,
+                errors: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Refine the best links' points (see the module docstring, step 3) from the best
+        sample ``best`` of each searched row ``searched``; ``coeffs`` (7, 9, 10) are
+        every link's fit coefficients. Update ``errors`` [Nm] (per link) in place and
+        return link index -> (point [m], force [N]) in the link frame, for the refined
+        links."""
+        links = self._links[searched]
+        order = np.argsort(errors[links])[:REFINE_LINKS]
+        reach = links[order]
+        rows, at = searched[order], best[order]
+        # the grids' points are p0 + s u + t v with (s, t) in units of the first grid's
+        # half-width: their monomials are those of (s, t) times a matrix precomputed
+        # per sample; each further grid is centred on the previous one's best point
+        lifted = self._lifted[rows, at]
+        fit_coeffs = coeffs[reach] @ lifted                               # (m, 9, 6)
+        normals = self._normals[:, rows, at][:, :, None]
+        m = np.arange(len(reach))
+        centre = np.zeros((len(reach), 2, 1))
+        for i, ((_, half), grid) in enumerate(zip(GRIDS, self._grids, strict=True)):
+            plane = grid[1:3] * (half / GRIDS[0][1])                      # (2, n)
+            if i:
+                plane = centre + plane                                    # (m, 2, n)
+                s_, t_ = plane[:, 0], plane[:, 1]
+                grid = np.stack([np.ones_like(s_), s_, t_, s_ * s_, t_ * t_, s_ * t_], axis=1)
+            fitted = np.empty((9, len(reach), grid.shape[-1]))
+            np.matmul(fit_coeffs, grid, out=fitted.transpose(1, 0, 2))
+            local_err, local_force = _fit(fitted, rr, normals, self._cone)
+            local_best = np.argmin(local_err, axis=1)
+            centre = (plane[:, local_best].T if plane.ndim == 2
+                      else plane[m, :, local_best])[:, :, None]
+        points = lifted[:, 1:4, 0] + np.einsum("mia,ma->mi", lifted[:, 1:4, 1:3], centre[:, :, 0])
+        errors[reach] = local_err[m, local_best]
+        forces = local_force[:, m, local_best].T
+        return {k: (points[i], forces[i]) for i, k in enumerate(reach.tolist())}
+
+    def _middle(self, k: int, rows: np.ndarray, err: np.ndarray,
+                forces: tuple[np.ndarray, ...], best: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """Return the point [m] and force [N] (link frame) reported on link index ``k``
+        (fewer than 5 loaded joints: the point is undetermined): the sample nearest
+        the middle of the link's samples whose coarse error [Nm] (from the squared
+        errors ``err`` [Nm^2] of the searched ``rows``) is within ``tie_nm`` of its
+        best, with its coarse ``forces``."""
+        row = int(np.searchsorted(self._links, k))
+        at = rows.tolist().index(row)
+        coarse = err[at, :self._counts[row]]
+        reach = (np.sqrt(max(float(coarse[best[at]]), 0.0)) + self.config.tie) ** 2
+        close = np.flatnonzero(coarse <= reach)
+        points = self._points[row, close]
+        offset = points - points.sum(axis=0) / len(close)
+        mid = close[int(np.argmin((offset * offset).sum(axis=1)))]
+        return self._points[row, mid].copy(), np.array([f[at, mid] for f in forces])
 
 
-_UNIT_SKEW = np.array([[[0, 0, 0], [0, 0, -1], [0, 1, 0]],
-                       [[0, 0, 1], [0, 0, 0], [-1, 0, 0]],
-                       [[0, -1, 0], [1, 0, 0], [0, 0, 0]]], dtype=float)
-"""S(e_i) for the unit vectors: S(p) = sum_i p_i S(e_i), S(p) F = p x F."""
-_PAIRS = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
-_GRID = np.stack(np.meshgrid(*[np.linspace(-1.0, 1.0, GRID_SIDE)] * 2, indexing="ij"),
-                 axis=-1).reshape(-1, 2)
-"""Offsets of a refinement grid in units of its half-width, (GRID_POINTS, 2)."""
-_ROWS, _COLS = (np.array(x) for x in zip(*_PAIRS, strict=True))
+def _grid_monomials(side: int) -> np.ndarray:
+    """Return the monomials 1, s, t, ss, tt, st (6, side^2) of a square grid of
+    ``side`` x ``side`` offsets (s, t) in [-1, 1]^2."""
+    s, t = (x.ravel() for x in np.meshgrid(*[np.linspace(-1.0, 1.0, side)] * 2,
+                                            indexing="ij"))
+    return np.stack([np.ones_like(s), s, t, s * s, t * t, s * t])
+
+
+def _lift(axes: np.ndarray) -> np.ndarray:
+    """Return (..., 10, 6) matrices taking the monomials 1, s, t, ss, tt, st of plane
+    coordinates to the monomials (see :func:`_monomials`) of the points p + s u + t v,
+    for ``axes`` (..., 3, 3) with columns p, u, v [m]."""
+    square = np.einsum("...ac,...bd->...abcd", axes, axes)[..., _PAIRS_A, _PAIRS_B, :, :]
+    lifted = np.zeros((*axes.shape[:-2], 10, 6))
+    lifted[..., 0, 0] = 1.0
+    lifted[..., 1:4, :3] = axes
+    lifted[..., 4:, :] = square.reshape(*axes.shape[:-2], 6, 9) @ _GRID_PRODUCTS
+    return lifted
 
 
 def _monomials(points: np.ndarray) -> np.ndarray:
-    """Return (n, 10) monomials of the points: 1, x, y, z, xx, yy, zz, xy, xz, yz."""
-    x, y, z = points.T
-    return np.column_stack([np.ones(len(points)), x, y, z, x * x, y * y, z * z,
-                            x * y, x * z, y * z])
+    """Return the monomials 1, x, y, z, xx, yy, zz, xy, xz, yz of points (..., n, 3) as
+    (..., 10, n)."""
+    x, y, z = points[..., 0], points[..., 1], points[..., 2]
+    return np.stack([np.ones_like(x), x, y, z, x * x, y * y, z * z, x * y, x * z, y * z],
+                    axis=-2)
 
 
-def _gram_coefficients(jv: np.ndarray, jw: np.ndarray) -> np.ndarray:
-    """Return (m, 10, 6) coefficients for m links' Jacobian rows ``jv``, ``jw`` (m, 3,
-    7): a point p's Gram entries (xx yy zz xy xz yz) are ``_monomials(p) @`` them, for
-    G = P + Q S + (Q S)^T + S^T W S with P = Jv Jv^T, Q = Jv Jw^T, W = Jw Jw^T and
-    S = S(p)."""
-    pp = np.einsum("maj,mbj->mab", jv, jv)
-    qq = np.einsum("maj,mbj->mab", jv, jw)
-    ww = np.einsum("maj,mbj->mab", jw, jw)
-    lin = np.einsum("mab,ibc->miac", qq, _UNIT_SKEW)              # Q S(e_i)
-    lin = lin + lin.transpose(0, 1, 3, 2)
-    quad = np.einsum("miac,jcd->mijad", np.einsum("iba,mbc->miac", _UNIT_SKEW, ww),
-                     _UNIT_SKEW)                                   # S_i^T W S_j
-    coeffs = np.stack([pp, lin[:, 0], lin[:, 1], lin[:, 2], quad[:, 0, 0], quad[:, 1, 1],
-                       quad[:, 2, 2], quad[:, 0, 1] + quad[:, 1, 0],
-                       quad[:, 0, 2] + quad[:, 2, 0], quad[:, 1, 2] + quad[:, 2, 1]], axis=1)
-    return coeffs[:, :, _ROWS, _COLS]
+def _reference_coefficients(jj: np.ndarray, jr: np.ndarray) -> np.ndarray:
+    """Return one link's (9, 10) fit coefficients from J J^T (6, 6) and J r (6,), J =
+    [Jv; Jw] (6, 7) its Jacobian in its frame: row i, column m is the coefficient of
+    monomial m (see :func:`_monomials`) in b_i (rows 0-2; b = A^T r = a + c x p with
+    a = Jv r, c = Jw r) or in the Gram entry (rows 3-8; xx yy zz xy xz yz) of
+    G = P + Q S + (Q S)^T + S^T W S, P = Jv Jv^T, Q = Jv Jw^T, W = Jw Jw^T, S = S(p).
+    Linear in its inputs; evaluated on unit inputs once to build ``_COEFFICIENT_MAP``."""
+    p, qq, w = jj[:3, :3], jj[:3, 3:], jj[3:, 3:]
+    a, c = jr[:3], jr[3:]
+    terms = [p] + [qq @ s + (qq @ s).T for s in _UNIT_SKEW]
+    terms += [_UNIT_SKEW[i].T @ w @ _UNIT_SKEW[j] + (_UNIT_SKEW[j].T @ w @ _UNIT_SKEW[i]
+                                                      if i != j else 0.0)
+              for i, j in _PAIRS]
+    out = np.zeros((9, 10))
+    out[:3, 0] = a
+    for i in range(3):
+        out[:3, 1 + i] = -_UNIT_SKEW[i] @ c                       # c x e_i
+    for m, term in enumerate(terms):
+        out[3:, m] = [term[i, j] for i, j in _PAIRS]
+    return out
 
 
-def _wrench_error(jac: np.ndarray, r: np.ndarray, rr: float) -> float:
-    """Return the residual error [Nm] of the best wrench at a link frame (no point)."""
+def _coefficient_map() -> tuple[np.ndarray, np.ndarray]:
+    """Return the (42, 90) matrix taking [J J^T (36), J r (6)] to the (9, 10) fit
+    coefficients of :func:`_reference_coefficients`, flattened, with the ridge that
+    keeps the Gram matrix invertible folded in: ``RIDGE`` times its trace added to its
+    diagonal (linear, in the matrix) and ``TINY`` (the constant, (90,))."""
+    basis = np.eye(42)
+    linear = np.stack([_reference_coefficients(e[:36].reshape(6, 6), e[36:])
+                       for e in basis])                           # (42, 9, 10)
+    linear[:, 3:6] += RIDGE * linear[:, 3:6].sum(axis=1, keepdims=True)
+    constant = np.zeros((9, 10))
+    constant[3:6, 0] = TINY
+    return linear.reshape(42, 90), constant.ravel()
+
+
+_COEFFICIENT_MAP, _COEFFICIENT_CONSTANT = _coefficient_map()
+
+
+def _coefficients(jac: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Return every link's (9, 10) fit coefficients (see :func:`_coefficient_map`)
+    from the links' Jacobians ``jac`` (m, 6, 7, link frames) and the residual ``r``
+    [Nm] (7,), as (m, 9, 10)."""
+    jj = jac @ jac.transpose(0, 2, 1)
+    inputs = np.concatenate([jj.reshape(len(jac), 36), jac @ r], axis=1)
+    return (inputs @ _COEFFICIENT_MAP + _COEFFICIENT_CONSTANT).reshape(len(jac), 9, 10)
+
+
+def _torque_error(jac: np.ndarray, r: np.ndarray, fit: tuple[np.ndarray, np.ndarray] | None,
+                  wrench: np.ndarray | None) -> float:
+    """Return the residual error [Nm] |r - J^T w| of a link's fit, from its Jacobian
+    ``jac`` (6, 7, link frame), the residual ``r`` [Nm] and its (point [m], force [N])
+    ``fit`` or else its ``wrench`` [N, Nm]; NaN with neither."""
+    if fit is not None:
+        (px, py, pz), (fx, fy, fz) = fit[0].tolist(), fit[1].tolist()
+        wrench = np.array([fx, fy, fz, py * fz - pz * fy, pz * fx - px * fz, px * fy - py * fx])
+    if wrench is None:
+        return float("nan")
+    return float(np.linalg.norm(r - jac.T @ wrench))
+
+
+def _wrench_fit(jac: np.ndarray, r: np.ndarray) -> tuple[float, np.ndarray]:
+    """Return the residual error of the best wrench at a link frame (no point) and the
+    wrench [N, Nm] for a link's (weighted) Jacobian ``jac`` (6, 7) and residual ``r``
+    (7,), in the residual's units."""
     w, *_ = np.linalg.lstsq(jac.T, r, rcond=None)
-    return float(np.sqrt(max(rr - float(r @ (jac.T @ w)), 0.0)))
+    return float(np.linalg.norm(r - jac.T @ w)), w
 
 
 DEFAULT_TRACK_HZ = 50.0
@@ -484,27 +624,31 @@ class EventTrack:
         self.track: list[ContactEstimate] = []
         self.peak: ContactEstimate | None = None
         self._peak_norm = -1.0
-        self._pending: tuple[float, np.ndarray, np.ndarray] | None = None
+        self._pending: tuple[float, np.ndarray, np.ndarray, np.ndarray | None] | None = None
 
-    def update(self, t: float, q: np.ndarray, e: np.ndarray) -> None:
+    def update(self, t: float, q: np.ndarray, e: np.ndarray,
+               threshold: np.ndarray | None = None) -> None:
         """Feed one sample of the event: time [s], q [rad] (7,), deviation of the
-        residual from its contact-free baseline e [Nm] (7,)."""
+        residual from its contact-free baseline e [Nm] (7,) and the detector's
+        threshold [Nm] (7,) (see :meth:`ContactIsolator.estimate`)."""
         norm = float(np.linalg.norm(e))
         if norm > self._peak_norm:
             self._peak_norm = norm
-            self._pending = (t, np.array(q, dtype=float), np.array(e, dtype=float))
+            self._pending = (t, np.array(q, dtype=float), np.array(e, dtype=float),
+                             None if threshold is None else np.array(threshold, dtype=float))
         if t >= self.next_s - 1e-12:
-            self.track.append(self.isolator.estimate(t, q, e))
+            self.track.append(self.isolator.estimate(t, q, e, threshold))
             while self.next_s <= t + 1e-12:
                 self.next_s += self.period
             self._settle_peak()
 
-    def at(self, t: float, q: np.ndarray, e: np.ndarray) -> ContactEstimate:
-        """Return the estimate at this sample (time [s], q [rad], e [Nm]): the track's
-        when it has one for ``t``, else a new one."""
+    def at(self, t: float, q: np.ndarray, e: np.ndarray,
+           threshold: np.ndarray | None = None) -> ContactEstimate:
+        """Return the estimate at this sample (time [s], q [rad], e [Nm], threshold
+        [Nm]): the track's when it has one for ``t``, else a new one."""
         if self.track and self.track[-1].t_s == t:
             return self.track[-1]
-        return self.isolator.estimate(t, q, e)
+        return self.isolator.estimate(t, q, e, threshold)
 
     def finish(self) -> ContactEstimate | None:
         """Return the estimate at the peak of |e| so far (computing a pending one)."""
@@ -514,9 +658,8 @@ class EventTrack:
     def _settle_peak(self) -> None:
         if self._pending is None:
             return
-        t, q, e = self._pending
-        self._pending = None
-        self.peak = self.at(t, q, e)
+        self._pending, pending = None, self._pending
+        self.peak = self.at(*pending)
 
 
 @cache
