@@ -9,7 +9,10 @@ until the detector reports the release; then the event is complete. Without a
 detected contact the output is ``none``; between onset and decision it is
 ``undecided``; without an intent classifier a decided event is ``contact``. Event
 features far outside the classifier's training range give the label ``unknown``
-and set ``out_of_range``, instead of a confident class.
+and set ``out_of_range``, instead of a confident class. A gap in the stream (a step
+over :data:`contactkit.features.timing.RESTART_STEP_S`) restarts the detector; an
+event still open then is released (and, if undecided, decided) at the last sample
+before the gap, and no sample before a gap enters an event after it.
 
 Nothing looks ahead: every output at sample k uses samples up to k only, and the
 batch entry points (:func:`stream_events`) feed the same streaming object sample by
@@ -182,6 +185,7 @@ class EventPipeline:
         self._recent: deque[tuple[float, np.ndarray]] = deque()
         self._window: list[tuple[float, np.ndarray]] = []
         self._baseline = np.zeros(N_JOINTS)
+        self._last_q: np.ndarray | None = None
         self.current: ContactEvent | None = None
 
     def _decide(self, t: float) -> ContactEvent:
@@ -221,6 +225,11 @@ class EventPipeline:
         state = self.detector.update(t, r, dq)
         sample = (t, np.array(r, dtype=float))
         out = EventOutput(NONE, state.score, state.contact)
+        if state.cut:
+            self._cut(out)
+        if state.restarted:
+            self._recent.clear()
+        self._last_q = q
         if state.onset:
             self.current = out.started = ContactEvent(onset_s=t)
             self._baseline = self.detector.baseline.copy()
@@ -245,6 +254,23 @@ class EventPipeline:
             out.released, self.current = event, None
         return out
 
+    def _cut(self, out: EventOutput) -> None:
+        """Release the current event at the last sample before a gap (deciding it there
+        if it is undecided), as the detector's release at that sample would have."""
+        event = self.current
+        t, r = self._recent[-1]
+        decide_now = event.decision_s is None
+        if decide_now:
+            out.decided = self._decide(t)
+        if self._track is not None and self._last_q is not None:
+            e = r - self._baseline
+            if decide_now:
+                event.contact_at_decision = self._track.at(t, self._last_q, e)
+            event.contact_at_peak = self._track.finish()
+        event.release_s = t
+        self.events.append(event)
+        out.released, self.current = event, None
+
     def finish(self) -> list[ContactEvent]:
         """Return every event, including one still open at the end of the stream (its
         estimate at the peak so far)."""
@@ -263,11 +289,14 @@ def batch_events(t: np.ndarray, r: np.ndarray, detection: Detection,
     estimates."""
     pipeline = EventPipeline(None, model, decide_after_s, isolator)
     events = []
+    restarts = np.asarray(detection.restarts, dtype=np.int64)
     for onset, release in detection.intervals:
         last = len(t) - 1 if release is None else release
         stop = int(np.searchsorted(t, t[onset] + pipeline.decide_after_s - 1e-12))
         decision = min(stop, last)
-        start = int(np.searchsorted(t, t[onset] - PRE_S))
+        since = restarts[restarts <= onset]  # no sample before a gap enters the window
+        start = max(int(np.searchsorted(t, t[onset] - PRE_S)),
+                    int(since[-1]) if since.size else 0)
         pipeline.current = ContactEvent(onset_s=float(t[onset]))
         pipeline._baseline = detection.baseline[onset]
         pipeline._window = list(zip(t[start:decision + 1], r[start:decision + 1], strict=True))

@@ -33,6 +33,12 @@ release are stamped with the sample at which the detector *decides*, so they are
 what an online consumer sees. The first ``warmup_s`` of a stream only sets the
 baseline (the observer starts at r = 0).
 
+After a gap, a step longer than :data:`contactkit.features.timing.RESTART_STEP_S`
+(0.1 s), the detector restarts as at the start of a stream (the chain's observer
+restarts there too, at r = 0): baseline, filters and motion measures are forgotten and
+the warm-up runs again. A contact still on before the gap ends at the last sample
+before it (``cut``: known only at the sample after the gap), so no contact spans a gap.
+
 The coefficients noise/speed/accel are calibrated per robot from no-contact data
 (:func:`calibrate`): per joint, the smallest linear envelope over (1, s, a) that
 covers every calibration sample, times a margin. :class:`Detector` is the
@@ -50,6 +56,7 @@ from pathlib import Path
 import numpy as np
 
 from contactkit.errors import InputError
+from contactkit.features.timing import RESTART_STEP_S
 from contactkit.robots import RobotSpec
 from contactkit.util.atomic import write_text
 
@@ -173,7 +180,8 @@ class DetectorState:
     """What the detector reports for one sample: ``contact`` (bool), ``score`` (max of
     |e|/threshold), ``onset`` / ``release`` (True at the sample where a contact is
     confirmed / ends), ``e`` (7,) deviation from the baseline [Nm] and
-    ``threshold`` (7,) [Nm]."""
+    ``threshold`` (7,) [Nm]; ``restarted`` at the first sample after a gap, and ``cut``
+    when that gap closed a contact: it ended at the sample before this one."""
 
     contact: bool
     score: float
@@ -181,6 +189,8 @@ class DetectorState:
     release: bool
     e: np.ndarray
     threshold: np.ndarray
+    restarted: bool = False
+    cut: bool = False
 
 
 class Detector:
@@ -227,8 +237,13 @@ class Detector:
         return self.speed, self.accel
 
     def update(self, t: float, r: np.ndarray, dq: np.ndarray) -> DetectorState:
-        """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,)."""
+        """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,).
+        After a gap (a step over ``RESTART_STEP_S``) the detector restarts first."""
         cfg = self.config
+        restarted = cut = False
+        if self.t is not None and t - self.t > RESTART_STEP_S:
+            restarted, cut = True, self.contact
+            self.reset()
         s, a = self.motion(t, dq)
         first = self.t is None
         h = 0.0 if first else t - self.t
@@ -243,7 +258,8 @@ class Detector:
             self.r_f = self.r_f + h / (cfg.smooth_s + h) * (r - self.r_f)
         if t - self.t0 < cfg.warmup_s:
             self.baseline = self.r_f.copy()
-            return DetectorState(False, 0.0, False, False, np.zeros(N_JOINTS), threshold)
+            return DetectorState(False, 0.0, False, False, np.zeros(N_JOINTS), threshold,
+                                 restarted, cut)
         e = self.r_f - self.baseline
         ratio = np.abs(e) / threshold
         score = float(ratio.max())
@@ -266,15 +282,17 @@ class Detector:
                 self.baseline[others] = self.r_f[others]
         else:
             self._since = None
-        return DetectorState(self.contact, score, onset, release, e, threshold)
+        return DetectorState(self.contact, score, onset, release, e, threshold, restarted,
+                             cut)
 
 
 @dataclass
 class Detection:
     """Batch detector output: per-sample ``contact`` (N,) bool, ``score`` (N,),
     ``e``, ``threshold`` and ``baseline`` (N, 7) [Nm], ``speed`` [rad/s] and
-    ``accel`` [rad/s^2] (N,), and the contact intervals as sample indices
-    (onset, release or None)."""
+    ``accel`` [rad/s^2] (N,), the contact intervals as sample indices
+    (onset, release or None; a contact cut by a gap is released at the last sample
+    before it) and the samples at which the detector restarted after a gap."""
 
     contact: np.ndarray
     score: np.ndarray
@@ -284,6 +302,7 @@ class Detection:
     speed: np.ndarray
     accel: np.ndarray
     intervals: list[tuple[int, int | None]]
+    restarts: list[int] = field(default_factory=list)
 
 
 def detect(t: np.ndarray, r: np.ndarray, dq: np.ndarray,
@@ -297,6 +316,10 @@ def detect(t: np.ndarray, r: np.ndarray, dq: np.ndarray,
                     [])
     for k in range(n):
         state = detector.update(float(t[k]), r[k], dq[k])
+        if state.restarted:
+            out.restarts.append(k)
+        if state.cut:
+            out.intervals[-1] = (out.intervals[-1][0], k - 1)
         out.contact[k], out.score[k] = state.contact, state.score
         out.e[k], out.threshold[k] = state.e, state.threshold
         out.baseline[k] = detector.baseline

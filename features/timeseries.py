@@ -36,10 +36,17 @@ w = (J J^T + lambda^2 I)^-1 J r with lambda = 0.01, J the 6x7 Jacobian of the en
 effector (hand TCP, or flange without hand) or of a chosen link, world-aligned.
 Damping keeps it finite at singular poses; away from them it changes w by well
 under 1 %.
+
+After a gap, a step longer than :data:`contactkit.features.timing.RESTART_STEP_S`
+(0.1 s), the chain restarts as at the start of a session: the observer's momentum
+estimate is set to the measured momentum again (r = 0 at the first sample after the
+gap) and ddq is 0 there. The rule needs only the step itself, so a session at once,
+chunk by chunk and sample by sample restart at the same samples.
 """
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -56,6 +63,7 @@ from contactkit.features.observer import (
     observer_coefficients,
     solve_recurrence,
 )
+from contactkit.features.timing import restarts
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
 from contactkit.schemas.session import SampleBatch, SessionMeta
@@ -224,6 +232,7 @@ class TimeseriesChain:
         (None: these are the first samples), and the state after them."""
         model, data = self.model.model, self.model.data
         n = len(t)
+        gaps = restarts(t, None if before is None else before.t)
         zeros = np.zeros_like(q)
         out: dict[str, np.ndarray] = {"q": q, "dq": dq, "tau": tau}
         need_wrench = not _WRENCH.isdisjoint(names)
@@ -236,6 +245,7 @@ class TimeseriesChain:
             ddq[1:] = (dq[1:] - dq[:-1]) / (t[1:] - t[:-1])[:, None]
             if before is not None:
                 ddq[0] = (dq[0] - before.dq) / (t[0] - before.t)
+            ddq[gaps] = 0.0
         if "tau_inv" in names:
             out["tau_inv"] = self._rnea(q, dq, out["ddq"])
         if "p_int" in names:
@@ -253,9 +263,7 @@ class TimeseriesChain:
             u = tau + np.einsum("kji,kj->ki", coriolis, dq) - g
             if self._friction is not None:
                 u -= self._friction.torque(dq)
-            r = solve_recurrence(*observer_coefficients(
-                t, p, u, self._gain, None if before is None else (before.t, before.p)),
-                None if before is None else before.r)
+            r = self._residual(t, p, u, gaps, before)
             out["r"] = r
             out["p_ext"] = r * dq
             if need_wrench:
@@ -265,6 +273,25 @@ class TimeseriesChain:
         after = ChainState(float(t[-1]), dq[-1].copy(), None if p is None else p[-1].copy(),
                            None if r is None else r[-1].copy())
         return {name: out[name] for name in names}, after
+
+
+    def _residual(self, t: np.ndarray, p: np.ndarray, u: np.ndarray, gaps: np.ndarray,
+                  before: ChainState | None) -> np.ndarray:
+        """Return the observer residual r [Nm] (n, 7) of samples with times ``t`` [s],
+        momenta ``p`` [Nm s] and ``u`` [Nm] (n, 7) that follow ``before``, restarted (r =
+        0) at the samples ``gaps`` that follow a gap."""
+        r = np.empty_like(p)
+        edges = [0, *gaps.tolist(), len(t)]
+        for start, stop in itertools.pairwise(edges):
+            if stop <= start:
+                continue
+            carried = before if start == 0 and not (gaps.size and gaps[0] == 0) else None
+            piece = slice(start, stop)
+            r[piece] = solve_recurrence(*observer_coefficients(
+                t[piece], p[piece], u[piece], self._gain,
+                None if carried is None else (carried.t, carried.p)),
+                None if carried is None else carried.r)
+        return r
 
 
 def _wrench_features(wrench: np.ndarray) -> dict[str, np.ndarray]:

@@ -16,7 +16,10 @@ release), which needs no planned interaction time, and gates the per-hop output:
 without a detected contact a hop's label is ``none`` (probability 1), whatever the
 window classifier says (its own probabilities stay in ``pred_window_proba``), because
 the window classifier was trained on contacts at a planned time and calls fast free
-motion a contact. For a session with a planned time the engine also gives the offline
+motion a contact. After a gap (a step over
+:data:`contactkit.features.timing.RESTART_STEP_S`) the chain and the detector restart,
+an open event ends before the gap, and the hops start again one window after it, as at
+the start of the session. For a session with a planned time the engine also gives the offline
 answer: the window found by the thesis method and the model's label for it, from the
 features it streamed (:class:`contactkit.features.window_stream.WindowCollector`) and
 through the same predictor as every hop (see :meth:`ReplayStream.offline`).
@@ -43,6 +46,7 @@ from contactkit.features.agreement import ResidualAgreement
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.isolation import robot_isolator
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
+from contactkit.features.timing import restarts
 from contactkit.features.window_stream import WindowCollector
 from contactkit.features.windows import Window
 from contactkit.replay.hop import DEFAULT_HOP_S
@@ -224,7 +228,7 @@ class ReplayStream:
                                 list(dict.fromkeys([*self.names, "r", "f", "m", "fm_norm",
                                                     self.window_spec.signal])))
         history_t, history_v = np.zeros(0), np.zeros((0, len(self.channels)))
-        next_hop = None
+        next_hop = last_t = None
         start = 0
         planned = self.meta.planned_at_s
         for batch in self._batches():
@@ -235,6 +239,8 @@ class ReplayStream:
                 steps = np.diff(t)
                 self.rate_hz = 1.0 / float(np.median(steps)) if steps.size else None
                 self.event_samples[float(t[0])] = 0
+            gaps = set(restarts(t, last_t).tolist())
+            last_t = float(t[-1])
             if planned is not None and self.planned_sample is None and t[-1] >= planned:
                 self.planned_sample = start + int(np.searchsorted(t, planned))
             out = chain.feed(batch)
@@ -255,6 +261,8 @@ class ReplayStream:
                           out["fm_norm"], truth, contact, estimate, labels, scores)
             first, predictions = 0, []
             for k in range(n):
+                if k in gaps:  # a window after a gap starts after it
+                    next_hop = t[k] + self.window_s
                 if self.pipeline is not None:
                     labels[k], scores[k] = self._event_step(float(t[k]), out["r"][k], dq[k],
                                                             q[k], start + k)
@@ -280,10 +288,11 @@ class ReplayStream:
     def _event_step(self, t: float, r: np.ndarray, dq: np.ndarray, q: np.ndarray,
                     sample: int) -> tuple[str, float]:
         """Feed one sample to the event pipeline; return its label and detector score."""
-        before = self.pipeline.current
         state = self.pipeline.update(t, r, dq, q)
-        if (before is None and self.pipeline.current is not None) or state.decided \
-                or state.released:
+        cut = state.released is not None and state.released.release_s < t
+        if cut:  # by a gap: decided (if it was not) and released at the sample before it
+            self.event_samples[state.released.release_s] = sample - 1
+        if state.started is not None or (not cut and (state.decided or state.released)):
             self.event_samples[t] = sample
         event = self.pipeline.current or state.released
         if event is not None and event.contact_track and event.contact_track[-1].t_s == t:
