@@ -233,6 +233,8 @@ class TimeseriesChain:
         model, data = self.model.model, self.model.data
         n = len(t)
         gaps = restarts(t, None if before is None else before.t)
+        if gaps.size and gaps[0] == 0:  # a gap before the chunk: it starts a new stream
+            before, gaps = None, gaps[1:]
         zeros = np.zeros_like(q)
         out: dict[str, np.ndarray] = {"q": q, "dq": dq, "tau": tau}
         need_wrench = not _WRENCH.isdisjoint(names)
@@ -279,18 +281,16 @@ class TimeseriesChain:
                   before: ChainState | None) -> np.ndarray:
         """Return the observer residual r [Nm] (n, 7) of samples with times ``t`` [s],
         momenta ``p`` [Nm s] and ``u`` [Nm] (n, 7) that follow ``before``, restarted (r =
-        0) at the samples ``gaps`` that follow a gap."""
+        0) at the samples ``gaps`` (> 0) that follow a gap."""
+        if not gaps.size:
+            return solve_recurrence(*observer_coefficients(
+                t, p, u, self._gain, None if before is None else (before.t, before.p)),
+                None if before is None else before.r)
         r = np.empty_like(p)
-        edges = [0, *gaps.tolist(), len(t)]
-        for start, stop in itertools.pairwise(edges):
-            if stop <= start:
-                continue
-            carried = before if start == 0 and not (gaps.size and gaps[0] == 0) else None
+        for start, stop in itertools.pairwise([0, *gaps.tolist(), len(t)]):
             piece = slice(start, stop)
-            r[piece] = solve_recurrence(*observer_coefficients(
-                t[piece], p[piece], u[piece], self._gain,
-                None if carried is None else (carried.t, carried.p)),
-                None if carried is None else carried.r)
+            r[piece] = self._residual(t[piece], p[piece], u[piece], gaps[:0],
+                                      before if start == 0 else None)
         return r
 
 

@@ -53,8 +53,11 @@ def restarts(t: np.ndarray, t_before: float | None = None) -> np.ndarray:
     than :data:`RESTART_STEP_S` (from ``t_before``, the stamp before ``t[0]``, for the
     first; None: ``t[0]`` starts the stream and is no restart), in increasing order."""
     t = np.asarray(t, dtype=float)
-    steps = np.diff(t) if t_before is None else np.diff(t, prepend=t_before)
-    return np.flatnonzero(steps > RESTART_STEP_S) + (1 if t_before is None else 0)
+    first = t_before is not None and len(t) > 0 and t[0] - t_before > RESTART_STEP_S
+    if len(t) == 1:  # a live stream's sample: no array work
+        return np.zeros(int(first), dtype=np.intp)
+    found = np.flatnonzero(t[1:] - t[:-1] > RESTART_STEP_S) + 1
+    return np.concatenate(([0], found)) if first else found
 
 
 def sampling_stats(t: np.ndarray) -> SamplingStats:
