@@ -44,6 +44,7 @@ from contactkit.features.detector import (
     Detection,
     Detector,
     DetectorConfig,
+    DetectorState,
     detect,
 )
 from contactkit.features.isolation import (
@@ -165,6 +166,20 @@ class EventOutput:
     released: ContactEvent | None = None
 
 
+@dataclass
+class BlockEvents:
+    """The pipeline's answer for a chunk of samples (:meth:`EventPipeline.update_block`):
+    per sample the ``labels`` (n,), the detector ``score`` (n,) and ``contact`` (n,)
+    bool, and the :class:`EventOutput` of each sample of an event as (row, output) in
+    order (rows outside events are ``none`` with nothing started, decided or
+    released)."""
+
+    labels: np.ndarray
+    score: np.ndarray
+    contact: np.ndarray
+    steps: list[tuple[int, EventOutput]] = field(default_factory=list)
+
+
 class EventPipeline:
     """Streaming detect -> decide -> hold (see the module docstring)."""
 
@@ -223,7 +238,47 @@ class EventPipeline:
         """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,)
         and, for contact isolation, joint position q [rad] (7,)."""
         state = self.detector.update(t, r, dq)
-        sample = (t, np.array(r, dtype=float))
+        return self._step(t, np.array(r, dtype=float), q, state, self.detector.baseline)
+
+    def update_block(self, t: np.ndarray, r: np.ndarray, dq: np.ndarray,
+                     q: np.ndarray | None = None) -> BlockEvents:
+        """Feed a chunk of samples at once: times ``t`` (n,) [s], residual ``r`` [Nm],
+        joint velocity ``dq`` [rad/s] and, for contact isolation, joint position ``q``
+        [rad] (n, 7). The same as :meth:`update` sample by sample, with the detector run
+        vectorised over the chunk (:meth:`Detector.run`) and per-sample work only on
+        the samples of an event."""
+        n = len(t)
+        found = self.detector.run(t, r, dq)
+        out = BlockEvents(np.full(n, NONE, dtype=object), found.score, found.contact)
+        onsets = np.flatnonzero(found.onset)
+        restarted, cuts = set(found.restarts), set(found.cuts)
+        k, stepped, carried = 0, -1, list(self._recent)
+        while k < n:
+            if self.current is None:
+                later = onsets[onsets >= k]
+                if not later.size:
+                    break
+                k = int(later[0])
+            if stepped != k - 1:
+                self._recent = _recent_before(carried, t, r, k, found.restarts)
+            state = DetectorState(bool(found.contact[k]), float(found.score[k]),
+                                  bool(found.onset[k]), bool(found.release[k]), found.e[k],
+                                  found.threshold[k], k in restarted, k in cuts)
+            step = self._step(float(t[k]), np.array(r[k], dtype=float),
+                              None if q is None else q[k], state, found.baseline[k])
+            out.labels[k] = step.label
+            out.steps.append((k, step))
+            stepped, k = k, k + 1
+        if n and stepped != n - 1:
+            self._recent = _recent_before(carried, t, r, n, found.restarts)
+            self._last_q = None if q is None else q[-1]
+        return out
+
+    def _step(self, t: float, r: np.ndarray, q: np.ndarray | None, state: DetectorState,
+              baseline: np.ndarray) -> EventOutput:
+        """Advance the pipeline by one sample (time [s], residual [Nm], q [rad] or None)
+        given the detector's ``state`` there and its ``baseline`` [Nm] after it."""
+        sample = (t, r)
         out = EventOutput(NONE, state.score, state.contact)
         if state.cut:
             self._cut(out)
@@ -232,7 +287,7 @@ class EventPipeline:
         self._last_q = q
         if state.onset:
             self.current = out.started = ContactEvent(onset_s=t)
-            self._baseline = self.detector.baseline.copy()
+            self._baseline = baseline.copy()
             self._window = [s for s in self._recent if s[0] >= t - PRE_S]
             self._track = None if self.isolator is None else EventTrack(self.isolator, t)
         self._recent.append(sample)
@@ -277,6 +332,22 @@ class EventPipeline:
         if self.current is not None and self._track is not None:
             self.current.contact_at_peak = self._track.finish()
         return self.events + ([self.current] if self.current is not None else [])
+
+
+def _recent_before(carried: list[tuple[float, np.ndarray]], t: np.ndarray, r: np.ndarray,
+                   k: int, restarts: list[int]) -> deque[tuple[float, np.ndarray]]:
+    """Return the samples a stream holds in the pipeline's ``_recent`` before row ``k``
+    of a chunk (times ``t`` [s], residuals ``r`` [Nm]): those within ``PRE_S`` of row
+    k - 1 since the last restart, ``carried`` (what it held before the chunk) where they
+    reach into the chunk before."""
+    since = max([g for g in restarts if g < k], default=None)
+    last = float(t[k - 1]) if k else None
+    lo = 0 if last is None else int(np.searchsorted(t, last - PRE_S))
+    kept = deque() if since is not None else deque(
+        s for s in carried if last is None or s[0] >= last - PRE_S)
+    lo = lo if since is None else max(lo, since)
+    kept.extend((float(t[j]), np.array(r[j], dtype=float)) for j in range(lo, k))
+    return kept
 
 
 def batch_events(t: np.ndarray, r: np.ndarray, detection: Detection,
