@@ -63,7 +63,7 @@ from contactkit.features.observer import (
     observer_coefficients,
     solve_recurrence,
 )
-from contactkit.features.timing import restarts
+from contactkit.features.timing import RESTART_STEP_S, restarts
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
 from contactkit.schemas.session import SampleBatch, SessionMeta
@@ -206,13 +206,45 @@ class TimeseriesChain:
     def update(self, t: float, q: np.ndarray, dq: np.ndarray, tau: np.ndarray
                ) -> dict[str, np.ndarray]:
         """Feed one sample (``t`` [s]; ``q`` [rad], ``dq`` [rad/s], ``tau`` [Nm], each
-        (7,)), as a chunk of one; return the chain's features at it, name -> (k,)."""
-        out, self._state = self._chunk(np.array([t], dtype=float),
-                                       np.asarray(q, dtype=float).reshape(1, 7),
-                                       np.asarray(dq, dtype=float).reshape(1, 7),
-                                       np.asarray(tau, dtype=float).reshape(1, 7), self.names,
-                                       self._state)
-        return {name: values[0] for name, values in out.items()}
+        (7,)); return the chain's features at it, name -> (k,). The same formulas as a
+        chunk of one (to about 1e-15), on 7-vectors: a live robot's per-sample path."""
+        t = float(t)
+        q, dq, tau = (np.asarray(x, dtype=float).reshape(7) for x in (q, dq, tau))
+        before = self._state
+        if before is not None and t - before.t > RESTART_STEP_S:
+            before = None  # a gap: the chain restarts here
+        model, data, names = self.model.model, self.model.data, self.names
+        zeros = np.zeros(7)
+        out: dict[str, np.ndarray] = {"q": q, "dq": dq, "tau": tau}
+        need_wrench = not _WRENCH.isdisjoint(names)
+        need_r = need_wrench or not _RESIDUAL.isdisjoint(names)
+        g = pin.rnea(model, data, q, zeros, zeros) if need_r or "g" in names else None
+        out["g"] = g
+        if "ddq" in names or "tau_inv" in names:
+            out["ddq"] = zeros if before is None else (dq - before.dq) / (t - before.t)
+        if "tau_inv" in names:
+            out["tau_inv"] = pin.rnea(model, data, q, dq, out["ddq"])
+        if "p_int" in names:
+            out["p_int"] = dq * tau
+        p = r = None
+        if need_r:
+            p = pin.rnea(model, data, q, zeros, dq) - g
+            u = tau + pin.computeCoriolisMatrix(model, data, q, dq).T @ dq - g
+            if self._friction is not None:
+                u -= self._friction.torque(dq)
+            if before is None:
+                r = np.zeros(7)
+            else:
+                h = t - before.t
+                a = 1.0 / (1.0 + self._gain * h)
+                r = a * (before.r + self._gain * (p - before.p - h * u) * a / a)
+            out["r"], out["p_ext"] = r, r * dq
+            if need_wrench:
+                jac = pin.computeFrameJacobian(model, data, q, self._fid,
+                                               pin.LOCAL_WORLD_ALIGNED)
+                out.update(_wrench_features(np.linalg.solve(jac @ jac.T + _DAMPED, jac @ r)))
+        self._state = ChainState(t, dq.copy(), p, None if r is None else r.copy())
+        return {name: out[name] for name in names}
 
     def _rnea(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
         """Return pinocchio's inverse dynamics tau(q, v, a) [Nm] of each sample, (n, 7):
