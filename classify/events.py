@@ -9,11 +9,16 @@ until the detector reports the release; then the event is complete. Without a
 detected contact the output is ``none``; between onset and decision it is
 ``undecided``; without an intent classifier a decided event is ``contact``. Event
 features far outside the classifier's training range give the label ``unknown``
-and set ``out_of_range``, instead of a confident class.
+and set ``out_of_range``, instead of a confident class. A gap in the stream (a step
+over :data:`contactkit.features.timing.RESTART_STEP_S`) restarts the detector; an
+event still open then is released (and, if undecided, decided) at the last sample
+before the gap, and no sample before a gap enters an event after it.
 
 Nothing looks ahead: every output at sample k uses samples up to k only, and the
 batch entry points (:func:`stream_events`) feed the same streaming object sample by
-sample, so batch and streaming agree exactly.
+sample, so batch and streaming agree exactly. :meth:`EventPipeline.update_block`
+(replay) runs the detector vectorised over a chunk and steps only the samples of an
+event: the same labels and events (tests/test_block_paths.py).
 
 Event features (all from e = r - baseline, Nm, and seconds; none from dq, tau or
 q, which grow with motion and do not transfer from the simulator to a real robot):
@@ -41,6 +46,7 @@ from contactkit.features.detector import (
     Detection,
     Detector,
     DetectorConfig,
+    DetectorState,
     detect,
 )
 from contactkit.features.isolation import (
@@ -162,6 +168,20 @@ class EventOutput:
     released: ContactEvent | None = None
 
 
+@dataclass
+class BlockEvents:
+    """The pipeline's answer for a chunk of samples (:meth:`EventPipeline.update_block`):
+    per sample the ``labels`` (n,), the detector ``score`` (n,) and ``contact`` (n,)
+    bool, and the :class:`EventOutput` of each sample of an event as (row, output) in
+    order (rows outside events are ``none`` with nothing started, decided or
+    released)."""
+
+    labels: np.ndarray
+    score: np.ndarray
+    contact: np.ndarray
+    steps: list[tuple[int, EventOutput]] = field(default_factory=list)
+
+
 class EventPipeline:
     """Streaming detect -> decide -> hold (see the module docstring)."""
 
@@ -182,6 +202,7 @@ class EventPipeline:
         self._recent: deque[tuple[float, np.ndarray]] = deque()
         self._window: list[tuple[float, np.ndarray]] = []
         self._baseline = np.zeros(N_JOINTS)
+        self._last_q: np.ndarray | None = None
         self.current: ContactEvent | None = None
 
     def _decide(self, t: float) -> ContactEvent:
@@ -220,11 +241,56 @@ class EventPipeline:
         """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,)
         and, for contact isolation, joint position q [rad] (7,)."""
         state = self.detector.update(t, r, dq)
-        sample = (t, np.array(r, dtype=float))
+        return self._step(t, np.array(r, dtype=float), q, state, self.detector.baseline)
+
+    def update_block(self, t: np.ndarray, r: np.ndarray, dq: np.ndarray,
+                     q: np.ndarray | None = None) -> BlockEvents:
+        """Feed a chunk of samples at once: times ``t`` (n,) [s], residual ``r`` [Nm],
+        joint velocity ``dq`` [rad/s] and, for contact isolation, joint position ``q``
+        [rad] (n, 7). The same as :meth:`update` sample by sample, with the detector run
+        vectorised over the chunk (:meth:`Detector.run`) and per-sample work only on
+        the samples of an event."""
+        n = len(t)
+        found = self.detector.run(t, r, dq)
+        out = BlockEvents(np.full(n, NONE, dtype=object), found.score, found.contact)
+        onsets = np.flatnonzero(found.onset)
+        restarted, cuts = set(found.restarts), set(found.cuts)
+        k, stepped, carried = 0, -1, list(self._recent)
+        while k < n:
+            if self.current is None:
+                later = onsets[onsets >= k]
+                if not later.size:
+                    break
+                k = int(later[0])
+            if stepped != k - 1:
+                self._recent = _recent_before(carried, t, r, k, found.restarts)
+            state = DetectorState(bool(found.contact[k]), float(found.score[k]),
+                                  bool(found.onset[k]), bool(found.release[k]), found.e[k],
+                                  found.threshold[k], k in restarted, k in cuts)
+            step = self._step(float(t[k]), np.array(r[k], dtype=float),
+                              None if q is None else q[k], state, found.baseline[k])
+            out.labels[k] = step.label
+            out.steps.append((k, step))
+            stepped, k = k, k + 1
+        if n and stepped != n - 1:
+            self._recent = _recent_before(carried, t, r, n, found.restarts)
+            self._last_q = None if q is None else q[-1]
+        return out
+
+    def _step(self, t: float, r: np.ndarray, q: np.ndarray | None, state: DetectorState,
+              baseline: np.ndarray) -> EventOutput:
+        """Advance the pipeline by one sample (time [s], residual [Nm], q [rad] or None)
+        given the detector's ``state`` there and its ``baseline`` [Nm] after it."""
+        sample = (t, r)
         out = EventOutput(NONE, state.score, state.contact)
+        if state.cut:
+            self._cut(out)
+        if state.restarted:
+            self._recent.clear()
+        self._last_q = q
         if state.onset:
             self.current = out.started = ContactEvent(onset_s=t)
-            self._baseline = self.detector.baseline.copy()
+            self._baseline = baseline.copy()
             self._window = [s for s in self._recent if s[0] >= t - PRE_S]
             self._track = None if self.isolator is None else EventTrack(self.isolator, t)
         self._recent.append(sample)
@@ -247,12 +313,45 @@ class EventPipeline:
             out.released, self.current = event, None
         return out
 
+    def _cut(self, out: EventOutput) -> None:
+        """Release the current event at the last sample before a gap (deciding it there
+        if it is undecided), as the detector's release at that sample would have."""
+        event = self.current
+        t, r = self._recent[-1]
+        decide_now = event.decision_s is None
+        if decide_now:
+            out.decided = self._decide(t)
+        if self._track is not None and self._last_q is not None:
+            e = r - self._baseline
+            if decide_now:
+                event.contact_at_decision = self._track.at(t, self._last_q, e)
+            event.contact_at_peak = self._track.finish()
+        event.release_s = t
+        self.events.append(event)
+        out.released, self.current = event, None
+
     def finish(self) -> list[ContactEvent]:
         """Return every event, including one still open at the end of the stream (its
         estimate at the peak so far)."""
         if self.current is not None and self._track is not None:
             self.current.contact_at_peak = self._track.finish()
         return self.events + ([self.current] if self.current is not None else [])
+
+
+def _recent_before(carried: list[tuple[float, np.ndarray]], t: np.ndarray, r: np.ndarray,
+                   k: int, restarts: list[int]) -> deque[tuple[float, np.ndarray]]:
+    """Return the samples a stream holds in the pipeline's ``_recent`` before row ``k``
+    of a chunk (times ``t`` [s], residuals ``r`` [Nm]): those within ``PRE_S`` of row
+    k - 1 since the last restart, ``carried`` (what it held before the chunk) where they
+    reach into the chunk before."""
+    since = max([g for g in restarts if g < k], default=None)
+    last = float(t[k - 1]) if k else None
+    lo = 0 if last is None else int(np.searchsorted(t, last - PRE_S))
+    kept = deque() if since is not None else deque(
+        s for s in carried if last is None or s[0] >= last - PRE_S)
+    lo = lo if since is None else max(lo, since)
+    kept.extend((float(t[j]), np.array(r[j], dtype=float)) for j in range(lo, k))
+    return kept
 
 
 def batch_events(t: np.ndarray, r: np.ndarray, detection: Detection,
@@ -265,11 +364,14 @@ def batch_events(t: np.ndarray, r: np.ndarray, detection: Detection,
     estimates."""
     pipeline = EventPipeline(None, model, decide_after_s, isolator)
     events = []
+    restarts = np.asarray(detection.restarts, dtype=np.int64)
     for onset, release in detection.intervals:
         last = len(t) - 1 if release is None else release
         stop = int(np.searchsorted(t, t[onset] + pipeline.decide_after_s - 1e-12))
         decision = min(stop, last)
-        start = int(np.searchsorted(t, t[onset] - PRE_S))
+        since = restarts[restarts <= onset]  # no sample before a gap enters the window
+        start = max(int(np.searchsorted(t, t[onset] - PRE_S)),
+                    int(since[-1]) if since.size else 0)
         pipeline.current = ContactEvent(onset_s=float(t[onset]))
         pipeline._baseline = detection.baseline[onset]
         pipeline._window = list(zip(t[start:decision + 1], r[start:decision + 1], strict=True))

@@ -46,35 +46,32 @@ class _CompiledSVM:
         self.n = len(svc.classes_)
         self.a = np.array([c.a_ for c in calibrated.calibrators])
         self.b = np.array([c.b_ for c in calibrated.calibrators])
+        # One-vs-one as matrices: decision values = kernel @ pair_weights + intercept, and
+        # each pair's value goes to its two classes' confidence with signs +1 / -1.
+        pairs = [(i, j) for i in range(self.n) for j in range(i + 1, self.n)]
+        self.pair_weights = np.zeros((len(self.sv), len(pairs)))
+        self.signs = np.zeros((len(pairs), self.n))
+        for p, (i, j) in enumerate(pairs):
+            si = slice(self.starts[i], self.starts[i + 1])
+            sj = slice(self.starts[j], self.starts[j + 1])
+            self.pair_weights[si, p] = self.dual[j - 1, si]
+            self.pair_weights[sj, p] = self.dual[i, sj]
+            self.signs[p, i], self.signs[p, j] = 1.0, -1.0
+        self.winners = np.maximum(self.signs, 0.0)  # the class a pair's vote goes to if >= 0
+        self.losers = np.maximum(-self.signs, 0.0)  # ... and if < 0
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         z = (np.asarray(X, dtype=float) - self.mean) / self.scale
         d2 = self.sv_sq[None, :] - 2.0 * z @ self.sv.T + np.einsum("ij,ij->i", z, z)[:, None]
         kernel = np.exp(-self.gamma * np.maximum(d2, 0.0))
-        pairs, p = [], 0
-        for i in range(self.n):
-            si = slice(self.starts[i], self.starts[i + 1])
-            for j in range(i + 1, self.n):
-                sj = slice(self.starts[j], self.starts[j + 1])
-                value = (kernel[:, si] @ self.dual[j - 1, si] + kernel[:, sj] @ self.dual[i, sj]
-                         + self.intercept[p])
-                pairs.append(value)
-                p += 1
-        dec = np.stack(pairs, axis=1)
+        dec = kernel @ self.pair_weights + self.intercept
         if self.n == 2:
             f = -dec
             proba1 = 1.0 / (1.0 + np.exp(self.a[0] * f[:, 0] + self.b[0]))
             return np.column_stack([1.0 - proba1, proba1])
-        votes = np.zeros((len(z), self.n))
-        confidence = np.zeros((len(z), self.n))
-        p = 0
-        for i in range(self.n):
-            for j in range(i + 1, self.n):
-                confidence[:, i] += dec[:, p]
-                confidence[:, j] -= dec[:, p]
-                votes[:, i] += dec[:, p] >= 0
-                votes[:, j] += dec[:, p] < 0
-                p += 1
+        confidence = dec @ self.signs
+        positive = dec >= 0
+        votes = positive @ self.winners + ~positive @ self.losers
         f = votes + confidence / (3.0 * (np.abs(confidence) + 1.0))
         proba = 1.0 / (1.0 + np.exp(self.a * f + self.b))
         total = proba.sum(axis=1, keepdims=True)

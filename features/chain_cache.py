@@ -6,10 +6,10 @@ pass over every sample; the window, the scalar features and the grid applied aft
 them are cheap. :func:`chain_series` keeps those columns of each session in
 ``<contactkit cache>/chain/<key>/<feature>.parquet``, keyed by the session file
 (absolute path, size, modification time, samples) and the chain settings (observer
-gain and friction, wrench frame, hand), so features, grids and experiments that
-differ only in their windows compute the chain once. A changed file or setting is
-another key. Sessions not read from a file, or the cache switched off, compute as
-before.
+gain and friction, wrench frame, hand, the gap after which it restarts), so features,
+grids and experiments that differ only in their windows compute the chain once. A
+changed file or setting is another key. Sessions not read from a file, or the cache
+switched off, compute as before.
 
 The cache is computed and written batch by batch (:meth:`TimeseriesChain.feed`, one Parquet
 row group per batch), so filling it holds one batch of the session, however long
@@ -38,6 +38,7 @@ from contactkit.features.timeseries import (
     columns_of,
     expand,
 )
+from contactkit.features.timing import RESTART_STEP_S
 from contactkit.robots import RobotSetup
 from contactkit.schemas import Session
 from contactkit.schemas.session import SampleBatch, iter_sample_batches
@@ -63,7 +64,7 @@ def _key(session: Session, config: ChainConfig) -> str | None:
            "samples": session.n_samples,
            "robot": asdict(config.robot_setup(session.meta, session.path)),
            "urdf_sha256": session.meta.urdf_sha256,
-           "config": asdict(config)}
+           "config": asdict(config), "restart_step_s": RESTART_STEP_S}
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
 
 

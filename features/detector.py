@@ -33,15 +33,24 @@ release are stamped with the sample at which the detector *decides*, so they are
 what an online consumer sees. The first ``warmup_s`` of a stream only sets the
 baseline (the observer starts at r = 0).
 
+After a gap, a step longer than :data:`contactkit.features.timing.RESTART_STEP_S`
+(0.1 s), the detector restarts as at the start of a stream (the chain's observer
+restarts there too, at r = 0): baseline, filters and motion measures are forgotten and
+the warm-up runs again. A contact still on before the gap ends at the last sample
+before it (``cut``: known only at the sample after the gap), so no contact spans a gap.
+
 The coefficients noise/speed/accel are calibrated per robot from no-contact data
 (:func:`calibrate`): per joint, the smallest linear envelope over (1, s, a) that
 covers every calibration sample, times a margin. :class:`Detector` is the
-streaming form (one sample at a time); :func:`detect` runs the same code over
-whole arrays, so batch and streaming agree exactly.
+streaming form: :meth:`Detector.update` takes one sample (a live robot),
+:meth:`Detector.run` a chunk at once, vectorised (a replay, :func:`detect` on whole
+arrays), with the same onsets, releases and contact flags as sample by sample and the
+same values to about 1e-12 (the filters' recurrences are solved in closed form).
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -50,6 +59,8 @@ from pathlib import Path
 import numpy as np
 
 from contactkit.errors import InputError
+from contactkit.features.observer import solve_recurrence
+from contactkit.features.timing import RESTART_STEP_S, restarts
 from contactkit.robots import RobotSpec
 from contactkit.util.atomic import write_text
 
@@ -173,7 +184,8 @@ class DetectorState:
     """What the detector reports for one sample: ``contact`` (bool), ``score`` (max of
     |e|/threshold), ``onset`` / ``release`` (True at the sample where a contact is
     confirmed / ends), ``e`` (7,) deviation from the baseline [Nm] and
-    ``threshold`` (7,) [Nm]."""
+    ``threshold`` (7,) [Nm]; ``restarted`` at the first sample after a gap, and ``cut``
+    when that gap closed a contact: it ended at the sample before this one."""
 
     contact: bool
     score: float
@@ -181,6 +193,8 @@ class DetectorState:
     release: bool
     e: np.ndarray
     threshold: np.ndarray
+    restarted: bool = False
+    cut: bool = False
 
 
 class Detector:
@@ -226,9 +240,47 @@ class Detector:
         self.dq_prev = dq
         return self.speed, self.accel
 
+    def run(self, t: np.ndarray, r: np.ndarray, dq: np.ndarray) -> Detection:
+        """Feed a chunk of samples at once: times ``t`` (n,) [s] after the previous
+        sample, residual ``r`` [Nm] and joint velocity ``dq`` [rad/s] (n, 7); return
+        their :class:`Detection` and carry the state on, as :meth:`update` sample by
+        sample would (the same decisions; the filters' values to about 1e-12).
+
+        The filters, the motion measures and a baseline that is tracked are linear
+        recurrences, solved vectorised (:func:`contactkit.features.observer.
+        solve_recurrence`); the state machine (tracking, onset pending, contact, release
+        pending) moves from one switch to the next over whole stretches of samples."""
+        t = np.asarray(t, dtype=float)
+        r = np.asarray(r, dtype=float).reshape(-1, N_JOINTS)
+        dq = np.asarray(dq, dtype=float).reshape(-1, N_JOINTS)
+        n = len(t)
+        out = Detection(np.zeros(n, bool), np.zeros(n), np.zeros((n, N_JOINTS)),
+                        np.zeros((n, N_JOINTS)), np.zeros((n, N_JOINTS)), np.zeros(n),
+                        np.zeros(n), [], [], np.zeros(n, bool), np.zeros(n, bool), [])
+        if n == 0:
+            return out
+        gaps = restarts(t, self.t).tolist()
+        for start, stop in itertools.pairwise([0, *gaps, n]):
+            if stop <= start:
+                continue
+            if start in gaps:
+                out.restarts.append(start)
+                if self.contact:
+                    out.cuts.append(start)
+                    if out.intervals and out.intervals[-1][1] is None:
+                        out.intervals[-1] = (out.intervals[-1][0], start - 1)
+                self.reset()
+            _Run(self, t[start:stop], r[start:stop], dq[start:stop], out, start).run()
+        return out
+
     def update(self, t: float, r: np.ndarray, dq: np.ndarray) -> DetectorState:
-        """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,)."""
+        """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,).
+        After a gap (a step over ``RESTART_STEP_S``) the detector restarts first."""
         cfg = self.config
+        restarted = cut = False
+        if self.t is not None and t - self.t > RESTART_STEP_S:
+            restarted, cut = True, self.contact
+            self.reset()
         s, a = self.motion(t, dq)
         first = self.t is None
         h = 0.0 if first else t - self.t
@@ -243,7 +295,8 @@ class Detector:
             self.r_f = self.r_f + h / (cfg.smooth_s + h) * (r - self.r_f)
         if t - self.t0 < cfg.warmup_s:
             self.baseline = self.r_f.copy()
-            return DetectorState(False, 0.0, False, False, np.zeros(N_JOINTS), threshold)
+            return DetectorState(False, 0.0, False, False, np.zeros(N_JOINTS), threshold,
+                                 restarted, cut)
         e = self.r_f - self.baseline
         ratio = np.abs(e) / threshold
         score = float(ratio.max())
@@ -266,15 +319,20 @@ class Detector:
                 self.baseline[others] = self.r_f[others]
         else:
             self._since = None
-        return DetectorState(self.contact, score, onset, release, e, threshold)
+        return DetectorState(self.contact, score, onset, release, e, threshold, restarted,
+                             cut)
 
 
 @dataclass
 class Detection:
     """Batch detector output: per-sample ``contact`` (N,) bool, ``score`` (N,),
     ``e``, ``threshold`` and ``baseline`` (N, 7) [Nm], ``speed`` [rad/s] and
-    ``accel`` [rad/s^2] (N,), and the contact intervals as sample indices
-    (onset, release or None)."""
+    ``accel`` [rad/s^2] (N,), the contact intervals as sample indices
+    (onset, release or None; a contact cut by a gap is released at the last sample
+    before it; of a chunk, those that start in it) and the samples at which the
+    detector restarted after a gap. :meth:`Detector.run` also gives the per-sample
+    ``onset`` and ``release`` flags (N,) bool and the restarts that ended a contact
+    (``cuts``)."""
 
     contact: np.ndarray
     score: np.ndarray
@@ -284,28 +342,217 @@ class Detection:
     speed: np.ndarray
     accel: np.ndarray
     intervals: list[tuple[int, int | None]]
+    restarts: list[int] = field(default_factory=list)
+    onset: np.ndarray | None = None
+    release: np.ndarray | None = None
+    cuts: list[int] = field(default_factory=list)
 
 
 def detect(t: np.ndarray, r: np.ndarray, dq: np.ndarray,
            config: DetectorConfig | None = None) -> Detection:
-    """Run :class:`Detector` over a whole stream (t (N,) [s], r and dq (N, 7)); return
-    a :class:`Detection` identical to feeding the samples one at a time."""
-    detector = Detector(config)
-    n = len(t)
-    out = Detection(np.zeros(n, bool), np.zeros(n), np.zeros((n, N_JOINTS)),
-                    np.zeros((n, N_JOINTS)), np.zeros((n, N_JOINTS)), np.zeros(n), np.zeros(n),
-                    [])
-    for k in range(n):
-        state = detector.update(float(t[k]), r[k], dq[k])
-        out.contact[k], out.score[k] = state.contact, state.score
-        out.e[k], out.threshold[k] = state.e, state.threshold
-        out.baseline[k] = detector.baseline
-        out.speed[k], out.accel[k] = detector.speed, detector.accel
-        if state.onset:
-            out.intervals.append((k, None))
-        if state.release:
-            out.intervals[-1] = (out.intervals[-1][0], k)
-    return out
+    """Run :class:`Detector` over a whole stream (t (N,) [s], r and dq (N, 7)) with
+    :meth:`Detector.run`; return a :class:`Detection` equal to feeding the samples one
+    at a time."""
+    return Detector(config).run(t, r, dq)
+
+
+SWITCH_CHUNK = 256
+"""Samples the vectorised detector (:meth:`Detector.run`) looks ahead for the next
+switch of its state; doubled while none comes, so a stretch without switches costs a
+few vectorised passes and a switch costs at most this many samples' work."""
+
+
+class _Run:
+    """One :meth:`Detector.run` over a chunk without gaps (``t`` (n,) [s], ``r`` [Nm],
+    ``dq`` [rad/s] (n, 7)), writing rows ``offset`` on of ``out``."""
+
+    def __init__(self, detector: Detector, t: np.ndarray, r: np.ndarray, dq: np.ndarray,
+                 out: Detection, offset: int) -> None:
+        self.det, self.cfg, self.out, self.offset = detector, detector.config, out, offset
+        self.t, self.r = t, r
+        first = detector.t is None
+        before = t[0] if first else detector.t
+        self.h = np.diff(t, prepend=before)  # 0 at a stream's first sample
+        if detector.t0 is None:
+            detector.t0 = float(t[0])
+        self.speed, self.accel, self.ddq_f = self._motion(dq, first, before)
+        self.threshold = (detector._noise + detector._speed * self.speed[:, None]
+                          + detector._accel * self.accel[:, None])
+        self.r_f = self._smooth(first)
+        detector.dq_prev = dq[-1].copy()
+
+    def _motion(self, dq: np.ndarray, first: bool, before: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Return the speed [rad/s], accel [rad/s^2] (n,) and low-passed ddq (n, 7) of
+        :meth:`Detector.motion` at every sample."""
+        det, n = self.det, len(self.t)
+        lo = 1 if first else 0  # a stream's first sample has no step
+        ddq_f = np.empty((n, N_JOINTS))
+        ddq_f[:lo] = det.ddq_f
+        if n > lo:
+            h = self.h[lo:, None]
+            previous = np.concatenate((dq[:1] if first else det.dq_prev[None], dq[:-1]))
+            gain = FILTER_GAIN * h
+            a = np.broadcast_to(1.0 / (1.0 + gain), (n - lo, N_JOINTS))
+            ddq_f[lo:] = solve_recurrence(a, gain * ((dq[lo:] - previous[lo:]) / h) * a,
+                                          ddq_f[0] if first else det.ddq_f)
+        speed = np.sqrt(np.einsum("ij,ij->i", dq, dq))
+        accel = np.sqrt(np.einsum("ij,ij->i", ddq_f, ddq_f))
+        accel[:lo] = 0.0
+        elapsed = (self.t - before) / det.config.motion_hold_s \
+            if det.config.motion_hold_s > 0 else None
+        speed = _peak_hold(speed, 0.0 if first else det.speed, elapsed)
+        accel = _peak_hold(accel, 0.0 if first else det.accel, elapsed)
+        det.ddq_f, det.speed, det.accel = ddq_f[-1].copy(), float(speed[-1]), float(accel[-1])
+        return speed, accel, ddq_f
+
+    def _smooth(self, first: bool) -> np.ndarray:
+        """Return the low-passed residual r_f [Nm] (n, 7)."""
+        det, smooth = self.det, self.cfg.smooth_s
+        if smooth == 0.0:
+            r_f = self.r.copy()
+        else:
+            lo = 1 if first else 0
+            r_f = np.empty_like(self.r)
+            r_f[:lo] = self.r[:lo]
+            if len(self.r) > lo:
+                h = self.h[lo:, None]
+                a = np.broadcast_to(smooth / (smooth + h), (len(h), N_JOINTS))
+                r_f[lo:] = solve_recurrence(a, h / (smooth + h) * self.r[lo:],
+                                            r_f[0] if first else det.r_f)
+        det.r_f = r_f[-1].copy()
+        return r_f
+
+    def _write(self, start: int, stop: int, e: np.ndarray, score: np.ndarray,
+               baseline: np.ndarray, contact: bool) -> None:
+        rows = slice(self.offset + start, self.offset + stop)
+        out = self.out
+        out.e[rows], out.score[rows], out.baseline[rows] = e, score, baseline
+        out.contact[rows] = contact
+        out.threshold[rows] = self.threshold[start:stop]
+        out.speed[rows], out.accel[rows] = self.speed[start:stop], self.accel[start:stop]
+
+    def _ratio(self, start: int, stop: int, baseline: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+        e = self.r_f[start:stop] - baseline
+        return e, np.abs(e) / self.threshold[start:stop]
+
+    def run(self) -> None:
+        """Run the state machine over the chunk; leave the detector's state after it."""
+        det, cfg, t = self.det, self.cfg, self.t
+        n = len(t)
+        warm = int(np.count_nonzero(t - det.t0 < cfg.warmup_s))
+        if warm:
+            self._write(0, warm, 0.0, 0.0, self.r_f[:warm], False)
+            det.baseline = self.r_f[warm - 1].copy()
+        i, size = warm, SWITCH_CHUNK
+        while i < n:
+            stop = min(n, i + size)
+            if det.contact:
+                done = self._contact(i, stop)
+            elif det._since is None:
+                done = self._track(i, stop)
+            else:
+                done = self._pending(i, stop)
+            size = size * 2 if done == stop else SWITCH_CHUNK
+            i = done
+        det.t = float(t[-1])
+
+    def _track(self, i: int, stop: int) -> int:
+        """No contact, none pending: the baseline follows r_f. Return the first sample
+        over threshold (which starts a pending onset), or ``stop``."""
+        det, cfg = self.det, self.cfg
+        h = self.h[i:stop]
+        tau = np.where(self.speed[i:stop] >= REST_SPEED, cfg.baseline_moving_s, cfg.baseline_s)
+        gain = (h / (tau + h))[:, None]
+        after = solve_recurrence(np.broadcast_to(1.0 - gain, (len(h), N_JOINTS)),
+                                 gain * self.r_f[i:stop], det.baseline)
+        e, ratio = self._ratio(i, stop, np.concatenate((det.baseline[None], after[:-1])))
+        score = ratio.max(axis=1)
+        over = np.flatnonzero(score > 1.0)
+        k = int(over[0]) if over.size else len(h)
+        self._write(i, i + k, e[:k], score[:k], after[:k], False)
+        if k:
+            det.baseline = after[k - 1].copy()
+        if k < len(h):
+            det._since = float(self.t[i + k])
+        return i + k
+
+    def _pending(self, i: int, stop: int) -> int:
+        """Over threshold since ``_since``, baseline frozen: the onset is confirmed after
+        ``min_on_s`` unless the score falls back first. Return the next sample to run."""
+        det, cfg = self.det, self.cfg
+        e, ratio = self._ratio(i, stop, det.baseline)
+        score = ratio.max(axis=1)
+        low = np.flatnonzero(score <= 1.0)
+        ready = np.flatnonzero(self.t[i:stop] - det._since >= cfg.min_on_s - 1e-12)
+        end = stop - i
+        fall = int(low[0]) if low.size else end
+        onset = int(ready[0]) if ready.size and ready[0] < fall else None
+        if onset is None:
+            self._write(i, i + fall, e[:fall], score[:fall], det.baseline, False)
+            if fall < end:
+                det._since = None  # this sample is tracked again
+            return i + fall
+        self._write(i, i + onset, e[:onset], score[:onset], det.baseline, False)
+        self._write(i + onset, i + onset + 1, e[onset], score[onset], det.baseline, True)
+        self.out.onset[self.offset + i + onset] = True
+        self.out.intervals.append((self.offset + i + onset, None))
+        det.contact, det._since = True, None
+        det._onset_joints = ratio[onset] > 1.0
+        return i + onset + 1
+
+    def _contact(self, i: int, stop: int) -> int:
+        """In contact, baseline frozen: released once the onset joints stay below
+        ``release`` for ``min_off_s``. Return the next sample to run."""
+        det, cfg = self.det, self.cfg
+        e, ratio = self._ratio(i, stop, det.baseline)
+        score = ratio.max(axis=1)
+        below = ratio[:, det._onset_joints].max(axis=1) < cfg.release
+        end = stop - i
+        if det._since is None:
+            start = np.flatnonzero(below)
+            k = int(start[0]) if start.size else end
+            self._write(i, i + k, e[:k], score[:k], det.baseline, True)
+            if k < end:
+                det._since = float(self.t[i + k])
+            return i + k
+        above = np.flatnonzero(~below)
+        back = int(above[0]) if above.size else end
+        ready = np.flatnonzero(self.t[i:stop] - det._since >= cfg.min_off_s - 1e-12)
+        release = int(ready[0]) if ready.size and ready[0] < back else None
+        if release is None:
+            k = min(back + 1, end)
+            self._write(i, i + k, e[:k], score[:k], det.baseline, True)
+            if back < end:
+                det._since = None
+            return i + k
+        self._write(i, i + release, e[:release], score[:release], det.baseline, True)
+        k = i + release
+        others = ~det._onset_joints
+        det.baseline = det.baseline.copy()
+        det.baseline[others] = self.r_f[k][others]
+        self._write(k, k + 1, e[release], score[release], det.baseline, False)
+        row = self.offset + k
+        self.out.release[row] = True
+        if self.out.intervals and self.out.intervals[-1][1] is None:
+            self.out.intervals[-1] = (self.out.intervals[-1][0], row)
+        det.contact, det._since = False, None
+        return k + 1
+
+
+def _peak_hold(values: np.ndarray, before: float, elapsed: np.ndarray | None) -> np.ndarray:
+    """Return x_k = max(values_k, x_{k-1} exp(-(T_k - T_{k-1}))) with x_{-1} = ``before``
+    and ``elapsed`` T (n,) the time since x_{-1} in units of the hold time (None: no
+    hold, x = values), vectorised in the log domain (a sample that sets the peak keeps
+    its value exactly)."""
+    if elapsed is None:
+        return values.copy()
+    with np.errstate(divide="ignore"):
+        shifted = np.log(values) + elapsed
+        start = math.log(before) if before > 0 else -math.inf
+    peak = np.maximum(np.maximum.accumulate(shifted), start)
+    return np.where(shifted >= peak, values, np.exp(peak - elapsed))
 
 
 @dataclass

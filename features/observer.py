@@ -64,9 +64,13 @@ def observer_coefficients(t: np.ndarray, p: np.ndarray, u: np.ndarray, gain: np.
     that r_0 = 0."""
     if before is None:
         step, dp, u = (t[1:] - t[:-1])[:, None], p[1:] - p[:-1], u[1:]
-    else:
-        step = (t - np.concatenate(([before[0]], t[:-1])))[:, None]
-        dp = p - np.concatenate((before[1][None], p[:-1]))
+    else:  # the same differences, without concatenating (a live stream's one sample)
+        step = np.empty((len(t), 1))
+        step[0, 0] = t[0] - before[0]
+        step[1:, 0] = t[1:] - t[:-1]
+        dp = np.empty_like(p)
+        dp[0] = p[0] - before[1]
+        dp[1:] = p[1:] - p[:-1]
     a = 1.0 / (1.0 + gain * step)
     b = gain * (dp - step * u) * a
     if before is None:

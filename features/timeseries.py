@@ -36,10 +36,17 @@ w = (J J^T + lambda^2 I)^-1 J r with lambda = 0.01, J the 6x7 Jacobian of the en
 effector (hand TCP, or flange without hand) or of a chosen link, world-aligned.
 Damping keeps it finite at singular poses; away from them it changes w by well
 under 1 %.
+
+After a gap, a step longer than :data:`contactkit.features.timing.RESTART_STEP_S`
+(0.1 s), the chain restarts as at the start of a session: the observer's momentum
+estimate is set to the measured momentum again (r = 0 at the first sample after the
+gap) and ddq is 0 there. The rule needs only the step itself, so a session at once,
+chunk by chunk and sample by sample restart at the same samples.
 """
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -56,6 +63,7 @@ from contactkit.features.observer import (
     observer_coefficients,
     solve_recurrence,
 )
+from contactkit.features.timing import RESTART_STEP_S, restarts
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
 from contactkit.schemas.session import SampleBatch, SessionMeta
@@ -198,13 +206,45 @@ class TimeseriesChain:
     def update(self, t: float, q: np.ndarray, dq: np.ndarray, tau: np.ndarray
                ) -> dict[str, np.ndarray]:
         """Feed one sample (``t`` [s]; ``q`` [rad], ``dq`` [rad/s], ``tau`` [Nm], each
-        (7,)), as a chunk of one; return the chain's features at it, name -> (k,)."""
-        out, self._state = self._chunk(np.array([t], dtype=float),
-                                       np.asarray(q, dtype=float).reshape(1, 7),
-                                       np.asarray(dq, dtype=float).reshape(1, 7),
-                                       np.asarray(tau, dtype=float).reshape(1, 7), self.names,
-                                       self._state)
-        return {name: values[0] for name, values in out.items()}
+        (7,)); return the chain's features at it, name -> (k,). The same formulas as a
+        chunk of one (to about 1e-15), on 7-vectors: a live robot's per-sample path."""
+        t = float(t)
+        q, dq, tau = (np.asarray(x, dtype=float).reshape(7) for x in (q, dq, tau))
+        before = self._state
+        if before is not None and t - before.t > RESTART_STEP_S:
+            before = None  # a gap: the chain restarts here
+        model, data, names = self.model.model, self.model.data, self.names
+        zeros = np.zeros(7)
+        out: dict[str, np.ndarray] = {"q": q, "dq": dq, "tau": tau}
+        need_wrench = not _WRENCH.isdisjoint(names)
+        need_r = need_wrench or not _RESIDUAL.isdisjoint(names)
+        g = pin.rnea(model, data, q, zeros, zeros) if need_r or "g" in names else None
+        out["g"] = g
+        if "ddq" in names or "tau_inv" in names:
+            out["ddq"] = zeros if before is None else (dq - before.dq) / (t - before.t)
+        if "tau_inv" in names:
+            out["tau_inv"] = pin.rnea(model, data, q, dq, out["ddq"])
+        if "p_int" in names:
+            out["p_int"] = dq * tau
+        p = r = None
+        if need_r:
+            p = pin.rnea(model, data, q, zeros, dq) - g
+            u = tau + pin.computeCoriolisMatrix(model, data, q, dq).T @ dq - g
+            if self._friction is not None:
+                u -= self._friction.torque(dq)
+            if before is None:
+                r = np.zeros(7)
+            else:
+                h = t - before.t
+                a = 1.0 / (1.0 + self._gain * h)
+                r = a * (before.r + self._gain * (p - before.p - h * u) * a / a)
+            out["r"], out["p_ext"] = r, r * dq
+            if need_wrench:
+                jac = pin.computeFrameJacobian(model, data, q, self._fid,
+                                               pin.LOCAL_WORLD_ALIGNED)
+                out.update(_wrench_features(np.linalg.solve(jac @ jac.T + _DAMPED, jac @ r)))
+        self._state = ChainState(t, dq.copy(), p, None if r is None else r.copy())
+        return {name: out[name] for name in names}
 
     def _rnea(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
         """Return pinocchio's inverse dynamics tau(q, v, a) [Nm] of each sample, (n, 7):
@@ -224,6 +264,9 @@ class TimeseriesChain:
         (None: these are the first samples), and the state after them."""
         model, data = self.model.model, self.model.data
         n = len(t)
+        gaps = restarts(t, None if before is None else before.t)
+        if gaps.size and gaps[0] == 0:  # a gap before the chunk: it starts a new stream
+            before, gaps = None, gaps[1:]
         zeros = np.zeros_like(q)
         out: dict[str, np.ndarray] = {"q": q, "dq": dq, "tau": tau}
         need_wrench = not _WRENCH.isdisjoint(names)
@@ -236,6 +279,7 @@ class TimeseriesChain:
             ddq[1:] = (dq[1:] - dq[:-1]) / (t[1:] - t[:-1])[:, None]
             if before is not None:
                 ddq[0] = (dq[0] - before.dq) / (t[0] - before.t)
+            ddq[gaps] = 0.0
         if "tau_inv" in names:
             out["tau_inv"] = self._rnea(q, dq, out["ddq"])
         if "p_int" in names:
@@ -253,9 +297,7 @@ class TimeseriesChain:
             u = tau + np.einsum("kji,kj->ki", coriolis, dq) - g
             if self._friction is not None:
                 u -= self._friction.torque(dq)
-            r = solve_recurrence(*observer_coefficients(
-                t, p, u, self._gain, None if before is None else (before.t, before.p)),
-                None if before is None else before.r)
+            r = self._residual(t, p, u, gaps, before)
             out["r"] = r
             out["p_ext"] = r * dq
             if need_wrench:
@@ -265,6 +307,23 @@ class TimeseriesChain:
         after = ChainState(float(t[-1]), dq[-1].copy(), None if p is None else p[-1].copy(),
                            None if r is None else r[-1].copy())
         return {name: out[name] for name in names}, after
+
+
+    def _residual(self, t: np.ndarray, p: np.ndarray, u: np.ndarray, gaps: np.ndarray,
+                  before: ChainState | None) -> np.ndarray:
+        """Return the observer residual r [Nm] (n, 7) of samples with times ``t`` [s],
+        momenta ``p`` [Nm s] and ``u`` [Nm] (n, 7) that follow ``before``, restarted (r =
+        0) at the samples ``gaps`` (> 0) that follow a gap."""
+        if not gaps.size:
+            return solve_recurrence(*observer_coefficients(
+                t, p, u, self._gain, None if before is None else (before.t, before.p)),
+                None if before is None else before.r)
+        r = np.empty_like(p)
+        for start, stop in itertools.pairwise([0, *gaps.tolist(), len(t)]):
+            piece = slice(start, stop)
+            r[piece] = self._residual(t[piece], p[piece], u[piece], gaps[:0],
+                                      before if start == 0 else None)
+        return r
 
 
 def _wrench_features(wrench: np.ndarray) -> dict[str, np.ndarray]:

@@ -10,7 +10,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from contactkit.features.limits import session_limit_violation
-from contactkit.features.timing import rate_warning, sampling_stats
+from contactkit.features.timing import RESTART_STEP_S, rate_warning, sampling_stats
 from contactkit.schemas import Session, validate_session
 from contactkit.util.text import printable
 
@@ -66,7 +66,8 @@ def print_info(info: dict, console: Console) -> None:
     table.add_row("rate", f"{s['rate_hz']:.1f} Hz (median step {s['median_step_s'] * 1e3:.3f} "
                           f"ms, min {s['min_step_s'] * 1e3:.3f}, max {s['max_step_s'] * 1e3:.3f})")
     table.add_row("gaps", f"{s['gaps']} longer than 3x median (~{s['dropped_estimate']} "
-                          "samples missing)")
+                          f"samples missing); {s['restarts']} over "
+                          f"{RESTART_STEP_S:g} s, where the observer and detector restart")
     if info["rate_warning"]:
         table.add_row("[yellow]warning[/]", info["rate_warning"])
     if info.get("beyond_limits"):

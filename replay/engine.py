@@ -16,7 +16,10 @@ release), which needs no planned interaction time, and gates the per-hop output:
 without a detected contact a hop's label is ``none`` (probability 1), whatever the
 window classifier says (its own probabilities stay in ``pred_window_proba``), because
 the window classifier was trained on contacts at a planned time and calls fast free
-motion a contact. For a session with a planned time the engine also gives the offline
+motion a contact. After a gap (a step over
+:data:`contactkit.features.timing.RESTART_STEP_S`) the chain and the detector restart,
+an open event ends before the gap, and the hops start again one window after it, as at
+the start of the session. For a session with a planned time the engine also gives the offline
 answer: the window found by the thesis method and the model's label for it, from the
 features it streamed (:class:`contactkit.features.window_stream.WindowCollector`) and
 through the same predictor as every hop (see :meth:`ReplayStream.offline`).
@@ -43,6 +46,7 @@ from contactkit.features.agreement import ResidualAgreement
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.isolation import robot_isolator
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
+from contactkit.features.timing import restarts
 from contactkit.features.window_stream import WindowCollector
 from contactkit.features.windows import Window
 from contactkit.replay.hop import DEFAULT_HOP_S
@@ -224,7 +228,7 @@ class ReplayStream:
                                 list(dict.fromkeys([*self.names, "r", "f", "m", "fm_norm",
                                                     self.window_spec.signal])))
         history_t, history_v = np.zeros(0), np.zeros((0, len(self.channels)))
-        next_hop = None
+        next_hop = last_t = None
         start = 0
         planned = self.meta.planned_at_s
         for batch in self._batches():
@@ -235,37 +239,34 @@ class ReplayStream:
                 steps = np.diff(t)
                 self.rate_hz = 1.0 / float(np.median(steps)) if steps.size else None
                 self.event_samples[float(t[0])] = 0
+            gaps = restarts(t, last_t)
+            last_t = float(t[-1])
             if planned is not None and self.planned_sample is None and t[-1] >= planned:
                 self.planned_sample = start + int(np.searchsorted(t, planned))
             out = chain.feed(batch)
             values = np.column_stack([out[name] for name in self.names])
             buffer_t, buffer_v = np.r_[history_t, t], np.vstack([history_v, values])
             offset = len(history_t)
-            sample = np.arange(start, start + n)
             if self._offline is not None:
-                self._offline.add(sample, t, values, out[self.window_spec.signal])
+                self._offline.add(np.arange(start, start + n), t, values,
+                                  out[self.window_spec.signal])
             labels = scores = None
             if self.pipeline is not None:
-                labels, scores = np.full(n, NONE, dtype=object), np.zeros(n)
+                labels, scores = self._events(t, out["r"], dq, q, start)
             truth, contact = batch.f_ext, batch.contact
             estimate = None if batch.tau_ext_hat is None else -batch.tau_ext_hat
             if estimate is not None:
                 self.agreement.update(t, out["r"], -estimate)
             whole = Block(start, start + n, t, q, dq, tau, out["r"], out["f"], out["m"],
                           out["fm_norm"], truth, contact, estimate, labels, scores)
-            first, predictions = 0, []
-            for k in range(n):
-                if self.pipeline is not None:
-                    labels[k], scores[k] = self._event_step(float(t[k]), out["r"][k], dq[k],
-                                                            q[k], start + k)
-                if t[k] >= next_hop - 1e-12:
-                    in_contact = labels is None or labels[k] != NONE
-                    predictions.append(self._predict(buffer_t, buffer_v, offset + k,
-                                                     start + k, in_contact))
-                    next_hop = next_hop_after(next_hop, float(t[k]), self.hop_s)
-                    if every_hop:
-                        yield _part(whole, first, k + 1, predictions)
-                        first, predictions = k + 1, []
+            hops, next_hop = hop_rows(t, gaps, next_hop, self.window_s, self.hop_s)
+            predictions = self._predict(buffer_t, buffer_v, offset, start, hops, labels)
+            first = 0
+            if every_hop:
+                for k, prediction in zip(hops, predictions, strict=True):
+                    yield _part(whole, first, k + 1, [prediction])
+                    first = k + 1
+                predictions = []
             if first < n:
                 yield _part(whole, first, n, predictions)
             keep = max(0, int(np.searchsorted(buffer_t, t[-1] - self.window_s
@@ -277,35 +278,56 @@ class ReplayStream:
         if start == 0:
             raise InputError("session has no complete samples", self.path)
 
-    def _event_step(self, t: float, r: np.ndarray, dq: np.ndarray, q: np.ndarray,
-                    sample: int) -> tuple[str, float]:
-        """Feed one sample to the event pipeline; return its label and detector score."""
-        before = self.pipeline.current
-        state = self.pipeline.update(t, r, dq, q)
-        if (before is None and self.pipeline.current is not None) or state.decided \
-                or state.released:
-            self.event_samples[t] = sample
-        event = self.pipeline.current or state.released
-        if event is not None and event.contact_track and event.contact_track[-1].t_s == t:
-            self.estimate_samples[t] = sample
-        return state.label, state.score
+    def _events(self, t: np.ndarray, r: np.ndarray, dq: np.ndarray, q: np.ndarray,
+                start: int) -> tuple[np.ndarray, np.ndarray]:
+        """Feed a batch (first session sample ``start``) to the event pipeline in one go;
+        note the samples where events begin, are decided or end, and those of their
+        contact estimates. Return the per-sample labels and detector scores."""
+        found = self.pipeline.update_block(t, r, dq, q)
+        touched = []
+        for k, state in found.steps:
+            at, sample = float(t[k]), start + k
+            cut = state.released is not None and state.released.release_s < at
+            if cut:  # by a gap: decided (if it was not) and released at the sample before it
+                self.event_samples[state.released.release_s] = sample - 1
+            if state.started is not None or (not cut and (state.decided or state.released)):
+                self.event_samples[at] = sample
+            if state.released is not None:
+                touched.append(state.released)
+        if self.pipeline.current is not None:
+            touched.append(self.pipeline.current)
+        for event in touched:
+            for estimate in event.contact_track:
+                if t[0] <= estimate.t_s <= t[-1]:
+                    self.estimate_samples[estimate.t_s] = start + int(
+                        np.searchsorted(t, estimate.t_s))
+        return found.labels, found.score
 
-    def _predict(self, t: np.ndarray, values: np.ndarray, k: int, sample: int,
-                 in_contact: bool) -> tuple[float, int, np.ndarray, str]:
-        """Classify the window ending at buffer row ``k`` (session sample ``sample``);
-        outside a detected contact the hop is ``none``. Return (time [s], sample,
-        probabilities, label)."""
-        row = self.transformer.online_row(t, values, k)
-        window_proba = proba = self._predict_proba(row[None, ...])[0]
-        if not in_contact and NONE in self.classes:
-            proba = (np.array(self.classes) == NONE).astype(float)
-        label = self.classes[int(np.argmax(proba))]
-        self.pred_t.append(float(t[k]))
-        self.pred_sample.append(sample)
-        self.pred_proba.append(proba)
-        self.pred_window_proba.append(window_proba)
-        self.pred_label.append(label)
-        return float(t[k]), sample, proba, label
+    def _predict(self, t: np.ndarray, values: np.ndarray, offset: int, start: int,
+                 hops: list[int], labels: np.ndarray | None
+                 ) -> list[tuple[float, int, np.ndarray, str]]:
+        """Classify the windows ending at the batch rows ``hops`` (buffer rows ``offset``
+        on, session samples ``start`` on) in one call; outside a detected contact (by
+        the per-sample ``labels``, None without a detector) a hop is ``none``. Return
+        (time [s], sample, probabilities, label) of each."""
+        if not hops:
+            return []
+        rows = np.stack([self.transformer.online_row(t, values, offset + k) for k in hops])
+        window_probas = self._predict_proba(rows)
+        predictions = []
+        for k, window_proba in zip(hops, window_probas, strict=True):
+            proba = window_proba
+            if labels is not None and labels[k] == NONE and NONE in self.classes:
+                proba = (np.array(self.classes) == NONE).astype(float)
+            label = self.classes[int(np.argmax(proba))]
+            at = float(t[offset + k])
+            self.pred_t.append(at)
+            self.pred_sample.append(start + k)
+            self.pred_proba.append(proba)
+            self.pred_window_proba.append(window_proba)
+            self.pred_label.append(label)
+            predictions.append((at, start + k, proba, label))
+        return predictions
 
     def run(self) -> ReplayStream:
         """Process the whole session at once; return self."""
@@ -331,6 +353,28 @@ class ReplayStream:
         k1 = sample[min(int(np.searchsorted(t, window.end_s)), last)]
         return OfflineAnswer(window, self.classes[int(np.argmax(proba))], proba, int(k0),
                              int(k1))
+
+
+def hop_rows(t: np.ndarray, gaps: np.ndarray, next_hop: float, window_s: float,
+             hop_s: float) -> tuple[list[int], float]:
+    """Return the rows of a batch (times ``t`` [s]) at which a prediction is due, the first
+    at or after ``next_hop`` [s] and then every ``hop_s`` (:func:`next_hop_after`), the
+    grid restarted ``window_s`` after each gap (rows ``gaps``), and the next hop time
+    after the batch. Each hop is found by a search, so a gap is jumped over at once."""
+    hops, row, n = [], 0, len(t)
+    pending = [int(g) for g in gaps]
+    while row < n:
+        k = row + int(np.searchsorted(t[row:], next_hop - 1e-12))
+        if pending and pending[0] <= k:  # a window after a gap starts after it
+            row = pending.pop(0)
+            next_hop = t[row] + window_s
+            continue
+        if k >= n:
+            break
+        hops.append(k)
+        next_hop = next_hop_after(next_hop, float(t[k]), hop_s)
+        row = k + 1
+    return hops, next_hop
 
 
 def _part(block: Block, first: int, stop: int,

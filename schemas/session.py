@@ -542,7 +542,9 @@ MAX_STEP_S = 10.0
 longer step is a time jump (a clock switched from sim time to wall time, a log
 restarted, a corrupt stamp), refused where data enter rather than read as one
 session of years. Steps above 3x the median but within this bound are gaps, counted
-by :func:`contactkit.features.timing.sampling_stats`."""
+by :func:`contactkit.features.timing.sampling_stats`; after a step longer than
+:data:`contactkit.features.timing.RESTART_STEP_S` (0.1 s) the feature chain and the
+contact detector restart."""
 MAX_ABS_T_S = 1e10
 """The largest time stamp [s] a session may hold (about 300 years; sessions start at
 0 s, epoch stamps are 1.7e9 s): larger values overflow time arithmetic."""

@@ -43,11 +43,12 @@ def test_streaming_equals_batch_and_never_looks_ahead() -> None:
     batch = detect(t, r, dq)
     detector = Detector()
     states = [detector.update(t[k], r[k], dq[k]) for k in range(len(t))]
+    # the same decisions; the filters solved vectorised agree to rounding
     assert np.array_equal(batch.contact, [s.contact for s in states])
-    assert np.array_equal(batch.score, [s.score for s in states])
+    assert np.abs(batch.score - [s.score for s in states]).max() < 1e-9
     prefix = detect(t[:1700], r[:1700], dq[:1700])
     assert np.array_equal(prefix.contact, batch.contact[:1700])
-    assert np.array_equal(prefix.e, batch.e[:1700])
+    assert np.abs(prefix.e - batch.e[:1700]).max() < 1e-9
 
 
 def test_one_push_is_one_contact_with_hysteresis() -> None:

@@ -257,7 +257,7 @@ def _summary_lines(report: dict) -> list[str]:
         lines.append(f"sampling: median {s['rate_hz']['median']:.1f} Hz, jitter "
                      f"{1e3 * s['jitter_s']['median']:.3f} ms, {s['gaps']} gaps in "
                      f"{s['sessions_with_gaps']} sessions (~{s['dropped_estimate']} samples "
-                     "missing)")
+                     f"missing), {s['restarts']} restarts of the observer and detector")
         for agreement in deep["residual_agreement"]:
             corr = " ".join("-" if c is None else f"{c:.2f}" for c in agreement["correlation"])
             lines.append(f"residual vs the robot's own estimate ({agreement['robot']}, "
