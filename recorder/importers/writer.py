@@ -22,7 +22,7 @@ from contactkit.recorder.importers.base import Importer
 from contactkit.recorder.metadata import session_filename
 from contactkit.schemas import InputError, SessionMeta
 from contactkit.schemas.dataset import INDEX_NAME
-from contactkit.schemas.session import table_from_columns, write_session_batches
+from contactkit.schemas.session import check_times, table_from_columns, write_session_batches
 from contactkit.util.exact_median import exact_medians
 from contactkit.util.paths import inside, safe_name
 from contactkit.util.text import quote
@@ -110,10 +110,13 @@ def write_imported_chunks(times: Callable[[], Iterable[np.ndarray]],
     first, rising, samples = None, True, 0
     for steps in chunked_steps(times()):
         rising = rising and bool((steps > 0).all())
-    for t in times():
+    last = None
+    for t in times():  # the time rule first: nothing runs on a clock switch's years
         if len(t):
+            check_times(t, offset=samples, last_t=last)
             first = float(t[0]) if first is None else first
             samples += len(t)
+            last = float(t[-1])
     if meta.nominal_rate_hz is None and samples > 1 and rising:
         median = exact_medians(lambda: (s[:, None] for s in chunked_steps(times())))[0]
         meta.nominal_rate_hz = float(round(1.0 / median, 3))
