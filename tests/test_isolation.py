@@ -101,6 +101,18 @@ def test_a_small_residual_is_too_small_to_isolate(isolator) -> None:
     assert est.to_dict()["link"] is None
 
 
+def _same(a: object, b: object, tol: float = 1e-9) -> bool:
+    """Return whether two JSON-like values are equal, numbers to ``tol`` (relative, and
+    absolute near zero): the batch detector solves its filters in closed form."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k], tol) for k in a)
+    if isinstance(a, list | tuple) and isinstance(b, list | tuple):
+        return len(a) == len(b) and all(_same(x, y, tol) for x, y in zip(a, b, strict=True))
+    if isinstance(a, float) and isinstance(b, float):
+        return abs(a - b) <= tol * max(1.0, abs(a), abs(b)) or (a != a and b != b)
+    return a == b
+
+
 def test_batch_and_streaming_give_the_same_estimates(tmp_path, isolator) -> None:
     session = read_session(make_session(tmp_path, action="adjust", link=6, seed=5,
                                         duration_s=3.5, planned_at_s=1.0))
@@ -109,9 +121,10 @@ def test_batch_and_streaming_give_the_same_estimates(tmp_path, isolator) -> None
     batch = batch_events(t, r, detect(t, r, dq, DETECTOR), None, 0.15, q, isolator)
     streamed, _ = stream_events(t, r, dq, DETECTOR, None, 0.15, q, isolator)
     assert len(batch) == len(streamed) >= 1
-    for a, b in zip(batch, streamed, strict=True):
-        assert a.to_dict() == b.to_dict()
-        assert [e.to_dict() for e in a.contact_track] == [e.to_dict() for e in b.contact_track]
+    for a, b in zip(batch, streamed, strict=True):  # the same to 1e-9, the project's bar
+        assert _same(a.to_dict(), b.to_dict())
+        assert _same([e.to_dict() for e in a.contact_track],
+                     [e.to_dict() for e in b.contact_track])
     event = batch[0]
     assert event.contact_at_decision is not None and event.contact_at_peak is not None
     assert event.contact_at_peak.link == 6
