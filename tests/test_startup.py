@@ -102,6 +102,14 @@ def test_deferred_commands_list_the_help_they_have_once_built() -> None:
         assert " ".join(built.help.split("\n\n")[0].split()) == summary
 
 
+def test_a_mistyped_deferred_command_gets_a_suggestion(capsys) -> None:
+    from contactkit.cli.common import run_app
+    from contactkit.cli.recorder import app
+
+    assert run_app(app, "recorder", ["captur", "--pose", "B"]) == 2
+    assert "Did you mean 'capture'?" in capsys.readouterr().err
+
+
 def test_recorder_info_imports_no_heavy_library(tmp_path: Path) -> None:
     session = make_session(tmp_path, duration_s=1.0, planned_at_s=0.5)
     code, modules, out = _loaded("recorder", "info", str(session))

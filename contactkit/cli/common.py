@@ -138,9 +138,13 @@ class DeferredCommands(TyperGroup):
         return command
 
     def resolve_command(self, ctx: Any, args: list[str]) -> Any:
-        """Build the command the arguments name before it runs (or shows its help)."""
+        """Build the command the arguments name before it runs (or shows its help); an
+        unknown name builds them all, so that "did you mean" can suggest them too."""
         if args:
-            self.build(args[0])
+            names = [args[0]] if args[0] in self.deferred or args[0] in self.commands \
+                else list(self.deferred)
+            for name in names:
+                self.build(name)
         return super().resolve_command(ctx, args)
 
 
