@@ -61,7 +61,9 @@ def test_default_map() -> None:
 
 def test_live_round_trip_on_virtual_bus(source_session: Path, tmp_path: Path) -> None:
     channel = f"rt-{uuid.uuid4().hex[:8]}"
-    source = CanSource(BusConfig("virtual", channel), FMAP, duration_s=60.0, timeout_s=0.5)
+    # a loaded machine stalls the bridge for tenths of a second: the capture waits 2 s of
+    # silence before it ends, and bus times are compared to 0.5 s (transport, not timing)
+    source = CanSource(BusConfig("virtual", channel), FMAP, duration_s=60.0, timeout_s=2.0)
     out = tmp_path / "live.parquet"
     result = {}
     worker = threading.Thread(target=lambda: result.update(
@@ -73,7 +75,7 @@ def test_live_round_trip_on_virtual_bus(source_session: Path, tmp_path: Path) ->
     worker.join(timeout=30)
     live = validate_session(out)
     _assert_quantised_equal(live, recorded)
-    assert np.abs(live.t - recorded.t).max() < 0.05
+    assert np.abs(live.t - recorded.t).max() < 0.5
     info = live.meta.source_info
     assert info["samples"] == recorded.n_samples and info["incomplete_samples"] == 0
     assert "bus silent" in info["end"]

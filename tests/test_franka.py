@@ -71,9 +71,12 @@ def test_capture_from_simulated_fr3(server, tmp_path):
     info = session.meta.source_info
     assert info["end"] == "reached the session duration (2.0 s)"
     assert info["backend"] == "pylibfranka" and "ignored" in info["realtime"]
-    # every robot tick of the 2 s is either recorded or counted as lost
-    assert session.n_samples + info["states_lost"] == pytest.approx(2001, rel=0.02)
-    assert session.n_samples >= 0.9 * 2000
+    # every robot tick (1 ms) up to the last state is either recorded or counted as lost;
+    # the capture ends at the first state at or past 2 s (a gap may straddle it)
+    assert session.t[-1] >= 2.0 > session.t[-2]
+    assert session.n_samples + info["states_lost"] == round(session.t[-1] * 1e3) + 1
+    # transport, not timing: a loaded machine loses states, never most of them
+    assert session.n_samples >= 0.5 * 2000
     steps_ms = np.diff(session.t) * 1e3
     assert (steps_ms > 0).all() and np.allclose(steps_ms, np.round(steps_ms), atol=1e-6)
     assert info["gaps"] == int((np.round(steps_ms) > 1).sum())
