@@ -37,12 +37,12 @@ T = TypeVar("T")
 R = TypeVar("R")
 
 SCHEDULER_ENV = "CONTACTKIT_SCHEDULER"
+"""The environment variable the commands' ``--scheduler`` option defaults to."""
 WORKERS_PER_CPU = 4
 """A local pool holds at most this many processes per usable CPU (and no more than there
 are jobs): ``--workers 100000`` would otherwise start processes until the machine stops."""
 
 log = logging.getLogger(__name__)
-"""The environment variable the commands' ``--scheduler`` option defaults to."""
 CGROUP_CPU_FILES = (("/sys/fs/cgroup/cpu.max", None),  # cgroup v2: "quota period" or "max"
                     ("/sys/fs/cgroup/cpu/cpu.cfs_quota_us", "/sys/fs/cgroup/cpu/cpu.cfs_period_us"))
 
@@ -119,8 +119,8 @@ def map_ordered(fn: Callable[..., R], items: Iterable[Any], *, workers: int = 1,
                 scheduler: str | None = None) -> Iterator[R]:
     """Yield ``fn(item)`` for each item, in the order of ``items``.
 
-    ``workers`` <= 1 runs in this process. Otherwise a pool of ``workers`` processes
-    (at most one per job, and :data:`WORKERS_PER_CPU` per usable CPU, with a warning)
+    ``workers`` <= 1 runs in this process. Otherwise a pool of ``workers`` processes,
+    at most one per job and :data:`WORKERS_PER_CPU` per usable CPU (with a warning)
     (``spawn``: fresh interpreters, needed where a library keeps threads, such as
     PyTorch; scripts must then guard with ``if __name__ == "__main__":``) holds at most
     ``in_flight`` jobs per worker, so ``items`` may be a lazy generator of large
