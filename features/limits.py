@@ -20,9 +20,10 @@ POSITION_SLACK_RAD = 0.5
 """... or when a joint leaves its range by more than this [rad]."""
 
 
-def robot_limits(meta: SessionMeta) -> JointLimits:
-    """Return the joint limits of the robot a session with metadata ``meta`` names."""
-    return get_robot(meta.robot).limits
+def robot_limits(meta: SessionMeta, robot: str | None = None) -> JointLimits:
+    """Return the joint limits of the robot a session with metadata ``meta`` names (or
+    of ``robot``, a model name used instead of the session's own)."""
+    return get_robot(robot or meta.robot).limits
 
 
 def limit_violation(t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.ndarray,
@@ -67,7 +68,7 @@ def session_limit_violation(session: Session, robot: str | None = None) -> str |
     if not session.n_samples:
         return None
     try:
-        limits = get_robot(robot or session.meta.robot).limits
+        limits = robot_limits(session.meta, robot)
     except InputError:
         return None
     return limit_violation(session.t, session.q, session.dq, session.tau, limits)
