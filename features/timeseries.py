@@ -291,9 +291,9 @@ class TimeseriesChain:
             jac = np.empty((n, 6, 7)) if need_wrench else None
             for k in range(n):
                 coriolis[k] = pin.computeCoriolisMatrix(model, data, q[k], dq[k])
-                if need_wrench:
-                    jac[k] = pin.computeFrameJacobian(model, data, q[k], self._fid,
-                                                      pin.LOCAL_WORLD_ALIGNED)
+                if need_wrench:  # the Coriolis pass has placed every joint and its Jacobian
+                    jac[k] = pin.getFrameJacobian(model, data, self._fid,
+                                                  pin.LOCAL_WORLD_ALIGNED)
             u = tau + np.einsum("kji,kj->ki", coriolis, dq) - g
             if self._friction is not None:
                 u -= self._friction.torque(dq)
@@ -301,9 +301,7 @@ class TimeseriesChain:
             out["r"] = r
             out["p_ext"] = r * dq
             if need_wrench:
-                gram = jac @ jac.transpose(0, 2, 1) + _DAMPED
-                wrench = np.linalg.solve(gram, np.einsum("kij,kj->ki", jac, r)[..., None])[..., 0]
-                out.update(_wrench_features(wrench))
+                out.update(_wrench_features(damped_wrench(jac, r)))
         after = ChainState(float(t[-1]), dq[-1].copy(), None if p is None else p[-1].copy(),
                            None if r is None else r[-1].copy())
         return {name: out[name] for name in names}, after
@@ -324,6 +322,45 @@ class TimeseriesChain:
             r[piece] = self._residual(t[piece], p[piece], u[piece], gaps[:0],
                                       before if start == 0 else None)
         return r
+
+
+def damped_wrench(jac: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Return the damped least-squares wrench w = (J J^T + lambda^2 I)^-1 J r [N, Nm]
+    (n, 6) of each sample, from Jacobians ``jac`` (n, 6, 7) and residuals ``r`` [Nm]
+    (n, 7).
+
+    numpy's batched solvers pay about a microsecond per 6x6 system, so a long chunk
+    solves by a Cholesky factorisation written out over the 6x6 entries, each a
+    vector of n samples; a short one (a live stream's) calls ``np.linalg.solve``. The
+    two agree to about 1e-12 relative (the matrix is symmetric positive definite, its
+    condition bounded by the damping)."""
+    if len(jac) <= SHORT_CHUNK:
+        gram = jac @ jac.transpose(0, 2, 1) + _DAMPED
+        return np.linalg.solve(gram, np.einsum("kij,kj->ki", jac, r)[..., None])[..., 0]
+    rows = np.ascontiguousarray(jac.transpose(1, 2, 0))  # (6, 7, n): J's rows, per sample
+    rhs = np.einsum("ijk,jk->ik", rows, np.ascontiguousarray(r.T))  # J r, (6, n)
+    low: list[list[np.ndarray]] = [[] for _ in range(6)]  # Cholesky factor L, row by row
+    for i in range(6):
+        for j in range(i + 1):
+            s = np.einsum("jk,jk->k", rows[i], rows[j])  # (J J^T)_ij
+            if i == j:
+                s += DAMPING**2
+            for k in range(j):
+                s -= low[i][k] * low[j][k]
+            low[i].append(np.sqrt(s) if i == j else s / low[j][j])
+    y: list[np.ndarray] = []  # L y = J r
+    for i in range(6):
+        s = rhs[i].copy()
+        for k in range(i):
+            s -= low[i][k] * y[k]
+        y.append(s / low[i][i])
+    w: list[np.ndarray] = [np.empty(0)] * 6  # L^T w = y
+    for i in reversed(range(6)):
+        s = y[i]
+        for k in range(i + 1, 6):
+            s = s - low[k][i] * w[k]
+        w[i] = s / low[i][i]
+    return np.stack(w, axis=1)
 
 
 def _wrench_features(wrench: np.ndarray) -> dict[str, np.ndarray]:
