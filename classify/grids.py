@@ -215,15 +215,21 @@ class SessionGrids(TransformerMixin, BaseEstimator):
         grid, window = session_grid_and_window(session, self.spec)
         return grid, self.spec.channels(), window
 
-    def online_row(self, t: np.ndarray, values: np.ndarray, k: int) -> np.ndarray:
-        """Return the grid of the ``window_s`` seconds ending at sample ``k``, from
-        per-sample ``values`` (N, channels) at times ``t`` [s]; only samples up to ``k``
-        (and the baseline before the window) are used."""
+    def online_rows(self, t: np.ndarray, values: np.ndarray, ends: np.ndarray | list[int]
+                    ) -> np.ndarray:
+        """Return the grids (len(ends), ...) of the ``window_s`` seconds ending at each
+        sample of ``ends``, from per-sample ``values`` (N, channels) at times ``t`` [s];
+        a grid uses samples up to its end (and the baseline before its window) only."""
         spec = self.spec
-        first = int(np.searchsorted(t, t[k] - spec.window_s, side="right"))
-        start = int(np.searchsorted(t, t[k] - spec.window_s - spec.baseline_s, side="left"))
-        start = max(0, min(start, first) - 1)
-        return window_grid(t[start:k + 1], values[start:k + 1], t[k] - spec.window_s, spec)
+        grids = []
+        for k in np.asarray(ends, dtype=np.intp).tolist():
+            first = int(np.searchsorted(t, t[k] - spec.window_s, side="right"))
+            start = int(np.searchsorted(t, t[k] - spec.window_s - spec.baseline_s,
+                                        side="left"))
+            start = max(0, min(start, first) - 1)
+            grids.append(window_grid(t[start:k + 1], values[start:k + 1],
+                                     t[k] - spec.window_s, spec))
+        return np.stack(grids)
 
 
 def _grid_job(job: tuple[str, GridSpec, Augmentation | None]

@@ -88,7 +88,22 @@ def hjorth_mobility(x: np.ndarray) -> np.ndarray:
 
 def hjorth_complexity(x: np.ndarray) -> np.ndarray:
     """Hjorth complexity mobility(diff x) / mobility(x) of each channel."""
-    return _safe_ratio(_mobility(np.diff(x, axis=0)), _mobility(x))
+    return hjorth_parameters(x)[1]
+
+
+def hjorth_parameters(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return Hjorth mobility and complexity of each channel, from one pass of
+    differences and variances (each is 0 where undefined, as above)."""
+    zeros = np.zeros(x.shape[1:])
+    if len(x) < 2:
+        return zeros, zeros
+    first = np.diff(x, axis=0)
+    var_first = first.var(axis=0)
+    mobility = np.sqrt(_safe_ratio(var_first, x.var(axis=0)))
+    if len(x) < 3:
+        return mobility, zeros
+    mobility_first = np.sqrt(_safe_ratio(np.diff(first, axis=0).var(axis=0), var_first))
+    return mobility, _safe_ratio(mobility_first, mobility)
 
 
 def fft_magnitudes(x: np.ndarray, k: int = DEFAULT_FFT_K) -> np.ndarray:
@@ -108,20 +123,44 @@ FUNCTIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
 }
 
 
+def scalar_blocks(x: np.ndarray, names: tuple[str, ...] | list[str],
+                  fft_k: int = DEFAULT_FFT_K) -> list[np.ndarray]:
+    """Return the requested scalar features of an (N, k) window as blocks of k values
+    (one per channel), in the order of :func:`scalar_feature_names`: one block per
+    name, ``fft_k`` for "fft". Channels never mix, so the k columns may as well be
+    the channels of many windows of N samples side by side."""
+    blocks: list[np.ndarray] = []
+    hjorth = hjorth_parameters(x) if "hjorth_comp" in names else None  # shared by both
+    for name in names:
+        if name == "fft":
+            mags = fft_magnitudes(x, fft_k)
+            blocks += [mags[:, j] for j in range(fft_k)]
+        elif hjorth is not None and name.startswith("hjorth"):
+            blocks.append(hjorth[name == "hjorth_comp"])
+        else:
+            blocks.append(FUNCTIONS[name](x))
+    return blocks
+
+
+def scalar_feature_names(names: tuple[str, ...] | list[str], channel_names: list[str],
+                         fft_k: int = DEFAULT_FFT_K) -> list[str]:
+    """Return the names of the scalar features ``names`` of channels ``channel_names``,
+    like ``range(tau_3)`` or ``fft2(r_1)`` (the third FFT magnitude)."""
+    labels: list[str] = []
+    for name in names:
+        if name == "fft":
+            for j in range(fft_k):
+                labels += [f"fft{j}({c})" for c in channel_names]
+        else:
+            labels += [f"{name}({c})" for c in channel_names]
+    return labels
+
+
 def scalar_features(x: np.ndarray, names: tuple[str, ...] | list[str], channel_names: list[str],
                     fft_k: int = DEFAULT_FFT_K) -> tuple[np.ndarray, list[str]]:
     """Return (values, names) of the requested scalar features of an (N, k) window.
 
     Names read like ``range(tau_3)`` or ``fft2(r_1)`` (the third FFT magnitude).
     """
-    values, labels = [], []
-    for name in names:
-        if name == "fft":
-            mags = fft_magnitudes(x, fft_k)
-            for j in range(fft_k):
-                values.append(mags[:, j])
-                labels += [f"fft{j}({c})" for c in channel_names]
-        else:
-            values.append(FUNCTIONS[name](x))
-            labels += [f"{name}({c})" for c in channel_names]
-    return np.concatenate(values), labels
+    return (np.concatenate(scalar_blocks(x, names, fft_k)),
+            scalar_feature_names(names, channel_names, fft_k))

@@ -312,7 +312,7 @@ class ReplayStream:
         (time [s], sample, probabilities, label) of each."""
         if not hops:
             return []
-        rows = np.stack([self.transformer.online_row(t, values, offset + k) for k in hops])
+        rows = self.transformer.online_rows(t, values, offset + np.asarray(hops))
         window_probas = self._predict_proba(rows)
         predictions = []
         for k, window_proba in zip(hops, window_probas, strict=True):

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import scipy.stats
 
+from contactkit.features import extract
 from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import (
     SCALARS,
@@ -117,7 +118,29 @@ def test_online_row_holds_at_least_two_samples() -> None:
     features = SessionFeatures()
     t = np.arange(10) * 0.5
     values = np.random.default_rng(0).normal(size=(10, len(features.channels())))
-    row = features.online_row(t, values, 5)
+    row = features.online_rows(t, values, [5])[0]
     widened = scalar_features(values[4:6], list(features.scalars), features.channels(),
                               features.fft_k)[0]
     np.testing.assert_array_equal(row, widened)
+
+
+@pytest.mark.parametrize("scalars", [SCALARS, ("range", "hjorth_mob", "hjorth_comp"),
+                                     ("mean", "variance", "delta", "energy")])
+def test_online_rows_equal_each_window_on_its_own(monkeypatch: pytest.MonkeyPatch,
+                                                  scalars: tuple[str, ...]) -> None:
+    """The hops of a replay, computed together (windows of unequal length on jittered
+    times, widened windows of 2 samples, more than one block of values at a time; from
+    shared segments where every scalar allows it) equal each window's features computed
+    alone."""
+    features = SessionFeatures(scalars=scalars, window_s=0.05)
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(0.0005, 0.0015, 3000))
+    t[1000:] += 0.2  # a step longer than the window: its windows hold 2 samples
+    values = 20.0 + rng.normal(size=(len(t), len(features.channels())))  # an offset, as tau
+    ends = np.r_[0, 1, 2, np.arange(3, len(t), 7), 1000, 1001]
+    monkeypatch.setattr(extract, "ONLINE_BLOCK_VALUES", 5000)
+    rows = features.online_rows(t, values, ends)
+    for row, k in zip(rows, ends, strict=True):
+        first = max(0, min(int(np.searchsorted(t, t[k] - 0.05, side="right")), k - 1))
+        alone = scalar_features(values[first:k + 1], scalars, features.channels())[0]
+        np.testing.assert_allclose(row, alone, rtol=1e-11, atol=1e-12)
