@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import signal
 import subprocess
@@ -131,6 +132,37 @@ def run_cli(*args: str, cwd: Path | None = None, timeout: float = 300
             proc.communicate(timeout=60)
             raise
     return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
+
+
+CLI_MODULES = {"recorder": "contactkit.cli.recorder", "replay": "contactkit.cli.replay",
+               "classify": "contactkit.cli.classify"}
+
+
+def run_command(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    """Run one of the project's commands in this process, as its console script would
+    (the same ``run_app``: its exit codes, its one-line errors), and capture its output.
+
+    For tests of what a command does with its inputs, where a new interpreter would
+    only add its start-up; :func:`run_cli` runs the real console script, for what
+    needs one (start-up, signals, the installed entry points, a terminal's width)."""
+    import importlib
+
+    from contactkit.cli.common import run_app
+
+    app = importlib.import_module(CLI_MODULES[args[0]]).app
+    stdout, stderr = io.StringIO(), io.StringIO()
+    columns = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = "200"  # as run_cli's
+    try:
+        with (contextlib.chdir(cwd or Path.cwd()), contextlib.redirect_stdout(stdout),
+              contextlib.redirect_stderr(stderr)):
+            code = run_app(app, args[0], list(args[1:]))
+    finally:
+        if columns is None:
+            del os.environ["COLUMNS"]
+        else:
+            os.environ["COLUMNS"] = columns
+    return subprocess.CompletedProcess(list(args), code, stdout.getvalue(), stderr.getvalue())
 
 
 def make_dataset(directory: Path, poses=("A", "B", "C", "D"), repeats: int = 2,

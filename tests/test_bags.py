@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from bag_writers import ROS2_TOPIC, START_NS, write_bag
-from conftest import make_session, run_cli
+from conftest import make_session, run_command
 
 from contactkit.features.timing import rate_warning
 from contactkit.recorder.importers.bags import import_bag
@@ -130,7 +130,8 @@ def test_export_mcap_round_trip(source, tmp_path):
 def test_export_mcap_out_is_a_file_with_mcap_suffix_else_a_bag_directory(source, tmp_path):
     """`--out run.mcap` writes exactly that file (once a directory run.mcap/ holding
     run.mcap.mcap); `--out run` is a rosbag2 directory, as before. Both read back."""
-    result = run_cli("recorder", "export-mcap", str(source), "--out", str(tmp_path / "run.mcap"))
+    result = run_command("recorder", "export-mcap", str(source), "--out",
+                         str(tmp_path / "run.mcap"))
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "run.mcap").is_file() and result.stdout.strip() == str(tmp_path /
                                                                                "run.mcap")
@@ -138,7 +139,7 @@ def test_export_mcap_out_is_a_file_with_mcap_suffix_else_a_bag_directory(source,
     (tmp_path / "in").mkdir()
     back = validate_session(import_bag(tmp_path / "run.mcap", meta(), tmp_path / "in"))
     assert np.array_equal(back.q, read_session(source).q)
-    again = run_cli("recorder", "export-mcap", str(source), "--out", str(tmp_path / "run.mcap"))
+    again = run_command("recorder", "export-mcap", str(source), "--out", str(tmp_path / "run.mcap"))
     assert again.returncode == 2 and "--overwrite" in again.stderr
     bag = export_mcap(source, tmp_path / "run")
     assert bag == tmp_path / "run" / "run.mcap" and (tmp_path / "run" / "metadata.yaml").is_file()
@@ -151,16 +152,16 @@ def test_rate_warning_flags_franka_ros_default_rate():
 
 def test_cli_import_export_and_slow_rate(source, tmp_path):
     out = tmp_path / "sessions"
-    result = run_cli("recorder", "export-mcap", str(source), "--out", str(tmp_path / "x"))
+    result = run_command("recorder", "export-mcap", str(source), "--out", str(tmp_path / "x"))
     assert result.returncode == 0, result.stderr
-    result = run_cli("recorder", "import-bag", str(tmp_path / "x"), "--pose", "B", "--action",
+    result = run_command("recorder", "import-bag", str(tmp_path / "x"), "--pose", "B", "--action",
                      "shove", "--out", str(out))
     assert result.returncode == 0, result.stderr
     assert "500.0 Hz" in result.stderr
     slow = make_session(tmp_path, rate_hz=30.0, seed=4)
-    result = run_cli("recorder", "info", str(slow))
+    result = run_command("recorder", "info", str(slow))
     assert "too slow for the feature chain" in result.stdout
-    result = run_cli("recorder", "import-bag", str(tmp_path / "missing"), "--pose", "B",
+    result = run_command("recorder", "import-bag", str(tmp_path / "missing"), "--pose", "B",
                      "--action", "shove", "--out", str(out))
     assert result.returncode == 2 and "Traceback" not in result.stderr
 

@@ -12,7 +12,7 @@ from contactkit.classify.evaluate import evaluate
 from contactkit.classify.models import svm_pipeline
 from contactkit.classify.schemes import scheme_classes
 from contactkit.features.extract import SessionFeatures
-from tests.conftest import make_dataset, run_cli
+from tests.conftest import make_dataset, run_command
 
 
 @pytest.fixture(scope="module")
@@ -28,29 +28,29 @@ def dynamic(tmp_path_factory) -> Path:
 
 def test_train_evaluate_predict(static: Path, tmp_path: Path) -> None:
     model = tmp_path / "model.skops"
-    trained = run_cli("classify", "train", str(static), "--out", str(model), "--model",
+    trained = run_command("classify", "train", str(static), "--out", str(model), "--model",
                       "three-joint", "--workers", "1")
     assert trained.returncode == 0, trained.stderr
-    report = run_cli("classify", "evaluate", str(static), "--protocol", "group", "--group",
+    report = run_command("classify", "evaluate", str(static), "--protocol", "group", "--group",
                      "pose", "--json", str(tmp_path / "r.json"), "--workers", "1")
     assert report.returncode == 0, report.stderr
     assert "balanced accuracy" in report.stdout and "recall shove" in report.stdout
     doc = json.loads((tmp_path / "r.json").read_text())
     assert doc["n_splits"] == 4 and doc["group_by"] == "pose"
-    thesis = run_cli("classify", "evaluate", str(static), "--protocol", "thesis", "--scheme",
+    thesis = run_command("classify", "evaluate", str(static), "--protocol", "thesis", "--scheme",
                      "contact", "--workers", "1")
     assert thesis.returncode == 0 and "25 random 80/20 splits" in thesis.stdout
     session = sorted(static.glob("*.parquet"))[0]
-    predicted = run_cli("classify", "predict", str(model), str(session), "--json")
+    predicted = run_command("classify", "predict", str(model), str(session), "--json")
     assert predicted.returncode == 0, predicted.stderr
     line = json.loads(predicted.stdout.splitlines()[0])
     assert line["predicted"] in {"none", "bump", "adjust", "shove"}
     assert sum(line["probabilities"].values()) == pytest.approx(1.0, abs=1e-3)
     features = tmp_path / "wide.parquet"
-    made = run_cli("classify", "features", str(static), "--out", str(features), "--scalars",
+    made = run_command("classify", "features", str(static), "--out", str(features), "--scalars",
                    "mean")
     assert made.returncode == 0, made.stderr
-    refused = run_cli("classify", "predict", str(model), str(features))
+    refused = run_command("classify", "predict", str(model), str(features))
     assert refused.returncode == 2 and "other features" in refused.stderr
 
 
@@ -64,15 +64,15 @@ def test_bad_input(static: Path, tmp_path: Path) -> None:
         (["predict", str(tmp_path / "nope.skops"), str(static)], "no such model file"),
     ]
     for args, message in cases:
-        result = run_cli("classify", *args, "--workers", "1") if args[0] != "predict" else \
-            run_cli("classify", *args)
+        result = run_command("classify", *args, "--workers", "1") if args[0] != "predict" else \
+            run_command("classify", *args)
         assert result.returncode == 2, (args, result.stderr)
         assert message in result.stderr and "Traceback" not in result.stderr
 
 
 @pytest.mark.parametrize("name", ["features", "rfe", "window"])
 def test_experiments_write_table_json_and_plot(static: Path, tmp_path: Path, name: str) -> None:
-    result = run_cli("classify", "experiment", name, str(static), "--out", str(tmp_path),
+    result = run_command("classify", "experiment", name, str(static), "--out", str(tmp_path),
                      "--workers", "2")
     assert result.returncode == 0, result.stderr
     assert result.stdout.split() == [str(tmp_path / f"{name}.{ext}")
@@ -113,7 +113,7 @@ def test_experiments_write_table_json_and_plot(static: Path, tmp_path: Path, nam
 
 
 def test_speed_experiment(static: Path, dynamic: Path, tmp_path: Path) -> None:
-    result = run_cli("classify", "experiment", "speed", str(static), str(dynamic), "--out",
+    result = run_command("classify", "experiment", "speed", str(static), str(dynamic), "--out",
                      str(tmp_path), "--group", "session", "--workers", "2")
     assert result.returncode == 0, result.stderr
     table = (tmp_path / "speed.md").read_text()

@@ -18,7 +18,7 @@ from contactkit.classify.training import train
 from contactkit.features.detector import DetectorConfig, load_calibration
 from contactkit.schemas import read_session, write_session
 from contactkit.viewer import layout
-from tests.conftest import make_dataset, make_session, run_cli
+from tests.conftest import make_dataset, make_session, run_command
 from tests.rrd_frames import assert_frames_ok
 
 DETECTOR = DetectorConfig(noise=(1.0,) * 7, speed=(0.5,) * 7, accel=(0.02,) * 7)
@@ -58,7 +58,7 @@ def test_model_file_carries_detector_and_event_classifier(model_path) -> None:
 
 def test_calibrate_round_trip_through_the_cli(tmp_path, sessions) -> None:
     out = tmp_path / "robot.json"
-    result = run_cli("classify", "calibrate", str(sessions["none"]), str(sessions["shove"]),
+    result = run_command("classify", "calibrate", str(sessions["none"]), str(sessions["shove"]),
                      "--out", str(out))
     assert result.returncode == 0, result.stderr
     config = load_calibration(out)
@@ -67,7 +67,7 @@ def test_calibrate_round_trip_through_the_cli(tmp_path, sessions) -> None:
 
 
 def test_predict_events_with_the_models_detector(model_path, sessions) -> None:
-    result = run_cli("classify", "predict", str(model_path), str(sessions["shove"]),
+    result = run_command("classify", "predict", str(model_path), str(sessions["shove"]),
                      "--events", "--json")
     assert result.returncode == 0, result.stderr
     events = [json.loads(line)["event"] for line in result.stdout.splitlines()]
@@ -78,12 +78,12 @@ def test_predict_events_with_the_models_detector(model_path, sessions) -> None:
     assert peak["status"] == "ok" and peak["link"] in range(1, 8)
     assert len(peak["point_link_m"]) == len(peak["point_base_m"]) == len(peak["force_n"]) == 3
     assert 0.0 <= peak["confidence"] <= 1.0
-    text = run_cli("classify", "predict", str(model_path), str(sessions["shove"]), "--events")
+    text = run_command("classify", "predict", str(model_path), str(sessions["shove"]), "--events")
     assert "at the peak link " in text.stdout
 
 
 def test_decide_after_moves_the_decision(model_path, sessions) -> None:
-    result = run_cli("classify", "predict", str(model_path), str(sessions["shove"]),
+    result = run_command("classify", "predict", str(model_path), str(sessions["shove"]),
                      "--events", "--json", "--decide-after", "0.1")
     event = json.loads(result.stdout.splitlines()[0])["event"]
     assert event["decision_s"] == pytest.approx(event["onset_s"] + 0.1, abs=0.003)
@@ -99,7 +99,7 @@ def test_bad_calibration_file_exits_2(tmp_path, model_path, sessions, content, t
     else:
         args = ["replay", str(sessions["shove"]), "--model", str(model_path), "--viewer",
                 "none", "--save", str(tmp_path / "x.rrd")]
-    result = run_cli(*args, "--calibration", str(bad))
+    result = run_command(*args, "--calibration", str(bad))
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "robot.json" in lines[0], result.stderr
@@ -107,7 +107,7 @@ def test_bad_calibration_file_exits_2(tmp_path, model_path, sessions, content, t
 
 def test_replay_runs_without_planned_time_and_reports_events(tmp_path, model_path,
                                                              sessions) -> None:
-    result = run_cli("replay", str(sessions["unplanned"]), "--model", str(model_path),
+    result = run_command("replay", str(sessions["unplanned"]), "--model", str(model_path),
                      "--viewer", "none", "--save", str(tmp_path / "u.rrd"))
     assert result.returncode == 0, result.stderr
     summary = result.stdout + result.stderr
@@ -117,7 +117,7 @@ def test_replay_runs_without_planned_time_and_reports_events(tmp_path, model_pat
 
 def test_replay_draws_the_isolated_and_the_true_contact(tmp_path, model_path, sessions) -> None:
     out = tmp_path / "s.rrd"
-    result = run_cli("replay", str(sessions["shove"]), "--model", str(model_path),
+    result = run_command("replay", str(sessions["shove"]), "--model", str(model_path),
                      "--viewer", "none", "--save", str(out))
     assert result.returncode == 0, result.stderr
     assert_frames_ok(out)

@@ -17,7 +17,7 @@ from contactkit.recorder.importers import arrays
 from contactkit.recorder.importers.jobs import import_arrays
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.features import read_feature_table
-from tests.conftest import make_session, run_cli
+from tests.conftest import make_session, run_command
 
 
 @pytest.fixture(scope="module")
@@ -68,7 +68,7 @@ def test_parallel_rows_equal_serial_and_bad_files_are_listed(small_dataset: Path
 
 def test_features_command_on_dataset_and_per_sample(small_dataset: Path, tmp_path: Path) -> None:
     out = tmp_path / "features.parquet"
-    result = run_cli("classify", "features", str(small_dataset), "--out", str(out), "--workers",
+    result = run_command("classify", "features", str(small_dataset), "--out", str(out), "--workers",
                      "2")
     assert result.returncode == 0, result.stderr
     table, doc = read_feature_table(out)
@@ -76,18 +76,18 @@ def test_features_command_on_dataset_and_per_sample(small_dataset: Path, tmp_pat
     frame = pl.read_parquet(out)
     assert frame["window_found"].dtype == pl.Boolean
     assert set(frame["action"]) == {"none", "bump", "adjust", "shove"}
-    again = run_cli("classify", "features", str(small_dataset), "--out", str(out))
+    again = run_command("classify", "features", str(small_dataset), "--out", str(out))
     assert again.returncode == 2 and "already exists" in again.stderr
     session = sorted(small_dataset.glob("*.parquet"))[0]
     per_sample = tmp_path / "ps.parquet"
-    result = run_cli("classify", "features", str(session), "--out", str(per_sample),
+    result = run_command("classify", "features", str(session), "--out", str(per_sample),
                      "--per-sample")
     assert result.returncode == 0, result.stderr
     columns = pl.read_parquet_schema(per_sample)
     for name in ("r_1", "g_7", "tau_inv_3", "ddq_2", "p_int_5", "p_ext_6", "f_x", "m_z",
                  "f_norm", "m_norm"):
         assert name in columns
-    bad = run_cli("classify", "features", str(session), "--out", str(tmp_path / "x.parquet"),
+    bad = run_command("classify", "features", str(session), "--out", str(tmp_path / "x.parquet"),
                   "--scalars", "median")
     assert bad.returncode == 2 and "unknown scalar feature 'median'" in bad.stderr
 
@@ -97,16 +97,16 @@ def test_import_arrays_round_trip(reference_dir: Path, tmp_path: Path) -> None:
             str(reference_dir / "positions.txt"), "--dq", str(reference_dir / "velocity.txt"),
             "--tau", str(reference_dir / "torques.txt"), "--meta", "with_hand=false", "--meta",
             "planned_at_s=10", "--meta", "condition=dynamic", "--out", str(tmp_path)]
-    result = run_cli(*args)
+    result = run_command(*args)
     assert result.returncode == 0, result.stderr
     frame = pl.read_parquet(result.stdout.strip())
     assert frame.height == 20544 and frame["t"][0] == 0.0
     assert frame["q_1"][0] == pytest.approx(-0.9584)
     npy = tmp_path / "tau.npy"
     np.save(npy, np.zeros((20544, 6)))
-    bad = run_cli(*args[:-2], "--out", str(tmp_path / "o"), "--tau", str(npy))
+    bad = run_command(*args[:-2], "--out", str(tmp_path / "o"), "--tau", str(npy))
     assert bad.returncode == 2 and "wrong joint count" in bad.stderr
-    bad_meta = run_cli(*args[:-2], "--out", str(tmp_path / "o"), "--meta", "colour=red")
+    bad_meta = run_command(*args[:-2], "--out", str(tmp_path / "o"), "--meta", "colour=red")
     assert bad_meta.returncode == 2 and "bad metadata pair 'colour=red'" in bad_meta.stderr
 
 

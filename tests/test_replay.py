@@ -34,7 +34,7 @@ from contactkit.schemas import read_session
 from contactkit.schemas.session import METADATA_KEY
 from contactkit.viewer import layout
 from contactkit.viewer.web import WEB_PORT, free_port, start_web_viewer
-from tests.conftest import make_dataset, make_session, run_cli
+from tests.conftest import make_dataset, make_session, run_cli, run_command
 from tests.rrd_frames import assert_frames_ok, frame_problems
 
 ENTITIES = [layout.Q, layout.DQ, layout.TAU, layout.RESIDUAL, layout.FORCE, layout.MOMENT,
@@ -136,8 +136,8 @@ def test_predictions_sit_at_window_ends_without_look_ahead(replayed, session,
 def test_paced_and_max_rate_log_the_same_values(tmp_path, session, model_path,
                                                 replayed) -> None:
     paced = tmp_path / "paced.rrd"
-    result = run_cli("replay", str(session), "--viewer", "none", "--save", str(paced),
-                     "--model", str(model_path), "--rate", "20")
+    result = run_command("replay", str(session), "--viewer", "none", "--save", str(paced),
+                         "--model", str(model_path), "--rate", "20")
     assert result.returncode == 0, result.stderr
     assert_frames_ok(paced)
     fast, slow = read_rrd(replayed), read_rrd(paced)
@@ -152,8 +152,8 @@ def test_paced_and_max_rate_log_the_same_values(tmp_path, session, model_path,
 def test_bad_session_is_reported_and_others_still_replay(tmp_path, session, model_path) -> None:
     bad = tmp_path / "bad.parquet"
     bad.write_bytes(b"not parquet")
-    result = run_cli("replay", str(bad), str(session), "--viewer", "none", "--save",
-                     str(tmp_path / "out.rrd"), "--model", str(model_path))
+    result = run_command("replay", str(bad), str(session), "--viewer", "none", "--save",
+                         str(tmp_path / "out.rrd"), "--model", str(model_path))
     assert result.returncode == 2
     assert f"replay: error: {bad}: not a readable Parquet file" in result.stderr
     assert_frames_ok(tmp_path / f"out_{session.stem}.rrd")
@@ -164,9 +164,9 @@ def test_rerun_viewer_without_display_falls_back_to_save(tmp_path, session, mode
     assert result.returncode == 0, result.stderr
     assert "no display" in result.stderr
     assert_frames_ok(tmp_path / "replay.rrd")
-    bad = run_cli("replay", str(session), "--viewer", "vr", "--model", str(model_path))
+    bad = run_command("replay", str(session), "--viewer", "vr", "--model", str(model_path))
     assert bad.returncode == 2 and "'vr' is not one of" in bad.stderr
-    bad = run_cli("replay", str(session), "--rate", "fast", "--model", str(model_path))
+    bad = run_command("replay", str(session), "--rate", "fast", "--model", str(model_path))
     assert bad.returncode == 2 and "--rate must be" in bad.stderr
 
 
@@ -218,8 +218,8 @@ def test_refused_input_gives_no_saved_message_and_no_file(tmp_path, session, mod
         pq.write_table(table.replace_schema_metadata(
             {METADATA_KEY: json.dumps(doc | changes).encode()}), bad)
         out = tmp_path / f"{name}.rrd"
-        result = run_cli("replay", str(bad), "--viewer", "none", "--save", str(out),
-                         "--model", str(model_path))
+        result = run_command("replay", str(bad), "--viewer", "none", "--save", str(out),
+                             "--model", str(model_path))
         assert result.returncode == 2, result.stderr
         assert "Traceback" not in result.stderr and "saved" not in result.stderr
         assert not out.exists(), name
@@ -236,8 +236,8 @@ def test_directory_replay_without_hand_has_sound_frames(tmp_path, model_path) ->
     data.mkdir()
     make_session(data, seed=8, action="bump", duration_s=2.0, planned_at_s=1.0, with_hand=False)
     make_session(data, seed=9, action="none", duration_s=2.0, planned_at_s=1.0)
-    result = run_cli("replay", str(data), "--viewer", "none", "--save",
-                     str(tmp_path / "dir.rrd"), "--model", str(model_path))
+    result = run_command("replay", str(data), "--viewer", "none", "--save",
+                         str(tmp_path / "dir.rrd"), "--model", str(model_path))
     assert result.returncode == 0, result.stderr
     written = sorted(tmp_path.glob("dir_*.rrd"))
     assert len(written) == 2

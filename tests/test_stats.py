@@ -11,7 +11,7 @@ import pytest
 
 from contactkit.recorder.sim.noise import SensorNoise
 from contactkit.recorder.stats.summary import index_stats
-from tests.conftest import make_dataset, run_cli
+from tests.conftest import make_dataset, run_command
 
 SCHEMA = Path(__file__).resolve().parents[1] / "schemas" / "stats_report.schema.json"
 
@@ -40,7 +40,7 @@ def _check_required(schema: dict, doc, where: str = "report") -> None:
 
 def test_index_report_counts_and_problems(dataset: Path, tmp_path: Path) -> None:
     out = tmp_path / "report.json"
-    result = run_cli("recorder", "stats", str(dataset), "--format", "json", "--out", str(out))
+    result = run_command("recorder", "stats", str(dataset), "--format", "json", "--out", str(out))
     assert result.returncode == 0, result.stderr
     report = json.loads(out.read_text())
     _check_required(json.loads(SCHEMA.read_text()), report)
@@ -63,7 +63,7 @@ def test_index_report_counts_and_problems(dataset: Path, tmp_path: Path) -> None
 
 def test_deep_report_markdown_and_noise_file(dataset: Path, tmp_path: Path) -> None:
     out = tmp_path / "deep.md"
-    result = run_cli("recorder", "stats", str(dataset), "--deep", "--format", "md", "--out",
+    result = run_command("recorder", "stats", str(dataset), "--deep", "--format", "md", "--out",
                      str(out), "--workers", "2")
     assert result.returncode == 0, result.stderr
     text = out.read_text()
@@ -80,7 +80,7 @@ def test_deep_report_markdown_and_noise_file(dataset: Path, tmp_path: Path) -> N
 
 def test_deep_json_sections_and_html(dataset: Path, tmp_path: Path) -> None:
     out = tmp_path / "deep.json"
-    result = run_cli("recorder", "stats", str(dataset), "--deep", "--format", "json", "--out",
+    result = run_command("recorder", "stats", str(dataset), "--deep", "--format", "json", "--out",
                      str(out), "--workers", "2")
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == str(out)
@@ -93,7 +93,7 @@ def test_deep_json_sections_and_html(dataset: Path, tmp_path: Path) -> None:
     assert {w["action"] for w in deep["window_detection"]} == {"none", "bump", "adjust", "shove"}
     peaks = {p["action"]: p["peak_residual_norm_nm"]["median"] for p in deep["peaks_by_class"]}
     assert peaks["shove"] > peaks["none"]
-    written = run_cli("recorder", "stats", str(dataset), "--out", str(tmp_path / "r"))
+    written = run_command("recorder", "stats", str(dataset), "--out", str(tmp_path / "r"))
     html = tmp_path / "r.html"
     assert written.returncode == 0, written.stderr
     assert written.stdout.strip() == str(html)
@@ -103,7 +103,7 @@ def test_deep_json_sections_and_html(dataset: Path, tmp_path: Path) -> None:
     assert "shape:" not in page and "<td>str</td>" not in page
     assert "<td>&quot;" not in page and "<td>\"" not in page
     assert "<th>share [%]</th>" in page and "<td class=num>25</td>" in page
-    bad = run_cli("recorder", "stats", str(dataset), "--format", "pdf")
+    bad = run_command("recorder", "stats", str(dataset), "--format", "pdf")
     assert bad.returncode == 2 and "'pdf' is not one of 'html', 'md', 'json'" in bad.stderr
     assert len(bad.stderr.strip().splitlines()) == 1
 
