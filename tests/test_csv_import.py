@@ -13,7 +13,7 @@ from contactkit.recorder.importers.csv_import import import_csv, read_csv_column
 from contactkit.recorder.importers.csv_map import load_csv_map, mindlab_map_path
 from contactkit.recorder.metadata import session_meta
 from contactkit.schemas import InputError, validate_session
-from tests.conftest import MINDLAB_FILES, run_cli
+from tests.conftest import MINDLAB_FILES, run_command
 
 MAP = mindlab_map_path()
 
@@ -29,8 +29,8 @@ def _expected(csv: Path) -> tuple[np.ndarray, int]:
 
 def test_import_csv_of_every_mindlab_file(mindlab_dir: Path, tmp_path: Path) -> None:
     files = [str(mindlab_dir / f"{name}.csv") for name in MINDLAB_FILES]
-    result = run_cli("recorder", "import-csv", *files, "--map", str(MAP), "--out",
-                     str(tmp_path))
+    result = run_command("recorder", "import-csv", *files, "--map", str(MAP), "--out",
+                         str(tmp_path))
     assert result.returncode == 0, result.stderr
     paths = result.stdout.split()
     assert len(paths) == len(files)
@@ -136,7 +136,7 @@ def test_bad_input_exits_2_with_one_line(mindlab_dir: Path, tmp_path: Path) -> N
     for args, needle in [((str(broken), "--map", str(MAP)), "no column 'q6'"),
                          ((str(mindlab_dir / "a4.csv"), "--map", str(bad_map)),
                           "index_base must be 0 or 1")]:
-        result = run_cli("recorder", "import-csv", *args, "--out", str(tmp_path / "o"))
+        result = run_command("recorder", "import-csv", *args, "--out", str(tmp_path / "o"))
         assert result.returncode == 2, result.stderr
         assert needle in result.stderr and len(result.stderr.strip().splitlines()) == 1
 

@@ -19,7 +19,7 @@ from contactkit.recorder.sim.forces import add_synthetic_touches
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
 from contactkit.schemas import read_session
-from tests.conftest import make_session, run_cli
+from tests.conftest import make_session, run_command
 
 FR3_MAP = Path(__file__).resolve().parents[1] / "recorder" / "data" / "fr3_teleop_csv_map.toml"
 TOUCH_TIMES_S = (1.5, 4.0, 6.5, 9.0)
@@ -56,8 +56,8 @@ def test_imported_fr3_sessions_name_their_robot_and_agree_with_its_estimate(
 
 def test_the_panda_model_does_not_fit_an_fr3(fr3_sessions, default_model_path,
                                              tmp_path: Path) -> None:
-    result = run_cli("replay", str(fr3_sessions[0]), "--viewer", "none", "--robot", "panda",
-                     "--model", str(default_model_path), "--save", str(tmp_path / "panda.rrd"))
+    result = run_command("replay", str(fr3_sessions[0]), "--viewer", "none", "--robot", "panda",
+                         "--model", str(default_model_path), "--save", str(tmp_path / "panda.rrd"))
     assert result.returncode == 0, result.stderr
     # joint 2's correlation drops well below the FR3 model's 0.98
     line = result.stdout + result.stderr
@@ -115,6 +115,6 @@ def test_set_robot_corrects_a_session_and_robot_overrides_it(tmp_path: Path) -> 
     assert after.meta.urdf_sha256 == RobotModel(RobotSetup("fr3")).urdf_sha256
     assert after.table.equals(before.table.replace_schema_metadata(
         after.table.schema.metadata))
-    result = run_cli("recorder", "set-robot", str(path), "--robot", "kuka")
+    result = run_command("recorder", "set-robot", str(path), "--robot", "kuka")
     assert result.returncode == 2 and "unknown robot 'kuka'" in result.stderr
     assert result.stderr.count("\n") == 1

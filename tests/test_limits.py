@@ -16,7 +16,7 @@ from contactkit.recorder.sim import dataset
 from contactkit.recorder.sim.simulator import SimConfig, plan_session
 from contactkit.recorder.stats.summary import beyond_limits
 from contactkit.schemas import SessionMeta, read_session
-from tests.conftest import make_session, run_cli
+from tests.conftest import make_session, run_command
 
 
 def test_hard_limits_are_refused_on_read_naming_column_and_row(tmp_path: Path) -> None:
@@ -81,7 +81,7 @@ def test_recorder_info_flags_a_sample_beyond_the_robots_limits(tmp_path: Path) -
                    bad)
     why = session_info(bad)["beyond_limits"]
     assert why.startswith("dq_4 = 9 rad/s") and "(row 42)" in why
-    result = run_cli("recorder", "info", str(bad))
+    result = run_command("recorder", "info", str(bad))
     assert result.returncode == 0 and "limits" in result.stdout and "dq_4" in result.stdout
 
 
@@ -103,6 +103,6 @@ def test_calibration_leaves_out_a_session_beyond_the_robots_limits(tmp_path: Pat
     assert [Path(name).name for name, _ in problems] == ["scaled.parquet"]
     assert "beyond the robot's limit" in problems[0][1]
     assert config.source["sessions"] == 1 and max(config.noise) < 5.0
-    result = run_cli("classify", "calibrate", str(tmp_path), "--out", str(tmp_path / "c.json"))
+    result = run_command("classify", "calibrate", str(tmp_path), "--out", str(tmp_path / "c.json"))
     assert result.returncode == 2 and "scaled.parquet" in result.stderr
     assert "Traceback" not in result.stderr and (tmp_path / "c.json").is_file()

@@ -17,7 +17,7 @@ from contactkit.recorder.sources import ProtocolChoices, open_source
 from contactkit.replay.engine import ReplayStream
 from contactkit.robots import RobotSetup
 from contactkit.schemas import joint_columns, read_session
-from tests.conftest import run_cli
+from tests.conftest import run_cli, run_command
 
 CAPTURE = ("--pose", "B", "--action", "adjust", "--link", "4", "--seed", "2", "--rate", "500",
            "--duration", "4", "--planned-at", "1.5")
@@ -78,11 +78,11 @@ def _same_values(batch: dict, live: dict) -> None:
 
 def test_info_shows_the_stored_events(captured) -> None:
     path, _ = captured
-    result = run_cli("recorder", "info", str(path), "--json")
+    result = run_command("recorder", "info", str(path), "--json")
     assert result.returncode == 0, result.stderr
     events = json.loads(result.stdout)["metadata"]["events"]
     assert events == read_session(path).meta.events
-    table = run_cli("recorder", "info", str(path)).stdout
+    table = run_command("recorder", "info", str(path)).stdout
     assert "event 1" in table and f"{events[0]['label']} (p = " in table
     assert f"at the peak link {events[0]['contact_at_peak']['link']} at (" in table
 

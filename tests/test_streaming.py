@@ -28,7 +28,7 @@ from contactkit.replay.session_replay import replay_session
 from contactkit.schemas import SessionMeta, read_session, write_session
 from contactkit.schemas.session import REQUIRED_COLUMNS, SampleBatch, iter_sample_batches
 from contactkit.viewer import layout
-from tests.conftest import make_session, run_cli
+from tests.conftest import make_session, run_command
 from tests.rrd_frames import assert_frames_ok
 
 
@@ -184,8 +184,8 @@ def test_log_rate_thins_what_goes_to_rerun(tmp_path, shove, quick_model) -> None
         replay_session(shove, load_model(quick_model), save=out, log_rate_hz=log_rate)
         rows[log_rate] = _rows(out)
     out = tmp_path / "thin_cli.rrd"
-    result = run_cli("replay", str(shove), "--viewer", "none", "--save", str(out),
-                     "--model", str(quick_model), "--log-rate", "20")
+    result = run_command("replay", str(shove), "--viewer", "none", "--save", str(out),
+                         "--model", str(quick_model), "--log-rate", "20")
     assert result.returncode == 0, result.stderr
     assert_frames_ok(out)
     rows[20.0] = _rows(out)
