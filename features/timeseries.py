@@ -188,9 +188,8 @@ class TimeseriesChain:
         self.names = expand(names)
         self._pool = pin.ModelPool(self.model.model, 1)
         self._gain = self.config.observer.gain_vector()
-        # the per-sample step does a uniform gain's scalar math on a Python float
-        self._sample_gain: float | np.ndarray = (
-            float(self._gain[0]) if (self._gain == self._gain[0]).all() else self._gain)
+        self._gain_list = self._gain.tolist()  # the per-sample step's, [1/s]
+        self._no_friction = [0.0] * 7
         self._need = _Needs.of(self.names)
         self._friction = self.config.observer.friction_model(self.model.spec)
         self._fid = _frame_id(self.model, self.config.wrench_frame)
@@ -260,14 +259,11 @@ class TimeseriesChain:
             p = pin.rnea(model, data, q, _ZEROS, dq) - g
             # C^T dq as dq C: computeCoriolisMatrix also leaves the joint placements
             # and Jacobians in data, which getFrameJacobian reads below
-            u = tau - g + dq.dot(pin.computeCoriolisMatrix(model, data, q, dq))
-            if self._friction is not None:
-                u -= self._friction.sample_torque(dq)
+            coriolis = dq.dot(pin.computeCoriolisMatrix(model, data, q, dq))
             if before is None:
                 r = np.zeros(7)
             else:
-                gain = self._sample_gain
-                r = (before.r + gain * (p - before.p - h * u)) / (1.0 + gain * h)
+                r = np.array(self._observer_step(h, before, p, tau, g, coriolis, dq))
             out["r"] = r
             if need.p_ext:
                 out["p_ext"] = r * dq
@@ -276,6 +272,21 @@ class TimeseriesChain:
                 out.update(_wrench_features(np.linalg.solve(jac @ jac.T + _DAMPED, jac @ r)))
         self._state = ChainState(t, dq.copy(), p, None if r is None else r.copy())
         return {name: out[name] for name in self.names}
+
+    def _observer_step(self, h: float, before: ChainState, p: np.ndarray, tau: np.ndarray,
+                       g: np.ndarray, coriolis: np.ndarray, dq: np.ndarray) -> list[float]:
+        """Return the observer's residual r [Nm] (7 floats) one step ``h`` [s] after
+        ``before``, from the momentum ``p`` [Nm s], torque ``tau``, gravity ``g`` and
+        C^T dq ``coriolis`` [Nm], and velocity ``dq`` [rad/s] (friction's), each (7,):
+        r = (r_before + K_O (p - p_before - h u)) / (1 + K_O h), u = tau + C^T dq - g -
+        tau_f (:mod:`contactkit.features.observer`), on Python floats: one pass over
+        seven joints costs less than the dozen array operations it replaces."""
+        friction = (self._no_friction if self._friction is None
+                    else self._friction.sample_torque(dq.tolist()))
+        return [(r0 + k * (p1 - p0 - h * (tq + c - gq - f))) / (1.0 + k * h)
+                for r0, p0, p1, tq, gq, c, f, k in zip(
+                    before.r.tolist(), before.p.tolist(), p.tolist(), tau.tolist(),
+                    g.tolist(), coriolis.tolist(), friction, self._gain_list, strict=True)]
 
     def _rnea(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
         """Return pinocchio's inverse dynamics tau(q, v, a) [Nm] of each sample, (n, 7):
