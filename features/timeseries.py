@@ -49,6 +49,7 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pinocchio as pin
@@ -158,11 +159,12 @@ def _frame_id(model: RobotModel, wrench_frame: str | int) -> int:
     return model.frame_id(model.end_effector if wrench_frame == "ee" else wrench_frame)
 
 
-@dataclass(frozen=True)
-class ChainState:
+class ChainState(NamedTuple):
     """What the chain carries from one chunk of a stream to the next: the last sample's
     time ``t`` [s], velocity ``dq`` [rad/s] (for ddq), momentum ``p`` [Nm s] and
-    residual ``r`` [Nm] (for the observer; None when the chain computed no residual)."""
+    residual ``r`` [Nm] (for the observer; None when the chain computed no residual).
+    A named tuple: immutable, and built on every live sample at a third of a frozen
+    dataclass's cost."""
 
     t: float
     dq: np.ndarray
