@@ -281,6 +281,7 @@ class Detector:
     def update(self, t: float, r: np.ndarray, dq: np.ndarray) -> DetectorState:
         """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,).
         After a gap (a step over ``RESTART_STEP_S``) the detector restarts first."""
+        t = float(t)  # a NumPy scalar's arithmetic costs several times a float's
         cfg = self.config
         restarted = cut = False
         if self.t is not None and t - self.t > RESTART_STEP_S:
