@@ -22,14 +22,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 import pinocchio as pin
-from bench_events import row, timed  # the same timing and table as the event benchmark
+from bench_events import cpu_timed, row, timed  # the event benchmark's timing and table
 
 from contactkit.features.isolation import REST_NOISE_NM, robot_isolator
 from contactkit.recorder.protocol import pose_q
@@ -54,17 +53,6 @@ def contacts(n: int, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray, int]]:
         r = model.point_jacobian(q, link, point)[:3].T @ force + rng.normal(0, NOISE_NM, 7)
         out.append((q, r, link))
     return out
-
-
-def cpu_timed(fn, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Wall time and the thread's CPU time [us] of ``fn(i)`` for i in range(n)."""
-    wall, cpu = np.empty(n), np.empty(n)
-    for i in range(n):
-        start, start_cpu = time.perf_counter_ns(), time.thread_time_ns()
-        fn(i)
-        cpu[i] = time.thread_time_ns() - start_cpu
-        wall[i] = time.perf_counter_ns() - start
-    return wall / 1e3, cpu / 1e3
 
 
 def main() -> None:

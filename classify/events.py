@@ -240,6 +240,7 @@ class EventPipeline:
                q: np.ndarray | None = None) -> EventOutput:
         """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,)
         and, for contact isolation, joint position q [rad] (7,)."""
+        t = float(t)  # a NumPy scalar's arithmetic costs several times a float's
         state = self.detector.update(t, r, dq)
         return self._step(t, np.array(r, dtype=float), q, state, self.detector.baseline)
 

@@ -205,6 +205,10 @@ class Detector:
         self._noise = np.array(self.config.noise)
         self._speed = np.array(self.config.speed)
         self._accel = np.array(self.config.accel)
+        # the per-sample threshold as (1, s, a) . (noise, speed, accel): one product
+        # instead of four array operations
+        self._coefficients = np.array([self._noise, self._speed, self._accel])  # (3, 7)
+        self._motion_terms = np.ones(3)  # (1, s [rad/s], a [rad/s^2]) of the last sample
         self.reset()
 
     def reset(self) -> None:
@@ -232,8 +236,9 @@ class Detector:
             self.speed, self.accel = speed, 0.0
         else:
             h = t - self.t
-            ddq = (dq - self.dq_prev) / h if h > 0 else self.ddq_f
-            self.ddq_f = (self.ddq_f + FILTER_GAIN * h * ddq) / (1.0 + FILTER_GAIN * h)
+            if h > 0:  # the low-pass of ddq = (dq - dq_prev) / h; without a step it holds
+                self.ddq_f = ((self.ddq_f + FILTER_GAIN * (dq - self.dq_prev))
+                              / (1.0 + FILTER_GAIN * h))
             decay = math.exp(-h / hold) if hold > 0 else 0.0
             self.speed = max(speed, self.speed * decay)
             self.accel = max(math.sqrt(self.ddq_f.dot(self.ddq_f)), self.accel * decay)
@@ -276,18 +281,21 @@ class Detector:
     def update(self, t: float, r: np.ndarray, dq: np.ndarray) -> DetectorState:
         """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,).
         After a gap (a step over ``RESTART_STEP_S``) the detector restarts first."""
+        t = float(t)  # a NumPy scalar's arithmetic costs several times a float's
         cfg = self.config
         restarted = cut = False
         if self.t is not None and t - self.t > RESTART_STEP_S:
             restarted, cut = True, self.contact
             self.reset()
         s, a = self.motion(t, dq)
+        terms = self._motion_terms
+        terms[1], terms[2] = s, a
         first = self.t is None
         h = 0.0 if first else t - self.t
         self.t = t
         if self.t0 is None:
             self.t0 = t
-        threshold = self._noise + self._speed * s + self._accel * a
+        threshold = terms.dot(self._coefficients)
         r = np.asarray(r, dtype=float)
         if first or cfg.smooth_s == 0.0:
             self.r_f = r.copy()
@@ -298,7 +306,7 @@ class Detector:
             return DetectorState(False, 0.0, False, False, np.zeros(N_JOINTS), threshold,
                                  restarted, cut)
         e = self.r_f - self.baseline
-        ratio = np.abs(e) / threshold
+        ratio = abs(e) / threshold
         score = float(ratio.max())
         onset = release = False
         if not self.contact:

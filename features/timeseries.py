@@ -49,6 +49,7 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pinocchio as pin
@@ -74,6 +75,8 @@ DAMPING = 0.01
 _DAMPED = DAMPING**2 * np.eye(6)
 _WRENCH = frozenset(("f", "m", "fm_norm"))
 _RESIDUAL = frozenset(("r", "p_ext"))
+_ZEROS = np.zeros(7)
+_ZEROS.flags.writeable = False
 SHORT_CHUNK = 16
 """Chunks of at most this many samples (a live stream's) run pinocchio's inverse
 dynamics sample by sample: its batch call costs more to set up than it saves."""
@@ -130,15 +133,38 @@ class ChainConfig:
         return RobotModel(robot)
 
 
+@dataclass(frozen=True)
+class _Needs:
+    """What a chain computes for the features it returns (expanded names)."""
+
+    g: bool
+    ddq: bool
+    tau_inv: bool
+    p_int: bool
+    r: bool
+    p_ext: bool
+    wrench: bool
+
+    @classmethod
+    def of(cls, names: list[str]) -> _Needs:
+        """Return what the features ``names`` need."""
+        wrench = not _WRENCH.isdisjoint(names)
+        r = wrench or not _RESIDUAL.isdisjoint(names)
+        return cls(g=r or "g" in names, ddq="ddq" in names or "tau_inv" in names,
+                   tau_inv="tau_inv" in names, p_int="p_int" in names, r=r,
+                   p_ext="p_ext" in names, wrench=wrench)
+
+
 def _frame_id(model: RobotModel, wrench_frame: str | int) -> int:
     return model.frame_id(model.end_effector if wrench_frame == "ee" else wrench_frame)
 
 
-@dataclass(frozen=True)
-class ChainState:
+class ChainState(NamedTuple):
     """What the chain carries from one chunk of a stream to the next: the last sample's
     time ``t`` [s], velocity ``dq`` [rad/s] (for ddq), momentum ``p`` [Nm s] and
-    residual ``r`` [Nm] (for the observer; None when the chain computed no residual)."""
+    residual ``r`` [Nm] (for the observer; None when the chain computed no residual).
+    A named tuple: immutable, and built on every live sample at a third of a frozen
+    dataclass's cost."""
 
     t: float
     dq: np.ndarray
@@ -164,6 +190,9 @@ class TimeseriesChain:
         self.names = expand(names)
         self._pool = pin.ModelPool(self.model.model, 1)
         self._gain = self.config.observer.gain_vector()
+        self._gain_list = self._gain.tolist()  # the per-sample step's, [1/s]
+        self._no_friction = [0.0] * 7
+        self._need = _Needs.of(self.names)
         self._friction = self.config.observer.friction_model(self.model.spec)
         self._fid = _frame_id(self.model, self.config.wrench_frame)
         self._state: ChainState | None = None
@@ -207,44 +236,59 @@ class TimeseriesChain:
                ) -> dict[str, np.ndarray]:
         """Feed one sample (``t`` [s]; ``q`` [rad], ``dq`` [rad/s], ``tau`` [Nm], each
         (7,)); return the chain's features at it, name -> (k,). The same formulas as a
-        chunk of one (to about 1e-15), on 7-vectors: a live robot's per-sample path."""
+        chunk of one (to about 1e-15), on 7-vectors: a live robot's per-sample path, so
+        what depends only on the names is decided once, at construction."""
         t = float(t)
-        q, dq, tau = (np.asarray(x, dtype=float).reshape(7) for x in (q, dq, tau))
+        q = np.asarray(q, dtype=float).reshape(7)
+        dq = np.asarray(dq, dtype=float).reshape(7)
+        tau = np.asarray(tau, dtype=float).reshape(7)
         before = self._state
         if before is not None and t - before.t > RESTART_STEP_S:
             before = None  # a gap: the chain restarts here
-        model, data, names = self.model.model, self.model.data, self.names
-        zeros = np.zeros(7)
+        h = 0.0 if before is None else t - before.t
+        model, data, need = self.model.model, self.model.data, self._need
         out: dict[str, np.ndarray] = {"q": q, "dq": dq, "tau": tau}
-        need_wrench = not _WRENCH.isdisjoint(names)
-        need_r = need_wrench or not _RESIDUAL.isdisjoint(names)
-        g = pin.rnea(model, data, q, zeros, zeros) if need_r or "g" in names else None
+        g = pin.computeGeneralizedGravity(model, data, q) if need.g else None
         out["g"] = g
-        if "ddq" in names or "tau_inv" in names:
-            out["ddq"] = zeros if before is None else (dq - before.dq) / (t - before.t)
-        if "tau_inv" in names:
+        if need.ddq:
+            out["ddq"] = np.zeros(7) if before is None else (dq - before.dq) / h
+        if need.tau_inv:
             out["tau_inv"] = pin.rnea(model, data, q, dq, out["ddq"])
-        if "p_int" in names:
+        if need.p_int:
             out["p_int"] = dq * tau
         p = r = None
-        if need_r:
-            p = pin.rnea(model, data, q, zeros, dq) - g
-            u = tau + pin.computeCoriolisMatrix(model, data, q, dq).T @ dq - g
-            if self._friction is not None:
-                u -= self._friction.torque(dq)
+        if need.r:
+            p = pin.rnea(model, data, q, _ZEROS, dq) - g
+            # C^T dq as dq C: computeCoriolisMatrix also leaves the joint placements
+            # and Jacobians in data, which getFrameJacobian reads below
+            coriolis = dq.dot(pin.computeCoriolisMatrix(model, data, q, dq))
             if before is None:
                 r = np.zeros(7)
             else:
-                h = t - before.t
-                a = 1.0 / (1.0 + self._gain * h)
-                r = a * (before.r + self._gain * (p - before.p - h * u) * a / a)
-            out["r"], out["p_ext"] = r, r * dq
-            if need_wrench:
-                jac = pin.computeFrameJacobian(model, data, q, self._fid,
-                                               pin.LOCAL_WORLD_ALIGNED)
+                r = np.array(self._observer_step(h, before, p, tau, g, coriolis, dq))
+            out["r"] = r
+            if need.p_ext:
+                out["p_ext"] = r * dq
+            if need.wrench:
+                jac = pin.getFrameJacobian(model, data, self._fid, pin.LOCAL_WORLD_ALIGNED)
                 out.update(_wrench_features(np.linalg.solve(jac @ jac.T + _DAMPED, jac @ r)))
         self._state = ChainState(t, dq.copy(), p, None if r is None else r.copy())
-        return {name: out[name] for name in names}
+        return {name: out[name] for name in self.names}
+
+    def _observer_step(self, h: float, before: ChainState, p: np.ndarray, tau: np.ndarray,
+                       g: np.ndarray, coriolis: np.ndarray, dq: np.ndarray) -> list[float]:
+        """Return the observer's residual r [Nm] (7 floats) one step ``h`` [s] after
+        ``before``, from the momentum ``p`` [Nm s], torque ``tau``, gravity ``g`` and
+        C^T dq ``coriolis`` [Nm], and velocity ``dq`` [rad/s] (friction's), each (7,):
+        r = (r_before + K_O (p - p_before - h u)) / (1 + K_O h), u = tau + C^T dq - g -
+        tau_f (:mod:`contactkit.features.observer`), on Python floats: one pass over
+        seven joints costs less than the dozen array operations it replaces."""
+        friction = (self._no_friction if self._friction is None
+                    else self._friction.sample_torque(dq.tolist()))
+        return [(r0 + k * (p1 - p0 - h * (tq + c - gq - f))) / (1.0 + k * h)
+                for r0, p0, p1, tq, gq, c, f, k in zip(
+                    before.r.tolist(), before.p.tolist(), p.tolist(), tau.tolist(),
+                    g.tolist(), coriolis.tolist(), friction, self._gain_list, strict=True)]
 
     def _rnea(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
         """Return pinocchio's inverse dynamics tau(q, v, a) [Nm] of each sample, (n, 7):
@@ -269,29 +313,27 @@ class TimeseriesChain:
             before, gaps = None, gaps[1:]
         zeros = np.zeros_like(q)
         out: dict[str, np.ndarray] = {"q": q, "dq": dq, "tau": tau}
-        need_wrench = not _WRENCH.isdisjoint(names)
-        need_r = need_wrench or not _RESIDUAL.isdisjoint(names)
-        g = self._rnea(q, zeros, zeros) if need_r or "g" in names else None
-        if "g" in names:
-            out["g"] = g
-        if "ddq" in names or "tau_inv" in names:
+        need = _Needs.of(names)
+        g = self._rnea(q, zeros, zeros) if need.g else None
+        out["g"] = g
+        if need.ddq:
             ddq = out["ddq"] = np.zeros_like(dq)
             ddq[1:] = (dq[1:] - dq[:-1]) / (t[1:] - t[:-1])[:, None]
             if before is not None:
                 ddq[0] = (dq[0] - before.dq) / (t[0] - before.t)
             ddq[gaps] = 0.0
-        if "tau_inv" in names:
+        if need.tau_inv:
             out["tau_inv"] = self._rnea(q, dq, out["ddq"])
-        if "p_int" in names:
+        if need.p_int:
             out["p_int"] = dq * tau
         p = r = None
-        if need_r:
+        if need.r:
             p = self._rnea(q, zeros, dq) - g
             coriolis = np.empty((n, 7, 7))
-            jac = np.empty((n, 6, 7)) if need_wrench else None
+            jac = np.empty((n, 6, 7)) if need.wrench else None
             for k in range(n):
                 coriolis[k] = pin.computeCoriolisMatrix(model, data, q[k], dq[k])
-                if need_wrench:  # the Coriolis pass has placed every joint and its Jacobian
+                if need.wrench:  # the Coriolis pass has placed every joint and its Jacobian
                     jac[k] = pin.getFrameJacobian(model, data, self._fid,
                                                   pin.LOCAL_WORLD_ALIGNED)
             u = tau + np.einsum("kji,kj->ki", coriolis, dq) - g
@@ -299,8 +341,9 @@ class TimeseriesChain:
                 u -= self._friction.torque(dq)
             r = self._residual(t, p, u, gaps, before)
             out["r"] = r
-            out["p_ext"] = r * dq
-            if need_wrench:
+            if need.p_ext:
+                out["p_ext"] = r * dq
+            if need.wrench:
                 out.update(_wrench_features(damped_wrench(jac, r)))
         after = ChainState(float(t[-1]), dq[-1].copy(), None if p is None else p[-1].copy(),
                            None if r is None else r[-1].copy())

@@ -80,3 +80,10 @@ def test_friction_is_zero_at_rest_and_opposes_motion() -> None:
     assert (GAZ_FRICTION.torque(np.full(7, 0.5)) > 0).all()
     batch = GAZ_FRICTION.torque(np.full((7, 3), 0.5))
     assert np.allclose(batch[:, 1], GAZ_FRICTION.torque(np.full(7, 0.5)))
+
+
+def test_friction_of_one_sample_on_floats_equals_the_array_form() -> None:
+    dq = np.random.default_rng(0).normal(0.0, 2.0, (200, 7))
+    for row in dq:
+        assert np.abs(np.array(GAZ_FRICTION.sample_torque(row.tolist()))
+                      - GAZ_FRICTION.torque(row)).max() <= 1e-12

@@ -71,6 +71,21 @@ def test_batch_and_streaming_agree_on_simulated_session(tmp_path) -> None:
     _assert_stream_equals_batch(session.t, session.q, session.dq, session.tau, with_hand=True)
 
 
+@pytest.mark.parametrize("observer", [ObserverConfig(gain=(30.0, 40.0, 50.0, 60.0, 70.0, 80.0,
+                                                                  90.0)),
+                                      ObserverConfig(friction=False)])
+def test_per_sample_residual_equals_the_batch_with_per_joint_gains_or_no_friction(
+        real, observer: ObserverConfig) -> None:
+    t, q, dq, tau = (real[c][:3000] for c in ("t", "q", "dq", "tau"))
+    config = ChainConfig(observer)
+    batch = TimeseriesChain(config, RobotSetup(with_hand=False), ["r", "f"]).compute(t, q, dq,
+                                                                                   tau)
+    online = TimeseriesChain(config, RobotSetup(with_hand=False), ["r", "f"])
+    stream = [online.update(t[k], q[k], dq[k], tau[k]) for k in range(len(t))]
+    for name in ("r", "f"):
+        assert np.abs(np.array([s[name] for s in stream]) - batch[name]).max() <= 1e-9, name
+
+
 def test_simulated_free_motion_residuals_are_the_size_of_real_ones(real) -> None:
     duration = 6.0
     chain = TimeseriesChain(robot=RobotSetup(with_hand=False))
