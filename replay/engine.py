@@ -192,6 +192,7 @@ class ReplayStream:
         """The sample rate [Hz] by the median step of the first batch (None while
         unknown, or for a first batch of one sample)."""
         self.planned_sample: int | None = None
+        self._span: tuple[float, float] | None = None
         self.agreement = ResidualAgreement()
         """The residual's agreement with the robot's own estimate (sessions with
         ``tau_ext_hat``), accumulated as the session streams."""
@@ -202,8 +203,13 @@ class ReplayStream:
         return [] if self.pipeline is None else self.pipeline.finish()
 
     def time_span(self) -> tuple[float, float]:
-        """Return the times [s] of the session's first and last sample (read from the
-        first and last row group only)."""
+        """Return the times [s] of the session's first and last sample (read once, from
+        the first and last row group only)."""
+        if self._span is None:
+            self._span = self._read_time_span()
+        return self._span
+
+    def _read_time_span(self) -> tuple[float, float]:
         if self.session is not None:
             t = self.session.t
             return float(t[0]), float(t[-1])

@@ -172,9 +172,8 @@ class BlockLogger:
     def _points(self, q: np.ndarray, link: int | str, point: np.ndarray) -> np.ndarray:
         """Return ``point`` [m] (in the frame of ``link``) in the base frame at each
         configuration ``q`` (m, 7) [rad], (m, 3)."""
-        placements = (self.model.frame_placement(qk, link) for qk in q)
-        return np.array([p.rotation @ point + p.translation for p in placements]
-                        ).reshape(-1, 3)
+        rotation, translation = self.model.frame_placements(q, link)
+        return rotation @ point + translation
 
     def finish(self) -> None:
         """Send what the last block left pending (call once, after the last block)."""

@@ -131,6 +131,25 @@ def test_urdf_form_describes_any_seven_joint_arm(tmp_path: Path) -> None:
         urdf_robot(str(tmp_path / "three.urdf"))
 
 
+def test_vectorised_kinematics_equal_pinocchios_per_sample(tmp_path: Path) -> None:
+    """frame_placements (all rows at once) against frame_placement (one pinocchio call per
+    row) on the built-in arms and on an arm whose joint axes are not the z axis."""
+    text = PANDA.urdf_text(False)
+    tilted = tmp_path / "tilted.urdf"
+    tilted.write_text(text.replace('<axis xyz="0 0 1" />', '<axis xyz="0.6 0 0.8" />', 4))
+    assert tilted.read_text() != text
+    setups = [RobotSetup(), RobotSetup(with_hand=False), RobotSetup("fr3"),
+              RobotSetup(f"urdf:{tilted}", with_hand=False)]
+    q = np.random.default_rng(0).uniform(-2.5, 2.5, (50, 7))
+    for setup in setups:
+        model = RobotModel(setup)
+        for link in [*range(1, 8), model.end_effector]:
+            rotation, translation = model.frame_placements(q, link)
+            placements = [model.frame_placement(row, link) for row in q]
+            assert np.abs(rotation - [p.rotation for p in placements]).max() < 1e-12
+            assert np.abs(translation - [p.translation for p in placements]).max() < 1e-12
+
+
 def test_a_session_whose_urdf_changed_is_refused(tmp_path: Path) -> None:
     urdf = _panda_urdf_copy(tmp_path)
     name = f"urdf:{urdf}"

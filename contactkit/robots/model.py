@@ -58,6 +58,7 @@ class RobotModel:
         self.data = self.model.createData()
         self.end_effector = self.spec.end_effector_frame(self.setup.with_hand)
         self._frame_ids: dict[str, int] = {}
+        self._axes: dict[int, np.ndarray] = {}
         self.limits = self.spec.limits
 
     @property
@@ -122,6 +123,47 @@ class RobotModel:
         pin.framesForwardKinematics(self.model, self.data, q)
         return self.data.oMf[self.frame_id(link)].copy()
 
+    def frame_placements(self, q: np.ndarray, link: int | str
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """Return the world placements of link 1..7 (or a named frame) at every row of
+        ``q`` (n, 7) [rad] at once: rotations (n, 3, 3) and translations [m] (n, 3).
+
+        The forward kinematics of :meth:`frame_placement` (equal to rounding) in numpy
+        over all rows, instead of one pinocchio call per row. The arm's joints are
+        revolute (:func:`contactkit.robots.registry.urdf_robot` takes no other)."""
+        q = np.asarray(q, dtype=float).reshape(-1, self.model.nq)
+        frame = self.model.frames[self.frame_id(link)]
+        chain = []  # the frame's joint and its ancestors, back to the root
+        joint = frame.parentJoint
+        while joint > 0:
+            chain.append(joint)
+            joint = self.model.parents[joint]
+        rotation = np.broadcast_to(np.eye(3), (len(q), 3, 3))
+        translation = np.zeros((len(q), 3))
+        for joint in reversed(chain):
+            placement = self.model.jointPlacements[joint]
+            value = q[:, self.model.joints[joint].idx_q]
+            axis = self._joint_axis(joint)
+            translation = translation + _rotate(rotation, placement.translation)
+            rotation = _compose(rotation, placement.rotation)
+            # Rodrigues: R (cos I + sin [a]x + (1 - cos) a a^T), about the joint's axis a
+            cos, sin = np.cos(value)[:, None, None], np.sin(value)[:, None, None]
+            cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]],
+                              [-axis[1], axis[0], 0.0]])
+            rotation = (cos * rotation + sin * _compose(rotation, cross)
+                        + (1.0 - cos) * _rotate(rotation, axis)[:, :, None] * axis)
+        translation = translation + _rotate(rotation, frame.placement.translation)
+        return _compose(rotation, frame.placement.rotation), translation
+
+    def _joint_axis(self, joint: int) -> np.ndarray:
+        """Return the unit axis (3,) of revolute joint ``joint`` in its own frame (the
+        angular part of its motion subspace)."""
+        if joint not in self._axes:
+            data = self.model.joints[joint].createData()
+            self.model.joints[joint].calc(data, np.zeros(self.model.joints[joint].nq))
+            self._axes[joint] = np.asarray(data.S, dtype=float).reshape(6)[3:]
+        return self._axes[joint]
+
     def point_jacobian(self, q: np.ndarray, link: int | str,
                        point_local: np.ndarray | None = None) -> np.ndarray:
         """Return the 6x7 Jacobian of a point fixed on a link, world-aligned axes.
@@ -141,3 +183,13 @@ class RobotModel:
             jac[:3] -= np.cross(offset, jac[3:].T).T
         return jac
 
+
+
+def _rotate(rotation: np.ndarray, vector: np.ndarray) -> np.ndarray:
+    """Return ``rotation`` (n, 3, 3) applied to one ``vector`` (3,): (n, 3)."""
+    return (rotation.reshape(-1, 3) @ vector).reshape(-1, 3)
+
+
+def _compose(rotation: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """Return ``rotation`` (n, 3, 3) times one matrix ``right`` (3, 3): (n, 3, 3)."""
+    return (rotation.reshape(-1, 3) @ right).reshape(-1, 3, 3)

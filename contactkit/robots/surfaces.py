@@ -130,6 +130,17 @@ def link_surface(setup: RobotSetup, link: int) -> LinkSurface:
 def viewer_urdf_file(setup: RobotSetup) -> Path:
     """Return a URDF file of ``setup``'s arm for viewers (Rerun), written once into the
     cache: links drawn with their collision meshes, mesh names made absolute paths."""
+    text, name = _viewer_urdf(setup)
+    path = cache_dir() / name
+    if not path.exists():
+        write_text(path, text, owned=any_regular_file)
+    return path
+
+
+@cache
+def _viewer_urdf(setup: RobotSetup) -> tuple[str, str]:
+    """Return the viewer URDF of ``setup``'s arm (see :func:`viewer_urdf_file`) and its
+    file name, which holds a digest of the text (built once per process)."""
     spec = get_robot(setup.robot)
     root = ET.fromstring(spec.urdf_text(setup.with_hand))
     for link in root.iter("link"):
@@ -144,7 +155,4 @@ def viewer_urdf_file(setup: RobotSetup) -> Path:
     digest = hashlib.sha256(text.encode()).hexdigest()[:12]
     stem = re.sub(r"[^A-Za-z0-9_-]", "_", spec.name)[:40]
     variant = "hand" if setup.with_hand and spec.has_hand else "nohand"
-    path = cache_dir() / f"{stem}_{variant}_{digest}.urdf"
-    if not path.exists():
-        write_text(path, text, owned=any_regular_file)
-    return path
+    return text, f"{stem}_{variant}_{digest}.urdf"

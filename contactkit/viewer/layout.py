@@ -251,13 +251,26 @@ def log_link_highlight(rec: rr.RecordingStream, link: int, surface_points: np.nd
 def log_joint_transforms(rec: rr.RecordingStream, tree: rr.urdf.UrdfTree, t: np.ndarray,
                          sample: np.ndarray, q: np.ndarray) -> None:
     """Animate the 7 arm joints (the tree's first 7 revolute joints from its root, whatever
-    the robot names them) from q [rad] (N, 7) as transform columns."""
-    index = time_columns(t, sample)
+    the robot names them) from q [rad] (N, 7) as transform columns: the tree computes all
+    joints' transforms in one call, and each joint's go out as arrays."""
     arm = [j.name for j in tree.joints() if j.joint_type in ("revolute", "continuous")][:7]
+    n, k = len(q), len(arm)
+    offsets = pa.array(np.arange(0, k * n + 1, k, dtype=np.int32))
+    rows = np.tile(np.arange(k), n)  # joint of each flattened row: sample-major
+    names = pa.ListArray.from_arrays(offsets, pa.array(arm).take(rows))
+    values = pa.ListArray.from_arrays(offsets, pa.array(np.asarray(q, dtype=float)[:, :k].ravel()))
+    batches = tree.compute_joint_transform_batches(names, values, clamp=False).flatten()
+    fields = dict(zip([f.name for f in batches.type], batches.flatten(), strict=True))
+    translation = fields["translation"].flatten().to_numpy().reshape(n, k, 3)
+    quaternion = fields["quaternion"].flatten().to_numpy().reshape(n, k, 4)
+    index = time_columns(t, sample)
     for j, name in enumerate(arm):
-        joint = tree.get_joint_by_name(name)
-        columns = joint.compute_transform_columns(q[:, j].tolist(), clamp=False)
-        rec.send_columns(f"{JOINT_TRANSFORMS}/{name}", indexes=index, columns=columns)
+        joint = pa.array(np.flatnonzero(rows == j))
+        rec.send_columns(f"{JOINT_TRANSFORMS}/{name}", indexes=index,
+                         columns=rr.Transform3D.columns(
+                             translation=translation[:, j], quaternion=quaternion[:, j],
+                             parent_frame=fields["parent_frame"].take(joint),
+                             child_frame=fields["child_frame"].take(joint)))
 
 
 def log_force_arrows(rec: rr.RecordingStream, t: np.ndarray, sample: np.ndarray,
