@@ -74,12 +74,14 @@ def test_help_imports_no_heavy_library(argv) -> None:
 
 def test_recorder_help_loads_no_source() -> None:
     """`recorder --help` lists capture and sources without loading a source (whose
-    modules, plugins included, may import robot SDKs and python-can); capture's own help
-    loads them all, to list their options."""
+    modules, plugins included, may import robot SDKs and python-can) or the capture's
+    writer; capture's own help loads them all, to list their options."""
     code, modules, out = _modules("recorder", "--help")
     assert code == 0 and "capture" in out and "sources" in out, out
     sources = {f"contactkit.recorder.sources.{name}" for name in ("sim", "can", "franka")}
-    assert sorted(modules & (sources | {"can"})) == []
+    writer = {"contactkit.cli.capture", "contactkit.recorder.capture.record",
+              "contactkit.recorder.capture.journal"}
+    assert sorted(modules & (sources | writer | {"can"})) == []
     code, modules, out = _modules("recorder", "capture", "--help")
     assert code == 0 and "--channel" in out, out
     assert sources <= modules

@@ -9,14 +9,16 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import typer
 
-from contactkit.cli.capture import (
+from contactkit.cli.capture_protocol import (
+    CAPTURE_SUMMARY,
+    SOURCES_SUMMARY,
     Action,
     CaptureExtension,
     Condition,
     Pose,
-    deferred_capture,
 )
 from contactkit.cli.common import (
+    CommandsBuilder,
     deferred_commands,
     exit_if_failed,
     new_app,
@@ -24,8 +26,6 @@ from contactkit.cli.common import (
     run_app,
     scheduler_of,
 )
-from contactkit.recorder.capture.journal import recover_directory
-from contactkit.recorder.capture.record import output_directory
 from contactkit.recorder.metadata import set_session_robot
 from contactkit.recorder.sim.presets import PRESETS
 from contactkit.robots import URDF_PREFIX, get_robot, robot_names
@@ -99,8 +99,28 @@ EVENTS = CaptureExtension((
     Param("decide_after", float, None, "Events: time after a contact's onset at which its "
           "intent is decided (default: the model's).", unit="s"),
 ), _start_events)
+
+
+def deferred_capture(extensions: tuple[CaptureExtension, ...] = ()
+                     ) -> dict[str, tuple[str, CommandsBuilder]]:
+    """Return ``capture`` and ``sources`` as deferred commands of an app
+    (:func:`~contactkit.cli.common.deferred_commands`): their one-line help, and one
+    builder that loads every source (plugins included) and makes both, called only when
+    one of them runs or shows its own help."""
+
+    def build() -> dict[str, Any]:
+        from contactkit.cli.capture import register_capture  # loads every source
+
+        commands = new_app("recorder")
+        register_capture(commands, extensions)
+        return dict(typer.main.get_group(commands).commands)
+
+    return {"capture": (CAPTURE_SUMMARY, build), "sources": (SOURCES_SUMMARY, build)}
+
+
 # capture's flags come from every installed source: capture and sources are built only
-# when one of them runs, so the other commands and `recorder --help` load no source.
+# when one of them runs, so the other commands and `recorder --help` load no source (nor
+# the capture's writer).
 app = new_app("recorder", help="Record Panda joint streams while a person touches the arm on "
               "cue, and manage the resulting sessions. Without a robot, sessions come from a "
               "physics simulation.", root_options=True,
@@ -133,6 +153,7 @@ def simulate_command(
 
     A session that fails is reported and the others are still written (exit code 2).
     """
+    from contactkit.recorder.capture.record import output_directory
     from contactkit.recorder.sim.dataset import simulate_dataset
     from contactkit.recorder.sim.simulator import SimConfig
 
@@ -215,6 +236,8 @@ def recover_command(
     Each journal is handled and reported on its own; a journal is removed only after its
     session was read back and verified. Exit code 2 when some journal was left in place
     because it could not be recovered."""
+    from contactkit.recorder.capture.journal import recover_directory
+
     recoveries = recover_directory(directory)
     if not recoveries:
         err_console.print("no journals to recover")
@@ -325,6 +348,7 @@ def import_command(
     through one writer in bounded memory. Several files import in parallel; one that
     fails is reported and the others are still written (exit code 2).
     """
+    from contactkit.recorder.capture.record import output_directory
     from contactkit.recorder.importers.jobs import (
         checked_meta,
         format_options,
