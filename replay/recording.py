@@ -184,6 +184,8 @@ class BlockLogger:
         rec = self.rec
         keep = self.series.keep(block.t)
         if len(keep):
+            if len(keep) == len(block.t):  # every row: the block's arrays themselves, no copies
+                keep = slice(None)
             t, sample = block.t[keep], block.sample[keep]
             layout.log_joint_columns(rec, t, sample, block.q[keep], block.dq[keep],
                                      block.tau[keep])

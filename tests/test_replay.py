@@ -103,6 +103,25 @@ def test_every_entity_exists_with_one_row_per_sample(replayed, session) -> None:
         assert sum(b.num_rows for b in data[entity]) == n, entity
 
 
+def test_joint_transforms_pose_the_arm_at_each_robot_sample(replayed, session) -> None:
+    """Every row of a joint's column is its whole transform at that sample's q (Rerun
+    resolves Transform3D atomically: a row without the translation or the frames would
+    move the joint to the origin of an implicit frame)."""
+    q = read_session(session).q
+    tree = rr.urdf.UrdfTree.from_file_path(viewer_urdf_file(RobotSetup()))
+    data = read_rrd(replayed)
+    for i in range(1, 8):
+        joint = tree.get_joint_by_name(f"panda_joint{i}")
+        batch = pa.Table.from_batches(data[f"{layout.JOINT_TRANSFORMS}/panda_joint{i}"])
+        rows = {c: batch.column(f"Transform3D:{c}").to_pylist()
+                for c in ("translation", "quaternion", "parent_frame", "child_frame")}
+        for k, sample in enumerate(batch.column("sample").to_pylist()):
+            expected = joint.compute_transform(float(q[sample, i - 1]), clamp=False)
+            for component, logged in rows.items():
+                value = getattr(expected, component).as_arrow_array().to_pylist()
+                assert logged[k] == value, (i, sample, component)
+
+
 def test_logged_residual_equals_the_feature_chain(replayed, session) -> None:
     s = read_session(session)
     expected = TimeseriesChain().compute(s.t, s.q, s.dq, s.tau, ["r"])["r"]

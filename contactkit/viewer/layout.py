@@ -252,25 +252,37 @@ def log_joint_transforms(rec: rr.RecordingStream, tree: rr.urdf.UrdfTree, t: np.
                          sample: np.ndarray, q: np.ndarray) -> None:
     """Animate the 7 arm joints (the tree's first 7 revolute joints from its root, whatever
     the robot names them) from q [rad] (N, 7) as transform columns: the tree computes all
-    joints' transforms in one call, and each joint's go out as arrays."""
+    joints' transforms in one call, joint by joint, and each joint's go out as slices of
+    its Arrow arrays (already Rerun's component types: nothing is converted again).
+
+    Every row carries the whole transform (translation [m], quaternion, parent and child
+    frame), the constant parts too: Rerun resolves a ``Transform3D`` atomically, from the
+    last row that sets any of its components, so a row with only the rotation would drop
+    the joint's offset and its frames."""
     arm = [j.name for j in tree.joints() if j.joint_type in ("revolute", "continuous")][:7]
     n, k = len(q), len(arm)
-    offsets = pa.array(np.arange(0, k * n + 1, k, dtype=np.int32))
-    rows = np.tile(np.arange(k), n)  # joint of each flattened row: sample-major
-    names = pa.ListArray.from_arrays(offsets, pa.array(arm).take(rows))
-    values = pa.ListArray.from_arrays(offsets, pa.array(np.asarray(q, dtype=float)[:, :k].ravel()))
+    one_row = pa.array([0, k * n], type=pa.int32())  # all joints' values in one list, joint-major
+    names = pa.ListArray.from_arrays(one_row, pa.array(arm).take(np.repeat(np.arange(k), n)))
+    values = pa.ListArray.from_arrays(one_row, pa.array(
+        np.asarray(q, dtype=float)[:, :k].T.ravel()))
     batches = tree.compute_joint_transform_batches(names, values, clamp=False).flatten()
     fields = dict(zip([f.name for f in batches.type], batches.flatten(), strict=True))
-    translation = fields["translation"].flatten().to_numpy().reshape(n, k, 3)
-    quaternion = fields["quaternion"].flatten().to_numpy().reshape(n, k, 4)
     index = time_columns(t, sample)
     for j, name in enumerate(arm):
-        joint = pa.array(np.flatnonzero(rows == j))
-        rec.send_columns(f"{JOINT_TRANSFORMS}/{name}", indexes=index,
-                         columns=rr.Transform3D.columns(
-                             translation=translation[:, j], quaternion=quaternion[:, j],
-                             parent_frame=fields["parent_frame"].take(joint),
-                             child_frame=fields["child_frame"].take(joint)))
+        rec.send_columns(f"{JOINT_TRANSFORMS}/{name}", indexes=index, columns=[
+            rr.ComponentColumn(descriptor, batch(fields[field].slice(j * n, n)))
+            for field, batch, descriptor in _TRANSFORM_FIELDS])
+
+
+_TRANSFORM_FIELDS = (
+    ("translation", rr.components.Translation3DBatch, rr.Transform3D.descriptor_translation()),
+    ("quaternion", rr.components.RotationQuatBatch, rr.Transform3D.descriptor_quaternion()),
+    ("parent_frame", rr.components.TransformFrameIdBatch,
+     rr.Transform3D.descriptor_parent_frame()),
+    ("child_frame", rr.components.TransformFrameIdBatch, rr.Transform3D.descriptor_child_frame()),
+)
+"""The fields of the URDF tree's joint transforms (already in these component types), and
+the ``Transform3D`` components they are sent as: one per row of a joint's column."""
 
 
 def log_force_arrows(rec: rr.RecordingStream, t: np.ndarray, sample: np.ndarray,
