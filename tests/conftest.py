@@ -148,16 +148,22 @@ def run_command(*args: str, cwd: Path | None = None) -> subprocess.CompletedProc
     import importlib
 
     from contactkit.cli.common import run_app
+    from contactkit.util.progress import err_console
 
     app = importlib.import_module(CLI_MODULES[args[0]]).app
     stdout, stderr = io.StringIO(), io.StringIO()
-    columns = os.environ.get("COLUMNS")
-    os.environ["COLUMNS"] = "200"  # as run_cli's
+    # 200 columns, as run_cli's: for the consoles the command makes, and for the shared
+    # stderr console, made at import with the width then in the environment (xdist's
+    # workers set COLUMNS=80)
+    columns, width = os.environ.get("COLUMNS"), err_console.width
+    os.environ["COLUMNS"] = "200"
+    err_console.width = 200
     try:
         with (contextlib.chdir(cwd or Path.cwd()), contextlib.redirect_stdout(stdout),
               contextlib.redirect_stderr(stderr)):
             code = run_app(app, args[0], list(args[1:]))
     finally:
+        err_console.width = width
         if columns is None:
             del os.environ["COLUMNS"]
         else:

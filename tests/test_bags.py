@@ -155,14 +155,14 @@ def test_cli_import_export_and_slow_rate(source, tmp_path):
     result = run_command("recorder", "export-mcap", str(source), "--out", str(tmp_path / "x"))
     assert result.returncode == 0, result.stderr
     result = run_command("recorder", "import-bag", str(tmp_path / "x"), "--pose", "B", "--action",
-                     "shove", "--out", str(out))
+                         "shove", "--out", str(out))
     assert result.returncode == 0, result.stderr
     assert "500.0 Hz" in result.stderr
     slow = make_session(tmp_path, rate_hz=30.0, seed=4)
     result = run_command("recorder", "info", str(slow))
     assert "too slow for the feature chain" in result.stdout
     result = run_command("recorder", "import-bag", str(tmp_path / "missing"), "--pose", "B",
-                     "--action", "shove", "--out", str(out))
+                         "--action", "shove", "--out", str(out))
     assert result.returncode == 2 and "Traceback" not in result.stderr
 
 

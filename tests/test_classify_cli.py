@@ -29,16 +29,16 @@ def dynamic(tmp_path_factory) -> Path:
 def test_train_evaluate_predict(static: Path, tmp_path: Path) -> None:
     model = tmp_path / "model.skops"
     trained = run_command("classify", "train", str(static), "--out", str(model), "--model",
-                      "three-joint", "--workers", "1")
+                          "three-joint", "--workers", "1")
     assert trained.returncode == 0, trained.stderr
     report = run_command("classify", "evaluate", str(static), "--protocol", "group", "--group",
-                     "pose", "--json", str(tmp_path / "r.json"), "--workers", "1")
+                         "pose", "--json", str(tmp_path / "r.json"), "--workers", "1")
     assert report.returncode == 0, report.stderr
     assert "balanced accuracy" in report.stdout and "recall shove" in report.stdout
     doc = json.loads((tmp_path / "r.json").read_text())
     assert doc["n_splits"] == 4 and doc["group_by"] == "pose"
     thesis = run_command("classify", "evaluate", str(static), "--protocol", "thesis", "--scheme",
-                     "contact", "--workers", "1")
+                         "contact", "--workers", "1")
     assert thesis.returncode == 0 and "25 random 80/20 splits" in thesis.stdout
     session = sorted(static.glob("*.parquet"))[0]
     predicted = run_command("classify", "predict", str(model), str(session), "--json")
@@ -48,7 +48,7 @@ def test_train_evaluate_predict(static: Path, tmp_path: Path) -> None:
     assert sum(line["probabilities"].values()) == pytest.approx(1.0, abs=1e-3)
     features = tmp_path / "wide.parquet"
     made = run_command("classify", "features", str(static), "--out", str(features), "--scalars",
-                   "mean")
+                       "mean")
     assert made.returncode == 0, made.stderr
     refused = run_command("classify", "predict", str(model), str(features))
     assert refused.returncode == 2 and "other features" in refused.stderr
@@ -73,7 +73,7 @@ def test_bad_input(static: Path, tmp_path: Path) -> None:
 @pytest.mark.parametrize("name", ["features", "rfe", "window"])
 def test_experiments_write_table_json_and_plot(static: Path, tmp_path: Path, name: str) -> None:
     result = run_command("classify", "experiment", name, str(static), "--out", str(tmp_path),
-                     "--workers", "2")
+                         "--workers", "2")
     assert result.returncode == 0, result.stderr
     assert result.stdout.split() == [str(tmp_path / f"{name}.{ext}")
                                      for ext in ("md", "json", "png")]
@@ -114,7 +114,7 @@ def test_experiments_write_table_json_and_plot(static: Path, tmp_path: Path, nam
 
 def test_speed_experiment(static: Path, dynamic: Path, tmp_path: Path) -> None:
     result = run_command("classify", "experiment", "speed", str(static), str(dynamic), "--out",
-                     str(tmp_path), "--group", "session", "--workers", "2")
+                         str(tmp_path), "--group", "session", "--workers", "2")
     assert result.returncode == 0, result.stderr
     table = (tmp_path / "speed.md").read_text()
     assert "at or below + static" in table

@@ -59,7 +59,7 @@ def test_model_file_carries_detector_and_event_classifier(model_path) -> None:
 def test_calibrate_round_trip_through_the_cli(tmp_path, sessions) -> None:
     out = tmp_path / "robot.json"
     result = run_command("classify", "calibrate", str(sessions["none"]), str(sessions["shove"]),
-                     "--out", str(out))
+                         "--out", str(out))
     assert result.returncode == 0, result.stderr
     config = load_calibration(out)
     assert config.source["sessions"] == 2
@@ -68,7 +68,7 @@ def test_calibrate_round_trip_through_the_cli(tmp_path, sessions) -> None:
 
 def test_predict_events_with_the_models_detector(model_path, sessions) -> None:
     result = run_command("classify", "predict", str(model_path), str(sessions["shove"]),
-                     "--events", "--json")
+                         "--events", "--json")
     assert result.returncode == 0, result.stderr
     events = [json.loads(line)["event"] for line in result.stdout.splitlines()]
     assert len(events) == 1
@@ -84,7 +84,7 @@ def test_predict_events_with_the_models_detector(model_path, sessions) -> None:
 
 def test_decide_after_moves_the_decision(model_path, sessions) -> None:
     result = run_command("classify", "predict", str(model_path), str(sessions["shove"]),
-                     "--events", "--json", "--decide-after", "0.1")
+                         "--events", "--json", "--decide-after", "0.1")
     event = json.loads(result.stdout.splitlines()[0])["event"]
     assert event["decision_s"] == pytest.approx(event["onset_s"] + 0.1, abs=0.003)
 
@@ -108,7 +108,7 @@ def test_bad_calibration_file_exits_2(tmp_path, model_path, sessions, content, t
 def test_replay_runs_without_planned_time_and_reports_events(tmp_path, model_path,
                                                              sessions) -> None:
     result = run_command("replay", str(sessions["unplanned"]), "--model", str(model_path),
-                     "--viewer", "none", "--save", str(tmp_path / "u.rrd"))
+                         "--viewer", "none", "--save", str(tmp_path / "u.rrd"))
     assert result.returncode == 0, result.stderr
     summary = result.stdout + result.stderr
     assert "no planned time" in summary
@@ -118,7 +118,7 @@ def test_replay_runs_without_planned_time_and_reports_events(tmp_path, model_pat
 def test_replay_draws_the_isolated_and_the_true_contact(tmp_path, model_path, sessions) -> None:
     out = tmp_path / "s.rrd"
     result = run_command("replay", str(sessions["shove"]), "--model", str(model_path),
-                     "--viewer", "none", "--save", str(out))
+                         "--viewer", "none", "--save", str(out))
     assert result.returncode == 0, result.stderr
     assert_frames_ok(out)
     rows: dict[str, int] = {}

@@ -69,7 +69,7 @@ def test_parallel_rows_equal_serial_and_bad_files_are_listed(small_dataset: Path
 def test_features_command_on_dataset_and_per_sample(small_dataset: Path, tmp_path: Path) -> None:
     out = tmp_path / "features.parquet"
     result = run_command("classify", "features", str(small_dataset), "--out", str(out), "--workers",
-                     "2")
+                         "2")
     assert result.returncode == 0, result.stderr
     table, doc = read_feature_table(out)
     assert table.num_rows == 8 and doc["features"][0] == "range(dq_1)"
@@ -81,14 +81,14 @@ def test_features_command_on_dataset_and_per_sample(small_dataset: Path, tmp_pat
     session = sorted(small_dataset.glob("*.parquet"))[0]
     per_sample = tmp_path / "ps.parquet"
     result = run_command("classify", "features", str(session), "--out", str(per_sample),
-                     "--per-sample")
+                         "--per-sample")
     assert result.returncode == 0, result.stderr
     columns = pl.read_parquet_schema(per_sample)
     for name in ("r_1", "g_7", "tau_inv_3", "ddq_2", "p_int_5", "p_ext_6", "f_x", "m_z",
                  "f_norm", "m_norm"):
         assert name in columns
     bad = run_command("classify", "features", str(session), "--out", str(tmp_path / "x.parquet"),
-                  "--scalars", "median")
+                      "--scalars", "median")
     assert bad.returncode == 2 and "unknown scalar feature 'median'" in bad.stderr
 
 

@@ -94,21 +94,21 @@ def test_failed_trials_are_data(dataset: Path) -> None:
 def test_gridsearch_command(dataset: Path, tmp_path: Path) -> None:
     out = tmp_path / "grid"
     done = run_command("classify", "gridsearch", str(dataset), "--out", str(out), "--depths", "1",
-                   "--widths", "0.5", "--dropouts", "0,0.1", "--steps", "20",
-                   "--inputs", "dq,tau", "--epochs", "2", "--patience", "1", "--workers", "1",
-                   "--device", "auto")
+                       "--widths", "0.5", "--dropouts", "0,0.1", "--steps", "20",
+                       "--inputs", "dq,tau", "--epochs", "2", "--patience", "1", "--workers", "1",
+                       "--device", "auto")
     assert done.returncode == 0, done.stderr
     assert "| 2 | 1 | 0.5 |" in done.stdout
     assert {p.name for p in out.iterdir()} == {"gridsearch.md", "gridsearch.json", "best.onnx"}
     predicted = run_command("classify", "predict", str(out / "best.onnx"),
-                        str(next(dataset.glob("*.parquet"))))
+                            str(next(dataset.glob("*.parquet"))))
     assert predicted.returncode == 0, predicted.stderr
     again = run_command("classify", "gridsearch", str(dataset), "--out", str(out))
     assert again.returncode == 2 and "already exists" in again.stderr
     bad_value = run_command("classify", "gridsearch", str(dataset), "--out", str(tmp_path / "x"),
-                        "--depths", "x")
+                            "--depths", "x")
     bad_scheduler = run_command("classify", "--scheduler", "tcp://nohost", "gridsearch",
-                            str(dataset), "--out", str(tmp_path / "x"))
+                                str(dataset), "--out", str(tmp_path / "x"))
     for bad in (bad_value, bad_scheduler):
         assert bad.returncode == 2 and bad.stderr.count("\n") == 1, bad.stderr
     assert "--depths" in bad_value.stderr and "scheduler" in bad_scheduler.stderr
@@ -144,7 +144,7 @@ def test_cuda_without_gpu_is_one_line(dataset: Path, tmp_path: Path) -> None:
     with pytest.raises(InputError, match="sees no CUDA GPU"):
         resolve_device(torch, "cuda")
     done = run_command("classify", "train", str(dataset), "--model", "lstm", "--device", "cuda",
-                   "--out", str(tmp_path / "m.onnx"))
+                       "--out", str(tmp_path / "m.onnx"))
     assert done.returncode == 2 and done.stderr.count("\n") == 1
     assert "no CUDA GPU" in done.stderr
 

@@ -64,13 +64,13 @@ def test_same_seed_same_network(grids, cls) -> None:
 def test_onnx_model_file_round_trip_and_refusal(dataset: Path, tmp_path: Path) -> None:
     model = tmp_path / "cnn.onnx"
     trained = run_command("classify", "train", str(dataset), "--model", "cnn", "--epochs", "2",
-                      "--steps", "40", "--out", str(model), "--workers", "1", "--depth", "1",
-                      "--width", "0.5")
+                          "--steps", "40", "--out", str(model), "--workers", "1", "--depth", "1",
+                          "--width", "0.5")
     assert trained.returncode == 0, trained.stderr
     options = load_model(model).meta["training"]["options"]
     assert options["params"]["depth"] == 1 and options["params"]["width"] == 0.5
     bad = run_command("classify", "train", str(dataset), "--model", "cnn", "--depth", "0",
-                  "--out", str(tmp_path / "bad.onnx"))
+                      "--out", str(tmp_path / "bad.onnx"))
     assert bad.returncode == 2 and "depth must be at least 1" in bad.stderr
     assert len(bad.stderr.strip().splitlines()) == 1
     session = sorted(dataset.glob("static_*.parquet"))[0]
@@ -117,13 +117,14 @@ def test_onnx_equals_torch(grids, tmp_path: Path) -> None:
 
 
 def test_group_protocol_and_minirocket(dataset: Path, tmp_path: Path) -> None:
-    result = run_command("classify", "evaluate", str(dataset), "--model", "lstm", "--epochs", "2",
-                     "--steps", "30", "--protocol", "group", "--group", "pose", "--workers", "1")
+    result = run_command("classify", "evaluate", str(dataset), "--model", "lstm", "--epochs",
+                         "2", "--steps", "30", "--protocol", "group", "--group", "pose",
+                         "--workers", "1")
     assert result.returncode == 0, result.stderr
     assert "balanced accuracy" in result.stdout and "4 splits" in result.stdout
     model = tmp_path / "mr.skops"
     trained = run_command("classify", "train", str(dataset), "--model", "minirocket", "--steps",
-                      "30", "--out", str(model), "--workers", "1")
+                          "30", "--out", str(model), "--workers", "1")
     assert trained.returncode == 0, trained.stderr
     session = sorted(dataset.glob("static_*.parquet"))[0]
     assert run_command("classify", "predict", str(model), str(session)).returncode == 0
@@ -151,12 +152,12 @@ def test_replay_with_an_onnx_network(dataset: Path, tmp_path: Path) -> None:
 
     model = tmp_path / "lstm.onnx"
     trained = run_command("classify", "train", str(dataset), "--model", "lstm", "--epochs", "2",
-                      "--steps", "30", "--out", str(model), "--workers", "1")
+                          "--steps", "30", "--out", str(model), "--workers", "1")
     assert trained.returncode == 0, trained.stderr
     session = sorted(dataset.glob("static_*.parquet"))[0]
     rrd = tmp_path / "r.rrd"
     result = run_command("replay", str(session), "--model", str(model), "--viewer", "none",
-                     "--save", str(rrd))
+                         "--save", str(rrd))
     assert result.returncode == 0, result.stderr
     rows = [c.to_record_batch() for c in rc.RrdReader(rrd).stream()
             if c.entity_path == "/classifier/probability" and not c.is_static]
@@ -180,7 +181,7 @@ def test_replay_with_an_onnx_network(dataset: Path, tmp_path: Path) -> None:
 def test_augmentation_experiment_end_to_end(tmp_path: Path) -> None:
     for preset, directory in (("aug-real", "real"), ("aug-sim", "sim")):
         made = run_command("recorder", "simulate", str(tmp_path / directory), "--preset", preset,
-                       "--sessions", "16", "--rate", "200", "--workers", "1")
+                           "--sessions", "16", "--rate", "200", "--workers", "1")
         assert made.returncode == 0, made.stderr
     import json
 
@@ -189,8 +190,8 @@ def test_augmentation_experiment_end_to_end(tmp_path: Path) -> None:
     sim_links = {read_session(p).meta.link for p in (tmp_path / "sim").glob("static_*.parquet")}
     assert sim_links <= {None, 5, 6, 7}
     result = run_command("classify", "experiment", "augmentation", str(tmp_path / "real"),
-                     str(tmp_path / "sim"), "--out", str(tmp_path / "out"), "--model", "lstm",
-                     "--repeats", "2", "--epochs", "2", "--steps", "30", "--workers", "1")
+                         str(tmp_path / "sim"), "--out", str(tmp_path / "out"), "--model", "lstm",
+                         "--repeats", "2", "--epochs", "2", "--steps", "30", "--workers", "1")
     assert result.returncode == 0, result.stderr
     doc = json.loads((tmp_path / "out" / "augmentation.json").read_text())
     cells = {(c["fraction"], c["condition"]) for c in doc["cells"]}
@@ -198,5 +199,5 @@ def test_augmentation_experiment_end_to_end(tmp_path: Path) -> None:
     assert all(len(c["balanced_accuracy"]) == 2 for c in doc["cells"])
     assert (tmp_path / "out" / "augmentation.png").stat().st_size > 10_000
     bad = run_command("classify", "experiment", "augmentation", str(tmp_path / "real"), "--out",
-                  str(tmp_path / "x"))
+                      str(tmp_path / "x"))
     assert bad.returncode == 2 and "REAL_DIR SIM_DIR" in bad.stderr

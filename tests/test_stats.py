@@ -64,7 +64,7 @@ def test_index_report_counts_and_problems(dataset: Path, tmp_path: Path) -> None
 def test_deep_report_markdown_and_noise_file(dataset: Path, tmp_path: Path) -> None:
     out = tmp_path / "deep.md"
     result = run_command("recorder", "stats", str(dataset), "--deep", "--format", "md", "--out",
-                     str(out), "--workers", "2")
+                         str(out), "--workers", "2")
     assert result.returncode == 0, result.stderr
     text = out.read_text()
     for heading in ("## Problems", "## Peaks by class", "## Force profiles", "## Windows",
@@ -81,7 +81,7 @@ def test_deep_report_markdown_and_noise_file(dataset: Path, tmp_path: Path) -> N
 def test_deep_json_sections_and_html(dataset: Path, tmp_path: Path) -> None:
     out = tmp_path / "deep.json"
     result = run_command("recorder", "stats", str(dataset), "--deep", "--format", "json", "--out",
-                     str(out), "--workers", "2")
+                         str(out), "--workers", "2")
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == str(out)
     assert (tmp_path / "deep_noise.json").is_file()
