@@ -57,7 +57,7 @@ def window_moments(y: np.ndarray, starts: np.ndarray, stops: np.ndarray,
         seg_min = np.minimum.reduceat(span, heads, axis=0)
     first = np.searchsorted(cuts, starts)
     n_segments = np.searchsorted(cuts, stops) - first
-    every = int(n_segments.min(initial=0))
+    every = int(n_segments.min())
     m2 = np.zeros(shape)
     if extremes:
         high, low = np.full(shape, -np.inf), np.full(shape, np.inf)
