@@ -36,7 +36,9 @@ SCALARS = ("mean", "variance", "range", "delta", "skew", "energy", "hjorth_mob",
 DEFAULT_FFT_K = 3
 
 
-def _safe_ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+def safe_ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+    """Return num / den elementwise, and 0 where den is not above 1e-300 (a constant
+    signal's zero variance)."""
     out = np.zeros_like(num, dtype=float)
     ok = den > 1e-300
     out[ok] = num[ok] / den[ok]
@@ -67,7 +69,7 @@ def skew(x: np.ndarray) -> np.ndarray:
     """Standard (biased) skewness of each channel; 0 for a constant channel."""
     sd = x.std(axis=0)
     centred = x - x.mean(axis=0)
-    return _safe_ratio((centred**3).mean(axis=0), sd**3)
+    return safe_ratio((centred**3).mean(axis=0), sd**3)
 
 
 def energy(x: np.ndarray) -> np.ndarray:
@@ -78,7 +80,7 @@ def energy(x: np.ndarray) -> np.ndarray:
 def _mobility(x: np.ndarray) -> np.ndarray:
     if len(x) < 2:  # no difference to take: defined as 0, like a constant signal
         return np.zeros(x.shape[1:])
-    return np.sqrt(_safe_ratio(np.diff(x, axis=0).var(axis=0), x.var(axis=0)))
+    return np.sqrt(safe_ratio(np.diff(x, axis=0).var(axis=0), x.var(axis=0)))
 
 
 def hjorth_mobility(x: np.ndarray) -> np.ndarray:
@@ -99,11 +101,11 @@ def hjorth_parameters(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return zeros, zeros
     first = np.diff(x, axis=0)
     var_first = first.var(axis=0)
-    mobility = np.sqrt(_safe_ratio(var_first, x.var(axis=0)))
+    mobility = np.sqrt(safe_ratio(var_first, x.var(axis=0)))
     if len(x) < 3:
         return mobility, zeros
-    mobility_first = np.sqrt(_safe_ratio(np.diff(first, axis=0).var(axis=0), var_first))
-    return mobility, _safe_ratio(mobility_first, mobility)
+    mobility_first = np.sqrt(safe_ratio(np.diff(first, axis=0).var(axis=0), var_first))
+    return mobility, safe_ratio(mobility_first, mobility)
 
 
 def fft_magnitudes(x: np.ndarray, k: int = DEFAULT_FFT_K) -> np.ndarray:

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from contactkit.features.scalars import safe_ratio
+
 SLIDING_SCALARS = frozenset(("mean", "variance", "range", "delta", "energy", "hjorth_mob",
                              "hjorth_comp"))
 """The scalar features :func:`window_scalar_blocks` computes from segments (skew and
@@ -82,13 +84,6 @@ def window_moments(y: np.ndarray, starts: np.ndarray, stops: np.ndarray,
     return WindowMoments(count, mean, var, high, low)
 
 
-def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
-    out = np.zeros_like(num)
-    ok = den > 1e-300
-    out[ok] = num[ok] / den[ok]
-    return out
-
-
 def window_scalar_blocks(values: np.ndarray, firsts: np.ndarray, lasts: np.ndarray,
                          names: tuple[str, ...] | list[str]) -> list[np.ndarray]:
     """Return the scalar features ``names`` (all in :data:`SLIDING_SCALARS`) of the
@@ -106,9 +101,9 @@ def window_scalar_blocks(values: np.ndarray, firsts: np.ndarray, lasts: np.ndarr
         var_first = window_moments(first_diff, firsts, stops - 1, extremes=False).var
         var_second = window_moments(np.diff(first_diff, axis=0), firsts,
                                     np.maximum(firsts, stops - 2), extremes=False).var
-        mobility = np.sqrt(_ratio(var_first, moments.var))
+        mobility = np.sqrt(safe_ratio(var_first, moments.var))
         hjorth = {"hjorth_mob": mobility,
-                  "hjorth_comp": _ratio(np.sqrt(_ratio(var_second, var_first)), mobility)}
+                  "hjorth_comp": safe_ratio(np.sqrt(safe_ratio(var_second, var_first)), mobility)}
     blocks = []
     for name in names:
         if name == "mean":
