@@ -55,12 +55,11 @@ def limited_mask(actions: np.ndarray, conditions: np.ndarray) -> np.ndarray:
     return np.array([LIMITED_DROP.get(c) != a for a, c in zip(actions, conditions, strict=True)])
 
 
-def check_two_classes(labels: np.ndarray, what: str) -> list[str]:
-    """Return the distinct class names in ``labels``, sorted; raise one
-    :class:`InputError` line when there are fewer than two, since no classifier can be
-    fitted or evaluated on one class (``what`` names the job, e.g. "training")."""
+def check_two_classes(labels: np.ndarray, what: str) -> None:
+    """Raise one :class:`InputError` line when ``labels`` hold fewer than two distinct
+    classes, since no classifier can be fitted or evaluated on one class (``what`` names
+    the job, e.g. "training")."""
     classes = sorted({str(c) for c in labels})
     if len(classes) < 2:
         found = f"only {classes[0]!r}" if classes else "no labelled rows"
         raise InputError(f"{what} needs at least two classes in the data; it has {found}")
-    return classes
