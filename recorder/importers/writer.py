@@ -98,8 +98,9 @@ def write_imported_chunks(times: Callable[[], Iterable[np.ndarray]],
 
     ``times()`` and ``chunks()`` each return a fresh iterable over the recording from
     its start: of the time stamps [s], and of dicts of session columns (``t`` among
-    them) for consecutive samples. The times are read twice, and a few more times when
-    the nominal rate must be measured (its exact median step); the chunks twice: for
+    them) for consecutive samples. The times are read once (the time rule, the first
+    stamp and the count), and a few more times when the nominal rate must be measured
+    (its exact median step); the chunks twice: for
     the residual's agreement, then while writing (row groups of
     :data:`contactkit.schemas.session.ROW_GROUP_ROWS`). A recording with the robot's
     own estimate (``tau_ext_hat``) is run through the chain of its robot first, and
@@ -107,17 +108,14 @@ def write_imported_chunks(times: Callable[[], Iterable[np.ndarray]],
     (``residual_agreement``, :mod:`contactkit.features.agreement`), which
     ``recorder info`` shows without running the chain.
     """
-    first, rising, samples = None, True, 0
-    for steps in chunked_steps(times()):
-        rising = rising and bool((steps > 0).all())
-    last = None
+    first, last, samples = None, None, 0
     for t in times():  # the time rule first: nothing runs on a clock switch's years
         if len(t):
-            check_times(t, offset=samples, last_t=last)
+            check_times(t, offset=samples, last_t=last)  # strictly increasing, among others
             first = float(t[0]) if first is None else first
             samples += len(t)
             last = float(t[-1])
-    if meta.nominal_rate_hz is None and samples > 1 and rising:
+    if meta.nominal_rate_hz is None and samples > 1:
         median = exact_medians(lambda: (s[:, None] for s in chunked_steps(times())))[0]
         meta.nominal_rate_hz = float(round(1.0 / median, 3))
     filename = session_filename(meta) if name is None else output_name(name)
