@@ -31,12 +31,7 @@ from contactkit.cli.capture_protocol import (
     Pose,
 )
 from contactkit.cli.flags import command_with_flags, flag_key, owner_values, shared_flags
-from contactkit.recorder.capture.record import (
-    CaptureListener,
-    OperatorCue,
-    output_directory,
-    record_session,
-)
+from contactkit.recorder.capture.record import CaptureListener, OperatorCue, record_session
 from contactkit.recorder.sources import (
     ProtocolChoices,
     Source,
@@ -45,6 +40,7 @@ from contactkit.recorder.sources import (
     source_options,
 )
 from contactkit.schemas import SessionMeta
+from contactkit.util.atomic import output_directory
 from contactkit.util.params import Param, check_params
 from contactkit.util.progress import err_console
 

@@ -30,7 +30,7 @@ from contactkit.recorder.metadata import set_session_robot
 from contactkit.recorder.sim.presets import PRESETS
 from contactkit.robots import URDF_PREFIX, get_robot, robot_names
 from contactkit.schemas import InputError, SessionMeta, read_session
-from contactkit.util.atomic import check_target
+from contactkit.util.atomic import check_target, output_directory
 from contactkit.util.parallel import available_cpus
 from contactkit.util.params import Param
 from contactkit.util.progress import (
@@ -153,7 +153,6 @@ def simulate_command(
 
     A session that fails is reported and the others are still written (exit code 2).
     """
-    from contactkit.recorder.capture.record import output_directory
     from contactkit.recorder.sim.dataset import simulate_dataset
     from contactkit.recorder.sim.simulator import SimConfig
 
@@ -348,7 +347,6 @@ def import_command(
     through one writer in bounded memory. Several files import in parallel; one that
     fails is reported and the others are still written (exit code 2).
     """
-    from contactkit.recorder.capture.record import output_directory
     from contactkit.recorder.importers.jobs import (
         checked_meta,
         format_options,

@@ -302,6 +302,27 @@ def write_figure(path: str | Path, fig, *, overwrite: bool = False,
     return Path(path)
 
 
+def output_directory(path: Path) -> Path:
+    """Return ``path`` after creating it if needed and proving it writable (a read-only
+    mount, missing permission, a full disk), before any source, robot or bus is started;
+    raise InputError when it cannot be created or written to. Temporary files that
+    killed writers left there are removed (only those whose writer is gone, see
+    :func:`remove_stale_temporaries`)."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"cannot create output directory ({err.strerror})", path) from err
+    try:
+        with tempfile.TemporaryFile(dir=path) as probe:
+            probe.write(b"\0")
+            probe.flush()
+            os.fsync(probe.fileno())
+    except OSError as err:
+        raise InputError(f"cannot write here ({err.strerror or err})", path) from err
+    remove_stale_temporaries(path)
+    return path
+
+
 def any_regular_file(path: Path) -> bool:
     """:data:`Owned` for files in contactkit's own cache: any regular file there."""
     return path.is_file() and not path.is_symlink()

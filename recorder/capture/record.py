@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import os
 import sys
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,8 +14,8 @@ from contactkit.recorder.capture.journal import SessionWriter
 from contactkit.recorder.metadata import session_filename
 from contactkit.recorder.sources.base import Source
 from contactkit.robots import get_robot
-from contactkit.schemas import InputError, SessionMeta, joint_columns
-from contactkit.util.atomic import remove_stale_temporaries
+from contactkit.schemas import SessionMeta, joint_columns
+from contactkit.util.atomic import output_directory
 from contactkit.util.pacing import paced
 
 if TYPE_CHECKING:
@@ -35,27 +33,6 @@ class CaptureListener(Protocol):
 
     def session_fields(self) -> dict[str, Any]:
         """Return the metadata fields to store with the session when the capture closes."""
-
-
-def output_directory(path: Path) -> Path:
-    """Return ``path`` after creating it if needed and proving it writable (a read-only
-    mount, missing permission, a full disk), before any source, robot or bus is started;
-    raise InputError when it cannot be created or written to. Temporary files that
-    killed writers left there are removed (only those whose writer is gone, see
-    :func:`contactkit.util.atomic.remove_stale_temporaries`)."""
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise InputError(f"cannot create output directory ({err.strerror})", path) from err
-    try:
-        with tempfile.TemporaryFile(dir=path) as probe:
-            probe.write(b"\0")
-            probe.flush()
-            os.fsync(probe.fileno())
-    except OSError as err:
-        raise InputError(f"cannot write here ({err.strerror or err})", path) from err
-    remove_stale_temporaries(path)
-    return path
 
 
 class OperatorCue:
