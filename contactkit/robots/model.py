@@ -184,7 +184,6 @@ class RobotModel:
         return jac
 
 
-
 def _rotate(rotation: np.ndarray, vector: np.ndarray) -> np.ndarray:
     """Return ``rotation`` (n, 3, 3) applied to one ``vector`` (3,): (n, 3)."""
     return (rotation.reshape(-1, 3) @ vector).reshape(-1, 3)
