@@ -108,6 +108,11 @@ def test_import_arrays_round_trip(reference_dir: Path, tmp_path: Path) -> None:
     assert bad.returncode == 2 and "wrong joint count" in bad.stderr
     bad_meta = run_command(*args[:-2], "--out", str(tmp_path / "o"), "--meta", "colour=red")
     assert bad_meta.returncode == 2 and "bad metadata pair 'colour=red'" in bad_meta.stderr
+    times = tmp_path / "time.npy"  # a stamp that goes back: the error names the file
+    np.save(times, np.r_[0.0, 0.002, 0.001, np.arange(3, 20544) * 1e-3])
+    bad_time = run_command(*args[:2], str(times), *args[3:-2], "--out", str(tmp_path / "o"))
+    assert bad_time.returncode == 2
+    assert f"{times}: t is not strictly increasing at row 2" in bad_time.stderr
 
 
 def test_import_arrays_streamed_in_blocks(reference_dir: Path, tmp_path: Path,

@@ -83,13 +83,18 @@ def import_file(job: ImportJob) -> Imported:
     """
     if job.name is not None:
         output_name(job.name)
-    with open_importer(job.path, job.format, job.options) as importer:
-        chosen = {key: value for key, value in job.protocol.items() if value is not None}
-        protocol = {"action": "none", "source": importer.source, **importer.defaults(),
-                    **chosen}
-        path = write_importer(importer, checked_meta(protocol), job.out_dir, job.name,
-                              job.overwrite)
-        return Imported(job.path, path, importer.summary())
+    try:
+        with open_importer(job.path, job.format, job.options) as importer:
+            chosen = {key: value for key, value in job.protocol.items() if value is not None}
+            protocol = {"action": "none", "source": importer.source, **importer.defaults(),
+                        **chosen}
+            path = write_importer(importer, checked_meta(protocol), job.out_dir, job.name,
+                                  job.overwrite)
+            return Imported(job.path, path, importer.summary())
+    except InputError as err:  # a problem found in the streamed data names no file yet
+        if err.path is not None:
+            raise
+        raise InputError(err.problem, job.path) from err
 
 
 def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out_dir: Path,
