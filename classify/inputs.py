@@ -19,7 +19,9 @@ LSTM_INPUT = ("dq", "tau", "r")
 FEATURES = InputKind(name="features", meta_key="features",
                      build=lazy("contactkit.classify.data:features_for"),
                      from_config=lazy("contactkit.classify.data:features_from_config"),
-                     load=lazy("contactkit.classify.data:load_features"))
+                     load=lazy("contactkit.classify.data:load_features"),
+                     online_config=lazy("contactkit.features.window_features:"
+                                        "window_features_from_config"))
 GRIDS = InputKind(name="grid", meta_key="grid",
                   build=lazy("contactkit.classify.grids:grids_for"),
                   from_config=lazy("contactkit.classify.grids:grids_from_config"),

@@ -111,7 +111,9 @@ class InputKind:
     configured transformer, ``from_config`` rebuilds it from a model file, and
     ``load(sources, transformer, workers, progress, scheduler=None)`` returns the
     :class:`contactkit.classify.data.FeatureSet` of dataset directories, computed in
-    ``workers`` processes or on the Dask ``scheduler``.
+    ``workers`` processes or on the Dask ``scheduler``. ``online_config``, where given,
+    rebuilds the same input as a lighter object for online use (a replay, live
+    events) that need not be a scikit-learn estimator; None: ``from_config``.
     """
 
     name: str
@@ -119,7 +121,11 @@ class InputKind:
     build: Callable[[ModelOptions, ModelKind], SessionTransformer]
     from_config: Callable[[dict], SessionTransformer]
     load: InputLoader
+    online_config: Callable[[dict], SessionTransformer] | None = None
 
+    def online_from_config(self, config: dict) -> SessionTransformer:
+        """Return the input for online use that a model file's configuration describes."""
+        return (self.online_config or self.from_config)(config)
 
 
 @dataclass(frozen=True)

@@ -16,89 +16,21 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-from numpy.lib.stride_tricks import sliding_window_view
 from sklearn.base import BaseEstimator, TransformerMixin
 
 from contactkit.errors import DATA_ERRORS, problem_text
-from contactkit.features.chain_cache import chain_series
-from contactkit.features.observer import ObserverConfig
-from contactkit.features.scalars import SCALARS, scalar_blocks, scalar_features
-from contactkit.features.sliding import SLIDING_SCALARS, window_scalar_blocks
-from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
-from contactkit.features.window_stream import streamed_window_values
-from contactkit.features.windows import Window, WindowSpec, find_window
-from contactkit.schemas import InputError, Session, read_session
+from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of
+from contactkit.features.window_features import WindowFeatures
+from contactkit.schemas import Session
 from contactkit.schemas.features import feature_table
-from contactkit.schemas.session import ROW_GROUP_ROWS, read_session_meta
+from contactkit.schemas.session import read_session_meta
 from contactkit.util.parallel import map_ordered, split_problems
 
-DEFAULT_TIMESERIES = ("dq", "tau", "r")
-STREAMED_ABOVE_ROWS = ROW_GROUP_ROWS
-"""Session files with more samples (about 65 s at 1 kHz) are read batch by batch for
-their window's features, without the chain cache; shorter ones are read whole."""
-DEFAULT_SCALARS = ("range",)
-ONLINE_BLOCK_VALUES = 1 << 20
-"""Window values gathered at once by :meth:`SessionFeatures.online_rows` (8 MB)."""
 
-
-class SessionFeatures(TransformerMixin, BaseEstimator):
-    """Scalar features of each session's interaction window.
-
-    Parameters: ``timeseries`` (feature or group names, see
-    :mod:`contactkit.features.timeseries`), ``window`` (fixed, planned, difference, change),
-    ``window_s`` length [s], ``shift_s`` for fixed windows [s], ``signal`` and
-    ``calibration`` of the detection methods, ``scalars`` (see
-    :mod:`contactkit.features.scalars`), ``fft_k``, observer ``gain`` [1/s] and ``friction``,
-    ``wrench_frame`` ("ee" or a link 1..7), ``robot`` the arm's model instead of each
-    session's own (None: the session's, see :mod:`contactkit.robots`). Defaults are
-    the thesis's best SVM
-    input: the range of joint velocity, torque and residual in a 0.5 s window.
-    """
-
-    def __init__(self, timeseries: Sequence[str] = DEFAULT_TIMESERIES,
-                 window: str = "difference", window_s: float = 0.5, shift_s: float = 0.0,
-                 signal: str = "tau", calibration: str = "pre-contact",
-                 scalars: Sequence[str] = DEFAULT_SCALARS, fft_k: int = 3,
-                 gain: float = 50.0, friction: bool = True, wrench_frame: str | int = "ee",
-                 robot: str | None = None) -> None:
-        self.timeseries = timeseries
-        self.window = window
-        self.window_s = window_s
-        self.shift_s = shift_s
-        self.signal = signal
-        self.calibration = calibration
-        self.scalars = scalars
-        self.fft_k = fft_k
-        self.gain = gain
-        self.friction = friction
-        self.wrench_frame = wrench_frame
-        self.robot = robot
-
-    def _check(self) -> None:
-        try:
-            expand(list(self.timeseries))
-        except KeyError as err:
-            raise InputError(f"unknown timeseries feature {err.args[0]!r}") from err
-        unknown = [s for s in self.scalars if s not in SCALARS]
-        if unknown:
-            raise InputError(f"unknown scalar feature {unknown[0]!r} (expected some of "
-                             f"{', '.join(SCALARS)})")
-
-    @property
-    def window_spec(self) -> WindowSpec:
-        """The window settings as a :class:`WindowSpec`."""
-        return WindowSpec(self.window, self.window_s, self.shift_s, signal=self.signal,
-                          calibration=self.calibration)
-
-    def chain_config(self) -> ChainConfig:
-        """The feature-chain settings."""
-        return ChainConfig(ObserverConfig(gain=self.gain, friction=self.friction),
-                           self.wrench_frame, self.robot)
-
-    def config(self) -> dict:
-        """Return the parameters as JSON-ready values (stored with tables and models)."""
-        params = self.get_params()
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in params.items()}
+class SessionFeatures(TransformerMixin, BaseEstimator, WindowFeatures):
+    """Scalar features of each session's interaction window, as a scikit-learn
+    transformer (see :class:`contactkit.features.window_features.WindowFeatures` for the
+    parameters and the features)."""
 
     def fit(self, X: Iterable, y=None) -> SessionFeatures:
         """Nothing to learn from the sessions: checks the parameters, records the
@@ -108,105 +40,10 @@ class SessionFeatures(TransformerMixin, BaseEstimator):
         self.channels_ = self.channels()
         return self
 
-    def get_feature_names_out(self, input_features=None) -> np.ndarray:
-        """Return the feature names, for example ``range(tau_3)``."""
-        self._check()
-        channels = self.channels()
-        _, names = scalar_features(np.zeros((4, len(channels))), list(self.scalars), channels,
-                                   self.fft_k)
-        return np.array(names, dtype=object)
-
     def transform(self, X: Iterable) -> np.ndarray:
         """Return the (n_sessions, n_features) matrix of scalar features."""
         self._check()
         return np.array([self.session_row(s)[0] for s in X])
-
-    def channels(self) -> list[str]:
-        """Return the per-sample columns the features are computed from, e.g. ``tau_3``."""
-        return [c for name in expand(list(self.timeseries)) for c in columns_of(name)]
-
-    def online_rows(self, t: np.ndarray, values: np.ndarray, ends: np.ndarray | list[int]
-                    ) -> np.ndarray:
-        """Return the scalar features (len(ends), features) of the ``window_s`` seconds
-        ending at each sample of ``ends``, from per-sample ``values`` (N, channels, in
-        :meth:`channels` order) at times ``t`` [s]; a window uses samples up to its end
-        only. A window that holds fewer than 2 samples (a session sampled slower than
-        the window) is widened to the last 2.
-
-        The windows overlap (a replay's hops are 20 ms apart, its windows 0.5 s), so
-        the scalars of :data:`contactkit.features.sliding.SLIDING_SCALARS` reduce each
-        piece of the series once (:func:`contactkit.features.sliding.window_moments`).
-        Other scalars compute windows of equal length together, side by side as the
-        columns of one array (at most :data:`ONLINE_BLOCK_VALUES` values at a time).
-        Either way the values equal each window's own to about 1e-13 relative."""
-        ends = np.asarray(ends, dtype=np.intp)
-        firsts = np.searchsorted(t, t[ends] - self.window_s, side="right")
-        firsts = np.maximum(0, np.minimum(firsts, ends - 1))
-        scalars, width = list(self.scalars), values.shape[1]
-        if SLIDING_SCALARS.issuperset(scalars):
-            return np.concatenate(window_scalar_blocks(values, firsts, ends, scalars), axis=1)
-        lengths = ends + 1 - firsts
-        n_blocks = sum(self.fft_k if name == "fft" else 1 for name in scalars)
-        rows = np.empty((len(ends), n_blocks * width))
-        by_channel = np.ascontiguousarray(values.T)
-        for length in np.unique(lengths):
-            same = np.flatnonzero(lengths == length)
-            per = max(1, ONLINE_BLOCK_VALUES // int(length * width))
-            for part in np.array_split(same, -(-len(same) // per)):
-                # (channels, windows, length): each window's channels as columns
-                x = sliding_window_view(by_channel, int(length), axis=1)[:, firsts[part]]
-                blocks = np.stack(scalar_blocks(x.reshape(-1, length).T, scalars, self.fft_k))
-                rows[part] = (blocks.reshape(n_blocks, width, len(part))
-                              .transpose(2, 0, 1).reshape(len(part), -1))
-        return rows
-
-    def window_row(self, t: np.ndarray, values: np.ndarray, window: Window,
-                   path: str | Path | None = None) -> np.ndarray:
-        """Return the scalar features of ``window`` from per-sample ``values`` (N,
-        channels, in :meth:`channels` order) at times ``t`` [s] around it. Raises
-        InputError naming ``path`` when the window holds fewer than 2 samples."""
-        return self._scalar_row(values[window.mask(t)], expand(list(self.timeseries)), window,
-                                path)[0]
-
-    def session_row(self, session: Session | str | Path) -> tuple[np.ndarray, list[str], Window]:
-        """Return (values, names, window) for one session. A session file longer than
-        :data:`STREAMED_ABOVE_ROWS` samples is read batch by batch, keeping only what
-        its window needs (:mod:`contactkit.features.window_stream`)."""
-        names = expand(list(self.timeseries))
-        spec = self.window_spec
-        if not isinstance(session, Session):
-            _, footer = read_session_meta(session)
-            if footer.num_rows > STREAMED_ABOVE_ROWS:
-                values, window = streamed_window_values(session, spec, self.chain_config(),
-                                                        names)
-                return self._scalar_row(values, names, window, Path(session))
-            session = read_session(session)
-        session = session.complete()
-        needed = list(dict.fromkeys(names + ([spec.signal] if spec.method in
-                                             ("difference", "change") else [])))
-        series = chain_series(session, self.chain_config(), needed)
-        window = session_window(session, spec, series.get(spec.signal))
-        values = np.column_stack([series[n] for n in names])[window.mask(session.t)]
-        return self._scalar_row(values, names, window, session.path)
-
-    def _scalar_row(self, values: np.ndarray, names: list[str], window: Window,
-                    path: Path | None) -> tuple[np.ndarray, list[str], Window]:
-        """Return (scalar features, their names, window) of a window's samples."""
-        if len(values) < 2:
-            raise InputError(f"window {window.start_s:.3f}-{window.end_s:.3f} s holds fewer "
-                             "than 2 samples (session too short?)", path)
-        channels = [c for n in names for c in columns_of(n)]
-        row, labels = scalar_features(values, list(self.scalars), channels, self.fft_k)
-        return row, labels, window
-
-
-def session_window(session: Session, spec: WindowSpec,
-                   signal_values: np.ndarray | None) -> Window:
-    """Return the interaction window of a session (needs its planned time)."""
-    planned = session.meta.planned_at_s
-    if planned is None:
-        raise InputError("session has no planned interaction time (planned_at_s)", session.path)
-    return find_window(session.t, planned, spec, signal_values)
 
 
 @dataclass

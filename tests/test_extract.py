@@ -149,13 +149,13 @@ def test_long_session_window_features_streamed(tmp_path: Path, params: dict,
                                                monkeypatch: pytest.MonkeyPatch) -> None:
     """Read batch by batch (97-sample batches), keeping only what the window needs, the
     features equal those of the whole session (to 1e-9), for every window method."""
-    from contactkit.features import chain_cache, extract
+    from contactkit.features import chain_cache, window_features
 
     monkeypatch.setenv("CONTACTKIT_CHAIN_CACHE", "0")
     path = make_session(tmp_path, duration_s=3.0, planned_at_s=1.5)
     extractor = SessionFeatures(**params)
     whole, names, window = extractor.session_row(path)
-    monkeypatch.setattr(extract, "STREAMED_ABOVE_ROWS", 0)
+    monkeypatch.setattr(window_features, "STREAMED_ABOVE_ROWS", 0)
     monkeypatch.setattr(chain_cache, "BATCH_ROWS", 97)
     streamed, streamed_names, streamed_window = extractor.session_row(path)
     assert streamed_names == names and streamed_window == window

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from contactkit.features import extract
+from contactkit.features import window_features
 from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import (
     SCALARS,
@@ -138,7 +138,7 @@ def test_online_rows_equal_each_window_on_its_own(monkeypatch: pytest.MonkeyPatc
     t[1000:] += 0.2  # a step longer than the window: its windows hold 2 samples
     values = 20.0 + rng.normal(size=(len(t), len(features.channels())))  # an offset, as tau
     ends = np.r_[0, 1, 2, np.arange(3, len(t), 7), 1000, 1001]
-    monkeypatch.setattr(extract, "ONLINE_BLOCK_VALUES", 5000)
+    monkeypatch.setattr(window_features, "ONLINE_BLOCK_VALUES", 5000)
     rows = features.online_rows(t, values, ends)
     for row, k in zip(rows, ends, strict=True):
         first = max(0, min(int(np.searchsorted(t, t[k] - 0.05, side="right")), k - 1))
