@@ -6,7 +6,10 @@ document: the feature configuration and feature names, the class names and schem
 model kind, a SHA-256 fingerprint of the training data and package versions. A model
 that also decides per contact event carries the contact detector's settings and the
 event classifier's settings there, and the event classifier itself as a nested skops
-archive ``events.skops`` (checked the same way).
+archive ``events.skops`` (checked the same way). A model of an SVM kind also carries
+both classifiers compiled to arrays (:mod:`contactkit.classify.online_arrays`): loaded
+with ``lazy=True``, a model classifies online (a replay, ``recorder events``) from
+those, and builds its estimator through skops only when something asks for it.
 
 Loading refuses a file changed after it was written and any type outside what the
 file's kind trusts, before anything is constructed. Feature tables or sessions prepared
@@ -15,22 +18,26 @@ with other features are refused by :meth:`ModelFile.check_features`.
 
 from __future__ import annotations
 
+import io
 import zipfile
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from sklearn.pipeline import Pipeline
 
+from contactkit.classify.fast import Compiled, compile_estimator
 from contactkit.classify.kind import ModelKind
+from contactkit.classify.online_arrays import online_members, read_online
 from contactkit.classify.registry import get_kind, kind_names
 from contactkit.classify.skops_format import (
     EVENTS_MEMBER,
     FORMAT,
     SKOPS,
     TRUSTED_TYPES,
+    build_skops,
     check_archive_sizes,
+    read_verified,
     versions,
     write_skops,
 )
@@ -40,14 +47,41 @@ from contactkit.errors import ContactkitError
 from contactkit.schemas import InputError
 from contactkit.util.atomic import check_target
 
+if TYPE_CHECKING:
+    from sklearn.pipeline import Pipeline
 
-@dataclass
+ONLINE_PREFIX = "online/"
+"""Where a model file keeps its classifier's compiled arrays."""
+EVENTS_ONLINE_PREFIX = "events-online/"
+"""Where a model file keeps its event classifier's compiled arrays."""
+
+
 class ModelFile:
-    """A loaded model: the fitted estimator and what the file says about it."""
+    """A loaded model: the fitted estimator and what the file says about it.
 
-    estimator: object
-    meta: dict
-    event_estimator: object | None = None
+    ``meta`` is the file's metadata document, ``event_estimator`` the per-event
+    classifier (None where the model has none). ``online`` is the classifier compiled
+    to arrays, where the file carries it; with it, ``estimator`` may be left to
+    ``build_estimator``, called the first time the estimator is asked for.
+    """
+
+    def __init__(self, estimator: object | None, meta: dict,
+                 event_estimator: object | None = None, *, online: Compiled | None = None,
+                 build_estimator: Callable[[], object] | None = None) -> None:
+        if estimator is None and build_estimator is None:
+            raise ValueError("a model file needs its estimator or a way to build it")
+        self._estimator = estimator
+        self._build_estimator = build_estimator
+        self.meta = meta
+        self.event_estimator = event_estimator
+        self.online = online
+
+    @property
+    def estimator(self) -> object:
+        """The fitted estimator (built on first use where the file was loaded lazily)."""
+        if self._estimator is None:
+            self._estimator = self._build_estimator()
+        return self._estimator
 
     def detector_config(self):
         """Return the contact detector's settings the model carries, or None."""
@@ -90,10 +124,22 @@ class ModelFile:
     def pipeline(self) -> Pipeline:
         """Return the model as a scikit-learn Pipeline over sessions: its first step turns
         sessions (paths or :class:`contactkit.schemas.Session`) into the model's input."""
+        from sklearn.pipeline import Pipeline
+
         return Pipeline([("input", self.transformer()), ("model", self.estimator)])
 
+    def online_transformer(self):
+        """Return the input transformer for online use (a replay, live events): the input
+        kind's light one where it has one (without scikit-learn), else
+        :meth:`transformer`'s."""
+        input_kind = self.kind.input
+        return input_kind.online_from_config(dict(self.meta[input_kind.meta_key]))
+
     def online_predictor(self) -> Callable[[np.ndarray], np.ndarray]:
-        """Return the kind's fast function from a batch of inputs to class probabilities."""
+        """Return a fast function from a batch of inputs to class probabilities: the
+        file's compiled arrays where it carries them, else the kind's online predictor."""
+        if self.online is not None:
+            return self.online.predict_proba
         return self.kind.online(self.estimator)
 
     def check_features(self, names: list[str], where: str | Path | None = None) -> None:
@@ -136,14 +182,28 @@ def save_model(path: str | Path, estimator: object, *, kind: ModelKind, transfor
                       training=training)
     if detector is not None:
         meta["detector"] = detector
-    if events is None:
-        return kind.file_format.save(path, estimator, meta, sample_shape, overwrite)
     if kind.file_format is not SKOPS:
-        raise InputError(f"an event classifier can only travel in a skops model file, not "
-                         f"{kind.file_format.name}", path)
-    meta["events"] = events[1]
-    return write_skops(path, estimator, meta, sample_shape, overwrite,
-                       extra={EVENTS_MEMBER: skops_io().dumps(events[0])})
+        if events is not None:
+            raise InputError(f"an event classifier can only travel in a skops model file, "
+                             f"not {kind.file_format.name}", path)
+        return kind.file_format.save(path, estimator, meta, sample_shape, overwrite)
+    extra = _online_extra(meta, estimator, ONLINE_PREFIX)
+    if events is not None:
+        meta["events"] = dict(events[1])
+        extra[EVENTS_MEMBER] = skops_io().dumps(events[0])
+        extra |= _online_extra(meta["events"], events[0], EVENTS_ONLINE_PREFIX)
+    return write_skops(path, estimator, meta, sample_shape, overwrite, extra=extra)
+
+
+def _online_extra(doc: dict, estimator: object, prefix: str) -> dict[str, bytes]:
+    """Return the members holding ``estimator`` compiled to arrays under ``prefix`` and
+    add their description to ``doc`` (as ``online``); none for an estimator that does
+    not compile."""
+    compiled = compile_estimator(estimator)
+    if compiled is None:
+        return {}
+    doc["online"], members = online_members(compiled, prefix)
+    return members
 
 
 def _load_event_estimator(path: Path, meta: dict) -> object | None:
@@ -186,23 +246,49 @@ def _kind_of(meta: dict, path: Path) -> ModelKind:
                          path) from err
 
 
-def load_model(path: str | Path) -> ModelFile:
+def load_model(path: str | Path, *, lazy: bool = False) -> ModelFile:
     """Load a model file safely in the format its suffix names (skops unless another
-    installed kind's format claims the suffix); raise InputError if refused."""
+    installed kind's format claims the suffix); raise InputError if refused.
+
+    With ``lazy``, a file that carries its classifiers compiled to arrays loads those
+    (checked, and covered by the file's digest) and builds its estimator through skops,
+    with the same refusal of untrusted types, only when ``estimator`` is first asked
+    for: a replay then imports neither scikit-learn nor skops."""
     path = Path(path)
     if not path.is_file():
         raise InputError("no such model file", path)
     formats = {get_kind(n).file_format.suffix: get_kind(n).file_format for n in kind_names()}
-    estimator, meta = formats.get(path.suffix.lower(), SKOPS).load(
-        path, lambda meta: _kind_of(meta, path).trusted_types)
-    model = ModelFile(estimator=estimator, meta=meta,
-                      event_estimator=_load_event_estimator(path, meta))
+    file_format = formats.get(path.suffix.lower(), SKOPS)
+    model = _load_lazily(path) if lazy and file_format is SKOPS else None
+    if model is None:
+        estimator, meta = file_format.load(path, lambda meta: _kind_of(meta, path).trusted_types)
+        model = ModelFile(estimator, meta, _load_event_estimator(path, meta))
     try:
         model.detector_config()
     except InputError as err:
         raise InputError(f"model file carries invalid detector settings ({err})", path) from err
-    kind = _kind_of(meta, path)
-    if meta.get("input", "features") != kind.input.name:
+    kind = _kind_of(model.meta, path)
+    if model.meta.get("input", "features") != kind.input.name:
         raise InputError(f"a {kind.name} model takes {kind.input.name} input, the file says "
-                         f"{meta.get('input')!r}", path)
+                         f"{model.meta.get('input')!r}", path)
     return model
+
+
+def _load_lazily(path: Path) -> ModelFile | None:
+    """Return the model of a skops file from its compiled arrays, its estimator left to
+    be built on first use; None if the file lacks arrays for one of its classifiers."""
+    data, meta = read_verified(path)
+    events = meta.get("events")
+    names = meta.get("feature_names")
+    if ("online" not in meta or not isinstance(names, list)
+            or (events is not None and not (isinstance(events, dict) and "online" in events
+                                            and isinstance(events.get("features"), list)))):
+        return None
+    kind = _kind_of(meta, path)
+    with zipfile.ZipFile(io.BytesIO(data)) as archive:
+        online = read_online(meta["online"], archive.read, len(names), path)
+        event_online = (None if events is None else
+                        read_online(events["online"], archive.read, len(events["features"]),
+                                    path))
+    return ModelFile(None, meta, event_online, online=online,
+                     build_estimator=lambda: build_skops(data, kind.trusted_types, path))

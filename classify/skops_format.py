@@ -27,9 +27,12 @@ from contactkit.util.atomic import atomic_write
 
 META_MEMBER = "contactkit.json"
 EVENTS_MEMBER = "events.skops"
-FORMAT = "contactkit-model/2"
-"""Version 2: the digest covers every member, contactkit.json included (version 1 left
-it out, so its classes could be swapped unnoticed); version 1 files are refused."""
+FORMAT = "contactkit-model/3"
+"""Version 3: a model of an SVM kind also carries its compiled arrays
+(:mod:`contactkit.classify.online_arrays`). Version 2 files, without them, still load.
+Since version 2 the digest covers every member, contactkit.json included (version 1
+left it out, so its classes could be swapped unnoticed); version 1 files are refused."""
+READABLE_FORMATS = ("contactkit-model/2", FORMAT)
 MAX_MEMBER_BYTES = 256 << 20
 """The largest member [bytes, uncompressed] a model file may hold; checked from the
 archive's directory before anything is decompressed (a zip bomb is refused unread)."""
@@ -109,11 +112,9 @@ def write_skops(path: Path, estimator: object, meta: dict, sample_shape: tuple[i
     return path
 
 
-def read_skops(path: Path, trusted_types: Callable[[dict], Sequence[str]] = lambda meta: ()
-               ) -> tuple[object, dict]:
-    """Read a skops model file safely (see the module docstring); return the estimator
-    and its metadata, or raise InputError. ``trusted_types(meta)`` names the types the
-    file's model kind may build beyond :data:`TRUSTED_TYPES`."""
+def read_verified(path: Path) -> tuple[bytes, dict]:
+    """Read a skops model file's bytes and metadata, checking its sizes, format and
+    digest (see the module docstring) but building nothing; raise InputError if refused."""
     if path.stat().st_size > MAX_MODEL_BYTES:
         raise InputError(f"model file is larger than {MAX_MODEL_BYTES} bytes", path)
     data = path.read_bytes()
@@ -133,7 +134,7 @@ def read_skops(path: Path, trusted_types: Callable[[dict], Sequence[str]] = lamb
         raise InputError(f"not a contactkit model file, or a damaged one "
                          f"({type(err).__name__}: {' '.join(str(err).split())[:80]})",
                          path) from err
-    if meta.get("format") != FORMAT:
+    if meta.get("format") not in READABLE_FORMATS:
         old = meta.get("format") == "contactkit-model/1"
         raise InputError("model file of an older contactkit whose digest leaves out its "
                          "metadata; train it again" if old else
@@ -141,7 +142,14 @@ def read_skops(path: Path, trusted_types: Callable[[dict], Sequence[str]] = lamb
     if digest != meta.get("members_sha256"):
         raise InputError("model file was modified after it was written (digest mismatch); "
                          "refusing to load it", path)
-    trusted = TRUSTED_TYPES + list(trusted_types(meta))
+    return data, meta
+
+
+def build_skops(data: bytes, trusted: Sequence[str], path: Path) -> object:
+    """Return the estimator of a verified skops archive's bytes (:func:`read_verified`),
+    refusing, before anything is constructed, any type outside :data:`TRUSTED_TYPES`
+    and ``trusted``; raise InputError naming ``path`` if refused."""
+    trusted = TRUSTED_TYPES + list(trusted)
     try:
         untrusted = [t for t in skops_io().get_untrusted_types(data=data) if t not in trusted]
     except Exception as err:  # skops raises many kinds on a malformed archive
@@ -149,9 +157,18 @@ def read_skops(path: Path, trusted_types: Callable[[dict], Sequence[str]] = lamb
     if untrusted:
         raise InputError(f"model file would build untrusted types {untrusted}; refusing", path)
     try:
-        return skops_io().loads(data, trusted=trusted), meta
+        return skops_io().loads(data, trusted=trusted)
     except Exception as err:  # skops raises many kinds on a malformed archive
         raise InputError(f"unreadable model ({type(err).__name__})", path) from err
+
+
+def read_skops(path: Path, trusted_types: Callable[[dict], Sequence[str]] = lambda meta: ()
+               ) -> tuple[object, dict]:
+    """Read a skops model file safely (see the module docstring); return the estimator
+    and its metadata, or raise InputError. ``trusted_types(meta)`` names the types the
+    file's model kind may build beyond :data:`TRUSTED_TYPES`."""
+    data, meta = read_verified(path)
+    return build_skops(data, trusted_types(meta), path), meta
 
 
 SKOPS = ModelFormat("skops", ".skops", write_skops, read_skops)

@@ -159,7 +159,7 @@ class ReplayStream:
         self.batch_rows = batch_rows or BATCH_ROWS
         self._predict_proba = model.online_predictor()
         self.classes = model.classes
-        self.transformer = model.transformer()
+        self.transformer = model.online_transformer()
         model.check_features(list(self.transformer.get_feature_names_out()))
         timeseries, self.window_s = self.transformer.timeseries, float(self.transformer.window_s)
         chain = self.transformer.chain_config()

@@ -171,6 +171,34 @@ def run_command(*args: str, cwd: Path | None = None) -> subprocess.CompletedProc
     return subprocess.CompletedProcess(list(args), code, stdout.getvalue(), stderr.getvalue())
 
 
+def save_quick_model(path: Path, *, events: bool = False) -> Path:
+    """Save an SVM on random rows of the default features (fast to build, predicts
+    anything) at ``path``; with ``events``, also the default contact detector and an
+    event classifier on random event features. Return the path."""
+    from contactkit.classify.events import EVENT_FEATURES, EventModel
+    from contactkit.classify.modelfile import save_model
+    from contactkit.classify.registry import get_kind, make_estimator
+    from contactkit.features.detector import DetectorConfig
+    from contactkit.features.extract import SessionFeatures
+
+    extractor = SessionFeatures(window="planned").fit(None)
+    names = list(extractor.get_feature_names_out())
+    rng = np.random.default_rng(0)
+    labels = np.array(["none", "bump", "adjust", "shove"] * 10)
+    estimator = make_estimator("svm", names).fit(rng.normal(size=(40, len(names))), labels)
+    extra = {}
+    if events:
+        X, y = rng.normal(size=(40, len(EVENT_FEATURES))), np.array(["bump", "shove"] * 20)
+        intent = make_estimator("svm", []).fit(X + (y == "shove")[:, None], y)
+        event_model = EventModel(intent, list(intent.classes_), 0.15, X.min(axis=0),
+                                 X.max(axis=0))
+        extra = {"detector": DetectorConfig().to_dict(),
+                 "events": (intent, event_model.meta())}
+    return save_model(path, estimator, transformer=extractor, feature_names=names,
+                      classes=list(estimator.classes_), kind=get_kind("svm"), scheme="full",
+                      fingerprint="", training={}, **extra)
+
+
 def make_dataset(directory: Path, poses=("A", "B", "C", "D"), repeats: int = 2,
                  rate_hz: float = 250.0, condition: str = "static") -> Path:
     """Simulate a small balanced dataset (poses x four actions x repeats) in one batch."""

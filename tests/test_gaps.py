@@ -12,17 +12,15 @@ import pyarrow.parquet as pq
 import pytest
 
 from contactkit.classify.events import EventPipeline, batch_events, stream_events
-from contactkit.classify.modelfile import load_model, save_model
-from contactkit.classify.registry import get_kind, make_estimator
+from contactkit.classify.modelfile import load_model
 from contactkit.features.detector import Detector, DetectorConfig, detect
-from contactkit.features.extract import SessionFeatures
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.features.timing import RESTART_STEP_S, restarts, sampling_stats
 from contactkit.replay.engine import ReplayStream
 from contactkit.replay.session_replay import replay_sessions
 from contactkit.schemas import read_session
 from contactkit.schemas.session import SampleBatch
-from tests.conftest import MINDLAB_FILES, load_mindlab, make_session
+from tests.conftest import MINDLAB_FILES, load_mindlab, make_session, save_quick_model
 
 DETECTOR = DetectorConfig(noise=(0.5,) * 7, speed=(0.5,) * 7, accel=(0.02,) * 7)
 HOLE = (1.85, 3.85)  # s cut out, while the shove (detected 1.75-2.01 s) is on
@@ -135,15 +133,7 @@ def test_events_end_before_a_gap_the_same_in_batch_and_streaming(data) -> None:
 @pytest.fixture(scope="module")
 def quick_model(tmp_path_factory) -> Path:
     """An SVM on random rows of the default features: fast to build, predicts anything."""
-    extractor = SessionFeatures(window="planned").fit(None)
-    names = list(extractor.get_feature_names_out())
-    labels = np.array(["none", "bump", "adjust", "shove"] * 10)
-    estimator = make_estimator("svm", names).fit(
-        np.random.default_rng(0).normal(size=(40, len(names))), labels)
-    return save_model(tmp_path_factory.mktemp("model") / "m.skops", estimator,
-                      transformer=extractor, feature_names=names,
-                      classes=list(estimator.classes_), kind=get_kind("svm"), scheme="full",
-                      fingerprint="", training={})
+    return save_quick_model(tmp_path_factory.mktemp("model") / "m.skops")
 
 
 @pytest.mark.timeout(300)

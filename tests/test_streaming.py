@@ -13,10 +13,9 @@ import pyarrow.parquet as pq
 import pytest
 import rerun.chunk as rc
 
-from contactkit.classify.modelfile import load_model, save_model
-from contactkit.classify.registry import get_kind, make_estimator
+from contactkit.classify.modelfile import load_model
 from contactkit.features import chain_cache
-from contactkit.features.extract import SessionFeatures, timeseries_columns
+from contactkit.features.extract import timeseries_columns
 from contactkit.features.per_sample import write_per_sample_table
 from contactkit.features.timeseries import (
     ALL_TIMESERIES,
@@ -28,7 +27,7 @@ from contactkit.replay.session_replay import replay_session
 from contactkit.schemas import SessionMeta, read_session, write_session
 from contactkit.schemas.session import REQUIRED_COLUMNS, SampleBatch, iter_sample_batches
 from contactkit.viewer import layout
-from tests.conftest import make_session, run_command
+from tests.conftest import make_session, run_command, save_quick_model
 from tests.rrd_frames import assert_frames_ok
 
 
@@ -104,15 +103,7 @@ def test_per_sample_table_streams_and_equals_the_chain(shove, tmp_path, monkeypa
 @pytest.fixture(scope="module")
 def quick_model(tmp_path_factory) -> Path:
     """An SVM on random rows of the default features: fast to build, predicts anything."""
-    extractor = SessionFeatures(window="planned").fit(None)
-    names = list(extractor.get_feature_names_out())
-    rng = np.random.default_rng(0)
-    labels = np.array(["none", "bump", "adjust", "shove"] * 10)
-    estimator = make_estimator("svm", names).fit(rng.normal(size=(40, len(names))), labels)
-    return save_model(tmp_path_factory.mktemp("model") / "m.skops", estimator,
-                      transformer=extractor, feature_names=names,
-                      classes=list(estimator.classes_), kind=get_kind("svm"), scheme="full",
-                      fingerprint="", training={})
+    return save_quick_model(tmp_path_factory.mktemp("model") / "m.skops")
 
 
 def _long_session(directory: Path, n: int, rate_hz: float = 1000.0) -> Path:

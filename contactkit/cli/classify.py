@@ -267,7 +267,7 @@ def predict_command(
     from contactkit.classify.modelfile import load_model
     from contactkit.classify.prediction import predict_sources
 
-    model = load_model(model_path)
+    model = load_model(model_path, lazy=True)
     if events or calibration is not None:
         detector = (load_calibration(calibration) if calibration is not None
                     else model.detector_config())

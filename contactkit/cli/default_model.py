@@ -34,18 +34,13 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
-from contactkit.classify.calibrate import calibrate_sessions
-from contactkit.classify.event_training import fit_event_model, load_session_events
 from contactkit.classify.events import DEFAULT_DECIDE_AFTER_S, EVENT_FEATURES
 from contactkit.classify.kind import ModelOptions
 from contactkit.classify.modelfile import FORMAT as MODEL_FORMAT
 from contactkit.classify.modelfile import ModelFile, load_model
 from contactkit.classify.registry import DEFAULT_KIND
-from contactkit.classify.training import train
 from contactkit.features.detector import MIN_NOISE, DetectorConfig
-from contactkit.recorder.sim.dataset import simulate_dataset
 from contactkit.recorder.sim.simulator import SimConfig
-from contactkit.schemas.dataset import session_files
 from contactkit.util.cache import cache_dir
 from contactkit.util.progress import LabelledProgress
 
@@ -86,6 +81,8 @@ def _labelled(progress: Progress | None, label: str) -> Callable[[int, int], Non
 
 
 def _simulated(presets: list[str], workers: int, progress: Progress | None) -> list[Path]:
+    from contactkit.recorder.sim.dataset import simulate_dataset
+
     directories = []
     for preset in presets:
         directory = recipe_dir() / preset
@@ -102,6 +99,11 @@ def build_default_model(workers: int = 2, progress: Progress | None = None,
     path = default_model_path()
     if path.exists() and not rebuild:
         return path
+    from contactkit.classify.calibrate import calibrate_sessions
+    from contactkit.classify.event_training import fit_event_model, load_session_events
+    from contactkit.classify.training import train
+    from contactkit.schemas.dataset import session_files
+
     sources = _simulated(RECIPE["presets"], workers, progress)
     moving = [p for d in _simulated(RECIPE["event_presets"], workers, progress)
               for p in session_files(d)]
@@ -125,10 +127,11 @@ def build_default_model(workers: int = 2, progress: Progress | None = None,
 def model_or_default(path: Path | None, progress: LabelledProgress | None = None
                      ) -> ModelFile:
     """Load the model file at ``path``, or the default model (built and cached on first
-    use, see :mod:`contactkit.cli.default_model`)."""
+    use, see :mod:`contactkit.cli.default_model`), for online use: from its compiled
+    arrays where it carries them (``load_model(lazy=True)``)."""
     if path is not None:
-        return load_model(path)
-    return load_model(build_default_model(progress=progress))
+        return load_model(path, lazy=True)
+    return load_model(build_default_model(progress=progress), lazy=True)
 
 
 def default_model_missing() -> bool:

@@ -76,7 +76,7 @@ def _start_events(values: dict[str, Any], meta: SessionMeta) -> Any:
     if detector is None:
         raise InputError("model carries no contact detector; give --calibration",
                          values["model"])
-    chain = model.transformer().chain_config()
+    chain = model.online_transformer().chain_config()
 
     def report(kind: str, event: Any) -> None:
         err_console.print(f"  [bold]event[/] {describe(kind, event)}")
