@@ -1,9 +1,15 @@
-"""CLI start-up: wall time and peak RSS of `--help` and `recorder info`.
+"""CLI start-up: wall time and peak RSS of `--help`, `recorder info` and a short replay.
 
 Each command runs as a fresh process through the installed console scripts, several
 times (the median is reported), against two baselines measured in the same run:
 ``python -c pass`` (the interpreter alone) and ``python -c "import rerun"`` (one heavy
 library). Ratios, not seconds, are what compare across runs on a shared machine.
+
+The replay (``replay SESSION --viewer none --save out.rrd`` of a 12 s session at 1 kHz
+with the default model: detector, event classifier, per-hop SVM) is the whole command
+a user waits for, start-up included; its baseline is ``python -c "import rerun,
+pinocchio"``, the two libraries it computes and logs with. The default model is built
+first if it is not cached yet (minutes, once).
 
     .venv/bin/python benchmarks/bench_startup.py [--repeats 5]
 """
@@ -18,6 +24,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from contactkit.cli.default_model import default_model_missing
 
 BIN = Path(sys.executable).parent
 
@@ -41,11 +49,14 @@ def measure(command: list[str], repeats: int) -> tuple[float, float]:
     return statistics.median(r[0] for r in runs), statistics.median(r[1] for r in runs)
 
 
-def make_session(directory: Path) -> Path:
-    """Record a 2 s simulated session with the recorder; return its path."""
+def make_session(directory: Path, duration_s: float = 2.0) -> Path:
+    """Record a simulated session of ``duration_s`` [s] at 1 kHz with the recorder (the
+    planned touch half-way); return its path."""
     out = subprocess.run([str(BIN / "recorder"), "capture", "--pose", "B", "--action",
-                          "adjust", "--seed", "1", "--duration", "2", "--planned-at", "1", "--out",
-                          str(directory)], capture_output=True, text=True, check=True)
+                          "adjust", "--seed", "1", "--duration", str(duration_s),
+                          "--planned-at", str(duration_s / 2), "--rate", "1000", "--out",
+                          str(directory / f"{duration_s:g}s")],
+                         capture_output=True, text=True, check=True)
     return Path(out.stdout.strip().splitlines()[-1])
 
 
@@ -56,6 +67,10 @@ def main() -> None:
     repeats = parser.parse_args().repeats
     with tempfile.TemporaryDirectory() as tmp:
         session = make_session(Path(tmp))
+        long_session = make_session(Path(tmp), 12.0)
+        if default_model_missing():
+            subprocess.run([str(BIN / "replay"), "--build-default-model"], check=True,
+                           stdout=subprocess.DEVNULL)
         cases = {
             "python -c pass": [sys.executable, "-c", "pass"],
             "python -c 'import rerun'": [sys.executable, "-c", "import rerun"],
@@ -64,6 +79,11 @@ def main() -> None:
             "replay --help": [str(BIN / "replay"), "--help"],
             "classify --help": [str(BIN / "classify"), "--help"],
             "recorder info SESSION": [str(BIN / "recorder"), "info", str(session)],
+            "python -c 'import rerun, pin'": [sys.executable, "-c",
+                                              "import rerun, pinocchio"],
+            "replay 12 s --viewer none": [str(BIN / "replay"), str(long_session), "--viewer",
+                                          "none", "--save", str(Path(tmp) / "r.rrd"),
+                                          "--overwrite"],
         }
         results = {name: measure(command, repeats) for name, command in cases.items()}
     bare = results["python -c pass"][0]
@@ -73,6 +93,10 @@ def main() -> None:
     for name, (seconds, rss) in results.items():
         print(f"{name:28s} {seconds:9.3f} {seconds / bare:8.1f} {seconds / rerun:8.2f} "
               f"{rss:9.0f}")
+    replay, libraries = results["replay 12 s --viewer none"], results[
+        "python -c 'import rerun, pin'"]
+    print(f"replay of 12 s: {replay[0] / libraries[0]:.2f}x the time and "
+          f"{replay[1] / libraries[1]:.2f}x the peak RSS of importing rerun and pinocchio")
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ import pytest
 
 from contactkit.classify import registry
 from contactkit.errors import InputError
-from tests.conftest import make_session
+from tests.conftest import make_session, save_quick_model
 
 HEAVY = ("torch", "onnxruntime", "onnx", "skops", "sklearn", "rerun", "pinocchio", "scipy",
          "dask", "distributed", "matplotlib", "polars", "aeon")
@@ -121,6 +121,20 @@ def test_recorder_info_imports_no_heavy_library(tmp_path: Path) -> None:
     assert code == 0, out
     assert "shove" in out
     assert sorted(modules & {*HEAVY, "pandas"}) == []
+
+
+def test_replay_imports_no_classifier_library(tmp_path: Path) -> None:
+    """A replay with an SVM model (its per-hop and event classifiers compiled to arrays
+    in the file) and its contact detector imports neither scikit-learn, skops nor scipy,
+    nor pandas (which pyarrow would import for Rerun's lists); rerun and pinocchio are
+    what it uses."""
+    session = make_session(tmp_path, duration_s=2.0, planned_at_s=1.0)
+    model = save_quick_model(tmp_path / "m.skops", events=True)
+    code, modules, out = _loaded("replay", str(session), "--model", str(model), "--viewer",
+                                 "none", "--save", str(tmp_path / "r.rrd"))
+    assert code == 0, out
+    assert (tmp_path / "r.rrd").is_file()
+    assert sorted(modules & {*HEAVY, "pandas"}) == ["pinocchio", "rerun"]
 
 
 def test_skops_is_imported_without_torch_or_dask() -> None:

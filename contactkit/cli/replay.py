@@ -177,6 +177,41 @@ app = new_app(no_args_is_help=False)
 app.command(name="replay")(replay_command)
 
 
+def pyarrow_without_pandas() -> None:
+    """Have pyarrow record, once per process, that pandas is absent, unless it is loaded.
+
+    pyarrow imports pandas the first time ``pa.array`` gets a Python list (to ask whether
+    it is a pandas object), and Rerun's SDK passes lists; that is 0.7 s and 40 MB of a
+    replay that converts nothing to pandas. With pandas marked missing for that one
+    call, pyarrow takes every later list as a list, and still imports pandas if asked
+    to convert to it (``to_pandas``). Only the console script calls this: a notebook's
+    pyarrow is left as it is."""
+    if "pandas" in sys.modules:
+        return
+    import pyarrow as pa
+
+    sys.meta_path.insert(0, _NO_PANDAS)
+    try:
+        pa.array([0])
+    finally:
+        sys.meta_path.remove(_NO_PANDAS)
+
+
+class _NoPandas:
+    """An import finder under which importing pandas fails."""
+
+    @staticmethod
+    def find_spec(name: str, path: object = None, target: object = None) -> None:
+        """Raise ModuleNotFoundError for pandas; leave any other module to the next
+        finder (return None)."""
+        if name == "pandas":
+            raise ModuleNotFoundError("pandas is left out here", name="pandas")
+
+
+_NO_PANDAS = _NoPandas()
+
+
 def main() -> None:
     """Entry point of the ``replay`` console script."""
+    pyarrow_without_pandas()
     sys.exit(run_app(app, "replay"))
