@@ -8,8 +8,8 @@ that also decides per contact event carries the contact detector's settings and 
 event classifier's settings there, and the event classifier itself as a nested skops
 archive ``events.skops`` (checked the same way). A model of an SVM kind also carries
 both classifiers compiled to arrays (:mod:`contactkit.classify.online_arrays`): loaded
-with ``lazy=True``, a model classifies online (a replay, ``recorder events``) from
-those, and builds its estimator through skops only when something asks for it.
+with ``lazy=True``, a model classifies online (a replay, ``recorder capture
+--events``) from those, and builds its estimator through skops only when something asks for it.
 
 Loading refuses a file changed after it was written and any type outside what the
 file's kind trusts, before anything is constructed. Feature tables or sessions prepared
@@ -279,16 +279,18 @@ def _load_lazily(path: Path) -> ModelFile | None:
     be built on first use; None if the file lacks arrays for one of its classifiers."""
     data, meta = read_verified(path)
     events = meta.get("events")
-    names = meta.get("feature_names")
-    if ("online" not in meta or not isinstance(names, list)
-            or (events is not None and not (isinstance(events, dict) and "online" in events
-                                            and isinstance(events.get("features"), list)))):
+    names, classes = meta.get("feature_names"), meta.get("classes")
+    if ("online" not in meta or not isinstance(names, list) or not isinstance(classes, list)
+            or (events is not None and not (
+                isinstance(events, dict) and "online" in events
+                and isinstance(events.get("features"), list)
+                and isinstance(events.get("classes"), list)))):
         return None
     kind = _kind_of(meta, path)
     with zipfile.ZipFile(io.BytesIO(data)) as archive:
-        online = read_online(meta["online"], archive.read, len(names), path)
+        online = read_online(meta["online"], archive.read, len(names), len(classes), path)
         event_online = (None if events is None else
                         read_online(events["online"], archive.read, len(events["features"]),
-                                    path))
+                                    len(events["classes"]), path))
     return ModelFile(None, meta, event_online, online=online,
                      build_estimator=lambda: build_skops(data, kind.trusted_types, path))

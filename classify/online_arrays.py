@@ -73,10 +73,11 @@ def online_members(compiled: Compiled, prefix: str) -> tuple[dict, dict[str, byt
 
 
 def read_online(doc: object, member: Callable[[str], bytes], n_features: int,
-                path: str | Path) -> Compiled:
+                n_classes: int, path: str | Path) -> Compiled:
     """Return the compiled classifier ``doc`` describes, reading its arrays with
-    ``member(name)``; ``n_features`` is the width of the rows it classifies. Raises
-    InputError naming ``path`` for a document or array that does not fit."""
+    ``member(name)``; ``n_features`` is the width of the rows it classifies and
+    ``n_classes`` the number of classes it must tell apart. Raises InputError naming
+    ``path`` for a document or array that does not fit."""
     try:
         parts = _parts(doc, n_features)
         members = []
@@ -87,16 +88,18 @@ def read_online(doc: object, member: Callable[[str], bytes], n_features: int,
             if svm.n_features != width:
                 raise ValueError(f"part {prefix!r} takes {svm.n_features} features, "
                                  f"expected {width}")
+            if svm.n != n_classes:
+                raise ValueError(f"part {prefix!r} tells {svm.n} classes apart, the model "
+                                 f"file names {n_classes}")
             members.append((columns, svm))
     except (ValueError, KeyError) as err:
         raise InputError(f"invalid compiled classifier in the model file ({err})",
                          path) from err
     if len(members) == 1 and members[0][0] is None:
         return members[0][1]
-    n_classes = {svm.n for _, svm in members}
-    if len(n_classes) != 1 or any(columns is None for columns, _ in members):
-        raise InputError("invalid compiled classifier in the model file (its parts "
-                         "disagree)", path)
+    if any(columns is None for columns, _ in members):
+        raise InputError("invalid compiled classifier in the model file (a part of an "
+                         "ensemble without its columns)", path)
     return CompiledEnsemble(members)
 
 

@@ -152,6 +152,8 @@ def _array(name: str):
     (lambda m, meta: meta["online"].__setitem__("form", "pickle"), "unknown form"),
     (lambda m, meta: meta["online"]["parts"][0].__setitem__("columns", [0, 99]),
      "columns outside"),
+    (lambda m, meta: meta.__setitem__("classes", meta["classes"][:3]),
+     "tells 4 classes apart, the model file names 3"),
 ])
 def test_arrays_that_do_not_fit_are_refused(features, tmp_path: Path, change,
                                             problem: str) -> None:
