@@ -242,7 +242,8 @@ class EventPipeline:
         and, for contact isolation, joint position q [rad] (7,)."""
         t = float(t)  # a NumPy scalar's arithmetic costs several times a float's
         state = self.detector.update(t, r, dq)
-        return self._step(t, np.array(r, dtype=float), q, state, self.detector.baseline)
+        return self._step(t, np.array(r, dtype=float), q, state,
+                          self.detector.baseline if state.onset else None)
 
     def update_block(self, t: np.ndarray, r: np.ndarray, dq: np.ndarray,
                      q: np.ndarray | None = None) -> BlockEvents:
@@ -279,9 +280,10 @@ class EventPipeline:
         return out
 
     def _step(self, t: float, r: np.ndarray, q: np.ndarray | None, state: DetectorState,
-              baseline: np.ndarray) -> EventOutput:
+              baseline: np.ndarray | None) -> EventOutput:
         """Advance the pipeline by one sample (time [s], residual [Nm], q [rad] or None)
-        given the detector's ``state`` there and its ``baseline`` [Nm] after it."""
+        given the detector's ``state`` there and its ``baseline`` [Nm] after it (read at
+        an onset only: None will do elsewhere). Returns the pipeline's output there."""
         sample = (t, r)
         out = EventOutput(NONE, state.score, state.contact)
         if state.cut:
