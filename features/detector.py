@@ -346,7 +346,9 @@ class Detector:
             self._baseline = self._r_f
             return DetectorState(False, 0.0, False, False, np.zeros(N_JOINTS),
                                  np.array(threshold), restarted, cut)
-        e = [f - b for f, b in zip(self._r_f, self._baseline, strict=True)]
+        # strict=False where both lists have the length of r_f, which the next zip checks
+        # against the threshold's seven (the check costs ~0.6 us a zip)
+        e = [f - b for f, b in zip(self._r_f, self._baseline, strict=False)]
         ratio = [abs(x) / limit for x, limit in zip(e, threshold, strict=True)]
         score = max(ratio)
         onset = release = False
@@ -360,7 +362,8 @@ class Detector:
                 self._since = None
                 tau = cfg.baseline_moving_s if s >= REST_SPEED else cfg.baseline_s
                 gain = h / (tau + h)
-                self._baseline = [b + gain * x for b, x in zip(self._baseline, e, strict=True)]
+                self._baseline = [b + gain * x
+                                  for b, x in zip(self._baseline, e, strict=False)]
         elif max(itertools.compress(ratio, self._onset_joints.tolist())) < cfg.release:
             self._since = t if self._since is None else self._since
             if t - self._since >= cfg.min_off_s - 1e-12:
