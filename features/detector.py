@@ -53,6 +53,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
@@ -70,6 +71,11 @@ FILTER_GAIN = 50.0  # 1/s, the observer's default K_O: a 20 ms low-pass on ddq
 MIN_NOISE = 0.3  # Nm, floor of a calibrated at-rest threshold
 REST_SPEED = 0.05  # rad/s, below this a sample counts as at rest
 CALIBRATION_POINTS = 20000  # samples per fit (evenly thinned)
+
+
+def _zeros() -> np.ndarray:
+    """Return seven zeros (e during the warm-up) [Nm]."""
+    return np.zeros(N_JOINTS)
 
 
 def _seven(value: object, name: str) -> tuple[float, ...]:
@@ -179,22 +185,49 @@ def load_calibration(path: str | Path) -> DetectorConfig:
     return DetectorConfig.from_dict(doc, path)
 
 
-@dataclass
 class DetectorState:
     """What the detector reports for one sample: ``contact`` (bool), ``score`` (max of
     |e|/threshold), ``onset`` / ``release`` (True at the sample where a contact is
     confirmed / ends), ``e`` (7,) deviation from the baseline [Nm] and
     ``threshold`` (7,) [Nm]; ``restarted`` at the first sample after a gap, and ``cut``
-    when that gap closed a contact: it ended at the sample before this one."""
+    when that gap closed a contact: it ended at the sample before this one.
 
-    contact: bool
-    score: float
-    onset: bool
-    release: bool
-    e: np.ndarray
-    threshold: np.ndarray
-    restarted: bool = False
-    cut: bool = False
+    ``e`` and ``threshold`` are given as arrays, or as functions that return them (a
+    live sample's, where most consumers read neither: two 7-vectors cost ~2.5 us), then
+    computed when first read."""
+
+    __slots__ = (
+        "_e",
+        "_threshold",
+        "contact",
+        "cut",
+        "onset",
+        "release",
+        "restarted",
+        "score",
+    )
+
+    def __init__(self, contact: bool, score: float, onset: bool, release: bool,
+                 e: np.ndarray | Callable[[], np.ndarray],
+                 threshold: np.ndarray | Callable[[], np.ndarray],
+                 restarted: bool = False, cut: bool = False) -> None:
+        self.contact, self.score, self.onset, self.release = contact, score, onset, release
+        self.restarted, self.cut = restarted, cut
+        self._e, self._threshold = e, threshold
+
+    @property
+    def e(self) -> np.ndarray:
+        """Return the deviation from the baseline e [Nm] (7,)."""
+        if callable(self._e):
+            self._e = self._e()
+        return self._e
+
+    @property
+    def threshold(self) -> np.ndarray:
+        """Return the threshold [Nm] (7,)."""
+        if callable(self._threshold):
+            self._threshold = self._threshold()
+        return self._threshold
 
 
 class Detector:
@@ -335,7 +368,6 @@ class Detector:
         self.t = t
         if self.t0 is None:
             self.t0 = t
-        threshold = [n + s * v + a * c for n, v, c in self._coefficients]
         r = np.asarray(r, dtype=float).tolist()
         if first or cfg.smooth_s == 0.0:
             self._r_f = r
@@ -344,12 +376,13 @@ class Detector:
             self._r_f = [f + gain * (x - f) for f, x in zip(self._r_f, r, strict=True)]
         if t - self.t0 < cfg.warmup_s:
             self._baseline = self._r_f
-            return DetectorState(False, 0.0, False, False, np.zeros(N_JOINTS),
-                                 np.array(threshold), restarted, cut)
-        # strict=False where both lists have the length of r_f, which the next zip checks
-        # against the threshold's seven (the check costs ~0.6 us a zip)
-        e = [f - b for f, b in zip(self._r_f, self._baseline, strict=False)]
-        ratio = [abs(x) / limit for x, limit in zip(e, threshold, strict=True)]
+            return DetectorState(False, 0.0, False, False, _zeros, self._threshold(s, a),
+                                 restarted, cut)
+        # e = r_f - b and the threshold noise + speed s + accel a, inline, as the
+        # returned state computes them when read
+        r_f, before = self._r_f, self._baseline
+        ratio = [abs(f - b) / (n + s * v + a * c)
+                 for f, b, (n, v, c) in zip(r_f, before, self._coefficients, strict=True)]
         score = max(ratio)
         onset = release = False
         if not self.contact:
@@ -362,8 +395,9 @@ class Detector:
                 self._since = None
                 tau = cfg.baseline_moving_s if s >= REST_SPEED else cfg.baseline_s
                 gain = h / (tau + h)
-                self._baseline = [b + gain * x
-                                  for b, x in zip(self._baseline, e, strict=False)]
+                # zip's length check costs ~0.6 us: these lists are r_f's and b's,
+                # checked above
+                self._baseline = [b + gain * (f - b) for f, b in zip(r_f, before, strict=False)]
         elif max(itertools.compress(ratio, self._onset_joints.tolist())) < cfg.release:
             self._since = t if self._since is None else self._since
             if t - self._since >= cfg.min_off_s - 1e-12:
@@ -372,8 +406,14 @@ class Detector:
                     self._baseline, self._r_f, self._onset_joints.tolist(), strict=True)]
         else:
             self._since = None
-        return DetectorState(self.contact, score, onset, release, np.array(e),
-                             np.array(threshold), restarted, cut)
+        return DetectorState(self.contact, score, onset, release,
+                             lambda: np.subtract(r_f, before), self._threshold(s, a),
+                             restarted, cut)
+
+    def _threshold(self, s: float, a: float) -> Callable[[], np.ndarray]:
+        """Return the function that computes the threshold [Nm] (7,) at speed ``s``
+        [rad/s] and acceleration ``a`` [rad/s^2]: noise + speed s + accel a."""
+        return lambda: self._noise + self._speed * s + self._accel * a
 
 
 @dataclass
