@@ -307,8 +307,9 @@ class EventPipeline:
             self._window.append(sample)
             if t - event.onset_s >= self.decide_after_s - 1e-12 or state.release:
                 out.decided = self._decide(t)
-        self._isolate(t, q, sample[1], out.decided is not None, state.release,
-                      state.threshold)
+        if self._track is not None:  # reading the threshold of a live sample computes it
+            self._isolate(t, q, sample[1], out.decided is not None, state.release,
+                          state.threshold)
         out.label = event.label
         if state.release:
             event.release_s = t
