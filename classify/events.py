@@ -242,7 +242,8 @@ class EventPipeline:
         and, for contact isolation, joint position q [rad] (7,)."""
         t = float(t)  # a NumPy scalar's arithmetic costs several times a float's
         state = self.detector.update(t, r, dq)
-        return self._step(t, np.array(r, dtype=float), q, state, self.detector.baseline)
+        return self._step(t, np.array(r, dtype=float), q, state,
+                          self.detector.baseline if state.onset else None)
 
     def update_block(self, t: np.ndarray, r: np.ndarray, dq: np.ndarray,
                      q: np.ndarray | None = None) -> BlockEvents:
@@ -279,9 +280,10 @@ class EventPipeline:
         return out
 
     def _step(self, t: float, r: np.ndarray, q: np.ndarray | None, state: DetectorState,
-              baseline: np.ndarray) -> EventOutput:
+              baseline: np.ndarray | None) -> EventOutput:
         """Advance the pipeline by one sample (time [s], residual [Nm], q [rad] or None)
-        given the detector's ``state`` there and its ``baseline`` [Nm] after it."""
+        given the detector's ``state`` there and its ``baseline`` [Nm] after it (read at
+        an onset only: None will do elsewhere). Returns the pipeline's output there."""
         sample = (t, r)
         out = EventOutput(NONE, state.score, state.contact)
         if state.cut:
@@ -305,8 +307,9 @@ class EventPipeline:
             self._window.append(sample)
             if t - event.onset_s >= self.decide_after_s - 1e-12 or state.release:
                 out.decided = self._decide(t)
-        self._isolate(t, q, sample[1], out.decided is not None, state.release,
-                      state.threshold)
+        if self._track is not None:  # reading the threshold of a live sample computes it
+            self._isolate(t, q, sample[1], out.decided is not None, state.release,
+                          state.threshold)
         out.label = event.label
         if state.release:
             event.release_s = t

@@ -53,6 +53,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
@@ -70,6 +71,11 @@ FILTER_GAIN = 50.0  # 1/s, the observer's default K_O: a 20 ms low-pass on ddq
 MIN_NOISE = 0.3  # Nm, floor of a calibrated at-rest threshold
 REST_SPEED = 0.05  # rad/s, below this a sample counts as at rest
 CALIBRATION_POINTS = 20000  # samples per fit (evenly thinned)
+
+
+def _zeros() -> np.ndarray:
+    """Return seven zeros (e during the warm-up) [Nm]."""
+    return np.zeros(N_JOINTS)
 
 
 def _seven(value: object, name: str) -> tuple[float, ...]:
@@ -179,70 +185,138 @@ def load_calibration(path: str | Path) -> DetectorConfig:
     return DetectorConfig.from_dict(doc, path)
 
 
-@dataclass
 class DetectorState:
     """What the detector reports for one sample: ``contact`` (bool), ``score`` (max of
     |e|/threshold), ``onset`` / ``release`` (True at the sample where a contact is
     confirmed / ends), ``e`` (7,) deviation from the baseline [Nm] and
     ``threshold`` (7,) [Nm]; ``restarted`` at the first sample after a gap, and ``cut``
-    when that gap closed a contact: it ended at the sample before this one."""
+    when that gap closed a contact: it ended at the sample before this one.
 
-    contact: bool
-    score: float
-    onset: bool
-    release: bool
-    e: np.ndarray
-    threshold: np.ndarray
-    restarted: bool = False
-    cut: bool = False
+    ``e`` and ``threshold`` are given as arrays, or as functions that return them (a
+    live sample's, where most consumers read neither: two 7-vectors cost ~2.5 us), then
+    computed when first read."""
+
+    __slots__ = (
+        "_e",
+        "_threshold",
+        "contact",
+        "cut",
+        "onset",
+        "release",
+        "restarted",
+        "score",
+    )
+
+    def __init__(self, contact: bool, score: float, onset: bool, release: bool,
+                 e: np.ndarray | Callable[[], np.ndarray],
+                 threshold: np.ndarray | Callable[[], np.ndarray],
+                 restarted: bool = False, cut: bool = False) -> None:
+        self.contact, self.score, self.onset, self.release = contact, score, onset, release
+        self.restarted, self.cut = restarted, cut
+        self._e, self._threshold = e, threshold
+
+    @property
+    def e(self) -> np.ndarray:
+        """Return the deviation from the baseline e [Nm] (7,)."""
+        if callable(self._e):
+            self._e = self._e()
+        return self._e
+
+    @property
+    def threshold(self) -> np.ndarray:
+        """Return the threshold [Nm] (7,)."""
+        if callable(self._threshold):
+            self._threshold = self._threshold()
+        return self._threshold
 
 
 class Detector:
-    """Streaming contact detector (see the module docstring)."""
+    """Streaming contact detector (see the module docstring).
+
+    :meth:`update` (a live robot's per-sample path) keeps the per-joint state as seven
+    Python floats: on 7-vectors one pass of float arithmetic costs less than the
+    dozen array operations it replaces. :attr:`baseline`, :attr:`r_f`, :attr:`ddq_f`
+    and :attr:`dq_prev` give (and take) that state as arrays, which :meth:`run` works
+    on."""
 
     def __init__(self, config: DetectorConfig | None = None) -> None:
         self.config = config or DetectorConfig()
         self._noise = np.array(self.config.noise)
         self._speed = np.array(self.config.speed)
         self._accel = np.array(self.config.accel)
-        # the per-sample threshold as (1, s, a) . (noise, speed, accel): one product
-        # instead of four array operations
-        self._coefficients = np.array([self._noise, self._speed, self._accel])  # (3, 7)
-        self._motion_terms = np.ones(3)  # (1, s [rad/s], a [rad/s^2]) of the last sample
+        self._coefficients = list(zip(self.config.noise, self.config.speed,
+                                      self.config.accel, strict=True))
         self.reset()
 
     def reset(self) -> None:
         """Forget the past: the next sample starts a new stream."""
         self.t0: float | None = None
         self.t: float | None = None
-        self.dq_prev = np.zeros(N_JOINTS)
-        self.ddq_f = np.zeros(N_JOINTS)
+        self._dq_prev = [0.0] * N_JOINTS
+        self._ddq_f = [0.0] * N_JOINTS
         self.speed = 0.0
         self.accel = 0.0
-        self.baseline = np.zeros(N_JOINTS)
-        self.r_f = np.zeros(N_JOINTS)
+        self._baseline = [0.0] * N_JOINTS
+        self._r_f = [0.0] * N_JOINTS
         self.contact = False
         self._since: float | None = None  # time the pending switch started
         self._onset_joints = np.ones(N_JOINTS, bool)
 
+    @property
+    def baseline(self) -> np.ndarray:
+        """The baseline b [Nm] (7,), a copy."""
+        return np.array(self._baseline)
+
+    @baseline.setter
+    def baseline(self, value: np.ndarray) -> None:
+        self._baseline = np.asarray(value, dtype=float).tolist()
+
+    @property
+    def r_f(self) -> np.ndarray:
+        """The low-passed residual r_f [Nm] (7,) of the last sample, a copy."""
+        return np.array(self._r_f)
+
+    @r_f.setter
+    def r_f(self, value: np.ndarray) -> None:
+        self._r_f = np.asarray(value, dtype=float).tolist()
+
+    @property
+    def ddq_f(self) -> np.ndarray:
+        """The low-passed joint acceleration [rad/s^2] (7,) of the last sample, a copy."""
+        return np.array(self._ddq_f)
+
+    @ddq_f.setter
+    def ddq_f(self, value: np.ndarray) -> None:
+        self._ddq_f = np.asarray(value, dtype=float).tolist()
+
+    @property
+    def dq_prev(self) -> np.ndarray:
+        """The joint velocity [rad/s] (7,) of the last sample, a copy."""
+        return np.array(self._dq_prev)
+
+    @dq_prev.setter
+    def dq_prev(self, value: np.ndarray) -> None:
+        self._dq_prev = np.asarray(value, dtype=float).tolist()
+
     def motion(self, t: float, dq: np.ndarray) -> tuple[float, float]:
-        """Advance the motion measures to sample ``t``; return (s [rad/s], a [rad/s^2])."""
+        """Advance the motion measures to sample ``t`` [s] with joint velocity ``dq``
+        [rad/s] (7,); return (s [rad/s], a [rad/s^2])."""
         hold = self.config.motion_hold_s
-        dq = np.array(dq, dtype=float)  # a copy: kept as dq_prev
-        # |x| as sqrt(x . x), as np.linalg.norm computes it, without its per-call checks
-        # (the detector runs on every sample)
-        speed = math.sqrt(dq.dot(dq))
+        dq = np.asarray(dq, dtype=float).tolist()  # seven floats, kept as dq_prev
+        speed = math.hypot(*dq)  # |dq|, to rounding as sqrt(dq . dq)
         if self.t is None:
             self.speed, self.accel = speed, 0.0
         else:
             h = t - self.t
             if h > 0:  # the low-pass of ddq = (dq - dq_prev) / h; without a step it holds
-                self.ddq_f = ((self.ddq_f + FILTER_GAIN * (dq - self.dq_prev))
-                              / (1.0 + FILTER_GAIN * h))
+                denominator = 1.0 + FILTER_GAIN * h
+                self._ddq_f = [(f + FILTER_GAIN * (v - v0)) / denominator
+                               for f, v, v0 in zip(self._ddq_f, dq, self._dq_prev,
+                                                   strict=True)]
             decay = math.exp(-h / hold) if hold > 0 else 0.0
             self.speed = max(speed, self.speed * decay)
-            self.accel = max(math.sqrt(self.ddq_f.dot(self.ddq_f)), self.accel * decay)
-        self.dq_prev = dq
+            self.accel = max(math.hypot(*self._ddq_f), self.accel * decay)
+        self._dq_prev = dq
         return self.speed, self.accel
 
     def run(self, t: np.ndarray, r: np.ndarray, dq: np.ndarray) -> Detection:
@@ -280,7 +354,8 @@ class Detector:
 
     def update(self, t: float, r: np.ndarray, dq: np.ndarray) -> DetectorState:
         """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,).
-        After a gap (a step over ``RESTART_STEP_S``) the detector restarts first."""
+        After a gap (a step over ``RESTART_STEP_S``) the detector restarts first.
+        Returns the detector's :class:`DetectorState` at the sample."""
         t = float(t)  # a NumPy scalar's arithmetic costs several times a float's
         cfg = self.config
         restarted = cut = False
@@ -288,47 +363,57 @@ class Detector:
             restarted, cut = True, self.contact
             self.reset()
         s, a = self.motion(t, dq)
-        terms = self._motion_terms
-        terms[1], terms[2] = s, a
         first = self.t is None
         h = 0.0 if first else t - self.t
         self.t = t
         if self.t0 is None:
             self.t0 = t
-        threshold = terms.dot(self._coefficients)
-        r = np.asarray(r, dtype=float)
+        r = np.asarray(r, dtype=float).tolist()
         if first or cfg.smooth_s == 0.0:
-            self.r_f = r.copy()
+            self._r_f = r
         else:
-            self.r_f = self.r_f + h / (cfg.smooth_s + h) * (r - self.r_f)
+            gain = h / (cfg.smooth_s + h)
+            self._r_f = [f + gain * (x - f) for f, x in zip(self._r_f, r, strict=True)]
         if t - self.t0 < cfg.warmup_s:
-            self.baseline = self.r_f.copy()
-            return DetectorState(False, 0.0, False, False, np.zeros(N_JOINTS), threshold,
+            self._baseline = self._r_f
+            return DetectorState(False, 0.0, False, False, _zeros, self._threshold(s, a),
                                  restarted, cut)
-        e = self.r_f - self.baseline
-        ratio = abs(e) / threshold
-        score = float(ratio.max())
+        # e = r_f - b and the threshold noise + speed s + accel a, inline, as the
+        # returned state computes them when read
+        r_f, before = self._r_f, self._baseline
+        ratio = [abs(f - b) / (n + s * v + a * c)
+                 for f, b, (n, v, c) in zip(r_f, before, self._coefficients, strict=True)]
+        score = max(ratio)
         onset = release = False
         if not self.contact:
             if score > 1.0:
                 self._since = t if self._since is None else self._since
                 if t - self._since >= cfg.min_on_s - 1e-12:
                     self.contact, onset, self._since = True, True, None
-                    self._onset_joints = ratio > 1.0
+                    self._onset_joints = np.array(ratio) > 1.0
             else:
                 self._since = None
                 tau = cfg.baseline_moving_s if s >= REST_SPEED else cfg.baseline_s
-                self.baseline = self.baseline + h / (tau + h) * e
-        elif ratio[self._onset_joints].max() < cfg.release:
+                gain = h / (tau + h)
+                # zip's length check costs ~0.6 us: these lists are r_f's and b's,
+                # checked above
+                self._baseline = [b + gain * (f - b) for f, b in zip(r_f, before, strict=False)]
+        elif max(itertools.compress(ratio, self._onset_joints.tolist())) < cfg.release:
             self._since = t if self._since is None else self._since
             if t - self._since >= cfg.min_off_s - 1e-12:
                 self.contact, release, self._since = False, True, None
-                others = ~self._onset_joints
-                self.baseline[others] = self.r_f[others]
+                self._baseline = [b if held else f for b, f, held in zip(
+                    self._baseline, self._r_f, self._onset_joints.tolist(), strict=True)]
         else:
             self._since = None
-        return DetectorState(self.contact, score, onset, release, e, threshold, restarted,
-                             cut)
+        return DetectorState(self.contact, score, onset, release,
+                             lambda: np.subtract(r_f, before), self._threshold(s, a),
+                             restarted, cut)
+
+    def _threshold(self, s: float, a: float) -> Callable[[], np.ndarray]:
+        """Return the function that computes the threshold [Nm] (7,) at speed ``s``
+        [rad/s] and acceleration ``a`` [rad/s^2]: noise + speed s + accel a."""
+        return lambda: self._noise + self._speed * s + self._accel * a
 
 
 @dataclass
@@ -387,7 +472,7 @@ class _Run:
         self.threshold = (detector._noise + detector._speed * self.speed[:, None]
                           + detector._accel * self.accel[:, None])
         self.r_f = self._smooth(first)
-        detector.dq_prev = dq[-1].copy()
+        detector.dq_prev = dq[-1]
 
     def _motion(self, dq: np.ndarray, first: bool, before: float
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -411,7 +496,7 @@ class _Run:
             if det.config.motion_hold_s > 0 else None
         speed = _peak_hold(speed, 0.0 if first else det.speed, elapsed)
         accel = _peak_hold(accel, 0.0 if first else det.accel, elapsed)
-        det.ddq_f, det.speed, det.accel = ddq_f[-1].copy(), float(speed[-1]), float(accel[-1])
+        det.ddq_f, det.speed, det.accel = ddq_f[-1], float(speed[-1]), float(accel[-1])
         return speed, accel, ddq_f
 
     def _smooth(self, first: bool) -> np.ndarray:
@@ -428,7 +513,7 @@ class _Run:
                 a = np.broadcast_to(smooth / (smooth + h), (len(h), N_JOINTS))
                 r_f[lo:] = solve_recurrence(a, h / (smooth + h) * self.r[lo:],
                                             r_f[0] if first else det.r_f)
-        det.r_f = r_f[-1].copy()
+        det.r_f = r_f[-1]
         return r_f
 
     def _write(self, start: int, stop: int, e: np.ndarray, score: np.ndarray,
@@ -452,7 +537,7 @@ class _Run:
         warm = int(np.count_nonzero(t - det.t0 < cfg.warmup_s))
         if warm:
             self._write(0, warm, 0.0, 0.0, self.r_f[:warm], False)
-            det.baseline = self.r_f[warm - 1].copy()
+            det.baseline = self.r_f[warm - 1]
         i, size = warm, SWITCH_CHUNK
         while i < n:
             stop = min(n, i + size)
@@ -481,7 +566,7 @@ class _Run:
         k = int(over[0]) if over.size else len(h)
         self._write(i, i + k, e[:k], score[:k], after[:k], False)
         if k:
-            det.baseline = after[k - 1].copy()
+            det.baseline = after[k - 1]
         if k < len(h):
             det._since = float(self.t[i + k])
         return i + k
@@ -538,9 +623,10 @@ class _Run:
         self._write(i, i + release, e[:release], score[:release], det.baseline, True)
         k = i + release
         others = ~det._onset_joints
-        det.baseline = det.baseline.copy()
-        det.baseline[others] = self.r_f[k][others]
-        self._write(k, k + 1, e[release], score[release], det.baseline, False)
+        baseline = det.baseline
+        baseline[others] = self.r_f[k][others]
+        det.baseline = baseline
+        self._write(k, k + 1, e[release], score[release], baseline, False)
         row = self.offset + k
         self.out.release[row] = True
         if self.out.intervals and self.out.intervals[-1][1] is None:

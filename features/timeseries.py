@@ -47,6 +47,7 @@ chunk by chunk and sample by sample restart at the same samples.
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NamedTuple
@@ -65,7 +66,7 @@ from contactkit.features.observer import (
     solve_recurrence,
 )
 from contactkit.features.timing import RESTART_STEP_S, restarts
-from contactkit.robots import RobotSetup
+from contactkit.robots import FrictionModel, RobotSetup
 from contactkit.robots.model import RobotModel
 from contactkit.schemas.session import SampleBatch, SessionMeta
 
@@ -159,17 +160,37 @@ def _frame_id(model: RobotModel, wrench_frame: str | int) -> int:
     return model.frame_id(model.end_effector if wrench_frame == "ee" else wrench_frame)
 
 
+def _without_gravity(model: pin.Model) -> pin.Model:
+    """Return a copy of ``model`` without gravity: its rnea(q, 0, dq) is M(q) dq."""
+    inertial = pin.Model(model)
+    inertial.gravity = pin.Motion.Zero()
+    return inertial
+
+
+def _joint_constants(gain: np.ndarray, friction: FrictionModel | None
+                     ) -> list[tuple[float, float, float, float, float]]:
+    """Return per joint the observer gain K_O [1/s] and the friction coefficients
+    (a, b, c, d) of :attr:`FrictionModel.sample_coefficients` (all 0 without friction
+    compensation: then a tanh(b (dq + c)) + d is exactly 0), as floats for the
+    per-sample observer step."""
+    zeros = [[0.0] * 7] * 4
+    return list(zip(gain.tolist(), *(zeros if friction is None
+                                     else friction.sample_coefficients), strict=True))
+
+
 class ChainState(NamedTuple):
     """What the chain carries from one chunk of a stream to the next: the last sample's
     time ``t`` [s], velocity ``dq`` [rad/s] (for ddq), momentum ``p`` [Nm s] and
-    residual ``r`` [Nm] (for the observer; None when the chain computed no residual).
-    A named tuple: immutable, and built on every live sample at a third of a frozen
-    dataclass's cost."""
+    residual ``r`` [Nm] (for the observer; None when the chain computed no residual),
+    each (7,): an array after a chunk, seven Python floats after a live sample (the
+    per-sample step's own numbers, kept without a copy into an array). A named tuple:
+    immutable, and built on every live sample at a third of a frozen dataclass's
+    cost."""
 
     t: float
-    dq: np.ndarray
-    p: np.ndarray | None = None
-    r: np.ndarray | None = None
+    dq: np.ndarray | list[float]
+    p: np.ndarray | list[float] | None = None
+    r: np.ndarray | list[float] | None = None
 
 
 class TimeseriesChain:
@@ -189,11 +210,13 @@ class TimeseriesChain:
         self.model = self.config.model(robot or RobotSetup())
         self.names = expand(names)
         self._pool = pin.ModelPool(self.model.model, 1)
+        self._inertial = _without_gravity(self.model.model)  # rnea(q, 0, dq) = M dq
+        self._inertial_data = self._inertial.createData()
+        self._inertial_pool = pin.ModelPool(self._inertial, 1)
         self._gain = self.config.observer.gain_vector()
-        self._gain_list = self._gain.tolist()  # the per-sample step's, [1/s]
-        self._no_friction = [0.0] * 7
         self._need = _Needs.of(self.names)
         self._friction = self.config.observer.friction_model(self.model.spec)
+        self._joint_constants = _joint_constants(self._gain, self._friction)
         self._fid = _frame_id(self.model, self.config.wrench_frame)
         self._state: ChainState | None = None
 
@@ -251,53 +274,61 @@ class TimeseriesChain:
         g = pin.computeGeneralizedGravity(model, data, q) if need.g else None
         out["g"] = g
         if need.ddq:
-            out["ddq"] = np.zeros(7) if before is None else (dq - before.dq) / h
+            out["ddq"] = np.zeros(7) if before is None else (dq - np.asarray(before.dq)) / h
         if need.tau_inv:
             out["tau_inv"] = pin.rnea(model, data, q, dq, out["ddq"])
         if need.p_int:
             out["p_int"] = dq * tau
+        dq_floats = dq.tolist()
         p = r = None
         if need.r:
-            p = pin.rnea(model, data, q, _ZEROS, dq) - g
+            p = pin.rnea(self._inertial, self._inertial_data, q, _ZEROS, dq).tolist()
             # C^T dq as dq C: computeCoriolisMatrix also leaves the joint placements
             # and Jacobians in data, which getFrameJacobian reads below
             coriolis = dq.dot(pin.computeCoriolisMatrix(model, data, q, dq))
-            if before is None:
-                r = np.zeros(7)
-            else:
-                r = np.array(self._observer_step(h, before, p, tau, g, coriolis, dq))
-            out["r"] = r
+            r = ([0.0] * 7 if before is None else
+                 self._observer_step(h, before, p, tau, g, coriolis, dq_floats))
+            out["r"] = r_array = np.array(r)
             if need.p_ext:
-                out["p_ext"] = r * dq
+                out["p_ext"] = r_array * dq
             if need.wrench:
                 jac = pin.getFrameJacobian(model, data, self._fid, pin.LOCAL_WORLD_ALIGNED)
-                out.update(_wrench_features(np.linalg.solve(jac @ jac.T + _DAMPED, jac @ r)))
-        self._state = ChainState(t, dq.copy(), p, None if r is None else r.copy())
+                out.update(_wrench_features(np.linalg.solve(jac @ jac.T + _DAMPED,
+                                                            jac @ r_array)))
+        self._state = ChainState(t, dq_floats, p, r)
         return {name: out[name] for name in self.names}
 
-    def _observer_step(self, h: float, before: ChainState, p: np.ndarray, tau: np.ndarray,
-                       g: np.ndarray, coriolis: np.ndarray, dq: np.ndarray) -> list[float]:
+    def _observer_step(self, h: float, before: ChainState, p: list[float], tau: np.ndarray,
+                       g: np.ndarray, coriolis: np.ndarray, dq: list[float]) -> list[float]:
         """Return the observer's residual r [Nm] (7 floats) one step ``h`` [s] after
-        ``before``, from the momentum ``p`` [Nm s], torque ``tau``, gravity ``g`` and
-        C^T dq ``coriolis`` [Nm], and velocity ``dq`` [rad/s] (friction's), each (7,):
+        ``before`` (its p and r 7 floats after a live sample, arrays after a chunk),
+        from the momentum ``p`` [Nm s], torque ``tau``, gravity ``g`` and C^T dq
+        ``coriolis`` [Nm], and velocity ``dq`` [rad/s] (friction's), each 7 values:
         r = (r_before + K_O (p - p_before - h u)) / (1 + K_O h), u = tau + C^T dq - g -
-        tau_f (:mod:`contactkit.features.observer`), on Python floats: one pass over
-        seven joints costs less than the dozen array operations it replaces."""
-        friction = (self._no_friction if self._friction is None
-                    else self._friction.sample_torque(dq.tolist()))
-        return [(r0 + k * (p1 - p0 - h * (tq + c - gq - f))) / (1.0 + k * h)
-                for r0, p0, p1, tq, gq, c, f, k in zip(
-                    before.r.tolist(), before.p.tolist(), p.tolist(), tau.tolist(),
-                    g.tolist(), coriolis.tolist(), friction, self._gain_list, strict=True)]
+        tau_f (:mod:`contactkit.features.observer`; tau_f as
+        :meth:`FrictionModel.sample_torque`, zero without compensation), on Python
+        floats: one pass over seven joints costs less than the dozen array operations
+        it replaces."""
+        tanh = math.tanh
+        return [(r0 + k * (p1 - p0 - h * (tq + c - gq - (fa * tanh(fb * (v + fc)) + fd))))
+                / (1.0 + k * h)
+                for r0, p0, p1, tq, gq, c, v, (k, fa, fb, fc, fd) in zip(
+                    before.r, before.p, p, tau.tolist(), g.tolist(), coriolis.tolist(), dq,
+                    self._joint_constants, strict=True)]
 
-    def _rnea(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
-        """Return pinocchio's inverse dynamics tau(q, v, a) [Nm] of each sample, (n, 7):
-        a short chunk sample by sample, a longer one in one call."""
+    def _rnea(self, q: np.ndarray, v: np.ndarray, a: np.ndarray, *, inertial: bool = False
+              ) -> np.ndarray:
+        """Return pinocchio's inverse dynamics tau(q, v, a) [Nm] of each sample, (n, 7),
+        with gravity, or without it when ``inertial`` (then rnea(q, 0, dq) is the
+        momentum M dq [Nm s]): a short chunk sample by sample, a longer one in one
+        call."""
         if len(q) <= SHORT_CHUNK:
-            model, data = self.model.model, self.model.data
+            model, data = ((self._inertial, self._inertial_data) if inertial
+                           else (self.model.model, self.model.data))
             return np.array([pin.rnea(model, data, q[k], v[k], a[k]) for k in range(len(q))])
         out = np.zeros((7, len(q)), order="F")
-        pin.rneaInParallel(1, self._pool, np.asfortranarray(q.T), np.asfortranarray(v.T),
+        pin.rneaInParallel(1, self._inertial_pool if inertial else self._pool,
+                           np.asfortranarray(q.T), np.asfortranarray(v.T),
                            np.asfortranarray(a.T), out)
         return out.T
 
@@ -328,7 +359,7 @@ class TimeseriesChain:
             out["p_int"] = dq * tau
         p = r = None
         if need.r:
-            p = self._rnea(q, zeros, dq) - g
+            p = self._rnea(q, zeros, dq, inertial=True)
             coriolis = np.empty((n, 7, 7))
             jac = np.empty((n, 6, 7)) if need.wrench else None
             for k in range(n):

@@ -78,12 +78,13 @@ class FrictionModel:
         numbers cost less than array operations): as phi1 / 2 tanh(phi2 / 2 (dq + phi3))
         + phi1 / 2 - at_rest, the same sigmoid, equal to about 1e-15."""
         return [a * math.tanh(b * (v + c)) + d
-                for a, b, c, d, v in zip(*self._sample_coefficients, dq, strict=True)]
+                for a, b, c, d, v in zip(*self.sample_coefficients, dq, strict=True)]
 
     @cached_property
-    def _sample_coefficients(self) -> tuple[list[float], ...]:
-        """phi1 / 2 [Nm], phi2 / 2 [s/rad], phi3 [rad/s] and phi1 / 2 - at_rest [Nm] of
-        :meth:`sample_torque`, per joint."""
+    def sample_coefficients(self) -> tuple[list[float], ...]:
+        """Return (a, b, c, d), each 7 floats: phi1 / 2 [Nm], phi2 / 2 [s/rad], phi3
+        [rad/s] and phi1 / 2 - at_rest [Nm], so that joint j's friction torque is
+        a_j tanh(b_j (dq_j + c_j)) + d_j [Nm] (:meth:`sample_torque`)."""
         return tuple(x.tolist() for x in (0.5 * self.phi1, 0.5 * self.phi2, self.phi3,
                                            0.5 * self.phi1 - self.at_rest))
 
