@@ -306,7 +306,7 @@ class TimeseriesChain:
         ``coriolis`` [Nm], and velocity ``dq`` [rad/s] (friction's), each 7 values:
         r = (r_before + K_O (p - p_before - h u)) / (1 + K_O h), u = tau + C^T dq - g -
         tau_f (:mod:`contactkit.features.observer`; tau_f as
-        :meth:`FrictionModel.sample_torque`, zero without compensation), on Python
+        :attr:`FrictionModel.sample_coefficients`, zero without compensation), on Python
         floats: one pass over seven joints costs less than the dozen array operations
         it replaces."""
         tanh = math.tanh

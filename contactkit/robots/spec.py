@@ -15,7 +15,6 @@ lengths [m].
 from __future__ import annotations
 
 import hashlib
-import math
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -72,19 +71,13 @@ class FrictionModel:
             phi1, phi2, phi3, rest = phi1[:, None], phi2[:, None], phi3[:, None], rest[:, None]
         return phi1 * _sigmoid(phi2 * (dq + phi3)) - rest
 
-    def sample_torque(self, dq: list[float]) -> list[float]:
-        """Return :meth:`torque` [Nm] for one sample's joint velocities ``dq`` (7 floats)
-        [rad/s], on Python floats (a live observer's per-sample path, where seven
-        numbers cost less than array operations): as phi1 / 2 tanh(phi2 / 2 (dq + phi3))
-        + phi1 / 2 - at_rest, the same sigmoid, equal to about 1e-15."""
-        return [a * math.tanh(b * (v + c)) + d
-                for a, b, c, d, v in zip(*self.sample_coefficients, dq, strict=True)]
-
     @cached_property
     def sample_coefficients(self) -> tuple[list[float], ...]:
         """Return (a, b, c, d), each 7 floats: phi1 / 2 [Nm], phi2 / 2 [s/rad], phi3
-        [rad/s] and phi1 / 2 - at_rest [Nm], so that joint j's friction torque is
-        a_j tanh(b_j (dq_j + c_j)) + d_j [Nm] (:meth:`sample_torque`)."""
+        [rad/s] and phi1 / 2 - at_rest [Nm], so that joint j's friction torque
+        (:meth:`torque`, the same sigmoid, to about 1e-15) is a_j tanh(b_j (dq_j + c_j))
+        + d_j [Nm]: a live observer's per-sample path computes it on Python floats, where
+        seven numbers cost less than array operations."""
         return tuple(x.tolist() for x in (0.5 * self.phi1, 0.5 * self.phi2, self.phi3,
                                            0.5 * self.phi1 - self.at_rest))
 
