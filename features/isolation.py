@@ -55,6 +55,7 @@ Units: q [rad], r [Nm], points [m], forces [N], reported errors [Nm].
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
@@ -161,28 +162,29 @@ def _solve(v: np.ndarray) -> tuple[np.ndarray, ...]:
     return fx, fy, fz, y0 * y0 + y1 * y1 + y2 * y2
 
 
-def _coarse_fit(v: np.ndarray, rr: float, normals: np.ndarray, cone_cos2: float
+def _coarse_fit(v: np.ndarray, rr: float, inward: np.ndarray, cone_cos2: float
                 ) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
-    """Fit the force at the surface samples (see :func:`_fit`), without the search
-    along the cone's boundary: a sample whose least-squares force does not push into
-    the surface within the cone explains nothing (error |r|). Return the squared
-    errors [Nm^2] (m, n) and forces (fx, fy, fz) [N]."""
+    """Fit the force at the surface samples (see :func:`_fit`; ``inward`` their unit
+    inward normals (3, m, n), zero at padding), without the search along the cone's
+    boundary: a sample whose least-squares force does not push into the surface within
+    the cone explains nothing (error |r|). Return the squared errors [Nm^2] (m, n) and
+    forces (fx, fy, fz) [N]."""
     fx, fy, fz, gain = _solve(v)
-    nx, ny, nz = normals
-    inward = -(nx * fx + ny * fy + nz * fz)
-    feasible = (inward > 0) & (inward * inward >= cone_cos2 * (fx * fx + fy * fy + fz * fz))
+    mx, my, mz = inward
+    push = mx * fx + my * fy + mz * fz
+    feasible = (push > 0) & (push * push >= cone_cos2 * (fx * fx + fy * fy + fz * fz))
     gain *= feasible
     return rr - gain, (fx, fy, fz)
 
 
-def _fit(v: np.ndarray, rr: float, normals: np.ndarray, cone: tuple[float, float]
+def _fit(v: np.ndarray, rr: float, inward: np.ndarray, cone: tuple[float, float]
          ) -> tuple[np.ndarray, np.ndarray]:
     """Fit the force at candidate points, m links x n points each, on one face plane
     per link, and return each point's residual error [Nm] (m, n) and force [N] (3, m,
     n, link frame).
 
     ``v`` (9, m, n): per point b = A^T r (3) and the Gram matrix's entries (xx yy zz
-    xy xz yz); ``rr`` = |r|^2 [Nm^2]; the unit outward ``normals`` (3, m, 1) of each
+    xy xz yz); ``rr`` = |r|^2 [Nm^2]; the unit ``inward`` normals (3, m, 1) of each
     link's face; ``cone`` the cosine and sine of the friction cone's half-angle. The
     force is the least-squares one if it lies in the cone, else the best one along
     the cone's boundary ray nearest to it (in the plane of the normal and the free
@@ -190,21 +192,21 @@ def _fit(v: np.ndarray, rr: float, normals: np.ndarray, cone: tuple[float, float
     feasible one; any other point outside the cone cannot be its link's best, and
     its error is given as |r| (its force as the free one)."""
     fx, fy, fz, gain = _solve(v)
-    nx, ny, nz = normals
+    mx, my, mz = inward
     cos, sin = cone
-    inward = -(nx * fx + ny * fy + nz * fz)
+    push = mx * fx + my * fy + mz * fz
     size2 = fx * fx + fy * fy + fz * fz
-    feasible = (inward > 0) & (inward * inward >= cos * cos * size2)
+    feasible = (push > 0) & (push * push >= cos * cos * size2)
     gain_in = gain * feasible
     force = np.array([fx, fy, fz])
-    search = gain > gain_in.max(axis=1, keepdims=True)
-    if search.any():
+    search = gain > np.maximum.reduce(gain_in, axis=1, keepdims=True)
+    if np.logical_or.reduce(search, axis=None):
         bx, by, bz, g00, g11, g22, g01, g02, g12 = v
-        # the boundary ray: cos (-n) + sin (the free force's unit component along the face)
-        scale = sin / (np.sqrt(np.maximum(size2 - inward * inward, 0.0)) + TINY)
-        dx = (fx + inward * nx) * scale - cos * nx
-        dy = (fy + inward * ny) * scale - cos * ny
-        dz = (fz + inward * nz) * scale - cos * nz
+        # the boundary ray: cos n_in + sin (the free force's unit component along the face)
+        scale = sin / (np.sqrt(np.maximum(size2 - push * push, 0.0)) + TINY)
+        dx = (fx - push * mx) * scale + cos * mx
+        dy = (fy - push * my) * scale + cos * my
+        dz = (fz - push * mz) * scale + cos * mz
         pushed = np.maximum(bx * dx + by * dy + bz * dz, 0.0)
         size = pushed / (dx * dx * g00 + dy * dy * g11 + dz * dz * g22
                          + 2.0 * (dx * dy * g01 + dx * dz * g02 + dy * dz * g12))
@@ -348,10 +350,11 @@ class ContactIsolator:
         self._surface = {k for k, _ in parts}
         self._bare = [k for k, s in enumerate(self.samples) if s is None]
         self._counts = np.array([len(s.points) for _, s in parts], dtype=np.int64)
-        # every link's samples padded to the longest with copies of its first sample,
-        # whose errors are set to inf (never a link's best)
-        width = int(self._counts.max()) if parts else 0
-        self._pad = np.arange(width)[None, :] >= self._counts[:, None]    # (L, n)
+        # every link's samples padded to the longest with copies of its first sample
+        # whose normal is zero: no force lies in its cone, so its error is |r| and, pads
+        # coming last, never a link's best before a real sample (ties go to the first)
+        self._width = width = int(self._counts.max()) if parts else 0
+        pad = np.arange(width)[None, :] >= self._counts[:, None]          # (L, n)
         fill = [np.minimum(np.arange(width), np.where(np.arange(width) < len(s.points),
                                                       width, 0)) for _, s in parts]
 
@@ -360,16 +363,28 @@ class ContactIsolator:
                 if parts else np.zeros((0, 0, 3))
 
         self._points = padded(lambda s: s.points)                          # (L, n, 3)
-        self._normals = padded(lambda s: s.normals).transpose(2, 0, 1).copy()  # (3, L, n)
+        inward = -padded(lambda s: s.normals).transpose(2, 0, 1)          # (3, L, n)
+        inward[:, pad] = 0.0
+        self._inward = inward.copy()
         self._monomials = _monomials(self._points)                         # (L, 10, n)
-        # each sample's first refinement grid p + s u + t v, |s|, |t| <= its half-width
+        # each sample's first refinement grid p + s u + t v, |s|, |t| <= its half-width;
+        # the per-sample tables flat (sample l * n + i) for one take per update
         half = GRIDS[0][1] * config.spacing_m
         self._lifted = _lift(np.stack([self._points, padded(lambda s: s.tangents[0]) * half,
                                        padded(lambda s: s.tangents[1]) * half],
-                                      axis=-1))                            # (L, n, 10, 6)
+                                      axis=-1)).reshape(-1, 10, 6)         # (L n, 10, 6)
+        self._inward_flat = self._inward.reshape(3, -1)                    # (3, L n)
         half = np.radians(config.cone_deg)
         self._cone = (float(np.cos(half)), float(np.sin(half)))
         self._grids = [_grid_monomials(side) for side, _ in GRIDS]
+        # each grid's (s, t) offsets (2, n) and, past the first (centred per link), the
+        # buffer of its monomials (REFINE_LINKS, 6, n), row 0 the ones
+        self._planes = [grid[1:3] * (h / GRIDS[0][1]) for grid, (_, h) in zip(self._grids, GRIDS,
+                                                                             strict=True)]
+        self._grid_buffers = [np.ones((REFINE_LINKS, 6, grid.shape[1])) for grid in self._grids]
+        self._all_rows = np.arange(len(parts))
+        self._link_list = self._links.tolist()
+        self._weights_at_rest = self._weights(None)
 
     def estimate(self, t: float, q: np.ndarray, r: np.ndarray,
                  threshold: np.ndarray | None = None) -> ContactEstimate:
@@ -378,42 +393,39 @@ class ContactIsolator:
         contact detector's threshold (7,) [Nm] at that sample (it grows with the
         motion that the model gets wrong; default: the detector's floor at rest)."""
         r = np.asarray(r, dtype=float)
-        norm = float(np.linalg.norm(r))
+        norm = math.sqrt(float(r @ r))
         if norm < self.config.min_residual_nm:
             return ContactEstimate(t, TOO_SMALL, residual_nm=norm)
         model, data = self.model, self.data
         pin.computeJointJacobians(model, data, np.asarray(q, dtype=float))
         pin.updateFramePlacements(model, data)
-        jac = np.stack([pin.getFrameJacobian(model, data, fid, pin.LOCAL)
-                        for fid in self.frames])                   # (7, 6, 7) link frames
-        # each joint's torque in units of its noise (so are all errors below): the
-        # residual's noise at rest and a share of the detector's threshold (model error)
-        share = self.config.threshold_share * (MIN_NOISE if threshold is None
-                                               else np.asarray(threshold, dtype=float))
-        weights = 1.0 / np.sqrt(self._noise2 + share * share)
+        jac = np.empty((N_JOINTS, 6, N_JOINTS))                    # (7, 6, 7) link frames
+        for k, fid in enumerate(self.frames):
+            jac[k] = pin.getFrameJacobian(model, data, fid, pin.LOCAL)
+        # each joint's torque in units of its noise (so are all errors below)
+        weights = self._weights_at_rest if threshold is None else self._weights(threshold)
         weighted, rw = jac * weights, r * weights
         rr = float(rw @ rw)
-        errors = np.full(N_JOINTS, np.inf)
-        wrenches = {}
-        for k in self._bare:
-            errors[k], wrenches[k] = _wrench_fit(weighted[k], rw)
         coeffs = _coefficients(weighted, rw)                       # (7, 9, 10)
         # a link's error is at least the residual on the joints after it: links whose
         # bound leaves them no chance are not searched unless the decision needs them
-        bound = np.sqrt(np.maximum(rr - np.cumsum(rw * rw), 0.0))
-        errors[self._links] = bound[self._links]
+        bound = np.sqrt(np.maximum(rr - np.add.accumulate(rw * rw), 0.0))
+        errors = bound.copy()
+        wrenches = {}
+        for k in self._bare:
+            errors[k], wrenches[k] = _wrench_fit(weighted[k], rw)
         tie = self.config.tie
         limit = PRUNE_SHARE * rr + tie * tie * N_JOINTS
         reach = [k not in self._surface or b * b <= limit for k, b in enumerate(bound.tolist())]
-        rows = np.flatnonzero(np.array(reach)[self._links])
+        rows = [i for i, k in enumerate(self._link_list) if reach[k]]
+        rows = self._all_rows if len(rows) == len(self._link_list) else np.array(rows, np.int64)
         errors, fits, middle = self._search(rows, coeffs, rr, errors.copy())
         last, link, other = _decide(errors.tolist(), tie)
         if not (reach[last] and reach[link] and reach[other]):
-            rows = np.arange(len(self._links))
-            errors, fits, middle = self._search(rows, coeffs, rr, errors)
+            errors, fits, middle = self._search(self._all_rows, coeffs, rr, errors)
             last, link, other = _decide(errors.tolist(), tie)
         e_link, e_other = float(errors[link]), float(errors[other])
-        rival = np.isfinite(e_other)
+        rival = math.isfinite(e_other)
         # the errors are in noise units: 1 is the noise floor
         confidence = min(max(1.0 - (e_link + 1.0) / (e_other + 1.0), 0.0), 1.0) \
             if rival else 1.0
@@ -434,6 +446,14 @@ class ContactIsolator:
                                point_base=placement.rotation @ point + placement.translation,
                                force=placement.rotation @ force, **common)
 
+    def _weights(self, threshold: np.ndarray | None) -> np.ndarray:
+        """Return each joint's weight [1/Nm] (7,): one over its noise, the residual's
+        noise at rest and a share of the detector's ``threshold`` [Nm] (7,; None: its
+        floor at rest) in quadrature (the threshold stands for model error)."""
+        share = self.config.threshold_share * (MIN_NOISE if threshold is None
+                                               else np.asarray(threshold, dtype=float))
+        return 1.0 / np.sqrt(self._noise2 + share * share)
+
     def _search(self, rows: np.ndarray, coeffs: np.ndarray, rr: float, errors: np.ndarray
                 ) -> tuple[np.ndarray, dict[int, tuple[np.ndarray, np.ndarray]], tuple]:
         """Search the samples of the surface links ``rows`` (indices into the links with
@@ -443,15 +463,13 @@ class ContactIsolator:
         frame, and what :meth:`_middle` needs: the rows, their samples' squared errors
         [Nm^2] (rows, n), forces [N] (3 of (rows, n)) and best samples (rows,)."""
         every = len(rows) == len(self._links)
-        monomials, normals, pad = ((self._monomials, self._normals, self._pad) if every else
-                                   (self._monomials[rows], self._normals[:, rows],
-                                    self._pad[rows]))
+        monomials, inward = ((self._monomials, self._inward) if every else
+                             (self._monomials[rows], self._inward[:, rows]))
         fitted = np.empty((9, len(rows), monomials.shape[2]))
         np.matmul(coeffs[self._links[rows]], monomials, out=fitted.transpose(1, 0, 2))
-        err, forces = _coarse_fit(fitted, rr, normals, self._cone[0] ** 2)
-        np.copyto(err, np.inf, where=pad)
-        best = np.argmin(err, axis=1)
-        errors[self._links[rows]] = np.sqrt(np.maximum(err[np.arange(len(rows)), best], 0.0))
+        err, forces = _coarse_fit(fitted, rr, inward, self._cone[0] ** 2)
+        best = err.argmin(axis=1)
+        errors[self._links[rows]] = np.sqrt(np.maximum(np.minimum.reduce(err, axis=1), 0.0))
         return errors, self._refine(rows, coeffs, rr, best, errors), (rows, err, forces, best)
 
     def _refine(self, searched: np.ndarray, coeffs: np.ndarray, rr: float, best: np.ndarray,
@@ -462,33 +480,41 @@ class ContactIsolator:
         return link index -> (point [m], force [N]) in the link frame, for the refined
         links."""
         links = self._links[searched]
-        order = np.argsort(errors[links])[:REFINE_LINKS]
+        order = errors[links].argsort()[:REFINE_LINKS]
         reach = links[order]
-        rows, at = searched[order], best[order]
+        count = len(reach)
         # the grids' points are p0 + s u + t v with (s, t) in units of the first grid's
         # half-width: their monomials are those of (s, t) times a matrix precomputed
         # per sample; each further grid is centred on the previous one's best point
-        lifted = self._lifted[rows, at]
+        at = searched[order] * self._width + best[order]                 # flat samples
+        lifted = self._lifted.take(at, axis=0)                            # (m, 10, 6)
         fit_coeffs = coeffs[reach] @ lifted                               # (m, 9, 6)
-        normals = self._normals[:, rows, at][:, :, None]
-        m = np.arange(len(reach))
-        centre = np.zeros((len(reach), 2, 1))
-        for i, ((_, half), grid) in enumerate(zip(GRIDS, self._grids, strict=True)):
-            plane = grid[1:3] * (half / GRIDS[0][1])                      # (2, n)
-            if i:
-                plane = centre + plane                                    # (m, 2, n)
-                s_, t_ = plane[:, 0], plane[:, 1]
-                grid = np.stack([np.ones_like(s_), s_, t_, s_ * s_, t_ * t_, s_ * t_], axis=1)
-            fitted = np.empty((9, len(reach), grid.shape[-1]))
+        inward = self._inward_flat.take(at, axis=1)[:, :, None]          # (3, m, 1)
+        centre = np.zeros((count, 2, 1))
+        for i, plane in enumerate(self._planes):
+            grid = self._grids[0] if i == 0 else self._centred(i, count, centre)
+            fitted = np.empty((9, count, plane.shape[1]))
             np.matmul(fit_coeffs, grid, out=fitted.transpose(1, 0, 2))
-            local_err, local_force = _fit(fitted, rr, normals, self._cone)
-            local_best = np.argmin(local_err, axis=1)
-            centre = (plane[:, local_best].T if plane.ndim == 2
-                      else plane[m, :, local_best])[:, :, None]
-        points = lifted[:, 1:4, 0] + np.einsum("mia,ma->mi", lifted[:, 1:4, 1:3], centre[:, :, 0])
-        errors[reach] = local_err[m, local_best]
-        forces = local_force[:, m, local_best].T
+            local_err, local_force = _fit(fitted, rr, inward, self._cone)
+            local_best = local_err.argmin(axis=1)
+            centre = centre + plane.take(local_best, axis=1).T[:, :, None]
+        axes, s, t = lifted[:, 1:4], centre[:, 0], centre[:, 1]          # p0 u v; (m, 1)
+        points = axes[:, :, 0] + (axes[:, :, 1] * s + axes[:, :, 2] * t)
+        errors[reach] = np.minimum.reduce(local_err, axis=1)
+        flat = local_best + self._all_rows[:count] * local_err.shape[1]
+        forces = local_force.reshape(3, -1).take(flat, axis=1).T
         return {k: (points[i], forces[i]) for i, k in enumerate(reach.tolist())}
+
+    def _centred(self, i: int, count: int, centre: np.ndarray) -> np.ndarray:
+        """Return the monomials 1, s, t, ss, tt, st (count, 6, n) of grid ``i``'s (s, t)
+        offsets centred on each link's ``centre`` (count, 2, 1) (first grid's units),
+        in grid ``i``'s buffer."""
+        grid = self._grid_buffers[i][:count]
+        plane = grid[:, 1:3]
+        np.add(centre, self._planes[i], out=plane)
+        np.multiply(plane, plane, out=grid[:, 3:5])
+        np.multiply(plane[:, 0], plane[:, 1], out=grid[:, 5])
+        return grid
 
     def _middle(self, k: int, rows: np.ndarray, err: np.ndarray,
                 forces: tuple[np.ndarray, ...], best: np.ndarray
