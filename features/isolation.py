@@ -123,6 +123,8 @@ _UNIT_SKEW = np.array([[[0, 0, 0], [0, 0, -1], [0, 1, 0]],
                        [[0, 0, 1], [0, 0, 0], [-1, 0, 0]],
                        [[0, -1, 0], [1, 0, 0], [0, 0, 0]]], dtype=float)
 """S(e_i) for the unit vectors: S(p) = sum_i p_i S(e_i), S(p) F = p x F."""
+_ZERO, _ONE, _TWO, _TINY = (np.array(x) for x in (0.0, 1.0, 2.0, TINY))
+"""Scalars as 0-d arrays: numpy combines them with an array faster than Python floats."""
 _PAIRS = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
 """The Gram entries xx yy zz xy xz yz, and monomials 4..9, as pairs of coordinates."""
 _PAIRS_A, _PAIRS_B = (np.array(x) for x in zip(*_PAIRS, strict=True))
@@ -130,6 +132,14 @@ _GRID_PRODUCTS = np.zeros((9, 6))
 _GRID_PRODUCTS[[0, 1, 2, 3, 4, 5, 6, 7, 8], [0, 1, 2, 1, 3, 5, 2, 5, 4]] = 1.0
 """The products c d of a grid point's coordinates c, d in (1, s, t) (9, row-major) as
 its monomials 1, s, t, ss, tt, st (6)."""
+
+
+class Cone:
+    """The friction cone's half-angle as its cosine, sine and squared cosine, 0-d
+    arrays (see ``_ONE``)."""
+
+    def __init__(self, cos: float, sin: float) -> None:
+        self.cos, self.sin, self.cos2 = np.array(cos), np.array(sin), np.array(cos * cos)
 
 
 def _decide(errors: list[float], tie: float) -> tuple[int, int, int]:
@@ -148,11 +158,11 @@ def _solve(v: np.ndarray) -> tuple[np.ndarray, ...]:
     at each candidate point from ``v`` (9, ...): b = A^T r (3) and the Gram matrix G
     = A^T A (xx yy zz xy xz yz), by an elementwise Cholesky factorisation G = L L^T."""
     bx, by, bz, g00, g11, g22, g01, g02, g12 = v
-    i00 = 1.0 / np.sqrt(g00)
+    i00 = _ONE / np.sqrt(g00)
     l10, l20 = g01 * i00, g02 * i00
-    i11 = 1.0 / np.sqrt(g11 - l10 * l10)
+    i11 = _ONE / np.sqrt(g11 - l10 * l10)
     l21 = (g12 - l20 * l10) * i11
-    i22 = 1.0 / np.sqrt(g22 - l20 * l20 - l21 * l21)
+    i22 = _ONE / np.sqrt(g22 - l20 * l20 - l21 * l21)
     y0 = bx * i00
     y1 = (by - l10 * y0) * i11
     y2 = (bz - l20 * y0 - l21 * y1) * i22
@@ -162,7 +172,7 @@ def _solve(v: np.ndarray) -> tuple[np.ndarray, ...]:
     return fx, fy, fz, y0 * y0 + y1 * y1 + y2 * y2
 
 
-def _coarse_fit(v: np.ndarray, rr: float, inward: np.ndarray, cone_cos2: float
+def _coarse_fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: Cone
                 ) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
     """Fit the force at the surface samples (see :func:`_fit`; ``inward`` their unit
     inward normals (3, m, n), zero at padding), without the search along the cone's
@@ -172,20 +182,19 @@ def _coarse_fit(v: np.ndarray, rr: float, inward: np.ndarray, cone_cos2: float
     fx, fy, fz, gain = _solve(v)
     mx, my, mz = inward
     push = mx * fx + my * fy + mz * fz
-    feasible = (push > 0) & (push * push >= cone_cos2 * (fx * fx + fy * fy + fz * fz))
-    gain *= feasible
-    return rr - gain, (fx, fy, fz)
+    feasible = (push > _ZERO) & (push * push >= cone.cos2 * (fx * fx + fy * fy + fz * fz))
+    return rr - np.where(feasible, gain, _ZERO), (fx, fy, fz)
 
 
-def _fit(v: np.ndarray, rr: float, inward: np.ndarray, cone: tuple[float, float]
+def _fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: Cone
          ) -> tuple[np.ndarray, np.ndarray]:
     """Fit the force at candidate points, m links x n points each, on one face plane
     per link, and return each point's residual error [Nm] (m, n) and force [N] (3, m,
     n, link frame).
 
     ``v`` (9, m, n): per point b = A^T r (3) and the Gram matrix's entries (xx yy zz
-    xy xz yz); ``rr`` = |r|^2 [Nm^2]; the unit ``inward`` normals (3, m, 1) of each
-    link's face; ``cone`` the cosine and sine of the friction cone's half-angle. The
+    xy xz yz); ``rr`` = |r|^2 [Nm^2] (0-d); the unit ``inward`` normals (3, m, 1) of
+    each link's face; ``cone`` the friction cone's half-angle. The
     force is the least-squares one if it lies in the cone, else the best one along
     the cone's boundary ray nearest to it (in the plane of the normal and the free
     force). That search is made only where a point's free gain beats its link's best
@@ -193,26 +202,26 @@ def _fit(v: np.ndarray, rr: float, inward: np.ndarray, cone: tuple[float, float]
     its error is given as |r| (its force as the free one)."""
     fx, fy, fz, gain = _solve(v)
     mx, my, mz = inward
-    cos, sin = cone
+    cos, sin = cone.cos, cone.sin
     push = mx * fx + my * fy + mz * fz
     size2 = fx * fx + fy * fy + fz * fz
-    feasible = (push > 0) & (push * push >= cos * cos * size2)
-    gain_in = gain * feasible
+    feasible = (push > _ZERO) & (push * push >= cone.cos2 * size2)
+    gain_in = np.where(feasible, gain, _ZERO)
     force = np.array([fx, fy, fz])
     search = gain > np.maximum.reduce(gain_in, axis=1, keepdims=True)
     if np.logical_or.reduce(search, axis=None):
         bx, by, bz, g00, g11, g22, g01, g02, g12 = v
         # the boundary ray: cos n_in + sin (the free force's unit component along the face)
-        scale = sin / (np.sqrt(np.maximum(size2 - push * push, 0.0)) + TINY)
+        scale = sin / (np.sqrt(np.maximum(size2 - push * push, _ZERO)) + _TINY)
         dx = (fx - push * mx) * scale + cos * mx
         dy = (fy - push * my) * scale + cos * my
         dz = (fz - push * mz) * scale + cos * mz
-        pushed = np.maximum(bx * dx + by * dy + bz * dz, 0.0)
+        pushed = np.maximum(bx * dx + by * dy + bz * dz, _ZERO)
         size = pushed / (dx * dx * g00 + dy * dy * g11 + dz * dz * g22
-                         + 2.0 * (dx * dy * g01 + dx * dz * g02 + dy * dz * g12))
+                         + _TWO * (dx * dy * g01 + dx * dz * g02 + dy * dz * g12))
         gain_in = np.where(search, pushed * size, gain_in)
         np.copyto(force, np.array([dx, dy, dz]) * size, where=search)
-    return np.sqrt(np.maximum(rr - gain_in, 0.0)), force
+    return np.sqrt(np.maximum(rr - gain_in, _ZERO)), force
 
 
 def sample_surface(surface: Surface, spacing_m: float = DEFAULT_SPACING_M) -> SurfaceSamples:
@@ -375,7 +384,7 @@ class ContactIsolator:
                                       axis=-1)).reshape(-1, 10, 6)         # (L n, 10, 6)
         self._inward_flat = self._inward.reshape(3, -1)                    # (3, L n)
         half = np.radians(config.cone_deg)
-        self._cone = (float(np.cos(half)), float(np.sin(half)))
+        self._cone = Cone(float(np.cos(half)), float(np.sin(half)))
         self._grids = [_grid_monomials(side) for side, _ in GRIDS]
         # each grid's (s, t) offsets (2, n) and, past the first (centred per link), the
         # buffer of its monomials (REFINE_LINKS, 6, n), row 0 the ones
@@ -467,7 +476,7 @@ class ContactIsolator:
                              (self._monomials[rows], self._inward[:, rows]))
         fitted = np.empty((9, len(rows), monomials.shape[2]))
         np.matmul(coeffs[self._links[rows]], monomials, out=fitted.transpose(1, 0, 2))
-        err, forces = _coarse_fit(fitted, rr, inward, self._cone[0] ** 2)
+        err, forces = _coarse_fit(fitted, np.array(rr), inward, self._cone)
         best = err.argmin(axis=1)
         errors[self._links[rows]] = np.sqrt(np.maximum(np.minimum.reduce(err, axis=1), 0.0))
         return errors, self._refine(rows, coeffs, rr, best, errors), (rows, err, forces, best)
@@ -490,12 +499,12 @@ class ContactIsolator:
         lifted = self._lifted.take(at, axis=0)                            # (m, 10, 6)
         fit_coeffs = coeffs[reach] @ lifted                               # (m, 9, 6)
         inward = self._inward_flat.take(at, axis=1)[:, :, None]          # (3, m, 1)
-        centre = np.zeros((count, 2, 1))
+        centre, rr0 = np.zeros((count, 2, 1)), np.array(rr)
         for i, plane in enumerate(self._planes):
             grid = self._grids[0] if i == 0 else self._centred(i, count, centre)
             fitted = np.empty((9, count, plane.shape[1]))
             np.matmul(fit_coeffs, grid, out=fitted.transpose(1, 0, 2))
-            local_err, local_force = _fit(fitted, rr, inward, self._cone)
+            local_err, local_force = _fit(fitted, rr0, inward, self._cone)
             local_best = local_err.argmin(axis=1)
             centre = centre + plane.take(local_best, axis=1).T[:, :, None]
         axes, s, t = lifted[:, 1:4], centre[:, 0], centre[:, 1]          # p0 u v; (m, 1)
