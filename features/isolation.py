@@ -173,17 +173,17 @@ def _solve(v: np.ndarray) -> tuple[np.ndarray, ...]:
 
 
 def _coarse_fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: Cone
-                ) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+                ) -> tuple[np.ndarray, np.ndarray]:
     """Fit the force at the surface samples (see :func:`_fit`; ``inward`` their unit
     inward normals (3, m, n), zero at padding), without the search along the cone's
     boundary: a sample whose least-squares force does not push into the surface within
     the cone explains nothing (error |r|). Return the squared errors [Nm^2] (m, n) and
-    forces (fx, fy, fz) [N]."""
+    forces [N] (3, m, n)."""
     fx, fy, fz, gain = _solve(v)
-    mx, my, mz = inward
-    push = mx * fx + my * fy + mz * fz
-    feasible = (push > _ZERO) & (push * push >= cone.cos2 * (fx * fx + fy * fy + fz * fz))
-    return rr - np.where(feasible, gain, _ZERO), (fx, fy, fz)
+    force = np.array([fx, fy, fz])
+    push = np.add.reduce(inward * force, axis=0)
+    feasible = (push > _ZERO) & (push * push >= cone.cos2 * np.add.reduce(force * force, axis=0))
+    return rr - np.where(feasible, gain, _ZERO), force
 
 
 def _fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: Cone
@@ -201,16 +201,16 @@ def _fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: Cone
     feasible one; any other point outside the cone cannot be its link's best, and
     its error is given as |r| (its force as the free one)."""
     fx, fy, fz, gain = _solve(v)
-    mx, my, mz = inward
-    cos, sin = cone.cos, cone.sin
-    push = mx * fx + my * fy + mz * fz
-    size2 = fx * fx + fy * fy + fz * fz
+    force = np.array([fx, fy, fz])
+    push = np.add.reduce(inward * force, axis=0)
+    size2 = np.add.reduce(force * force, axis=0)
     feasible = (push > _ZERO) & (push * push >= cone.cos2 * size2)
     gain_in = np.where(feasible, gain, _ZERO)
-    force = np.array([fx, fy, fz])
     search = gain > np.maximum.reduce(gain_in, axis=1, keepdims=True)
     if np.logical_or.reduce(search, axis=None):
         bx, by, bz, g00, g11, g22, g01, g02, g12 = v
+        mx, my, mz = inward
+        cos, sin = cone.cos, cone.sin
         # the boundary ray: cos n_in + sin (the free force's unit component along the face)
         scale = sin / (np.sqrt(np.maximum(size2 - push * push, _ZERO)) + _TINY)
         dx = (fx - push * mx) * scale + cos * mx
@@ -470,7 +470,7 @@ class ContactIsolator:
         coefficients, ``errors`` [Nm] (7,) the links' errors so far (updated in place).
         Return the errors, link index -> refined (point [m], force [N]) in the link
         frame, and what :meth:`_middle` needs: the rows, their samples' squared errors
-        [Nm^2] (rows, n), forces [N] (3 of (rows, n)) and best samples (rows,)."""
+        [Nm^2] (rows, n), forces [N] (3, rows, n) and best samples (rows,)."""
         every = len(rows) == len(self._links)
         monomials, inward = ((self._monomials, self._inward) if every else
                              (self._monomials[rows], self._inward[:, rows]))
@@ -526,22 +526,21 @@ class ContactIsolator:
         return grid
 
     def _middle(self, k: int, rows: np.ndarray, err: np.ndarray,
-                forces: tuple[np.ndarray, ...], best: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:
+                forces: np.ndarray, best: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Return the point [m] and force [N] (link frame) reported on link index ``k``
         (fewer than 5 loaded joints: the point is undetermined): the sample nearest
         the middle of the link's samples whose coarse error [Nm] (from the squared
         errors ``err`` [Nm^2] of the searched ``rows``) is within ``tie_nm`` of its
-        best, with its coarse ``forces``."""
-        row = int(np.searchsorted(self._links, k))
+        best, with its coarse ``forces`` (3, rows, n)."""
+        row = self._link_list.index(k)
         at = rows.tolist().index(row)
         coarse = err[at, :self._counts[row]]
-        reach = (np.sqrt(max(float(coarse[best[at]]), 0.0)) + self.config.tie) ** 2
-        close = np.flatnonzero(coarse <= reach)
+        reach = (math.sqrt(max(float(coarse[best[at]]), 0.0)) + self.config.tie) ** 2
+        close = (coarse <= reach).nonzero()[0]
         points = self._points[row, close]
-        offset = points - points.sum(axis=0) / len(close)
-        mid = close[int(np.argmin((offset * offset).sum(axis=1)))]
-        return self._points[row, mid].copy(), np.array([f[at, mid] for f in forces])
+        offset = points - np.add.reduce(points, axis=0) / len(close)
+        mid = close[int(np.add.reduce(offset * offset, axis=1).argmin())]
+        return self._points[row, mid].copy(), forces[:, at, mid].copy()
 
 
 def _grid_monomials(side: int) -> np.ndarray:
@@ -630,7 +629,8 @@ def _torque_error(jac: np.ndarray, r: np.ndarray, fit: tuple[np.ndarray, np.ndar
         wrench = np.array([fx, fy, fz, py * fz - pz * fy, pz * fx - px * fz, px * fy - py * fx])
     if wrench is None:
         return float("nan")
-    return float(np.linalg.norm(r - jac.T @ wrench))
+    miss = r - jac.T @ wrench
+    return math.sqrt(float(miss @ miss))
 
 
 def _wrench_fit(jac: np.ndarray, r: np.ndarray) -> tuple[float, np.ndarray]:
