@@ -59,7 +59,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 import pinocchio as pin
@@ -206,22 +206,36 @@ def _fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: Cone
     size2 = np.add.reduce(force * force, axis=0)
     feasible = (push > _ZERO) & (push * push >= cone.cos2 * size2)
     gain_in = np.where(feasible, gain, _ZERO)
-    search = gain > np.maximum.reduce(gain_in, axis=1, keepdims=True)
-    if np.logical_or.reduce(search, axis=None):
-        bx, by, bz, g00, g11, g22, g01, g02, g12 = v
-        mx, my, mz = inward
-        cos, sin = cone.cos, cone.sin
-        # the boundary ray: cos n_in + sin (the free force's unit component along the face)
-        scale = sin / (np.sqrt(np.maximum(size2 - push * push, _ZERO)) + _TINY)
-        dx = (fx - push * mx) * scale + cos * mx
-        dy = (fy - push * my) * scale + cos * my
-        dz = (fz - push * mz) * scale + cos * mz
-        pushed = np.maximum(bx * dx + by * dy + bz * dz, _ZERO)
-        size = pushed / (dx * dx * g00 + dy * dy * g11 + dz * dz * g22
-                         + _TWO * (dx * dy * g01 + dx * dz * g02 + dy * dz * g12))
-        gain_in = np.where(search, pushed * size, gain_in)
-        np.copyto(force, np.array([dx, dy, dz]) * size, where=search)
+    search = (gain > np.maximum.reduce(gain_in, axis=1, keepdims=True)).ravel().nonzero()[0]
+    if search.size:
+        # the few points searched, gathered; gain_in and force are fresh and contiguous
+        flat_force = force.reshape(3, -1)
+        gain_in.ravel()[search], flat_force[:, search] = _boundary(
+            v.reshape(9, -1).take(search, axis=1),
+            inward[:, :, 0].take(search // v.shape[2], axis=1), cone,
+            flat_force.take(search, axis=1), push.ravel().take(search), size2.ravel().take(search))
     return np.sqrt(np.maximum(rr - gain_in, _ZERO)), force
+
+
+def _boundary(v: np.ndarray, inward: np.ndarray, cone: Cone, force: np.ndarray,
+              push: np.ndarray, size2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the gain [Nm^2] (k,) and force [N] (3, k) of the best force along the
+    cone's boundary ray nearest to the free least-squares ``force`` (3, k), at k points
+    with ``v`` (9, k) (see :func:`_fit`), unit ``inward`` normals (3, k), the free
+    force's inward component ``push`` [N] (k,) and squared size ``size2`` [N^2] (k,)."""
+    bx, by, bz, g00, g11, g22, g01, g02, g12 = v
+    mx, my, mz = inward
+    fx, fy, fz = force
+    cos, sin = cone.cos, cone.sin
+    # the boundary ray: cos n_in + sin (the free force's unit component along the face)
+    scale = sin / (np.sqrt(np.maximum(size2 - push * push, _ZERO)) + _TINY)
+    dx = (fx - push * mx) * scale + cos * mx
+    dy = (fy - push * my) * scale + cos * my
+    dz = (fz - push * mz) * scale + cos * mz
+    pushed = np.maximum(bx * dx + by * dy + bz * dz, _ZERO)
+    size = pushed / (dx * dx * g00 + dy * dy * g11 + dz * dz * g22
+                     + _TWO * (dx * dy * g01 + dx * dz * g02 + dy * dz * g12))
+    return pushed * size, np.array([dx, dy, dz]) * size
 
 
 def sample_surface(surface: Surface, spacing_m: float = DEFAULT_SPACING_M) -> SurfaceSamples:
@@ -334,6 +348,18 @@ class IsolatorConfig:
     ambiguous_below: float = 0.2
 
 
+class Coarse(NamedTuple):
+    """The fit at every surface link's samples (padded to the longest, L links x n):
+    squared errors ``err`` [Nm^2] (L, n), forces [N] (3, L, n, link frames), each
+    link's best sample ``best`` (L,) and its error ``errors`` [Nm] (L,); errors in
+    noise units."""
+
+    err: np.ndarray
+    forces: np.ndarray
+    best: np.ndarray
+    errors: np.ndarray
+
+
 class ContactIsolator:
     """Single-contact isolation and identification (see the module docstring).
 
@@ -428,10 +454,11 @@ class ContactIsolator:
         reach = [k not in self._surface or b * b <= limit for k, b in enumerate(bound.tolist())]
         rows = [i for i, k in enumerate(self._link_list) if reach[k]]
         rows = self._all_rows if len(rows) == len(self._link_list) else np.array(rows, np.int64)
-        errors, fits, middle = self._search(rows, coeffs, rr, errors.copy())
+        coarse = self._coarse(coeffs, rr)
+        fits = self._search(rows, coarse, coeffs, rr, errors)
         last, link, other = _decide(errors.tolist(), tie)
         if not (reach[last] and reach[link] and reach[other]):
-            errors, fits, middle = self._search(self._all_rows, coeffs, rr, errors)
+            fits = self._search(self._all_rows, coarse, coeffs, rr, errors)
             last, link, other = _decide(errors.tolist(), tie)
         e_link, e_other = float(errors[link]), float(errors[other])
         rival = math.isfinite(e_other)
@@ -446,7 +473,7 @@ class ContactIsolator:
                       confidence=confidence, ambiguous=confidence < self.config.ambiguous_below)
         if link in fits and link + 1 < MIN_DETERMINED:
             # the point is undetermined: report the middle one (the error is the best's)
-            fits[link] = self._middle(link, *middle)
+            fits[link] = self._middle(link, coarse)
         if link not in fits:
             return ContactEstimate(t, NO_SURFACE, **common)
         point, force = fits[link]
@@ -463,28 +490,29 @@ class ContactIsolator:
                                                else np.asarray(threshold, dtype=float))
         return 1.0 / np.sqrt(self._noise2 + share * share)
 
-    def _search(self, rows: np.ndarray, coeffs: np.ndarray, rr: float, errors: np.ndarray
-                ) -> tuple[np.ndarray, dict[int, tuple[np.ndarray, np.ndarray]], tuple]:
-        """Search the samples of the surface links ``rows`` (indices into the links with
-        a surface) and refine the best ones; ``coeffs`` (7, 9, 10) are every link's fit
-        coefficients, ``errors`` [Nm] (7,) the links' errors so far (updated in place).
-        Return the errors, link index -> refined (point [m], force [N]) in the link
-        frame, and what :meth:`_middle` needs: the rows, their samples' squared errors
-        [Nm^2] (rows, n), forces [N] (3, rows, n) and best samples (rows,)."""
-        every = len(rows) == len(self._links)
-        monomials, inward = ((self._monomials, self._inward) if every else
-                             (self._monomials[rows], self._inward[:, rows]))
-        fitted = np.empty((9, len(rows), monomials.shape[2]))
-        np.matmul(coeffs[self._links[rows]], monomials, out=fitted.transpose(1, 0, 2))
-        err, forces = _coarse_fit(fitted, np.array(rr), inward, self._cone)
-        best = err.argmin(axis=1)
-        errors[self._links[rows]] = np.sqrt(np.maximum(np.minimum.reduce(err, axis=1), 0.0))
-        return errors, self._refine(rows, coeffs, rr, best, errors), (rows, err, forces, best)
+    def _coarse(self, coeffs: np.ndarray, rr: float) -> Coarse:
+        """Return the fit at every surface link's samples, from every link's fit
+        coefficients ``coeffs`` (7, 9, 10) and ``rr`` = |r|^2 [Nm^2] (see
+        :func:`_coarse_fit`)."""
+        fitted = np.empty((9, *self._monomials.shape[::2]))
+        np.matmul(coeffs[self._links], self._monomials, out=fitted.transpose(1, 0, 2))
+        err, forces = _coarse_fit(fitted, np.array(rr), self._inward, self._cone)
+        return Coarse(err, forces, err.argmin(axis=1),
+                      np.sqrt(np.maximum(np.minimum.reduce(err, axis=1), _ZERO)))
+
+    def _search(self, rows: np.ndarray, coarse: Coarse, coeffs: np.ndarray, rr: float,
+                errors: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Search the surface links ``rows`` (indices into the links with a surface):
+        set their ``errors`` [Nm] (7,; in place) to their ``coarse`` fits' and refine
+        the best ones; ``coeffs`` (7, 9, 10) are every link's fit coefficients. Return
+        link index -> refined (point [m], force [N]) in the link frame."""
+        errors[self._links[rows]] = coarse.errors[rows]
+        return self._refine(rows, coeffs, rr, coarse.best, errors)
 
     def _refine(self, searched: np.ndarray, coeffs: np.ndarray, rr: float, best: np.ndarray,
                 errors: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
         """Refine the best links' points (see the module docstring, step 3) from the best
-        sample ``best`` of each searched row ``searched``; ``coeffs`` (7, 9, 10) are
+        samples ``best`` (per row) of the searched rows ``searched``; ``coeffs`` (7, 9, 10) are
         every link's fit coefficients. Update ``errors`` [Nm] (per link) in place and
         return link index -> (point [m], force [N]) in the link frame, for the refined
         links."""
@@ -495,7 +523,8 @@ class ContactIsolator:
         # the grids' points are p0 + s u + t v with (s, t) in units of the first grid's
         # half-width: their monomials are those of (s, t) times a matrix precomputed
         # per sample; each further grid is centred on the previous one's best point
-        at = searched[order] * self._width + best[order]                 # flat samples
+        rows = searched[order]
+        at = rows * self._width + best[rows]                             # flat samples
         lifted = self._lifted.take(at, axis=0)                            # (m, 10, 6)
         fit_coeffs = coeffs[reach] @ lifted                               # (m, 9, 6)
         inward = self._inward_flat.take(at, axis=1)[:, :, None]          # (3, m, 1)
@@ -525,22 +554,19 @@ class ContactIsolator:
         np.multiply(plane[:, 0], plane[:, 1], out=grid[:, 5])
         return grid
 
-    def _middle(self, k: int, rows: np.ndarray, err: np.ndarray,
-                forces: np.ndarray, best: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _middle(self, k: int, coarse: Coarse) -> tuple[np.ndarray, np.ndarray]:
         """Return the point [m] and force [N] (link frame) reported on link index ``k``
         (fewer than 5 loaded joints: the point is undetermined): the sample nearest
-        the middle of the link's samples whose coarse error [Nm] (from the squared
-        errors ``err`` [Nm^2] of the searched ``rows``) is within ``tie_nm`` of its
-        best, with its coarse ``forces`` (3, rows, n)."""
+        the middle of the link's samples whose ``coarse`` error [Nm] is within ``tie``
+        of its best, with its coarse force."""
         row = self._link_list.index(k)
-        at = rows.tolist().index(row)
-        coarse = err[at, :self._counts[row]]
-        reach = (math.sqrt(max(float(coarse[best[at]]), 0.0)) + self.config.tie) ** 2
-        close = (coarse <= reach).nonzero()[0]
+        err = coarse.err[row, :self._counts[row]]
+        reach = (math.sqrt(max(float(err[coarse.best[row]]), 0.0)) + self.config.tie) ** 2
+        close = (err <= reach).nonzero()[0]
         points = self._points[row, close]
         offset = points - np.add.reduce(points, axis=0) / len(close)
         mid = close[int(np.add.reduce(offset * offset, axis=1).argmin())]
-        return self._points[row, mid].copy(), forces[:, at, mid].copy()
+        return self._points[row, mid].copy(), coarse.forces[:, row, mid].copy()
 
 
 def _grid_monomials(side: int) -> np.ndarray:
