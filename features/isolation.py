@@ -153,23 +153,26 @@ def _decide(errors: list[float], tie: float) -> tuple[int, int, int]:
     return last, link, min((k for k in order if k != link), key=errors.__getitem__)
 
 
-def _solve(v: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Return the least-squares force (fx, fy, fz) [N] and its gain b^T G^-1 b [Nm^2]
+def _solve(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the least-squares force [N] (3, ...) and its gain b^T G^-1 b [Nm^2] (...)
     at each candidate point from ``v`` (9, ...): b = A^T r (3) and the Gram matrix G
     = A^T A (xx yy zz xy xz yz), by an elementwise Cholesky factorisation G = L L^T."""
     bx, by, bz, g00, g11, g22, g01, g02, g12 = v
+    y, force = np.empty((3, *v.shape[1:])), np.empty((3, *v.shape[1:]))
+    y0, y1, y2 = y
+    fx, fy, fz = force
     i00 = _ONE / np.sqrt(g00)
     l10, l20 = g01 * i00, g02 * i00
     i11 = _ONE / np.sqrt(g11 - l10 * l10)
     l21 = (g12 - l20 * l10) * i11
     i22 = _ONE / np.sqrt(g22 - l20 * l20 - l21 * l21)
-    y0 = bx * i00
-    y1 = (by - l10 * y0) * i11
-    y2 = (bz - l20 * y0 - l21 * y1) * i22
-    fz = y2 * i22
-    fy = (y1 - l21 * fz) * i11
-    fx = (y0 - l10 * fy - l20 * fz) * i00
-    return fx, fy, fz, y0 * y0 + y1 * y1 + y2 * y2
+    np.multiply(bx, i00, y0)
+    np.multiply(by - l10 * y0, i11, y1)
+    np.multiply(bz - l20 * y0 - l21 * y1, i22, y2)
+    np.multiply(y2, i22, fz)
+    np.multiply(y1 - l21 * fz, i11, fy)
+    np.multiply(y0 - l10 * fy - l20 * fz, i00, fx)
+    return force, np.add.reduce(y * y, axis=0)
 
 
 def _coarse_fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: Cone
@@ -179,8 +182,7 @@ def _coarse_fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: Cone
     boundary: a sample whose least-squares force does not push into the surface within
     the cone explains nothing (error |r|). Return the squared errors [Nm^2] (m, n) and
     forces [N] (3, m, n)."""
-    fx, fy, fz, gain = _solve(v)
-    force = np.array([fx, fy, fz])
+    force, gain = _solve(v)
     push = np.add.reduce(inward * force, axis=0)
     feasible = (push > _ZERO) & (push * push >= cone.cos2 * np.add.reduce(force * force, axis=0))
     return rr - np.where(feasible, gain, _ZERO), force
@@ -200,8 +202,7 @@ def _fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: Cone
     force). That search is made only where a point's free gain beats its link's best
     feasible one; any other point outside the cone cannot be its link's best, and
     its error is given as |r| (its force as the free one)."""
-    fx, fy, fz, gain = _solve(v)
-    force = np.array([fx, fy, fz])
+    force, gain = _solve(v)
     push = np.add.reduce(inward * force, axis=0)
     size2 = np.add.reduce(force * force, axis=0)
     feasible = (push > _ZERO) & (push * push >= cone.cos2 * size2)
@@ -223,19 +224,14 @@ def _boundary(v: np.ndarray, inward: np.ndarray, cone: Cone, force: np.ndarray,
     cone's boundary ray nearest to the free least-squares ``force`` (3, k), at k points
     with ``v`` (9, k) (see :func:`_fit`), unit ``inward`` normals (3, k), the free
     force's inward component ``push`` [N] (k,) and squared size ``size2`` [N^2] (k,)."""
-    bx, by, bz, g00, g11, g22, g01, g02, g12 = v
-    mx, my, mz = inward
-    fx, fy, fz = force
-    cos, sin = cone.cos, cone.sin
     # the boundary ray: cos n_in + sin (the free force's unit component along the face)
-    scale = sin / (np.sqrt(np.maximum(size2 - push * push, _ZERO)) + _TINY)
-    dx = (fx - push * mx) * scale + cos * mx
-    dy = (fy - push * my) * scale + cos * my
-    dz = (fz - push * mz) * scale + cos * mz
-    pushed = np.maximum(bx * dx + by * dy + bz * dz, _ZERO)
-    size = pushed / (dx * dx * g00 + dy * dy * g11 + dz * dz * g22
-                     + _TWO * (dx * dy * g01 + dx * dz * g02 + dy * dz * g12))
-    return pushed * size, np.array([dx, dy, dz]) * size
+    scale = cone.sin / (np.sqrt(np.maximum(size2 - push * push, _ZERO)) + _TINY)
+    ray = (force - push * inward) * scale + cone.cos * inward
+    pushed = np.maximum(np.add.reduce(v[:3] * ray, axis=0), _ZERO)
+    # ray^T G ray from the products of its components (xx yy zz xy xz yz) and G's entries
+    terms = ray.take(_PAIRS_A, axis=0) * ray.take(_PAIRS_B, axis=0) * v[3:]
+    size = pushed / (np.add.reduce(terms[:3], axis=0) + _TWO * np.add.reduce(terms[3:], axis=0))
+    return pushed * size, ray * size
 
 
 def sample_surface(surface: Surface, spacing_m: float = DEFAULT_SPACING_M) -> SurfaceSamples:
@@ -444,14 +440,17 @@ class ContactIsolator:
         coeffs = _coefficients(weighted, rw)                       # (7, 9, 10)
         # a link's error is at least the residual on the joints after it: links whose
         # bound leaves them no chance are not searched unless the decision needs them
-        bound = np.sqrt(np.maximum(rr - np.add.accumulate(rw * rw), 0.0))
-        errors = bound.copy()
+        bound, seen = [], 0.0
+        for x in (rw * rw).tolist():
+            seen += x
+            bound.append(math.sqrt(max(rr - seen, 0.0)))
+        errors = np.array(bound)
         wrenches = {}
         for k in self._bare:
             errors[k], wrenches[k] = _wrench_fit(weighted[k], rw)
         tie = self.config.tie
         limit = PRUNE_SHARE * rr + tie * tie * N_JOINTS
-        reach = [k not in self._surface or b * b <= limit for k, b in enumerate(bound.tolist())]
+        reach = [k not in self._surface or b * b <= limit for k, b in enumerate(bound)]
         rows = [i for i, k in enumerate(self._link_list) if reach[k]]
         rows = self._all_rows if len(rows) == len(self._link_list) else np.array(rows, np.int64)
         coarse = self._coarse(coeffs, rr)
