@@ -345,11 +345,12 @@ class IsolatorConfig:
 
 
 class Coarse(NamedTuple):
-    """The fit at every surface link's samples (padded to the longest, L links x n):
-    squared errors ``err`` [Nm^2] (L, n), forces [N] (3, L, n, link frames), each
-    link's best sample ``best`` (L,) and its error ``errors`` [Nm] (L,); errors in
-    noise units."""
+    """The fit at the samples of the surface links from row ``first`` (index into the
+    links with a surface) on, L of them (padded to the longest, n): squared errors
+    ``err`` [Nm^2] (L, n), forces [N] (3, L, n, link frames), each link's best sample
+    ``best`` (L,) and its error ``errors`` [Nm] (L,); errors in noise units."""
 
+    first: int
     err: np.ndarray
     forces: np.ndarray
     best: np.ndarray
@@ -451,13 +452,16 @@ class ContactIsolator:
         tie = self.config.tie
         limit = PRUNE_SHARE * rr + tie * tie * N_JOINTS
         reach = [k not in self._surface or b * b <= limit for k, b in enumerate(bound)]
-        rows = [i for i, k in enumerate(self._link_list) if reach[k]]
-        rows = self._all_rows if len(rows) == len(self._link_list) else np.array(rows, np.int64)
-        coarse = self._coarse(coeffs, rr)
-        fits = self._search(rows, coarse, coeffs, rr, errors)
+        # the bound does not grow along the chain: the links searched are those from
+        # the first one within reach on
+        first = next((i for i, k in enumerate(self._link_list) if reach[k]),
+                     len(self._link_list))
+        coarse = self._coarse(coeffs, rr, first)
+        fits = self._search(coarse, coeffs, rr, errors)
         last, link, other = _decide(errors.tolist(), tie)
         if not (reach[last] and reach[link] and reach[other]):
-            fits = self._search(self._all_rows, coarse, coeffs, rr, errors)
+            coarse = self._coarse(coeffs, rr, 0)
+            fits = self._search(coarse, coeffs, rr, errors)
             last, link, other = _decide(errors.tolist(), tie)
         e_link, e_other = float(errors[link]), float(errors[other])
         rival = math.isfinite(e_other)
@@ -489,41 +493,40 @@ class ContactIsolator:
                                                else np.asarray(threshold, dtype=float))
         return 1.0 / np.sqrt(self._noise2 + share * share)
 
-    def _coarse(self, coeffs: np.ndarray, rr: float) -> Coarse:
-        """Return the fit at every surface link's samples, from every link's fit
-        coefficients ``coeffs`` (7, 9, 10) and ``rr`` = |r|^2 [Nm^2] (see
-        :func:`_coarse_fit`)."""
-        fitted = np.empty((9, *self._monomials.shape[::2]))
-        np.matmul(coeffs[self._links], self._monomials, out=fitted.transpose(1, 0, 2))
-        err, forces = _coarse_fit(fitted, np.array(rr), self._inward, self._cone)
-        return Coarse(err, forces, err.argmin(axis=1),
+    def _coarse(self, coeffs: np.ndarray, rr: float, first: int) -> Coarse:
+        """Return the fit at the samples of the surface links from row ``first`` (index
+        into the links with a surface) on, from every link's fit coefficients ``coeffs``
+        (7, 9, 10) and ``rr`` = |r|^2 [Nm^2] (see :func:`_coarse_fit`)."""
+        monomials = self._monomials[first:]
+        fitted = np.empty((9, *monomials.shape[::2]))
+        np.matmul(coeffs[self._links[first:]], monomials, out=fitted.transpose(1, 0, 2))
+        err, forces = _coarse_fit(fitted, np.array(rr), self._inward[:, first:], self._cone)
+        return Coarse(first, err, forces, err.argmin(axis=1),
                       np.sqrt(np.maximum(np.minimum.reduce(err, axis=1), _ZERO)))
 
-    def _search(self, rows: np.ndarray, coarse: Coarse, coeffs: np.ndarray, rr: float,
-                errors: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-        """Search the surface links ``rows`` (indices into the links with a surface):
-        set their ``errors`` [Nm] (7,; in place) to their ``coarse`` fits' and refine
-        the best ones; ``coeffs`` (7, 9, 10) are every link's fit coefficients. Return
-        link index -> refined (point [m], force [N]) in the link frame."""
-        errors[self._links[rows]] = coarse.errors[rows]
-        return self._refine(rows, coeffs, rr, coarse.best, errors)
+    def _search(self, coarse: Coarse, coeffs: np.ndarray, rr: float, errors: np.ndarray
+                ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Search the surface links of the ``coarse`` fit: set their ``errors`` [Nm] (7,;
+        in place) to their coarse fits' and refine the best ones; ``coeffs`` (7, 9, 10)
+        are every link's fit coefficients. Return link index -> refined (point [m],
+        force [N]) in the link frame."""
+        errors[self._links[coarse.first:]] = coarse.errors
+        return self._refine(coarse, coeffs, rr, errors)
 
-    def _refine(self, searched: np.ndarray, coeffs: np.ndarray, rr: float, best: np.ndarray,
-                errors: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-        """Refine the best links' points (see the module docstring, step 3) from the best
-        samples ``best`` (per row) of the searched rows ``searched``; ``coeffs`` (7, 9, 10) are
-        every link's fit coefficients. Update ``errors`` [Nm] (per link) in place and
-        return link index -> (point [m], force [N]) in the link frame, for the refined
-        links."""
-        links = self._links[searched]
+    def _refine(self, coarse: Coarse, coeffs: np.ndarray, rr: float, errors: np.ndarray
+                ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Refine the best links' points (see the module docstring, step 3) from their
+        best samples in the ``coarse`` fit; ``coeffs`` (7, 9, 10) are every link's fit
+        coefficients. Update ``errors`` [Nm] (per link) in place and return link index
+        -> (point [m], force [N]) in the link frame, for the refined links."""
+        links = self._links[coarse.first:]
         order = errors[links].argsort()[:REFINE_LINKS]
         reach = links[order]
         count = len(reach)
         # the grids' points are p0 + s u + t v with (s, t) in units of the first grid's
         # half-width: their monomials are those of (s, t) times a matrix precomputed
         # per sample; each further grid is centred on the previous one's best point
-        rows = searched[order]
-        at = rows * self._width + best[rows]                             # flat samples
+        at = (order + coarse.first) * self._width + coarse.best[order]   # flat samples
         lifted = self._lifted.take(at, axis=0)                            # (m, 10, 6)
         fit_coeffs = coeffs[reach] @ lifted                               # (m, 9, 6)
         inward = self._inward_flat.take(at, axis=1)[:, :, None]          # (3, m, 1)
@@ -559,13 +562,14 @@ class ContactIsolator:
         the middle of the link's samples whose ``coarse`` error [Nm] is within ``tie``
         of its best, with its coarse force."""
         row = self._link_list.index(k)
-        err = coarse.err[row, :self._counts[row]]
-        reach = (math.sqrt(max(float(err[coarse.best[row]]), 0.0)) + self.config.tie) ** 2
+        at = row - coarse.first
+        err = coarse.err[at, :self._counts[row]]
+        reach = (math.sqrt(max(float(err[coarse.best[at]]), 0.0)) + self.config.tie) ** 2
         close = (err <= reach).nonzero()[0]
         points = self._points[row, close]
         offset = points - np.add.reduce(points, axis=0) / len(close)
         mid = close[int(np.add.reduce(offset * offset, axis=1).argmin())]
-        return self._points[row, mid].copy(), coarse.forces[:, row, mid].copy()
+        return self._points[row, mid].copy(), coarse.forces[:, at, mid].copy()
 
 
 def _grid_monomials(side: int) -> np.ndarray:
