@@ -134,9 +134,9 @@ _GRID_PRODUCTS[[0, 1, 2, 3, 4, 5, 6, 7, 8], [0, 1, 2, 1, 3, 5, 2, 5, 4]] = 1.0
 its monomials 1, s, t, ss, tt, st (6)."""
 
 
-class Cone:
+class _Cone:
     """The friction cone's half-angle as its cosine, sine and squared cosine, 0-d
-    arrays (see ``_ONE``)."""
+    arrays (see ``_ZERO``)."""
 
     def __init__(self, cos: float, sin: float) -> None:
         self.cos, self.sin, self.cos2 = np.array(cos), np.array(sin), np.array(cos * cos)
@@ -175,7 +175,7 @@ def _solve(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return force, np.add.reduce(y * y, axis=0)
 
 
-def _coarse_fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: Cone
+def _coarse_fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: _Cone
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Fit the force at the surface samples (see :func:`_fit`; ``inward`` their unit
     inward normals (3, m, n), zero at padding), without the search along the cone's
@@ -188,7 +188,7 @@ def _coarse_fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: Cone
     return rr - np.where(feasible, gain, _ZERO), force
 
 
-def _fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: Cone
+def _fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: _Cone
          ) -> tuple[np.ndarray, np.ndarray]:
     """Fit the force at candidate points, m links x n points each, on one face plane
     per link, and return each point's residual error [Nm] (m, n) and force [N] (3, m,
@@ -218,7 +218,7 @@ def _fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: Cone
     return np.sqrt(np.maximum(rr - gain_in, _ZERO)), force
 
 
-def _boundary(v: np.ndarray, inward: np.ndarray, cone: Cone, force: np.ndarray,
+def _boundary(v: np.ndarray, inward: np.ndarray, cone: _Cone, force: np.ndarray,
               push: np.ndarray, size2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Return the gain [Nm^2] (k,) and force [N] (3, k) of the best force along the
     cone's boundary ray nearest to the free least-squares ``force`` (3, k), at k points
@@ -344,7 +344,7 @@ class IsolatorConfig:
     ambiguous_below: float = 0.2
 
 
-class Coarse(NamedTuple):
+class _Coarse(NamedTuple):
     """The fit at the samples of the surface links from row ``first`` (index into the
     links with a surface) on, L of them (padded to the longest, n): squared errors
     ``err`` [Nm^2] (L, n), forces [N] (3, L, n, link frames), each link's best sample
@@ -407,13 +407,14 @@ class ContactIsolator:
                                       axis=-1)).reshape(-1, 10, 6)         # (L n, 10, 6)
         self._inward_flat = self._inward.reshape(3, -1)                    # (3, L n)
         half = np.radians(config.cone_deg)
-        self._cone = Cone(float(np.cos(half)), float(np.sin(half)))
+        self._cone = _Cone(float(np.cos(half)), float(np.sin(half)))
         self._grids = [_grid_monomials(side) for side, _ in GRIDS]
         # each grid's (s, t) offsets (2, n) and, past the first (centred per link), the
         # buffer of its monomials (REFINE_LINKS, 6, n), row 0 the ones
         self._planes = [grid[1:3] * (h / GRIDS[0][1]) for grid, (_, h) in zip(self._grids, GRIDS,
                                                                              strict=True)]
-        self._grid_buffers = [np.ones((REFINE_LINKS, 6, grid.shape[1])) for grid in self._grids]
+        self._grid_buffers = {i: np.ones((REFINE_LINKS, 6, grid.shape[1]))
+                              for i, grid in enumerate(self._grids) if i}
         self._all_rows = np.arange(len(parts))
         self._link_list = self._links.tolist()
         self._weights_at_rest = self._weights(None)
@@ -430,7 +431,6 @@ class ContactIsolator:
             return ContactEstimate(t, TOO_SMALL, residual_nm=norm)
         model, data = self.model, self.data
         pin.computeJointJacobians(model, data, np.asarray(q, dtype=float))
-        pin.updateFramePlacements(model, data)
         jac = np.empty((N_JOINTS, 6, N_JOINTS))                    # (7, 6, 7) link frames
         for k, fid in enumerate(self.frames):
             jac[k] = pin.getFrameJacobian(model, data, fid, pin.LOCAL)
@@ -480,7 +480,7 @@ class ContactIsolator:
         if link not in fits:
             return ContactEstimate(t, NO_SURFACE, **common)
         point, force = fits[link]
-        placement = data.oMf[self.frames[link]]
+        placement = pin.updateFramePlacement(model, data, self.frames[link])
         return ContactEstimate(t, OK, point_link=point,
                                point_base=placement.rotation @ point + placement.translation,
                                force=placement.rotation @ force, **common)
@@ -493,7 +493,7 @@ class ContactIsolator:
                                                else np.asarray(threshold, dtype=float))
         return 1.0 / np.sqrt(self._noise2 + share * share)
 
-    def _coarse(self, coeffs: np.ndarray, rr: float, first: int) -> Coarse:
+    def _coarse(self, coeffs: np.ndarray, rr: float, first: int) -> _Coarse:
         """Return the fit at the samples of the surface links from row ``first`` (index
         into the links with a surface) on, from every link's fit coefficients ``coeffs``
         (7, 9, 10) and ``rr`` = |r|^2 [Nm^2] (see :func:`_coarse_fit`)."""
@@ -501,10 +501,10 @@ class ContactIsolator:
         fitted = np.empty((9, *monomials.shape[::2]))
         np.matmul(coeffs[self._links[first:]], monomials, out=fitted.transpose(1, 0, 2))
         err, forces = _coarse_fit(fitted, np.array(rr), self._inward[:, first:], self._cone)
-        return Coarse(first, err, forces, err.argmin(axis=1),
+        return _Coarse(first, err, forces, err.argmin(axis=1),
                       np.sqrt(np.maximum(np.minimum.reduce(err, axis=1), _ZERO)))
 
-    def _search(self, coarse: Coarse, coeffs: np.ndarray, rr: float, errors: np.ndarray
+    def _search(self, coarse: _Coarse, coeffs: np.ndarray, rr: float, errors: np.ndarray
                 ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
         """Search the surface links of the ``coarse`` fit: set their ``errors`` [Nm] (7,;
         in place) to their coarse fits' and refine the best ones; ``coeffs`` (7, 9, 10)
@@ -513,7 +513,7 @@ class ContactIsolator:
         errors[self._links[coarse.first:]] = coarse.errors
         return self._refine(coarse, coeffs, rr, errors)
 
-    def _refine(self, coarse: Coarse, coeffs: np.ndarray, rr: float, errors: np.ndarray
+    def _refine(self, coarse: _Coarse, coeffs: np.ndarray, rr: float, errors: np.ndarray
                 ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
         """Refine the best links' points (see the module docstring, step 3) from their
         best samples in the ``coarse`` fit; ``coeffs`` (7, 9, 10) are every link's fit
@@ -556,7 +556,7 @@ class ContactIsolator:
         np.multiply(plane[:, 0], plane[:, 1], out=grid[:, 5])
         return grid
 
-    def _middle(self, k: int, coarse: Coarse) -> tuple[np.ndarray, np.ndarray]:
+    def _middle(self, k: int, coarse: _Coarse) -> tuple[np.ndarray, np.ndarray]:
         """Return the point [m] and force [N] (link frame) reported on link index ``k``
         (fewer than 5 loaded joints: the point is undetermined): the sample nearest
         the middle of the link's samples whose ``coarse`` error [Nm] is within ``tie``
