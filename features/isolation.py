@@ -153,14 +153,29 @@ def _decide(errors: list[float], tie: float) -> tuple[int, int, int]:
     return last, link, min((k for k in order if k != link), key=errors.__getitem__)
 
 
-def _solve(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Return the least-squares force [N] (3, ...) and its gain b^T G^-1 b [Nm^2] (...)
-    at each candidate point from ``v`` (9, ...): b = A^T r (3) and the Gram matrix G
-    = A^T A (xx yy zz xy xz yz), by an elementwise Cholesky factorisation G = L L^T."""
-    bx, by, bz, g00, g11, g22, g01, g02, g12 = v
-    y, force = np.empty((3, *v.shape[1:])), np.empty((3, *v.shape[1:]))
-    y0, y1, y2 = y
-    fx, fy, fz = force
+class _Scratch:
+    """Arrays for one shape (m, n) of candidate points, reused from update to update:
+    the fit's inputs ``fitted`` (9, m, n) (``into``: the (m, 9, n) view a matmul writes),
+    y and ``force`` (3, m, n), and the rows of each (views: unpacking an array into
+    its rows costs about as much as a numpy operation)."""
+
+    def __init__(self, m: int, n: int) -> None:
+        self.fitted, self.y, self.force = np.empty((9, m, n)), np.empty((3, m, n)), \
+            np.empty((3, m, n))
+        self.into = self.fitted.transpose(1, 0, 2)
+        self.rows, self.y_rows, self.force_rows = tuple(self.fitted), tuple(self.y), \
+            tuple(self.force)
+
+
+def _solve(work: _Scratch) -> tuple[np.ndarray, np.ndarray]:
+    """Return the least-squares force [N] (3, m, n) and its gain b^T G^-1 b [Nm^2] (m, n)
+    at each candidate point from ``work.fitted`` (9, m, n): b = A^T r (3) and the Gram
+    matrix G = A^T A (xx yy zz xy xz yz), by an elementwise Cholesky factorisation G =
+    L L^T. The force is ``work.force``."""
+    bx, by, bz, g00, g11, g22, g01, g02, g12 = work.rows
+    y, force = work.y, work.force
+    y0, y1, y2 = work.y_rows
+    fx, fy, fz = work.force_rows
     i00 = _ONE / np.sqrt(g00)
     l10, l20 = g01 * i00, g02 * i00
     i11 = _ONE / np.sqrt(g11 - l10 * l10)
@@ -175,34 +190,34 @@ def _solve(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return force, np.add.reduce(y * y, axis=0)
 
 
-def _coarse_fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: _Cone
+def _coarse_fit(work: _Scratch, rr: np.ndarray, inward: np.ndarray, cone: _Cone
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Fit the force at the surface samples (see :func:`_fit`; ``inward`` their unit
     inward normals (3, m, n), zero at padding), without the search along the cone's
     boundary: a sample whose least-squares force does not push into the surface within
     the cone explains nothing (error |r|). Return the squared errors [Nm^2] (m, n) and
     forces [N] (3, m, n)."""
-    force, gain = _solve(v)
+    force, gain = _solve(work)
     push = np.add.reduce(inward * force, axis=0)
     feasible = (push > _ZERO) & (push * push >= cone.cos2 * np.add.reduce(force * force, axis=0))
     return rr - np.where(feasible, gain, _ZERO), force
 
 
-def _fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: _Cone
+def _fit(work: _Scratch, rr: np.ndarray, inward: np.ndarray, cone: _Cone
          ) -> tuple[np.ndarray, np.ndarray]:
     """Fit the force at candidate points, m links x n points each, on one face plane
     per link, and return each point's residual error [Nm] (m, n) and force [N] (3, m,
     n, link frame).
 
-    ``v`` (9, m, n): per point b = A^T r (3) and the Gram matrix's entries (xx yy zz
-    xy xz yz); ``rr`` = |r|^2 [Nm^2] (0-d); the unit ``inward`` normals (3, m, 1) of
+    ``work.fitted`` (9, m, n): per point b = A^T r (3) and the Gram matrix's entries
+    (xx yy zz xy xz yz); ``rr`` = |r|^2 [Nm^2] (0-d); the unit ``inward`` normals (3, m, 1) of
     each link's face; ``cone`` the friction cone's half-angle. The
     force is the least-squares one if it lies in the cone, else the best one along
     the cone's boundary ray nearest to it (in the plane of the normal and the free
     force). That search is made only where a point's free gain beats its link's best
     feasible one; any other point outside the cone cannot be its link's best, and
     its error is given as |r| (its force as the free one)."""
-    force, gain = _solve(v)
+    force, gain = _solve(work)
     push = np.add.reduce(inward * force, axis=0)
     size2 = np.add.reduce(force * force, axis=0)
     feasible = (push > _ZERO) & (push * push >= cone.cos2 * size2)
@@ -212,8 +227,8 @@ def _fit(v: np.ndarray, rr: np.ndarray, inward: np.ndarray, cone: _Cone
         # the few points searched, gathered; gain_in and force are fresh and contiguous
         flat_force = force.reshape(3, -1)
         gain_in.ravel()[search], flat_force[:, search] = _boundary(
-            v.reshape(9, -1).take(search, axis=1),
-            inward[:, :, 0].take(search // v.shape[2], axis=1), cone,
+            work.fitted.reshape(9, -1).take(search, axis=1),
+            inward[:, :, 0].take(search // force.shape[2], axis=1), cone,
             flat_force.take(search, axis=1), push.ravel().take(search), size2.ravel().take(search))
     return np.sqrt(np.maximum(rr - gain_in, _ZERO)), force
 
@@ -418,6 +433,7 @@ class ContactIsolator:
         self._all_rows = np.arange(len(parts))
         self._link_list = self._links.tolist()
         self._weights_at_rest = self._weights(None)
+        self._scratch: dict[tuple[int, int], _Scratch] = {}
 
     def estimate(self, t: float, q: np.ndarray, r: np.ndarray,
                  threshold: np.ndarray | None = None) -> ContactEstimate:
@@ -498,9 +514,9 @@ class ContactIsolator:
         into the links with a surface) on, from every link's fit coefficients ``coeffs``
         (7, 9, 10) and ``rr`` = |r|^2 [Nm^2] (see :func:`_coarse_fit`)."""
         monomials = self._monomials[first:]
-        fitted = np.empty((9, *monomials.shape[::2]))
-        np.matmul(coeffs[self._links[first:]], monomials, out=fitted.transpose(1, 0, 2))
-        err, forces = _coarse_fit(fitted, np.array(rr), self._inward[:, first:], self._cone)
+        work = self._work(*monomials.shape[::2])
+        np.matmul(coeffs[self._links[first:]], monomials, out=work.into)
+        err, forces = _coarse_fit(work, np.array(rr), self._inward[:, first:], self._cone)
         return _Coarse(first, err, forces, err.argmin(axis=1),
                       np.sqrt(np.maximum(np.minimum.reduce(err, axis=1), _ZERO)))
 
@@ -533,9 +549,9 @@ class ContactIsolator:
         centre, rr0 = np.zeros((count, 2, 1)), np.array(rr)
         for i, plane in enumerate(self._planes):
             grid = self._grids[0] if i == 0 else self._centred(i, count, centre)
-            fitted = np.empty((9, count, plane.shape[1]))
-            np.matmul(fit_coeffs, grid, out=fitted.transpose(1, 0, 2))
-            local_err, local_force = _fit(fitted, rr0, inward, self._cone)
+            work = self._work(count, plane.shape[1])
+            np.matmul(fit_coeffs, grid, out=work.into)
+            local_err, local_force = _fit(work, rr0, inward, self._cone)
             local_best = local_err.argmin(axis=1)
             centre = centre + plane.take(local_best, axis=1).T[:, :, None]
         axes, s, t = lifted[:, 1:4], centre[:, 0], centre[:, 1]          # p0 u v; (m, 1)
@@ -544,6 +560,13 @@ class ContactIsolator:
         flat = local_best + self._all_rows[:count] * local_err.shape[1]
         forces = local_force.reshape(3, -1).take(flat, axis=1).T
         return {k: (points[i], forces[i]) for i, k in enumerate(reach.tolist())}
+
+    def _work(self, m: int, n: int) -> _Scratch:
+        """Return this instance's arrays for m x n candidate points (made once)."""
+        work = self._scratch.get((m, n))
+        if work is None:
+            work = self._scratch[(m, n)] = _Scratch(m, n)
+        return work
 
     def _centred(self, i: int, count: int, centre: np.ndarray) -> np.ndarray:
         """Return the monomials 1, s, t, ss, tt, st (count, 6, n) of grid ``i``'s (s, t)
