@@ -160,11 +160,11 @@ class _Scratch:
     its rows costs about as much as a numpy operation)."""
 
     def __init__(self, m: int, n: int) -> None:
-        self.fitted, self.y, self.force = np.empty((9, m, n)), np.empty((3, m, n)), \
-            np.empty((3, m, n))
+        self.fitted = np.empty((9, m, n))
+        self.y, self.force = np.empty((3, m, n)), np.empty((3, m, n))
         self.into = self.fitted.transpose(1, 0, 2)
-        self.rows, self.y_rows, self.force_rows = tuple(self.fitted), tuple(self.y), \
-            tuple(self.force)
+        self.rows, self.y_rows, self.force_rows = (tuple(a) for a in (self.fitted, self.y,
+                                                                      self.force))
 
 
 def _solve(work: _Scratch) -> tuple[np.ndarray, np.ndarray]:
@@ -207,12 +207,12 @@ def _fit(work: _Scratch, rr: np.ndarray, inward: np.ndarray, cone: _Cone
          ) -> tuple[np.ndarray, np.ndarray]:
     """Fit the force at candidate points, m links x n points each, on one face plane
     per link, and return each point's residual error [Nm] (m, n) and force [N] (3, m,
-    n, link frame).
+    n, link frame; ``work.force``).
 
     ``work.fitted`` (9, m, n): per point b = A^T r (3) and the Gram matrix's entries
-    (xx yy zz xy xz yz); ``rr`` = |r|^2 [Nm^2] (0-d); the unit ``inward`` normals (3, m, 1) of
-    each link's face; ``cone`` the friction cone's half-angle. The
-    force is the least-squares one if it lies in the cone, else the best one along
+    (xx yy zz xy xz yz); ``rr`` = |r|^2 [Nm^2] (0-d); the unit ``inward`` normals (3,
+    m, 1) of each link's face; ``cone`` the friction cone's half-angle. The force is
+    the least-squares one if it lies in the cone, else the best one along
     the cone's boundary ray nearest to it (in the plane of the normal and the free
     force). That search is made only where a point's free gain beats its link's best
     feasible one; any other point outside the cone cannot be its link's best, and
@@ -224,7 +224,8 @@ def _fit(work: _Scratch, rr: np.ndarray, inward: np.ndarray, cone: _Cone
     gain_in = np.where(feasible, gain, _ZERO)
     search = (gain > np.maximum.reduce(gain_in, axis=1, keepdims=True)).ravel().nonzero()[0]
     if search.size:
-        # the few points searched, gathered; gain_in and force are fresh and contiguous
+        # the few points searched, gathered, and written back through flat views
+        # (gain_in is fresh, the force contiguous)
         flat_force = force.reshape(3, -1)
         gain_in.ravel()[search], flat_force[:, search] = _boundary(
             work.fitted.reshape(9, -1).take(search, axis=1),
@@ -362,8 +363,9 @@ class IsolatorConfig:
 class _Coarse(NamedTuple):
     """The fit at the samples of the surface links from row ``first`` (index into the
     links with a surface) on, L of them (padded to the longest, n): squared errors
-    ``err`` [Nm^2] (L, n), forces [N] (3, L, n, link frames), each link's best sample
-    ``best`` (L,) and its error ``errors`` [Nm] (L,); errors in noise units."""
+    ``err`` [Nm^2] (L, n), forces [N] (3, L, n, link frames; the isolator's arrays,
+    valid until its next update), each link's best sample ``best`` (L,) and its error
+    ``errors`` [Nm] (L,); errors in noise units."""
 
     first: int
     err: np.ndarray
@@ -433,7 +435,7 @@ class ContactIsolator:
         self._all_rows = np.arange(len(parts))
         self._link_list = self._links.tolist()
         self._weights_at_rest = self._weights(None)
-        self._scratch: dict[tuple[int, int], _Scratch] = {}
+        self._scratch: dict[tuple[int, int, int], _Scratch] = {}
 
     def estimate(self, t: float, q: np.ndarray, r: np.ndarray,
                  threshold: np.ndarray | None = None) -> ContactEstimate:
@@ -514,7 +516,7 @@ class ContactIsolator:
         into the links with a surface) on, from every link's fit coefficients ``coeffs``
         (7, 9, 10) and ``rr`` = |r|^2 [Nm^2] (see :func:`_coarse_fit`)."""
         monomials = self._monomials[first:]
-        work = self._work(*monomials.shape[::2])
+        work = self._work(-1, *monomials.shape[::2])
         np.matmul(coeffs[self._links[first:]], monomials, out=work.into)
         err, forces = _coarse_fit(work, np.array(rr), self._inward[:, first:], self._cone)
         return _Coarse(first, err, forces, err.argmin(axis=1),
@@ -549,7 +551,7 @@ class ContactIsolator:
         centre, rr0 = np.zeros((count, 2, 1)), np.array(rr)
         for i, plane in enumerate(self._planes):
             grid = self._grids[0] if i == 0 else self._centred(i, count, centre)
-            work = self._work(count, plane.shape[1])
+            work = self._work(i, count, plane.shape[1])
             np.matmul(fit_coeffs, grid, out=work.into)
             local_err, local_force = _fit(work, rr0, inward, self._cone)
             local_best = local_err.argmin(axis=1)
@@ -561,11 +563,14 @@ class ContactIsolator:
         forces = local_force.reshape(3, -1).take(flat, axis=1).T
         return {k: (points[i], forces[i]) for i, k in enumerate(reach.tolist())}
 
-    def _work(self, m: int, n: int) -> _Scratch:
-        """Return this instance's arrays for m x n candidate points (made once)."""
-        work = self._scratch.get((m, n))
+    def _work(self, stage: int, m: int, n: int) -> _Scratch:
+        """Return this instance's arrays for m x n candidate points of a ``stage`` (-1:
+        the samples, 0, 1, ...: the refinement grids), made once: one stage's results
+        stay valid while the next ones run."""
+        key = (stage, m, n)
+        work = self._scratch.get(key)
         if work is None:
-            work = self._scratch[(m, n)] = _Scratch(m, n)
+            work = self._scratch[key] = _Scratch(m, n)
         return work
 
     def _centred(self, i: int, count: int, centre: np.ndarray) -> np.ndarray:
