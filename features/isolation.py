@@ -55,10 +55,11 @@ Units: q [rad], r [Nm], points [m], forces [N], reported errors [Nm].
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 import pinocchio as pin
@@ -122,6 +123,8 @@ _UNIT_SKEW = np.array([[[0, 0, 0], [0, 0, -1], [0, 1, 0]],
                        [[0, 0, 1], [0, 0, 0], [-1, 0, 0]],
                        [[0, -1, 0], [1, 0, 0], [0, 0, 0]]], dtype=float)
 """S(e_i) for the unit vectors: S(p) = sum_i p_i S(e_i), S(p) F = p x F."""
+_ZERO, _ONE, _TWO, _TINY = (np.array(x) for x in (0.0, 1.0, 2.0, TINY))
+"""Scalars as 0-d arrays: numpy combines them with an array faster than Python floats."""
 _PAIRS = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
 """The Gram entries xx yy zz xy xz yz, and monomials 4..9, as pairs of coordinates."""
 _PAIRS_A, _PAIRS_B = (np.array(x) for x in zip(*_PAIRS, strict=True))
@@ -129,6 +132,14 @@ _GRID_PRODUCTS = np.zeros((9, 6))
 _GRID_PRODUCTS[[0, 1, 2, 3, 4, 5, 6, 7, 8], [0, 1, 2, 1, 3, 5, 2, 5, 4]] = 1.0
 """The products c d of a grid point's coordinates c, d in (1, s, t) (9, row-major) as
 its monomials 1, s, t, ss, tt, st (6)."""
+
+
+class _Cone:
+    """The friction cone's half-angle as its cosine, sine and squared cosine, 0-d
+    arrays (see ``_ZERO``)."""
+
+    def __init__(self, cos: float, sin: float) -> None:
+        self.cos, self.sin, self.cos2 = np.array(cos), np.array(sin), np.array(cos * cos)
 
 
 def _decide(errors: list[float], tie: float) -> tuple[int, int, int]:
@@ -142,75 +153,101 @@ def _decide(errors: list[float], tie: float) -> tuple[int, int, int]:
     return last, link, min((k for k in order if k != link), key=errors.__getitem__)
 
 
-def _solve(v: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Return the least-squares force (fx, fy, fz) [N] and its gain b^T G^-1 b [Nm^2]
-    at each candidate point from ``v`` (9, ...): b = A^T r (3) and the Gram matrix G
-    = A^T A (xx yy zz xy xz yz), by an elementwise Cholesky factorisation G = L L^T."""
-    bx, by, bz, g00, g11, g22, g01, g02, g12 = v
-    i00 = 1.0 / np.sqrt(g00)
+class _Scratch:
+    """Arrays for one shape (m, n) of candidate points, reused from update to update:
+    the fit's inputs ``fitted`` (9, m, n) (``into``: the (m, 9, n) view a matmul writes),
+    y and ``force`` (3, m, n), and the rows of each (views: unpacking an array into
+    its rows costs about as much as a numpy operation)."""
+
+    def __init__(self, m: int, n: int) -> None:
+        self.fitted = np.empty((9, m, n))
+        self.y, self.force = np.empty((3, m, n)), np.empty((3, m, n))
+        self.into = self.fitted.transpose(1, 0, 2)
+        self.rows, self.y_rows, self.force_rows = (tuple(a) for a in (self.fitted, self.y,
+                                                                      self.force))
+
+
+def _solve(work: _Scratch) -> tuple[np.ndarray, np.ndarray]:
+    """Return the least-squares force [N] (3, m, n) and its gain b^T G^-1 b [Nm^2] (m, n)
+    at each candidate point from ``work.fitted`` (9, m, n): b = A^T r (3) and the Gram
+    matrix G = A^T A (xx yy zz xy xz yz), by an elementwise Cholesky factorisation G =
+    L L^T. The force is ``work.force``."""
+    bx, by, bz, g00, g11, g22, g01, g02, g12 = work.rows
+    y, force = work.y, work.force
+    y0, y1, y2 = work.y_rows
+    fx, fy, fz = work.force_rows
+    i00 = _ONE / np.sqrt(g00)
     l10, l20 = g01 * i00, g02 * i00
-    i11 = 1.0 / np.sqrt(g11 - l10 * l10)
+    i11 = _ONE / np.sqrt(g11 - l10 * l10)
     l21 = (g12 - l20 * l10) * i11
-    i22 = 1.0 / np.sqrt(g22 - l20 * l20 - l21 * l21)
-    y0 = bx * i00
-    y1 = (by - l10 * y0) * i11
-    y2 = (bz - l20 * y0 - l21 * y1) * i22
-    fz = y2 * i22
-    fy = (y1 - l21 * fz) * i11
-    fx = (y0 - l10 * fy - l20 * fz) * i00
-    return fx, fy, fz, y0 * y0 + y1 * y1 + y2 * y2
+    i22 = _ONE / np.sqrt(g22 - l20 * l20 - l21 * l21)
+    np.multiply(bx, i00, y0)
+    np.multiply(by - l10 * y0, i11, y1)
+    np.multiply(bz - l20 * y0 - l21 * y1, i22, y2)
+    np.multiply(y2, i22, fz)
+    np.multiply(y1 - l21 * fz, i11, fy)
+    np.multiply(y0 - l10 * fy - l20 * fz, i00, fx)
+    return force, np.add.reduce(y * y, axis=0)
 
 
-def _coarse_fit(v: np.ndarray, rr: float, normals: np.ndarray, cone_cos2: float
-                ) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
-    """Fit the force at the surface samples (see :func:`_fit`), without the search
-    along the cone's boundary: a sample whose least-squares force does not push into
-    the surface within the cone explains nothing (error |r|). Return the squared
-    errors [Nm^2] (m, n) and forces (fx, fy, fz) [N]."""
-    fx, fy, fz, gain = _solve(v)
-    nx, ny, nz = normals
-    inward = -(nx * fx + ny * fy + nz * fz)
-    feasible = (inward > 0) & (inward * inward >= cone_cos2 * (fx * fx + fy * fy + fz * fz))
-    gain *= feasible
-    return rr - gain, (fx, fy, fz)
+def _coarse_fit(work: _Scratch, rr: np.ndarray, inward: np.ndarray, cone: _Cone
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Fit the force at the surface samples (see :func:`_fit`; ``inward`` their unit
+    inward normals (3, m, n), zero at padding), without the search along the cone's
+    boundary: a sample whose least-squares force does not push into the surface within
+    the cone explains nothing (error |r|). Return the squared errors [Nm^2] (m, n) and
+    forces [N] (3, m, n)."""
+    force, gain = _solve(work)
+    push = np.add.reduce(inward * force, axis=0)
+    feasible = (push > _ZERO) & (push * push >= cone.cos2 * np.add.reduce(force * force, axis=0))
+    return rr - np.where(feasible, gain, _ZERO), force
 
 
-def _fit(v: np.ndarray, rr: float, normals: np.ndarray, cone: tuple[float, float]
+def _fit(work: _Scratch, rr: np.ndarray, inward: np.ndarray, cone: _Cone
          ) -> tuple[np.ndarray, np.ndarray]:
     """Fit the force at candidate points, m links x n points each, on one face plane
     per link, and return each point's residual error [Nm] (m, n) and force [N] (3, m,
-    n, link frame).
+    n, link frame; ``work.force``).
 
-    ``v`` (9, m, n): per point b = A^T r (3) and the Gram matrix's entries (xx yy zz
-    xy xz yz); ``rr`` = |r|^2 [Nm^2]; the unit outward ``normals`` (3, m, 1) of each
-    link's face; ``cone`` the cosine and sine of the friction cone's half-angle. The
-    force is the least-squares one if it lies in the cone, else the best one along
+    ``work.fitted`` (9, m, n): per point b = A^T r (3) and the Gram matrix's entries
+    (xx yy zz xy xz yz); ``rr`` = |r|^2 [Nm^2] (0-d); the unit ``inward`` normals (3,
+    m, 1) of each link's face; ``cone`` the friction cone's half-angle. The force is
+    the least-squares one if it lies in the cone, else the best one along
     the cone's boundary ray nearest to it (in the plane of the normal and the free
     force). That search is made only where a point's free gain beats its link's best
     feasible one; any other point outside the cone cannot be its link's best, and
     its error is given as |r| (its force as the free one)."""
-    fx, fy, fz, gain = _solve(v)
-    nx, ny, nz = normals
-    cos, sin = cone
-    inward = -(nx * fx + ny * fy + nz * fz)
-    size2 = fx * fx + fy * fy + fz * fz
-    feasible = (inward > 0) & (inward * inward >= cos * cos * size2)
-    gain_in = gain * feasible
-    force = np.array([fx, fy, fz])
-    search = gain > gain_in.max(axis=1, keepdims=True)
-    if search.any():
-        bx, by, bz, g00, g11, g22, g01, g02, g12 = v
-        # the boundary ray: cos (-n) + sin (the free force's unit component along the face)
-        scale = sin / (np.sqrt(np.maximum(size2 - inward * inward, 0.0)) + TINY)
-        dx = (fx + inward * nx) * scale - cos * nx
-        dy = (fy + inward * ny) * scale - cos * ny
-        dz = (fz + inward * nz) * scale - cos * nz
-        pushed = np.maximum(bx * dx + by * dy + bz * dz, 0.0)
-        size = pushed / (dx * dx * g00 + dy * dy * g11 + dz * dz * g22
-                         + 2.0 * (dx * dy * g01 + dx * dz * g02 + dy * dz * g12))
-        gain_in = np.where(search, pushed * size, gain_in)
-        np.copyto(force, np.array([dx, dy, dz]) * size, where=search)
-    return np.sqrt(np.maximum(rr - gain_in, 0.0)), force
+    force, gain = _solve(work)
+    push = np.add.reduce(inward * force, axis=0)
+    size2 = np.add.reduce(force * force, axis=0)
+    feasible = (push > _ZERO) & (push * push >= cone.cos2 * size2)
+    gain_in = np.where(feasible, gain, _ZERO)
+    search = (gain > np.maximum.reduce(gain_in, axis=1, keepdims=True)).ravel().nonzero()[0]
+    if search.size:
+        # the few points searched, gathered, and written back through flat views
+        # (gain_in is fresh, the force contiguous)
+        flat_force = force.reshape(3, -1)
+        gain_in.ravel()[search], flat_force[:, search] = _boundary(
+            work.fitted.reshape(9, -1).take(search, axis=1),
+            inward[:, :, 0].take(search // force.shape[2], axis=1), cone,
+            flat_force.take(search, axis=1), push.ravel().take(search), size2.ravel().take(search))
+    return np.sqrt(np.maximum(rr - gain_in, _ZERO)), force
+
+
+def _boundary(v: np.ndarray, inward: np.ndarray, cone: _Cone, force: np.ndarray,
+              push: np.ndarray, size2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the gain [Nm^2] (k,) and force [N] (3, k) of the best force along the
+    cone's boundary ray nearest to the free least-squares ``force`` (3, k), at k points
+    with ``v`` (9, k) (see :func:`_fit`), unit ``inward`` normals (3, k), the free
+    force's inward component ``push`` [N] (k,) and squared size ``size2`` [N^2] (k,)."""
+    # the boundary ray: cos n_in + sin (the free force's unit component along the face)
+    scale = cone.sin / (np.sqrt(np.maximum(size2 - push * push, _ZERO)) + _TINY)
+    ray = (force - push * inward) * scale + cone.cos * inward
+    pushed = np.maximum(np.add.reduce(v[:3] * ray, axis=0), _ZERO)
+    # ray^T G ray from the products of its components (xx yy zz xy xz yz) and G's entries
+    terms = ray.take(_PAIRS_A, axis=0) * ray.take(_PAIRS_B, axis=0) * v[3:]
+    size = pushed / (np.add.reduce(terms[:3], axis=0) + _TWO * np.add.reduce(terms[3:], axis=0))
+    return pushed * size, ray * size
 
 
 def sample_surface(surface: Surface, spacing_m: float = DEFAULT_SPACING_M) -> SurfaceSamples:
@@ -323,6 +360,20 @@ class IsolatorConfig:
     ambiguous_below: float = 0.2
 
 
+class _Coarse(NamedTuple):
+    """The fit at the samples of the surface links from row ``first`` (index into the
+    links with a surface) on, L of them (padded to the longest, n): squared errors
+    ``err`` [Nm^2] (L, n), forces [N] (3, L, n, link frames; the isolator's arrays,
+    valid until its next update), each link's best sample ``best`` (L,) and its error
+    ``errors`` [Nm] (L,); errors in noise units."""
+
+    first: int
+    err: np.ndarray
+    forces: np.ndarray
+    best: np.ndarray
+    errors: np.ndarray
+
+
 class ContactIsolator:
     """Single-contact isolation and identification (see the module docstring).
 
@@ -348,10 +399,11 @@ class ContactIsolator:
         self._surface = {k for k, _ in parts}
         self._bare = [k for k, s in enumerate(self.samples) if s is None]
         self._counts = np.array([len(s.points) for _, s in parts], dtype=np.int64)
-        # every link's samples padded to the longest with copies of its first sample,
-        # whose errors are set to inf (never a link's best)
-        width = int(self._counts.max()) if parts else 0
-        self._pad = np.arange(width)[None, :] >= self._counts[:, None]    # (L, n)
+        # every link's samples padded to the longest with copies of its first sample
+        # whose normal is zero: no force lies in its cone, so its error is |r| and, pads
+        # coming last, never a link's best before a real sample (ties go to the first)
+        self._width = width = int(self._counts.max()) if parts else 0
+        pad = np.arange(width)[None, :] >= self._counts[:, None]          # (L, n)
         fill = [np.minimum(np.arange(width), np.where(np.arange(width) < len(s.points),
                                                       width, 0)) for _, s in parts]
 
@@ -360,16 +412,30 @@ class ContactIsolator:
                 if parts else np.zeros((0, 0, 3))
 
         self._points = padded(lambda s: s.points)                          # (L, n, 3)
-        self._normals = padded(lambda s: s.normals).transpose(2, 0, 1).copy()  # (3, L, n)
+        inward = -padded(lambda s: s.normals).transpose(2, 0, 1)          # (3, L, n)
+        inward[:, pad] = 0.0
+        self._inward = inward.copy()
         self._monomials = _monomials(self._points)                         # (L, 10, n)
-        # each sample's first refinement grid p + s u + t v, |s|, |t| <= its half-width
+        # each sample's first refinement grid p + s u + t v, |s|, |t| <= its half-width;
+        # the per-sample tables flat (sample l * n + i) for one take per update
         half = GRIDS[0][1] * config.spacing_m
         self._lifted = _lift(np.stack([self._points, padded(lambda s: s.tangents[0]) * half,
                                        padded(lambda s: s.tangents[1]) * half],
-                                      axis=-1))                            # (L, n, 10, 6)
+                                      axis=-1)).reshape(-1, 10, 6)         # (L n, 10, 6)
+        self._inward_flat = self._inward.reshape(3, -1)                    # (3, L n)
         half = np.radians(config.cone_deg)
-        self._cone = (float(np.cos(half)), float(np.sin(half)))
+        self._cone = _Cone(float(np.cos(half)), float(np.sin(half)))
         self._grids = [_grid_monomials(side) for side, _ in GRIDS]
+        # each grid's (s, t) offsets (2, n) and, past the first (centred per link), the
+        # buffer of its monomials (REFINE_LINKS, 6, n), row 0 the ones
+        self._planes = [grid[1:3] * (h / GRIDS[0][1]) for grid, (_, h) in zip(self._grids, GRIDS,
+                                                                             strict=True)]
+        self._grid_buffers = {i: np.ones((REFINE_LINKS, 6, grid.shape[1]))
+                              for i, grid in enumerate(self._grids) if i}
+        self._all_rows = np.arange(len(parts))
+        self._link_list = self._links.tolist()
+        self._weights_at_rest = self._weights(None)
+        self._scratch: dict[tuple[int, int, int], _Scratch] = {}
 
     def estimate(self, t: float, q: np.ndarray, r: np.ndarray,
                  threshold: np.ndarray | None = None) -> ContactEstimate:
@@ -378,42 +444,45 @@ class ContactIsolator:
         contact detector's threshold (7,) [Nm] at that sample (it grows with the
         motion that the model gets wrong; default: the detector's floor at rest)."""
         r = np.asarray(r, dtype=float)
-        norm = float(np.linalg.norm(r))
+        norm = math.sqrt(float(r @ r))
         if norm < self.config.min_residual_nm:
             return ContactEstimate(t, TOO_SMALL, residual_nm=norm)
         model, data = self.model, self.data
         pin.computeJointJacobians(model, data, np.asarray(q, dtype=float))
-        pin.updateFramePlacements(model, data)
-        jac = np.stack([pin.getFrameJacobian(model, data, fid, pin.LOCAL)
-                        for fid in self.frames])                   # (7, 6, 7) link frames
-        # each joint's torque in units of its noise (so are all errors below): the
-        # residual's noise at rest and a share of the detector's threshold (model error)
-        share = self.config.threshold_share * (MIN_NOISE if threshold is None
-                                               else np.asarray(threshold, dtype=float))
-        weights = 1.0 / np.sqrt(self._noise2 + share * share)
+        jac = np.empty((N_JOINTS, 6, N_JOINTS))                    # (7, 6, 7) link frames
+        for k, fid in enumerate(self.frames):
+            jac[k] = pin.getFrameJacobian(model, data, fid, pin.LOCAL)
+        # each joint's torque in units of its noise (so are all errors below)
+        weights = self._weights_at_rest if threshold is None else self._weights(threshold)
         weighted, rw = jac * weights, r * weights
         rr = float(rw @ rw)
-        errors = np.full(N_JOINTS, np.inf)
-        wrenches = {}
-        for k in self._bare:
-            errors[k], wrenches[k] = _wrench_fit(weighted[k], rw)
         coeffs = _coefficients(weighted, rw)                       # (7, 9, 10)
         # a link's error is at least the residual on the joints after it: links whose
         # bound leaves them no chance are not searched unless the decision needs them
-        bound = np.sqrt(np.maximum(rr - np.cumsum(rw * rw), 0.0))
-        errors[self._links] = bound[self._links]
+        bound, seen = [], 0.0
+        for x in (rw * rw).tolist():
+            seen += x
+            bound.append(math.sqrt(max(rr - seen, 0.0)))
+        errors = np.array(bound)
+        wrenches = {}
+        for k in self._bare:
+            errors[k], wrenches[k] = _wrench_fit(weighted[k], rw)
         tie = self.config.tie
         limit = PRUNE_SHARE * rr + tie * tie * N_JOINTS
-        reach = [k not in self._surface or b * b <= limit for k, b in enumerate(bound.tolist())]
-        rows = np.flatnonzero(np.array(reach)[self._links])
-        errors, fits, middle = self._search(rows, coeffs, rr, errors.copy())
+        reach = [k not in self._surface or b * b <= limit for k, b in enumerate(bound)]
+        # the bound does not grow along the chain: the links searched are those from
+        # the first one within reach on
+        first = next((i for i, k in enumerate(self._link_list) if reach[k]),
+                     len(self._link_list))
+        coarse = self._coarse(coeffs, rr, first)
+        fits = self._search(coarse, coeffs, rr, errors)
         last, link, other = _decide(errors.tolist(), tie)
         if not (reach[last] and reach[link] and reach[other]):
-            rows = np.arange(len(self._links))
-            errors, fits, middle = self._search(rows, coeffs, rr, errors)
+            coarse = self._coarse(coeffs, rr, 0)
+            fits = self._search(coarse, coeffs, rr, errors)
             last, link, other = _decide(errors.tolist(), tie)
         e_link, e_other = float(errors[link]), float(errors[other])
-        rival = np.isfinite(e_other)
+        rival = math.isfinite(e_other)
         # the errors are in noise units: 1 is the noise floor
         confidence = min(max(1.0 - (e_link + 1.0) / (e_other + 1.0), 0.0), 1.0) \
             if rival else 1.0
@@ -425,88 +494,110 @@ class ContactIsolator:
                       confidence=confidence, ambiguous=confidence < self.config.ambiguous_below)
         if link in fits and link + 1 < MIN_DETERMINED:
             # the point is undetermined: report the middle one (the error is the best's)
-            fits[link] = self._middle(link, *middle)
+            fits[link] = self._middle(link, coarse)
         if link not in fits:
             return ContactEstimate(t, NO_SURFACE, **common)
         point, force = fits[link]
-        placement = data.oMf[self.frames[link]]
+        placement = pin.updateFramePlacement(model, data, self.frames[link])
         return ContactEstimate(t, OK, point_link=point,
                                point_base=placement.rotation @ point + placement.translation,
                                force=placement.rotation @ force, **common)
 
-    def _search(self, rows: np.ndarray, coeffs: np.ndarray, rr: float, errors: np.ndarray
-                ) -> tuple[np.ndarray, dict[int, tuple[np.ndarray, np.ndarray]], tuple]:
-        """Search the samples of the surface links ``rows`` (indices into the links with
-        a surface) and refine the best ones; ``coeffs`` (7, 9, 10) are every link's fit
-        coefficients, ``errors`` [Nm] (7,) the links' errors so far (updated in place).
-        Return the errors, link index -> refined (point [m], force [N]) in the link
-        frame, and what :meth:`_middle` needs: the rows, their samples' squared errors
-        [Nm^2] (rows, n), forces [N] (3 of (rows, n)) and best samples (rows,)."""
-        every = len(rows) == len(self._links)
-        monomials, normals, pad = ((self._monomials, self._normals, self._pad) if every else
-                                   (self._monomials[rows], self._normals[:, rows],
-                                    self._pad[rows]))
-        fitted = np.empty((9, len(rows), monomials.shape[2]))
-        np.matmul(coeffs[self._links[rows]], monomials, out=fitted.transpose(1, 0, 2))
-        err, forces = _coarse_fit(fitted, rr, normals, self._cone[0] ** 2)
-        np.copyto(err, np.inf, where=pad)
-        best = np.argmin(err, axis=1)
-        errors[self._links[rows]] = np.sqrt(np.maximum(err[np.arange(len(rows)), best], 0.0))
-        return errors, self._refine(rows, coeffs, rr, best, errors), (rows, err, forces, best)
+    def _weights(self, threshold: np.ndarray | None) -> np.ndarray:
+        """Return each joint's weight [1/Nm] (7,): one over its noise, the residual's
+        noise at rest and a share of the detector's ``threshold`` [Nm] (7,; None: its
+        floor at rest) in quadrature (the threshold stands for model error)."""
+        share = self.config.threshold_share * (MIN_NOISE if threshold is None
+                                               else np.asarray(threshold, dtype=float))
+        return 1.0 / np.sqrt(self._noise2 + share * share)
 
-    def _refine(self, searched: np.ndarray, coeffs: np.ndarray, rr: float, best: np.ndarray,
-                errors: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-        """Refine the best links' points (see the module docstring, step 3) from the best
-        sample ``best`` of each searched row ``searched``; ``coeffs`` (7, 9, 10) are
-        every link's fit coefficients. Update ``errors`` [Nm] (per link) in place and
-        return link index -> (point [m], force [N]) in the link frame, for the refined
-        links."""
-        links = self._links[searched]
-        order = np.argsort(errors[links])[:REFINE_LINKS]
+    def _coarse(self, coeffs: np.ndarray, rr: float, first: int) -> _Coarse:
+        """Return the fit at the samples of the surface links from row ``first`` (index
+        into the links with a surface) on, from every link's fit coefficients ``coeffs``
+        (7, 9, 10) and ``rr`` = |r|^2 [Nm^2] (see :func:`_coarse_fit`)."""
+        monomials = self._monomials[first:]
+        work = self._work(-1, *monomials.shape[::2])
+        np.matmul(coeffs[self._links[first:]], monomials, out=work.into)
+        err, forces = _coarse_fit(work, np.array(rr), self._inward[:, first:], self._cone)
+        return _Coarse(first, err, forces, err.argmin(axis=1),
+                      np.sqrt(np.maximum(np.minimum.reduce(err, axis=1), _ZERO)))
+
+    def _search(self, coarse: _Coarse, coeffs: np.ndarray, rr: float, errors: np.ndarray
+                ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Search the surface links of the ``coarse`` fit: set their ``errors`` [Nm] (7,;
+        in place) to their coarse fits' and refine the best ones; ``coeffs`` (7, 9, 10)
+        are every link's fit coefficients. Return link index -> refined (point [m],
+        force [N]) in the link frame."""
+        errors[self._links[coarse.first:]] = coarse.errors
+        return self._refine(coarse, coeffs, rr, errors)
+
+    def _refine(self, coarse: _Coarse, coeffs: np.ndarray, rr: float, errors: np.ndarray
+                ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Refine the best links' points (see the module docstring, step 3) from their
+        best samples in the ``coarse`` fit; ``coeffs`` (7, 9, 10) are every link's fit
+        coefficients. Update ``errors`` [Nm] (per link) in place and return link index
+        -> (point [m], force [N]) in the link frame, for the refined links."""
+        links = self._links[coarse.first:]
+        order = errors[links].argsort()[:REFINE_LINKS]
         reach = links[order]
-        rows, at = searched[order], best[order]
+        count = len(reach)
         # the grids' points are p0 + s u + t v with (s, t) in units of the first grid's
         # half-width: their monomials are those of (s, t) times a matrix precomputed
         # per sample; each further grid is centred on the previous one's best point
-        lifted = self._lifted[rows, at]
+        at = (order + coarse.first) * self._width + coarse.best[order]   # flat samples
+        lifted = self._lifted.take(at, axis=0)                            # (m, 10, 6)
         fit_coeffs = coeffs[reach] @ lifted                               # (m, 9, 6)
-        normals = self._normals[:, rows, at][:, :, None]
-        m = np.arange(len(reach))
-        centre = np.zeros((len(reach), 2, 1))
-        for i, ((_, half), grid) in enumerate(zip(GRIDS, self._grids, strict=True)):
-            plane = grid[1:3] * (half / GRIDS[0][1])                      # (2, n)
-            if i:
-                plane = centre + plane                                    # (m, 2, n)
-                s_, t_ = plane[:, 0], plane[:, 1]
-                grid = np.stack([np.ones_like(s_), s_, t_, s_ * s_, t_ * t_, s_ * t_], axis=1)
-            fitted = np.empty((9, len(reach), grid.shape[-1]))
-            np.matmul(fit_coeffs, grid, out=fitted.transpose(1, 0, 2))
-            local_err, local_force = _fit(fitted, rr, normals, self._cone)
-            local_best = np.argmin(local_err, axis=1)
-            centre = (plane[:, local_best].T if plane.ndim == 2
-                      else plane[m, :, local_best])[:, :, None]
-        points = lifted[:, 1:4, 0] + np.einsum("mia,ma->mi", lifted[:, 1:4, 1:3], centre[:, :, 0])
-        errors[reach] = local_err[m, local_best]
-        forces = local_force[:, m, local_best].T
+        inward = self._inward_flat.take(at, axis=1)[:, :, None]          # (3, m, 1)
+        centre, rr0 = np.zeros((count, 2, 1)), np.array(rr)
+        for i, plane in enumerate(self._planes):
+            grid = self._grids[0] if i == 0 else self._centred(i, count, centre)
+            work = self._work(i, count, plane.shape[1])
+            np.matmul(fit_coeffs, grid, out=work.into)
+            local_err, local_force = _fit(work, rr0, inward, self._cone)
+            local_best = local_err.argmin(axis=1)
+            centre = centre + plane.take(local_best, axis=1).T[:, :, None]
+        axes, s, t = lifted[:, 1:4], centre[:, 0], centre[:, 1]          # p0 u v; (m, 1)
+        points = axes[:, :, 0] + (axes[:, :, 1] * s + axes[:, :, 2] * t)
+        errors[reach] = np.minimum.reduce(local_err, axis=1)
+        flat = local_best + self._all_rows[:count] * local_err.shape[1]
+        forces = local_force.reshape(3, -1).take(flat, axis=1).T
         return {k: (points[i], forces[i]) for i, k in enumerate(reach.tolist())}
 
-    def _middle(self, k: int, rows: np.ndarray, err: np.ndarray,
-                forces: tuple[np.ndarray, ...], best: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:
+    def _work(self, stage: int, m: int, n: int) -> _Scratch:
+        """Return this instance's arrays for m x n candidate points of a ``stage`` (-1:
+        the samples, 0, 1, ...: the refinement grids), made once: one stage's results
+        stay valid while the next ones run."""
+        key = (stage, m, n)
+        work = self._scratch.get(key)
+        if work is None:
+            work = self._scratch[key] = _Scratch(m, n)
+        return work
+
+    def _centred(self, i: int, count: int, centre: np.ndarray) -> np.ndarray:
+        """Return the monomials 1, s, t, ss, tt, st (count, 6, n) of grid ``i``'s (s, t)
+        offsets centred on each link's ``centre`` (count, 2, 1) (first grid's units),
+        in grid ``i``'s buffer."""
+        grid = self._grid_buffers[i][:count]
+        plane = grid[:, 1:3]
+        np.add(centre, self._planes[i], out=plane)
+        np.multiply(plane, plane, out=grid[:, 3:5])
+        np.multiply(plane[:, 0], plane[:, 1], out=grid[:, 5])
+        return grid
+
+    def _middle(self, k: int, coarse: _Coarse) -> tuple[np.ndarray, np.ndarray]:
         """Return the point [m] and force [N] (link frame) reported on link index ``k``
         (fewer than 5 loaded joints: the point is undetermined): the sample nearest
-        the middle of the link's samples whose coarse error [Nm] (from the squared
-        errors ``err`` [Nm^2] of the searched ``rows``) is within ``tie_nm`` of its
-        best, with its coarse ``forces``."""
-        row = int(np.searchsorted(self._links, k))
-        at = rows.tolist().index(row)
-        coarse = err[at, :self._counts[row]]
-        reach = (np.sqrt(max(float(coarse[best[at]]), 0.0)) + self.config.tie) ** 2
-        close = np.flatnonzero(coarse <= reach)
+        the middle of the link's samples whose ``coarse`` error [Nm] is within ``tie``
+        of its best, with its coarse force."""
+        row = self._link_list.index(k)
+        at = row - coarse.first
+        err = coarse.err[at, :self._counts[row]]
+        reach = (math.sqrt(max(float(err[coarse.best[at]]), 0.0)) + self.config.tie) ** 2
+        close = (err <= reach).nonzero()[0]
         points = self._points[row, close]
-        offset = points - points.sum(axis=0) / len(close)
-        mid = close[int(np.argmin((offset * offset).sum(axis=1)))]
-        return self._points[row, mid].copy(), np.array([f[at, mid] for f in forces])
+        offset = points - np.add.reduce(points, axis=0) / len(close)
+        mid = close[int(np.add.reduce(offset * offset, axis=1).argmin())]
+        return self._points[row, mid].copy(), coarse.forces[:, at, mid].copy()
 
 
 def _grid_monomials(side: int) -> np.ndarray:
@@ -595,7 +686,8 @@ def _torque_error(jac: np.ndarray, r: np.ndarray, fit: tuple[np.ndarray, np.ndar
         wrench = np.array([fx, fy, fz, py * fz - pz * fy, pz * fx - px * fz, px * fy - py * fx])
     if wrench is None:
         return float("nan")
-    return float(np.linalg.norm(r - jac.T @ wrench))
+    miss = r - jac.T @ wrench
+    return math.sqrt(float(miss @ miss))
 
 
 def _wrench_fit(jac: np.ndarray, r: np.ndarray) -> tuple[float, np.ndarray]:
