@@ -723,7 +723,7 @@ class EventTrack:
         """Feed one sample of the event: time [s], q [rad] (7,), deviation of the
         residual from its contact-free baseline e [Nm] (7,) and the detector's
         threshold [Nm] (7,) (see :meth:`ContactIsolator.estimate`)."""
-        norm = float(np.linalg.norm(e))
+        norm = math.sqrt(float(e @ e))  # |e|, as np.linalg.norm computes it
         if norm > self._peak_norm:
             self._peak_norm = norm
             self._pending = (t, np.array(q, dtype=float), np.array(e, dtype=float),

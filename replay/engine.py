@@ -159,6 +159,10 @@ class ReplayStream:
         self.batch_rows = batch_rows or BATCH_ROWS
         self._predict_proba = model.online_predictor()
         self.classes = model.classes
+        self._none_proba = (np.array(self.classes) == NONE).astype(float) \
+            if NONE in self.classes else None
+        """A hop's probabilities outside a detected contact: 1 for ``none`` (None for a
+        model without that class)."""
         self.transformer = model.online_transformer()
         model.check_features(list(self.transformer.get_feature_names_out()))
         timeseries, self.window_s = self.transformer.timeseries, float(self.transformer.window_s)
@@ -320,20 +324,21 @@ class ReplayStream:
             return []
         rows = self.transformer.online_rows(t, values, offset + np.asarray(hops))
         window_probas = self._predict_proba(rows)
-        predictions = []
-        for k, window_proba in zip(hops, window_probas, strict=True):
-            proba = window_proba
-            if labels is not None and labels[k] == NONE and NONE in self.classes:
-                proba = (np.array(self.classes) == NONE).astype(float)
-            label = self.classes[int(np.argmax(proba))]
-            at = float(t[offset + k])
-            self.pred_t.append(at)
-            self.pred_sample.append(start + k)
-            self.pred_proba.append(proba)
-            self.pred_window_proba.append(window_proba)
-            self.pred_label.append(label)
-            predictions.append((at, start + k, proba, label))
-        return predictions
+        probas = list(window_probas)
+        chosen = np.argmax(window_probas, axis=1).tolist()
+        if labels is not None and self._none_proba is not None:  # gated outside contacts
+            for i in np.flatnonzero(labels[hops] == NONE).tolist():
+                probas[i] = self._none_proba.copy()
+                chosen[i] = self.classes.index(NONE)
+        at = t[offset + np.asarray(hops)].tolist()
+        samples = [start + k for k in hops]
+        chosen = [self.classes[i] for i in chosen]
+        self.pred_t += at
+        self.pred_sample += samples
+        self.pred_proba += probas
+        self.pred_window_proba += list(window_probas)
+        self.pred_label += chosen
+        return list(zip(at, samples, probas, chosen, strict=True))
 
     def run(self) -> ReplayStream:
         """Process the whole session at once; return self."""

@@ -50,6 +50,7 @@ The class colours here are the project's palette: the stats report uses them too
 
 from __future__ import annotations
 
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -109,30 +110,40 @@ def _colors(classes: list[str]) -> list[tuple[int, int, int]]:
 
 def log_series_styles(rec: rr.RecordingStream, classes: list[str] | None = None) -> None:
     """Log static names and colours of every series and state lane (once per recording)."""
-    for path in (Q, DQ, TAU, RESIDUAL):
-        rec.log(path, rr.SeriesLines(names=JOINT_NAMES, colors=JOINT_COLORS), static=True)
-    rec.log(ROBOT_ESTIMATE, rr.SeriesLines(names=[f"robot -tau_ext_hat {n}" for n in JOINT_NAMES],
-                                           colors=JOINT_COLORS, widths=[0.75] * 7),
-            static=True)
-    for path, names in ((FORCE, ["f_x", "f_y", "f_z"]), (MOMENT, ["m_x", "m_y", "m_z"]),
-                        (TRUE_FORCE, ["applied f_x", "applied f_y", "applied f_z"])):
-        rec.log(path, rr.SeriesLines(names=names, colors=AXIS_COLORS), static=True)
-    rec.log(FORCE_NORM, rr.SeriesLines(names=["estimated |f|"], colors=[ESTIMATE_COLOR],
-                                       widths=[2.0]), static=True)
-    rec.log(MOMENT_NORM, rr.SeriesLines(names=["estimated |m|"], colors=[ESTIMATE_COLOR]),
-            static=True)
+    for path, style in _series_styles(tuple(classes or ())):
+        rec.log(path, style, static=True)
+
+
+@cache
+def _series_styles(classes: tuple[str, ...]) -> tuple[tuple[str, rr.AsComponents], ...]:
+    """Return (entity path, style) of every series and state lane for the ``classes``:
+    built once per process and set of classes (Rerun converts each style's values to
+    Arrow as it builds it), logged again into every recording."""
+    styles: list[tuple[str, rr.AsComponents]] = [
+        (path, rr.SeriesLines(names=JOINT_NAMES, colors=JOINT_COLORS))
+        for path in (Q, DQ, TAU, RESIDUAL)]
+    styles.append((ROBOT_ESTIMATE, rr.SeriesLines(
+        names=[f"robot -tau_ext_hat {n}" for n in JOINT_NAMES], colors=JOINT_COLORS,
+        widths=[0.75] * 7)))
+    styles += [(path, rr.SeriesLines(names=names, colors=AXIS_COLORS))
+               for path, names in ((FORCE, ["f_x", "f_y", "f_z"]),
+                                   (MOMENT, ["m_x", "m_y", "m_z"]),
+                                   (TRUE_FORCE, ["applied f_x", "applied f_y",
+                                                 "applied f_z"]))]
+    styles.append((FORCE_NORM, rr.SeriesLines(names=["estimated |f|"], colors=[ESTIMATE_COLOR],
+                                              widths=[2.0])))
+    styles.append((MOMENT_NORM, rr.SeriesLines(names=["estimated |m|"],
+                                               colors=[ESTIMATE_COLOR])))
     if classes:
-        rec.log(PROBABILITY, rr.SeriesLines(names=classes, colors=_colors(classes)),
-                static=True)
-        rec.log(PREDICTED, rr.StateConfiguration(values=classes, labels=classes,
-                                                 colors=_colors(classes)), static=True)
-        rec.log(CONTACT_EVENTS, rr.StateConfiguration(values=classes, labels=classes,
-                                                      colors=_colors(classes)), static=True)
-    rec.log(TRUE_CONTACT, rr.StateConfiguration(values=list(CONTACT_COLORS),
-                                                colors=list(CONTACT_COLORS.values())),
-            static=True)
-    rec.log(WINDOW, rr.StateConfiguration(values=["window"], colors=[WINDOW_COLOR]),
-            static=True)
+        names = list(classes)
+        styles.append((PROBABILITY, rr.SeriesLines(names=names, colors=_colors(names))))
+        styles += [(path, rr.StateConfiguration(values=names, labels=names,
+                                                colors=_colors(names)))
+                   for path in (PREDICTED, CONTACT_EVENTS)]
+    styles.append((TRUE_CONTACT, rr.StateConfiguration(values=list(CONTACT_COLORS),
+                                                       colors=list(CONTACT_COLORS.values()))))
+    styles.append((WINDOW, rr.StateConfiguration(values=["window"], colors=[WINDOW_COLOR])))
+    return tuple(styles)
 
 
 def log_state_spans(rec: rr.RecordingStream, path: str, starts: np.ndarray,
@@ -186,29 +197,50 @@ def log_contact_lane(rec: rr.RecordingStream, t: np.ndarray, sample: np.ndarray,
 def log_robot_model(rec: rr.RecordingStream, urdf_file: str | Path) -> rr.urdf.UrdfTree:
     """Log the robot's geometry and the static transforms of all its joints (movable
     joints at zero: the fingers stay there) from a URDF; return its tree."""
-    tree = rr.urdf.UrdfTree.from_file_path(urdf_file, entity_path_prefix=ROBOT)
+    stat = Path(urdf_file).stat()
+    tree = _urdf_tree(str(urdf_file), stat.st_mtime_ns, stat.st_size)
     tree.log_urdf_to_recording(rec)
     return tree
 
 
+@cache
+def _urdf_tree(urdf_file: str, mtime_ns: int, size: int) -> rr.urdf.UrdfTree:
+    """Return the tree of a URDF file, parsed once per process while the file's
+    modification time [ns] and size [bytes] stay the same."""
+    return rr.urdf.UrdfTree.from_file_path(urdf_file, entity_path_prefix=ROBOT)
+
+
 def log_force_arrow_style(rec: rr.RecordingStream) -> None:
     """Log that the force arrow lives in the base frame, and its colour and radius."""
-    rec.log(EE_FORCE, rr.CoordinateFrame(BASE_FRAME),
-            rr.Arrows3D.from_fields(colors=[ESTIMATE_COLOR], radii=[FORCE_ARROW_RADIUS_M]),
-            static=True)
+    rec.log(EE_FORCE, *_force_arrow_style(), static=True)
+
+
+@cache
+def _force_arrow_style() -> tuple[rr.AsComponents, ...]:
+    """Return the force arrow's frame and style (built once per process)."""
+    return (rr.CoordinateFrame(BASE_FRAME),
+            rr.Arrows3D.from_fields(colors=[ESTIMATE_COLOR], radii=[FORCE_ARROW_RADIUS_M]))
 
 
 def log_contact_styles(rec: rr.RecordingStream) -> None:
     """Log that the isolated and the true contact live in the base frame, with their
     colours and sizes (estimate purple, truth green)."""
+    for path, *style in _contact_styles():
+        rec.log(path, *style, static=True)
+
+
+@cache
+def _contact_styles() -> tuple[tuple, ...]:
+    """Return (entity path, frame, style) of the isolated and the true contact's points
+    and arrows (built once per process)."""
+    styles = []
     for point, arrow, color in ((CONTACT_POINT, CONTACT_FORCE, CONTACT_COLOR),
                                 (TRUE_POINT, TRUE_ARROW, TRUTH_COLOR)):
-        rec.log(point, rr.CoordinateFrame(BASE_FRAME),
-                rr.Points3D.from_fields(colors=[color], radii=[CONTACT_POINT_RADIUS_M]),
-                static=True)
-        rec.log(arrow, rr.CoordinateFrame(BASE_FRAME),
-                rr.Arrows3D.from_fields(colors=[color], radii=[FORCE_ARROW_RADIUS_M]),
-                static=True)
+        styles.append((point, rr.CoordinateFrame(BASE_FRAME),
+                       rr.Points3D.from_fields(colors=[color], radii=[CONTACT_POINT_RADIUS_M])))
+        styles.append((arrow, rr.CoordinateFrame(BASE_FRAME),
+                       rr.Arrows3D.from_fields(colors=[color], radii=[FORCE_ARROW_RADIUS_M])))
+    return tuple(styles)
 
 
 def _partitioned(points: np.ndarray, present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
