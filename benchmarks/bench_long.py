@@ -158,11 +158,12 @@ def run_case(case: str, minutes: float, directory: Path, model: Path | None = No
         write(minutes, directory / f"long_{minutes:g}.{suffix}")
         return {}
     if case == "replay":
-        from contactkit.classify.modelfile import load_model
-        from contactkit.cli.default_model import build_default_model
+        from contactkit.cli.default_model import model_or_default
+        from contactkit.cli.replay import pyarrow_without_pandas
         from contactkit.replay.session_replay import replay_session
 
-        replay_model = load_model(model or build_default_model())
+        pyarrow_without_pandas()  # as the console script does
+        replay_model = model_or_default(model)
     elif case == "features":
         from contactkit.features.per_sample import write_per_sample_table
     elif case == "windows":

@@ -36,8 +36,9 @@ ONLINE_BLOCK_VALUES = 1 << 20
 
 class WindowFeatures:
     """Scalar features of a session's interaction window, and of every window a replay
-    classifies online (without scikit-learn: :class:`contactkit.features.extract.SessionFeatures`
-    is this as a scikit-learn transformer).
+    classifies online, without scikit-learn
+    (:class:`contactkit.features.extract.SessionFeatures` is this as a scikit-learn
+    transformer).
 
     Parameters: ``timeseries`` (feature or group names, see
     :mod:`contactkit.features.timeseries`), ``window`` (fixed, planned, difference, change),
@@ -45,9 +46,9 @@ class WindowFeatures:
     ``calibration`` of the detection methods, ``scalars`` (see
     :mod:`contactkit.features.scalars`), ``fft_k``, observer ``gain`` [1/s] and ``friction``,
     ``wrench_frame`` ("ee" or a link 1..7), ``robot`` the arm's model instead of each
-    session's own (None: the session's, see :mod:`contactkit.robots`). Defaults are
-    the thesis's best SVM
-    input: the range of joint velocity, torque and residual in a 0.5 s window.
+    session's own (None: the session's, see :mod:`contactkit.robots`). Defaults are the
+    thesis's best SVM input: the range of joint velocity, torque and residual in a 0.5 s
+    window.
     """
 
     def __init__(self, timeseries: Sequence[str] = DEFAULT_TIMESERIES,
