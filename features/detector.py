@@ -230,6 +230,24 @@ class DetectorState:
         return self._threshold
 
 
+class _JointFloats:
+    """A detector state kept as seven Python floats in the attribute ``name``, given as
+    a new array (7,) and taken from any array-like: the per-sample path works on the
+    floats, :meth:`Detector.run`'s chunks on arrays."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def __get__(self, detector: object, owner: type | None = None
+                ) -> np.ndarray | _JointFloats:
+        """Return the state as an array (the descriptor itself on the class)."""
+        return self if detector is None else np.array(getattr(detector, self.name))
+
+    def __set__(self, detector: object, value: np.ndarray) -> None:
+        """Keep ``value`` as seven floats."""
+        setattr(detector, self.name, np.asarray(value, dtype=float).tolist())
+
+
 class Detector:
     """Streaming contact detector (see the module docstring).
 
@@ -262,41 +280,14 @@ class Detector:
         self._since: float | None = None  # time the pending switch started
         self._onset_joints = np.ones(N_JOINTS, bool)
 
-    @property
-    def baseline(self) -> np.ndarray:
-        """The baseline b [Nm] (7,), a copy."""
-        return np.array(self._baseline)
-
-    @baseline.setter
-    def baseline(self, value: np.ndarray) -> None:
-        self._baseline = np.asarray(value, dtype=float).tolist()
-
-    @property
-    def r_f(self) -> np.ndarray:
-        """The low-passed residual r_f [Nm] (7,) of the last sample, a copy."""
-        return np.array(self._r_f)
-
-    @r_f.setter
-    def r_f(self, value: np.ndarray) -> None:
-        self._r_f = np.asarray(value, dtype=float).tolist()
-
-    @property
-    def ddq_f(self) -> np.ndarray:
-        """The low-passed joint acceleration [rad/s^2] (7,) of the last sample, a copy."""
-        return np.array(self._ddq_f)
-
-    @ddq_f.setter
-    def ddq_f(self, value: np.ndarray) -> None:
-        self._ddq_f = np.asarray(value, dtype=float).tolist()
-
-    @property
-    def dq_prev(self) -> np.ndarray:
-        """The joint velocity [rad/s] (7,) of the last sample, a copy."""
-        return np.array(self._dq_prev)
-
-    @dq_prev.setter
-    def dq_prev(self, value: np.ndarray) -> None:
-        self._dq_prev = np.asarray(value, dtype=float).tolist()
+    baseline = _JointFloats("_baseline")
+    """The baseline b [Nm] (7,), a copy."""
+    r_f = _JointFloats("_r_f")
+    """The low-passed residual r_f [Nm] (7,) of the last sample, a copy."""
+    ddq_f = _JointFloats("_ddq_f")
+    """The low-passed joint acceleration [rad/s^2] (7,) of the last sample, a copy."""
+    dq_prev = _JointFloats("_dq_prev")
+    """The joint velocity [rad/s] (7,) of the last sample, a copy."""
 
     def motion(self, t: float, dq: np.ndarray) -> tuple[float, float]:
         """Advance the motion measures to sample ``t`` [s] with joint velocity ``dq``
