@@ -259,8 +259,9 @@ def load_model(path: str | Path, *, lazy: bool = False) -> ModelFile:
         raise InputError("no such model file", path)
     formats = {get_kind(n).file_format.suffix: get_kind(n).file_format for n in kind_names()}
     file_format = formats.get(path.suffix.lower(), SKOPS)
-    model = _load_lazily(path) if lazy and file_format is SKOPS else None
-    if model is None:
+    if lazy and file_format is SKOPS:
+        model = _load_lazily(path)
+    else:
         estimator, meta = file_format.load(path, lambda meta: _kind_of(meta, path).trusted_types)
         model = ModelFile(estimator, meta, _load_event_estimator(path, meta))
     try:
@@ -274,10 +275,12 @@ def load_model(path: str | Path, *, lazy: bool = False) -> ModelFile:
     return model
 
 
-def _load_lazily(path: Path) -> ModelFile | None:
+def _load_lazily(path: Path) -> ModelFile:
     """Return the model of a skops file from its compiled arrays, its estimator left to
-    be built on first use; None if the file lacks arrays for one of its classifiers."""
+    be built on first use; a file that lacks arrays for one of its classifiers is
+    loaded whole, from the bytes read once."""
     data, meta = read_verified(path)
+    kind = _kind_of(meta, path)
     events = meta.get("events")
     names, classes = meta.get("feature_names"), meta.get("classes")
     if ("online" not in meta or not isinstance(names, list) or not isinstance(classes, list)
@@ -285,8 +288,8 @@ def _load_lazily(path: Path) -> ModelFile | None:
                 isinstance(events, dict) and "online" in events
                 and isinstance(events.get("features"), list)
                 and isinstance(events.get("classes"), list)))):
-        return None
-    kind = _kind_of(meta, path)
+        return ModelFile(build_skops(data, kind.trusted_types, path), meta,
+                         _load_event_estimator(path, meta))
     with zipfile.ZipFile(io.BytesIO(data)) as archive:
         online = read_online(meta["online"], archive.read, len(names), len(classes), path)
         event_online = (None if events is None else
