@@ -159,8 +159,8 @@ class ReplayStream:
         self.batch_rows = batch_rows or BATCH_ROWS
         self._predict_proba = model.online_predictor()
         self.classes = model.classes
-        self._none_proba = (np.array(self.classes) == NONE).astype(float) \
-            if NONE in self.classes else None
+        self._none_proba = ((np.array(self.classes) == NONE).astype(float)
+                            if NONE in self.classes else None)
         """A hop's probabilities outside a detected contact: 1 for ``none`` (None for a
         model without that class)."""
         self.transformer = model.online_transformer()
