@@ -15,7 +15,11 @@ detector). Each against baselines measured in the same run: numpy's norm of one
 wall-clock p99 of a sample is set by the scheduler (a preempted sample waits out
 another process's time slice), so the whole per-sample path is also timed in the
 thread's own CPU time (which adds its clock's ~0.5 us), with the share of samples that
-waited more than 100 us for the CPU.
+waited more than 100 us for the CPU. In a virtual machine the CPU time still counts the
+moments the host runs something else: a sample slow in one pass is mostly fast in the
+next. So the log is run three times from a fresh state (the same work on each sample
+every time), and each sample's fastest CPU time is what the code itself costs; its p99
+is the code's own tail, apart from the machine's.
 
     .venv/bin/python benchmarks/bench_events.py
 """
@@ -45,6 +49,9 @@ from contactkit.robots import RobotSetup
 
 GAZ = Path(__file__).resolve().parents[2] / "shared" / "reference" / "gaz2019-exciting-traj"
 REPEATS = 2000
+PASSES = 3
+"""Live passes over the log: each sample's fastest is the code's cost without the
+machine's jitter."""
 AIM_SAMPLE_US = 100.0
 """Issue 26: chain + detector + event pipeline p99 per sample [us]."""
 AIM_DECISION_US = 1000.0
@@ -98,15 +105,23 @@ def main() -> None:
     r = np.array([chain.update(t[k], q[k], dq[k], tau[k])["r"] for k in range(n)])
     pipeline = EventPipeline(detector)
     per_sample = timed(lambda k: pipeline.update(t[k], r[k], dq[k]), n)
-    chain = TimeseriesChain(robot=robot, names=["r"])
-    pipeline = EventPipeline(detector)
 
-    def both(k: int) -> None:
-        out = chain.update(t[k], q[k], dq[k], tau[k])
-        pipeline.update(t[k], out["r"], dq[k])
+    def live_pass() -> tuple[np.ndarray, np.ndarray, int]:
+        """One pass of a live robot over the log, from a fresh chain and pipeline: wall
+        and CPU time [us] per sample, and the number of events found."""
+        chain = TimeseriesChain(robot=robot, names=["r"])
+        pipeline = EventPipeline(detector)
 
-    with_chain, with_chain_cpu = cpu_timed(both, n)
-    events = len(pipeline.finish())
+        def both(k: int) -> None:
+            out = chain.update(t[k], q[k], dq[k], tau[k])
+            pipeline.update(t[k], out["r"], dq[k])
+
+        return *cpu_timed(both, n), len(pipeline.finish())
+
+    passes = [live_pass() for _ in range(PASSES)]
+    with_chain, with_chain_cpu, events = passes[0]
+    # every pass does the same work on each sample: its fastest is what the code costs
+    fastest = np.min([cpu for _, cpu, _ in passes], axis=0)
 
     def whole_log(_: int) -> None:
         r = TimeseriesChain(robot=robot, names=["r"]).compute(t, q, dq, tau)["r"]
@@ -132,6 +147,8 @@ def main() -> None:
     print(row("event pipeline per sample", per_sample, base))
     print(row("chain + detector + event pipeline per sample", with_chain, base, AIM_SAMPLE_US))
     print(row("the same, CPU time", with_chain_cpu, base, AIM_SAMPLE_US))
+    print(row(f"the same, each sample's fastest of {PASSES} passes", fastest, base,
+              AIM_SAMPLE_US))
     print(row("decision (features + SVM, 0.15 s)", decision, base, AIM_DECISION_US))
     chain_p99 = float(np.percentile(chain_alone, 99))
     print(f"chain + detector + pipeline p99 / chain alone p99: "
