@@ -16,12 +16,20 @@ package itself (:mod:`contactkit.util`) sit below all of them.
 
 from __future__ import annotations
 
-import importlib.metadata
 
-try:
-    __version__ = importlib.metadata.version("contactkit")
-except importlib.metadata.PackageNotFoundError:  # running from a source tree
-    __version__ = "0+unknown"
+def __getattr__(name: str) -> str:
+    """Return ``__version__``, the installed distribution's version ("0+unknown" in a
+    source tree that is not installed), found on first use: reading distributions'
+    metadata imports :mod:`importlib.metadata` (some 35 ms), which most commands never
+    need."""
+    if name != "__version__":
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib.metadata
+
+    try:
+        return importlib.metadata.version("contactkit")
+    except importlib.metadata.PackageNotFoundError:
+        return "0+unknown"
 
 # The version and the subpackages (names only: importing contactkit stays light).
 __all__ = ["__version__", "classify", "cli", "errors", "features", "recorder", "replay",

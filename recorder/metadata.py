@@ -8,7 +8,6 @@ tool version, a fresh session id unless one is given) is added here.
 
 from __future__ import annotations
 
-import importlib.metadata
 from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
@@ -28,11 +27,10 @@ N_LINKS = 7
 
 
 def tool_version() -> str:
-    """Return the installed contactkit version."""
-    try:
-        return importlib.metadata.version("contactkit")
-    except importlib.metadata.PackageNotFoundError:
-        return "0+unknown"
+    """Return the installed contactkit version ("0+unknown" when not installed)."""
+    import contactkit
+
+    return contactkit.__version__
 
 
 def utc_now() -> str:

@@ -72,6 +72,16 @@ def test_help_imports_no_heavy_library(argv) -> None:
     assert sorted(modules & set(HEAVY)) == []
 
 
+@pytest.mark.parametrize("argv", [("recorder", "--help"), ("replay", "--help")])
+def test_help_reads_no_distribution_metadata(argv) -> None:
+    """Versions and entry points come through importlib.metadata, whose import alone
+    takes some 35 ms: these helps need neither (``classify --help`` lists the model
+    kinds that plugins declare, so it looks them up)."""
+    code, modules, out = _modules(*argv)
+    assert code == 0, out
+    assert "importlib.metadata" not in modules
+
+
 def test_recorder_help_loads_no_source() -> None:
     """`recorder --help` lists capture and sources without loading a source (whose
     modules, plugins included, may import robot SDKs and python-can) or the capture's
@@ -114,8 +124,7 @@ def test_a_mistyped_deferred_command_gets_a_suggestion(capsys) -> None:
 
 def test_recorder_info_imports_no_heavy_library(tmp_path: Path) -> None:
     """Nor pandas, which pyarrow imports on ``to_numpy()`` (the session schema reads
-    columns without it). The replay path cannot avoid pandas: scikit-learn imports it,
-    and so does pyarrow on every ``pa.array``, which rerun calls."""
+    columns without it)."""
     session = make_session(tmp_path, duration_s=1.0, planned_at_s=0.5)
     code, modules, out = _loaded("recorder", "info", str(session))
     assert code == 0, out

@@ -19,7 +19,6 @@ limiter has them); the torque-rate limit (1000 Nm/s) is both arms'.
 
 from __future__ import annotations
 
-import importlib.metadata
 from pathlib import Path
 
 import numpy as np
@@ -58,6 +57,8 @@ GAZ_FRICTION = FrictionModel(
 
 def panda_urdf_path() -> Path:
     """Return the path of the Panda URDF shipped by example-robot-data."""
+    import importlib.metadata  # some 35 ms, paid only where the URDF is read
+
     dist = importlib.metadata.distribution("example-robot-data")
     return Path(str(dist.locate_file(_PANDA_URDF)))
 

@@ -23,14 +23,17 @@ A session names its robot in its metadata (``robot``). The name is looked up her
 from __future__ import annotations
 
 import importlib
-import importlib.metadata
 import xml.etree.ElementTree as ET
 from functools import cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from contactkit.errors import InputError
 from contactkit.robots.builtin import BUILTIN
 from contactkit.robots.spec import N_JOINTS, RobotSpec
+
+if TYPE_CHECKING:
+    import importlib.metadata
 
 ENTRY_POINT_GROUP = "contactkit.robots"
 URDF_PREFIX = "urdf:"
@@ -40,6 +43,8 @@ _ALIASES = {alias: spec.name for spec in BUILTIN for alias in spec.aliases}
 
 
 def _plugins() -> dict[str, importlib.metadata.EntryPoint]:
+    import importlib.metadata  # some 35 ms, paid only where plugins are looked for
+
     return {e.name: e for e in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
             if e.name not in _BUILTIN and e.name not in _ALIASES}
 

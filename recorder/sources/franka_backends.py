@@ -11,7 +11,6 @@ field names, so :func:`state_row` reads either.
 from __future__ import annotations
 
 import importlib
-import importlib.metadata
 import importlib.util
 from typing import Any, Protocol
 
@@ -75,6 +74,8 @@ def _import(backend: str) -> Any:
 
 
 def _version(distribution: str) -> str | None:
+    import importlib.metadata  # some 35 ms, paid only where a backend is looked at
+
     try:
         return importlib.metadata.version(distribution)
     except importlib.metadata.PackageNotFoundError:
