@@ -15,6 +15,7 @@ from contactkit.features.scalars import (
     hjorth_mobility,
     scalar_features,
 )
+from contactkit.features.sliding import window_moments
 from contactkit.features.windows import (
     CALIBRATIONS,
     METHODS,
@@ -144,3 +145,23 @@ def test_online_rows_equal_each_window_on_its_own(monkeypatch: pytest.MonkeyPatc
         first = max(0, min(int(np.searchsorted(t, t[k] - 0.05, side="right")), k - 1))
         alone = scalar_features(values[first:k + 1], scalars, features.channels())[0]
         np.testing.assert_allclose(row, alone, rtol=1e-11, atol=1e-12)
+
+
+def test_window_moments_equal_each_window_on_its_own() -> None:
+    """Windows of 0 to some 60 elementary segments (every binary digit of the segment
+    count taken from the doubled runs), overlapping at random on an offset series,
+    have the moments of their samples alone: max and min exactly."""
+    rng = np.random.default_rng(5)
+    y = 20.0 + rng.normal(size=(700, 3))
+    starts = rng.integers(0, 700, 80)
+    stops = np.minimum(700, starts + rng.integers(0, 300, 80))
+    stops[:3] = starts[:3]  # empty windows
+    found = window_moments(y, starts, stops)
+    for i, (a, b) in enumerate(zip(starts, stops, strict=True)):
+        part = y[a:b] if b > a else np.zeros((1, 3))
+        assert found.count[i, 0] == b - a
+        np.testing.assert_allclose(found.mean[i], part.mean(axis=0), rtol=1e-13)
+        np.testing.assert_allclose(found.var[i], part.var(axis=0) if b > a else 0.0,
+                                   rtol=1e-11, atol=1e-15)
+        np.testing.assert_array_equal(found.max[i], part.max(axis=0))
+        np.testing.assert_array_equal(found.min[i], part.min(axis=0))
