@@ -129,7 +129,9 @@ class ContactEvent:
     isolation (:mod:`contactkit.features.isolation`): the touched link, point and force
     at the decision (``contact_at_decision``) and at the peak of the residual
     (``contact_at_peak``, so far while the event lasts), and the estimates during the
-    event (``contact_track``, at 50 Hz)."""
+    event (``contact_track``, at 50 Hz, about 1.7 kB each; empty from a pipeline made
+    with ``keep_track=False``, which hands each estimate over in its
+    :class:`EventOutput` instead)."""
 
     onset_s: float
     decision_s: float | None = None
@@ -157,8 +159,11 @@ class ContactEvent:
 @dataclass
 class EventOutput:
     """The pipeline's answer at one sample: the current ``label`` (none, undecided, a
-    class or unknown), the detector ``score``, ``contact``, and the event that was
-    just started, decided or released at this sample (else None)."""
+    class or unknown), the detector ``score``, ``contact``, the event that was
+    just started, decided or released at this sample (else None), and the ``estimate``
+    of the event's contact track made at this sample (else None; with contact
+    isolation, one every 1 / :data:`~contactkit.features.isolation.DEFAULT_TRACK_HZ` s
+    of an event)."""
 
     label: str
     score: float
@@ -166,6 +171,7 @@ class EventOutput:
     started: ContactEvent | None = None
     decided: ContactEvent | None = None
     released: ContactEvent | None = None
+    estimate: ContactEstimate | None = None
 
 
 @dataclass
@@ -183,11 +189,23 @@ class BlockEvents:
 
 
 class EventPipeline:
-    """Streaming detect -> decide -> hold (see the module docstring)."""
+    """Streaming detect -> decide -> hold (see the module docstring).
+
+    ``detector`` and ``model`` are the contact detector's settings and the intent
+    classifier, ``decide_after_s`` [s] the decision delay (None: the model's), and
+    ``isolator`` estimates the touched link, point and force. With ``keep_track``
+    (the default) each event keeps its estimates in ``contact_track``; without it the
+    events' tracks stay empty and each estimate is only handed over in the
+    :class:`EventOutput` of its sample, so that memory does not grow with the time
+    spent in contact (a replay logs them as they come).
+    """
 
     def __init__(self, detector: DetectorConfig | None = None, model: EventModel | None = None,
                  decide_after_s: float | None = None,
-                 isolator: ContactIsolator | None = None) -> None:
+                 isolator: ContactIsolator | None = None, keep_track: bool = True) -> None:
+        if not isinstance(keep_track, bool):
+            raise InputError(f"keep_track must be True or False, got {keep_track!r}")
+        self.keep_track = keep_track
         self.detector = Detector(detector)
         self.isolator = isolator
         self._track: EventTrack | None = None
@@ -222,19 +240,22 @@ class EventPipeline:
         return event
 
     def _isolate(self, t: float, q: np.ndarray | None, r: np.ndarray, decided: bool,
-                 released: bool, threshold: np.ndarray | None = None) -> None:
+                 released: bool, threshold: np.ndarray | None = None
+                 ) -> ContactEstimate | None:
         """Feed one sample of the current event to its isolation track (with the
         detector's threshold [Nm] at that sample, which weighs the joints); store the
-        estimate at the decision and at the peak."""
+        estimate at the decision and at the peak. Return the track's estimate made at
+        this sample (None: none is due, or no isolation)."""
         if self._track is None or q is None:
-            return
+            return None
         e = r - self._baseline
-        self._track.update(t, q, e, threshold)
+        made = self._track.update(t, q, e, threshold)
         event = self.current
         if decided:
             event.contact_at_decision = self._track.at(t, q, e, threshold)
         event.contact_track = self._track.track
         event.contact_at_peak = self._track.finish() if released else self._track.peak
+        return made
 
     def update(self, t: float, r: np.ndarray, dq: np.ndarray,
                q: np.ndarray | None = None) -> EventOutput:
@@ -295,7 +316,8 @@ class EventPipeline:
             self.current = out.started = ContactEvent(onset_s=t)
             self._baseline = baseline.copy()
             self._window = [s for s in self._recent if s[0] >= t - PRE_S]
-            self._track = None if self.isolator is None else EventTrack(self.isolator, t)
+            self._track = None if self.isolator is None else EventTrack(
+                self.isolator, t, keep=self.keep_track)
         self._recent.append(sample)
         while self._recent and self._recent[0][0] < t - PRE_S:
             self._recent.popleft()
@@ -308,8 +330,8 @@ class EventPipeline:
             if t - event.onset_s >= self.decide_after_s - 1e-12 or state.release:
                 out.decided = self._decide(t)
         if self._track is not None:  # reading the threshold of a live sample computes it
-            self._isolate(t, q, sample[1], out.decided is not None, state.release,
-                          state.threshold)
+            out.estimate = self._isolate(t, q, sample[1], out.decided is not None,
+                                         state.release, state.threshold)
         out.label = event.label
         if state.release:
             event.release_s = t

@@ -706,40 +706,50 @@ class EventTrack:
     from the onset (the hold track), at the decision, and at the peak of |e| (computed
     at the next track tick after a new peak, and when the event ends), so at most two
     estimates per tick. Batch and streaming feed it the same samples in the same order.
+    With ``keep`` the hold track's estimates are kept in ``track``; without it
+    ``track`` stays empty and only the last one (``last``) is held.
     """
 
     def __init__(self, isolator: ContactIsolator, onset_s: float,
-                 rate_hz: float = DEFAULT_TRACK_HZ) -> None:
+                 rate_hz: float = DEFAULT_TRACK_HZ, keep: bool = True) -> None:
         self.isolator = isolator
         self.period = 1.0 / rate_hz
         self.next_s = onset_s
+        self.keep = keep
         self.track: list[ContactEstimate] = []
+        self.last: ContactEstimate | None = None
+        """The hold track's latest estimate (None before the first)."""
         self.peak: ContactEstimate | None = None
         self._peak_norm = -1.0
         self._pending: tuple[float, np.ndarray, np.ndarray, np.ndarray | None] | None = None
 
     def update(self, t: float, q: np.ndarray, e: np.ndarray,
-               threshold: np.ndarray | None = None) -> None:
+               threshold: np.ndarray | None = None) -> ContactEstimate | None:
         """Feed one sample of the event: time [s], q [rad] (7,), deviation of the
         residual from its contact-free baseline e [Nm] (7,) and the detector's
-        threshold [Nm] (7,) (see :meth:`ContactIsolator.estimate`)."""
+        threshold [Nm] (7,) (see :meth:`ContactIsolator.estimate`). Return the hold
+        track's estimate made at this sample (None when none is due)."""
         norm = math.sqrt(float(e @ e))  # |e|, as np.linalg.norm computes it
         if norm > self._peak_norm:
             self._peak_norm = norm
             self._pending = (t, np.array(q, dtype=float), np.array(e, dtype=float),
                              None if threshold is None else np.array(threshold, dtype=float))
-        if t >= self.next_s - 1e-12:
-            self.track.append(self.isolator.estimate(t, q, e, threshold))
-            while self.next_s <= t + 1e-12:
-                self.next_s += self.period
-            self._settle_peak()
+        if t < self.next_s - 1e-12:
+            return None
+        self.last = made = self.isolator.estimate(t, q, e, threshold)
+        if self.keep:
+            self.track.append(made)
+        while self.next_s <= t + 1e-12:
+            self.next_s += self.period
+        self._settle_peak()
+        return made
 
     def at(self, t: float, q: np.ndarray, e: np.ndarray,
            threshold: np.ndarray | None = None) -> ContactEstimate:
         """Return the estimate at this sample (time [s], q [rad], e [Nm], threshold
         [Nm]): the track's when it has one for ``t``, else a new one."""
-        if self.track and self.track[-1].t_s == t:
-            return self.track[-1]
+        if self.last is not None and self.last.t_s == t:
+            return self.last
         return self.isolator.estimate(t, q, e, threshold)
 
     def finish(self) -> ContactEstimate | None:

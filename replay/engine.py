@@ -26,15 +26,20 @@ through the same predictor as every hop (see :meth:`ReplayStream.offline`).
 
 :meth:`ReplayStream.blocks` yields each batch's samples with their features and
 predictions as a :class:`Block`; a paced replay asks for a block after every hop, so
-it can sleep and log incrementally.
+it can sleep and log incrementally. A block also carries the contact estimates of the
+events' tracks made among its samples: the stream's events keep no track (their
+``contact_track`` is empty), so that memory stays bounded by a batch however long the
+session is in contact.
 """
 
 from __future__ import annotations
 
 import bisect
 import math
+from bisect import bisect_left
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from operator import itemgetter
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +50,7 @@ from contactkit.classify.events import NONE, ContactEvent, EventPipeline
 from contactkit.classify.modelfile import ModelFile
 from contactkit.features.agreement import ResidualAgreement
 from contactkit.features.detector import DetectorConfig
-from contactkit.features.isolation import robot_isolator
+from contactkit.features.isolation import ContactEstimate, robot_isolator
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
 from contactkit.features.timing import restarts
 from contactkit.features.window_stream import WindowCollector
@@ -71,8 +76,10 @@ class Block:
     (n, 3), ``contact`` (n,)), the robot's own external-torque estimate with the
     residual's sign (``robot_estimate``, -tau_ext_hat [Nm] (n, 7), where the session
     has it), the event pipeline's per-sample ``event_label`` and ``score`` (None
-    without a detector), and the predictions made among these samples: ``pred_t`` [s],
-    ``pred_sample``, ``pred_proba`` (m, classes) and ``pred_label``."""
+    without a detector), the predictions made among these samples: ``pred_t`` [s],
+    ``pred_sample``, ``pred_proba`` (m, classes) and ``pred_label``, and the contact
+    estimates of the events' tracks made among them, (session sample, estimate) in
+    order (``estimates``; empty without contact isolation)."""
 
     start: int
     stop: int
@@ -93,6 +100,7 @@ class Block:
     pred_sample: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     pred_proba: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     pred_label: list[str] = field(default_factory=list)
+    estimates: list[tuple[int, ContactEstimate]] = field(default_factory=list)
 
     @property
     def sample(self) -> np.ndarray:
@@ -130,7 +138,8 @@ class ReplayStream:
     After (or while) iterating :meth:`blocks`: predictions ``pred_t`` [s],
     ``pred_sample``, ``pred_proba`` and ``pred_label`` (lists), gated by the detector
     where there is one, the window classifier's own ``pred_window_proba``, and with a
-    detector :attr:`events`.
+    detector :attr:`events`, whose ``contact_track`` stays empty: the estimates of their
+    tracks come with the blocks (:attr:`Block.estimates`).
     ``detector`` overrides the model's detector settings; ``decide_after_s`` its
     decision delay [s]; ``detector`` holds the settings in use (None without one).
     ``batch_rows`` is the number of samples read and computed at a time (default
@@ -181,13 +190,11 @@ class ReplayStream:
             get_robot(self.meta.robot_setup(self.path).robot))
         self.pipeline = None if detector is None else EventPipeline(
             detector, model.event_model(), decide_after_s,
-            robot_isolator(self.meta.robot_setup(self.path)))
+            robot_isolator(self.meta.robot_setup(self.path)), keep_track=False)
         self.event_samples: dict[float, int] = {}
         """Session time [s] -> sample index of every sample where an event began, was
-        decided or ended, and of the first and last sample."""
-        self.estimate_samples: dict[float, int] = {}
-        """Session time [s] -> sample index of every contact estimate of an event's
-        track (:class:`contactkit.features.isolation.EventTrack`)."""
+        decided or ended, and of the first and (once the stream has ended) the last
+        sample."""
         self.window_spec = self.transformer.window_spec
         planned = self.meta.planned_at_s
         self._offline = None if planned is None else \
@@ -262,14 +269,16 @@ class ReplayStream:
                 self._offline.add(np.arange(start, start + n), t, values,
                                   out[self.window_spec.signal])
             labels = scores = None
+            estimates = []
             if self.pipeline is not None:
-                labels, scores = self._events(t, out["r"], dq, q, start)
+                labels, scores, estimates = self._events(t, out["r"], dq, q, start)
             truth, contact = batch.f_ext, batch.contact
             estimate = None if batch.tau_ext_hat is None else -batch.tau_ext_hat
             if estimate is not None:
                 self.agreement.update(t, out["r"], -estimate)
             whole = Block(start, start + n, t, q, dq, tau, out["r"], out["f"], out["m"],
-                          out["fm_norm"], truth, contact, estimate, labels, scores)
+                          out["fm_norm"], truth, contact, estimate, labels, scores,
+                          estimates=estimates)
             hops, next_hop = hop_rows(t, gaps, next_hop, self.window_s, self.hop_s)
             predictions = self._predict(buffer_t, buffer_v, offset, start, hops, labels)
             first = 0
@@ -285,17 +294,19 @@ class ReplayStream:
             history_t, history_v = buffer_t[keep:], buffer_v[keep:]
             start += n
             self.n_samples = start
-            self.event_samples[float(t[-1])] = start - 1
         if start == 0:
             raise InputError("session has no complete samples", self.path)
+        self.event_samples[last_t] = start - 1
 
     def _events(self, t: np.ndarray, r: np.ndarray, dq: np.ndarray, q: np.ndarray,
-                start: int) -> tuple[np.ndarray, np.ndarray]:
+                start: int
+                ) -> tuple[np.ndarray, np.ndarray, list[tuple[int, ContactEstimate]]]:
         """Feed a batch (first session sample ``start``) to the event pipeline in one go;
-        note the samples where events begin, are decided or end, and those of their
-        contact estimates. Return the per-sample labels and detector scores."""
+        note the samples where events begin, are decided or end. Return the per-sample
+        labels and detector scores, and the contact estimates of the events' tracks
+        made in the batch as (session sample, estimate)."""
         found = self.pipeline.update_block(t, r, dq, q)
-        touched = []
+        estimates = []
         for k, state in found.steps:
             at, sample = float(t[k]), start + k
             cut = state.released is not None and state.released.release_s < at
@@ -303,16 +314,9 @@ class ReplayStream:
                 self.event_samples[state.released.release_s] = sample - 1
             if state.started is not None or (not cut and (state.decided or state.released)):
                 self.event_samples[at] = sample
-            if state.released is not None:
-                touched.append(state.released)
-        if self.pipeline.current is not None:
-            touched.append(self.pipeline.current)
-        for event in touched:
-            for estimate in event.contact_track:
-                if t[0] <= estimate.t_s <= t[-1]:
-                    self.estimate_samples[estimate.t_s] = start + int(
-                        np.searchsorted(t, estimate.t_s))
-        return found.labels, found.score
+            if state.estimate is not None:
+                estimates.append((sample, state.estimate))
+        return found.labels, found.score, estimates
 
     def _predict(self, t: np.ndarray, values: np.ndarray, offset: int, start: int,
                  hops: list[int], labels: np.ndarray | None
@@ -400,10 +404,13 @@ def _part(block: Block, first: int, stop: int,
     def rows(x: np.ndarray | None) -> np.ndarray | None:
         return None if x is None else x[s]
 
+    lo, hi = (bisect_left(block.estimates, block.start + k, key=itemgetter(0))
+              for k in (first, stop))
     part = Block(block.start + first, block.start + stop, block.t[s], block.q[s],
                  block.dq[s], block.tau[s], block.r[s], block.force[s], block.moment[s],
                  block.norms[s], rows(block.true_force), rows(block.contact),
-                 rows(block.robot_estimate), rows(block.event_label), rows(block.score))
+                 rows(block.robot_estimate), rows(block.event_label), rows(block.score),
+                 estimates=block.estimates[lo:hi])
     if predictions:
         part.pred_t = np.array([p[0] for p in predictions])
         part.pred_sample = np.array([p[1] for p in predictions], dtype=np.int64)

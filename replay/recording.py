@@ -9,7 +9,8 @@ force arrow are animated at about 60 Hz (every n-th sample), which is all a 3-D 
 needs and keeps files small. The kinematics only the view needs (the end effector's
 position, the simulated contact's point) are computed here, at those samples. The
 simulator's applied force, zero outside its contacts, is a sparse column
-(:class:`ZeroRuns`: the same plot from a fraction of the rows).
+(:class:`ZeroRuns`: the same plot from a fraction of the rows). The isolated
+contacts' estimates go out with the blocks too (:mod:`contactkit.replay.contacts`).
 :func:`log_contact_events` is where the contact-event pipeline hands over its events
 (one state-timeline bar each) and detector thresholds (lines on the residual plot).
 """
@@ -24,6 +25,7 @@ import numpy as np
 import rerun as rr
 
 from contactkit.classify.events import ContactEvent
+from contactkit.replay.contacts import ContactTrackLogger, log_contact_links
 from contactkit.replay.engine import Block, OfflineAnswer, ReplayStream
 from contactkit.robots.model import RobotModel
 from contactkit.robots.surfaces import viewer_urdf_file
@@ -142,9 +144,11 @@ class BlockLogger:
     """Sends the blocks of ``stream`` as columns, every series thinned to ``log_rate_hz``
     [Hz] (None: every sample) and the 3-D robot (every n-th sample, about
     ``ROBOT_VIEW_HZ`` at the session's rate) to at most that rate; the predictions
-    always go out in full. The 3-D view's kinematics come from the session's robot
-    model: the end effector's position for the force arrow and, in a simulated session,
-    the true contact point [m] (base frame)."""
+    always go out in full, and so does the track of isolated contacts
+    (:class:`~contactkit.replay.contacts.ContactTrackLogger`). The 3-D view's
+    kinematics come from the session's robot model: the end effector's position for
+    the force arrow and, in a simulated session, the true contact point [m] (base
+    frame)."""
 
     def __init__(self, rec: rr.RecordingStream, tree: rr.urdf.UrdfTree,
                  stream: ReplayStream, log_rate_hz: float | None = None) -> None:
@@ -154,6 +158,7 @@ class BlockLogger:
                               else log_rate_hz)
         self._contact: bool | None = None
         self.truth = ZeroRuns(layout.TRUE_FORCE)
+        self.contacts = ContactTrackLogger(rec, stream)
         self._stride: int | None = None
         self.model = RobotModel(stream.meta.robot_setup(stream.path))
         truth = ((stream.meta.simulator or {}).get("session") or {}).get("contact")
@@ -178,9 +183,11 @@ class BlockLogger:
     def finish(self) -> None:
         """Send what the last block left pending (call once, after the last block)."""
         self.truth.finish(self.rec)
+        self.contacts.finish()
 
     def log(self, block: Block) -> None:
-        """Send the (thinned) samples and the predictions of one block."""
+        """Send the (thinned) samples, the predictions and the contact estimates of one
+        block."""
         rec = self.rec
         keep = self.series.keep(block.t)
         if len(keep):
@@ -223,6 +230,7 @@ class BlockLogger:
             layout.log_scalar_columns(rec, layout.PROBABILITY, pt, ps, block.pred_proba)
             rec.send_columns(layout.PREDICTED, indexes=layout.time_columns(pt, ps),
                              columns=rr.StateChange.columns(state=block.pred_label))
+        self.contacts.log(block)
 
 
 def log_offline(rec: rr.RecordingStream, stream: ReplayStream, answer: OfflineAnswer) -> None:
@@ -278,63 +286,20 @@ def log_contact_events(rec: rr.RecordingStream, t: np.ndarray,
                                   np.tile([thresholds[n] for n in names], (2, 1)))
 
 
-def log_contact_estimates(rec: rr.RecordingStream, stream: ReplayStream) -> None:
-    """Log each event's isolated contact: its track of points and force arrows (50 Hz,
-    cleared where an estimate has no point and at the release) and, while the event
-    lasts, its link (the one named at the peak) highlighted."""
-    isolator = None if stream.pipeline is None else stream.pipeline.isolator
-    if isolator is None:
-        return
-    times, samples, points, forces, present = [], [], [], [], []
-    shown: dict[int, list[tuple[float, int, bool]]] = {}
-    ends = dict(stream.event_samples)
-    for event in stream.events:
-        for estimate in event.contact_track:
-            if estimate.t_s not in stream.estimate_samples:
-                continue
-            ok = estimate.point_base is not None
-            times.append(estimate.t_s)
-            samples.append(stream.estimate_samples[estimate.t_s])
-            points.append(estimate.point_base if ok else np.zeros(3))
-            forces.append(estimate.force if ok else np.zeros(3))
-            present.append(ok)
-        end = event.release_s if event.release_s is not None else max(ends)
-        if end in ends and times and times[-1] < end:
-            times.append(end)
-            samples.append(ends[end])
-            points.append(np.zeros(3))
-            forces.append(np.zeros(3))
-            present.append(False)
-        peak = event.contact_at_peak
-        if peak is not None and peak.link is not None and event.onset_s in ends \
-                and end in ends and isolator.samples[peak.link - 1] is not None:
-            shown.setdefault(peak.link, []).extend(
-                [(event.onset_s, ends[event.onset_s], True), (end, ends[end], False)])
-    if times:
-        order = np.argsort(times, kind="stable")
-        layout.log_contact_columns(rec, np.array(times)[order], np.array(samples)[order],
-                                   np.array(points)[order], np.array(forces)[order],
-                                   np.array(present)[order])
-    for link, rows in shown.items():
-        rows.sort()
-        layout.log_link_highlight(rec, link, isolator.samples[link - 1].points,
-                                  np.array([r[0] for r in rows]),
-                                  np.array([r[1] for r in rows]),
-                                  np.array([r[2] for r in rows]))
-
-
 def log_results(rec: rr.RecordingStream, stream: ReplayStream,
                 answer: OfflineAnswer | None) -> None:
     """Log what a replay knows once its blocks have streamed: the planned time, the
     contact events with the detector's thresholds and the isolated contacts (with an
-    event pipeline), and the offline ``answer`` (None: the session has no planned time)."""
+    event pipeline), and the offline ``answer`` (None: the session has no planned time).
+    The isolated contacts' track went out with the blocks (:class:`BlockLogger`); here
+    each event's link is highlighted (:func:`log_contact_links`)."""
     log_planned(rec, stream)
     if stream.pipeline is not None:
         times = sorted(stream.event_samples)
         log_contact_events(rec, np.array(times), stream.events, {
             f"joint {j} at rest": v for j, v in enumerate(stream.detector.noise, 1)},
             samples=np.array([stream.event_samples[t] for t in times]))
-        log_contact_estimates(rec, stream)
+        log_contact_links(rec, stream)
     if answer is not None:
         log_offline(rec, stream, answer)
 
