@@ -34,13 +34,13 @@ session is in contact.
 
 from __future__ import annotations
 
-import bisect
 import math
 from bisect import bisect_left
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from operator import itemgetter
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pyarrow as pa
@@ -131,13 +131,26 @@ def next_hop_after(hop: float, t: float, hop_s: float) -> float:
     return max(hop, math.nextafter(t, math.inf))
 
 
+class _HopBatch(NamedTuple):
+    """The predictions of one batch's hops, as columns: times [s] (m,), session sample
+    indices (m,), probabilities (gated) and the window classifier's own (m, classes), and
+    the index of each label in the model's classes (m,)."""
+
+    t: np.ndarray
+    sample: np.ndarray
+    proba: np.ndarray
+    window_proba: np.ndarray
+    label: np.ndarray
+
+
 class ReplayStream:
     """Streams one session (a file, read batch by batch, or a :class:`Session` in
     memory) through the chunked chain, the event pipeline and the classifier.
 
     After (or while) iterating :meth:`blocks`: predictions ``pred_t`` [s],
-    ``pred_sample``, ``pred_proba`` and ``pred_label`` (lists), gated by the detector
-    where there is one, the window classifier's own ``pred_window_proba``, and with a
+    ``pred_sample``, ``pred_proba`` (arrays) and ``pred_label`` (a list), gated by the
+    detector where there is one, the window classifier's own ``pred_window_proba``
+    (kept as one set of arrays per batch: 81 bytes a hop), and with a
     detector :attr:`events`, whose ``contact_track`` stays empty: the estimates of their
     tracks come with the blocks (:attr:`Block.estimates`).
     ``detector`` overrides the model's detector settings; ``decide_after_s`` its
@@ -180,11 +193,7 @@ class ReplayStream:
         self.chain_config = ChainConfig(chain.observer, chain.wrench_frame)
         self.names = expand(list(timeseries))
         self.channels = [c for name in self.names for c in columns_of(name)]
-        self.pred_t: list[float] = []
-        self.pred_sample: list[int] = []
-        self.pred_proba: list[np.ndarray] = []
-        self.pred_window_proba: list[np.ndarray] = []
-        self.pred_label: list[str] = []
+        self._hops: list[_HopBatch] = []
         detector = detector or model.detector_config()
         self.detector = detector = None if detector is None else detector.for_robot(
             get_robot(self.meta.robot_setup(self.path).robot))
@@ -327,23 +336,54 @@ class ReplayStream:
         (time [s], sample, probabilities, label) of each."""
         if not hops:
             return []
-        rows = self.transformer.online_rows(t, values, offset + np.asarray(hops))
-        window_probas = self._predict_proba(rows)
-        probas = list(window_probas)
-        chosen = np.argmax(window_probas, axis=1).tolist()
+        rows = offset + np.asarray(hops)
+        window_probas = self._predict_proba(self.transformer.online_rows(t, values, rows))
+        probas = window_probas.copy()
+        chosen = np.argmax(window_probas, axis=1)
         if labels is not None and self._none_proba is not None:  # gated outside contacts
-            for i in np.flatnonzero(labels[hops] == NONE).tolist():
-                probas[i] = self._none_proba.copy()
-                chosen[i] = self.classes.index(NONE)
-        at = t[offset + np.asarray(hops)].tolist()
-        samples = [start + k for k in hops]
-        chosen = [self.classes[i] for i in chosen]
-        self.pred_t += at
-        self.pred_sample += samples
-        self.pred_proba += probas
-        self.pred_window_proba += list(window_probas)
-        self.pred_label += chosen
-        return list(zip(at, samples, probas, chosen, strict=True))
+            gated = labels[hops] == NONE
+            probas[gated] = self._none_proba
+            chosen[gated] = self.classes.index(NONE)
+        hop_batch = _HopBatch(t[rows], start + np.asarray(hops, dtype=np.int64), probas,
+                              window_probas, chosen.astype(np.int16))
+        self._hops.append(hop_batch)
+        names = [self.classes[i] for i in chosen.tolist()]
+        return list(zip(hop_batch.t.tolist(), hop_batch.sample.tolist(), list(probas), names,
+                        strict=True))
+
+    @property
+    def pred_t(self) -> np.ndarray:
+        """Times [s] of the hops predicted so far, (m,)."""
+        return self._hop_column("t", np.zeros(0))
+
+    @property
+    def pred_sample(self) -> np.ndarray:
+        """Session sample index of each hop predicted so far, (m,)."""
+        return self._hop_column("sample", np.zeros(0, dtype=np.int64))
+
+    @property
+    def pred_proba(self) -> np.ndarray:
+        """Probabilities of each hop predicted so far (gated by the detector where there
+        is one), (m, classes), columns in :attr:`classes`' order."""
+        return self._hop_column("proba", np.zeros((0, len(self.classes))))
+
+    @property
+    def pred_window_proba(self) -> np.ndarray:
+        """The window classifier's own probabilities of each hop, ungated, (m,
+        classes)."""
+        return self._hop_column("window_proba", np.zeros((0, len(self.classes))))
+
+    @property
+    def pred_label(self) -> list[str]:
+        """The label of each hop predicted so far (gated like :attr:`pred_proba`)."""
+        return [self.classes[i] for i in self._hop_column(
+            "label", np.zeros(0, dtype=np.int16)).tolist()]
+
+    def _hop_column(self, name: str, empty: np.ndarray) -> np.ndarray:
+        """Return one column of every hop so far, joined (``empty`` before any hop)."""
+        if not self._hops:
+            return empty
+        return np.concatenate([getattr(batch, name) for batch in self._hops])
 
     def run(self) -> ReplayStream:
         """Process the whole session at once; return self."""
@@ -383,7 +423,7 @@ def hop_rows(t: np.ndarray, gaps: np.ndarray, next_hop: float, window_s: float,
     hops, row, n = [], 0, len(times)
     pending = [int(g) for g in gaps]
     while row < n:
-        k = bisect.bisect_left(times, next_hop - 1e-12, row)
+        k = bisect_left(times, next_hop - 1e-12, row)
         if pending and pending[0] <= k:  # a window after a gap starts after it
             row = pending.pop(0)
             next_hop = times[row] + window_s

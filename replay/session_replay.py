@@ -148,8 +148,8 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
             rec.flush()
         finally:
             rec.disconnect()
-    return ReplaySummary(Path(path), stream.meta.action, answer, list(stream.pred_t),
-                         list(stream.pred_label), save,
+    return ReplaySummary(Path(path), stream.meta.action, answer, stream.pred_t.tolist(),
+                         stream.pred_label, save,
                          None if stream.pipeline is None else stream.events,
                          stream.agreement.result())
 
