@@ -712,9 +712,12 @@ class SampleBatch:
     def complete(self) -> SampleBatch:
         """Return the samples that have a time and every joint value (q, dq, tau), as
         :func:`complete_table` keeps them; the batch itself when none is missing."""
+        joints = (self.q, self.dq, self.tau)
+        if np.isfinite(self.t).all() and all(np.isfinite(x).all() for x in joints):
+            return self  # checked as whole arrays: a reduction along rows of 7 costs 10x
         keep = np.isfinite(self.t) & np.isfinite(self.q).all(axis=1) \
             & np.isfinite(self.dq).all(axis=1) & np.isfinite(self.tau).all(axis=1)
-        return self if keep.all() else self.take(keep)
+        return self.take(keep)
 
 
 def iter_sample_batches(source: Session | str | Path, batch_rows: int = ROW_GROUP_ROWS,

@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from contactkit.features.observer import observer_coefficients, solve_recurrence
+from contactkit.features.observer import (
+    BLOCK_DECAY,
+    observer_coefficients,
+    solve_recurrence,
+)
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
@@ -25,6 +29,36 @@ def test_blocked_scan_equals_sample_loop_on_irregular_steps() -> None:
         r = loop[k] = solve_recurrence(a[k:k + 1], b[k:k + 1], r)[0]
     assert np.abs(batch - loop).max() < 1e-9
     assert np.all(batch[0] == 0.0)
+
+
+def _block_loop(a: np.ndarray, b: np.ndarray, r_prev: np.ndarray) -> np.ndarray:
+    """solve_recurrence as first written: one block at a time, each with fresh arrays."""
+    out = np.empty_like(b)
+    decay = np.cumsum(np.log(a).min(axis=1))
+    edges = np.flatnonzero(np.diff(np.floor(decay / BLOCK_DECAY))) + 1
+    start = 0
+    for stop in [*edges.tolist(), len(a)]:
+        prod = np.cumprod(a[start:stop], axis=0)
+        out[start:stop] = prod * (r_prev + np.cumsum(b[start:stop] / prod, axis=0))
+        r_prev, start = out[stop - 1], stop
+    return out
+
+
+def test_solution_equals_the_block_loop_bit_for_bit() -> None:
+    rng = np.random.default_rng(3)
+    for trial in range(60):
+        n = int(rng.integers(2, 2500))
+        # steps from 1 us to gaps of 0.3 s: blocks of one sample to thousands
+        h = rng.choice([1e-6, 0.0007, 0.001, 0.001, 0.0088, 0.05, 0.3], size=(n, 1))
+        a = 1.0 / (1.0 + rng.uniform(1.0, 200.0, size=7) * h)
+        if trial % 3 == 0:  # one a for every joint, as the detector's filters pass it
+            a = np.broadcast_to(a[:, :1], (n, 7))
+        b = rng.normal(size=(n, 7)) * 10.0 ** rng.integers(-3, 3)
+        r_before = rng.normal(size=7) if trial % 2 else np.zeros(7)
+        expected = _block_loop(a, b, r_before)
+        assert np.array_equal(solve_recurrence(a, b, r_before), expected)
+        if trial % 2 == 0:
+            assert np.array_equal(solve_recurrence(a, b), expected)
 
 
 def test_residual_estimates_the_applied_joint_torque(tmp_path) -> None:
