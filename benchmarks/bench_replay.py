@@ -7,9 +7,9 @@ classifier, event pipeline), the time to log that replay to an .rrd file exactly
 CLI does (timed on its own: the difference of two noisy totals is not reliable) and its
 ratio to the computation, a whole replay to an .rrd (what ``replay --viewer none``
 runs after start-up) against the chain alone and against the computation without
-logging (what logging adds to the replay a user waits for: Rerun encodes and writes the
-recording in its own thread, beside the computation, so this is less than logging timed
-on its own; the two are timed in turn, five times each, and the best of each taken),
+logging (what logging adds to the replay a user waits for, the file's atomic write
+and Rerun's encoding thread, which shares the cores with the computation, included;
+the two are timed in turn, five times each, and the best of each taken),
 the file size per second of session, and for a paced replay at --rate 1 the lag
 between wall clock and session time at each hop (median, max). Every baseline is
 measured in the same run; each time is the best of 5.
