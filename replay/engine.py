@@ -40,7 +40,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from operator import itemgetter
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 import pyarrow as pa
@@ -79,7 +78,7 @@ class Block:
     without a detector), the predictions made among these samples: ``pred_t`` [s],
     ``pred_sample``, ``pred_proba`` (m, classes) and ``pred_label``, and the contact
     estimates of the events' tracks made among them, (session sample, estimate) in
-    order (``estimates``; empty without contact isolation)."""
+    order (``estimates``; empty without a detector or without contact isolation)."""
 
     start: int
     stop: int
@@ -131,16 +130,39 @@ def next_hop_after(hop: float, t: float, hop_s: float) -> float:
     return max(hop, math.nextafter(t, math.inf))
 
 
-class _HopBatch(NamedTuple):
-    """The predictions of one batch's hops, as columns: times [s] (m,), session sample
-    indices (m,), probabilities (gated) and the window classifier's own (m, classes), and
-    the index of each label in the model's classes (m,)."""
+class _HopLog:
+    """A replay's per-hop predictions as growing columns: times [s], session sample
+    indices, probabilities (gated) and the window classifier's own (classes each), and
+    each label's index in the model's classes; 18 + 16 bytes per class a hop. The
+    columns grow by doubling, so appending costs constant time a hop on average, and
+    :meth:`column` gives a read-only view of the hops so far without a copy (rows are
+    only ever added after it: later hops do not change it)."""
 
-    t: np.ndarray
-    sample: np.ndarray
-    proba: np.ndarray
-    window_proba: np.ndarray
-    label: np.ndarray
+    def __init__(self, n_classes: int) -> None:
+        self.size = 0
+        self._columns = {"t": np.zeros(0), "sample": np.zeros(0, dtype=np.int64),
+                         "proba": np.zeros((0, n_classes)),
+                         "window_proba": np.zeros((0, n_classes)),
+                         "label": np.zeros(0, dtype=np.int16)}
+
+    def append(self, **rows: np.ndarray) -> None:
+        """Add the rows of each column (the same number of rows in each)."""
+        n = len(rows["t"])
+        grown = self.size + n
+        for name, column in self._columns.items():
+            if grown > len(column):
+                larger = np.empty((max(grown, 2 * len(column)), *column.shape[1:]),
+                                  dtype=column.dtype)
+                larger[:self.size] = column[:self.size]
+                self._columns[name] = column = larger
+            column[self.size:grown] = rows[name]
+        self.size = grown
+
+    def column(self, name: str) -> np.ndarray:
+        """Return the hops so far of column ``name``, a read-only view."""
+        view = self._columns[name][:self.size]
+        view.flags.writeable = False
+        return view
 
 
 class ReplayStream:
@@ -148,9 +170,10 @@ class ReplayStream:
     memory) through the chunked chain, the event pipeline and the classifier.
 
     After (or while) iterating :meth:`blocks`: predictions ``pred_t`` [s],
-    ``pred_sample``, ``pred_proba`` (arrays) and ``pred_label`` (a list), gated by the
-    detector where there is one, the window classifier's own ``pred_window_proba``
-    (kept as one set of arrays per batch: 81 bytes a hop), and with a
+    ``pred_sample``, ``pred_proba`` (read-only array views) and ``pred_label`` (a
+    list), gated by the detector where there is one, the window classifier's own
+    ``pred_window_proba`` (kept as growing columns: 18 + 16 bytes per class a hop), and
+    with a
     detector :attr:`events`, whose ``contact_track`` stays empty: the estimates of their
     tracks come with the blocks (:attr:`Block.estimates`).
     ``detector`` overrides the model's detector settings; ``decide_after_s`` its
@@ -193,7 +216,7 @@ class ReplayStream:
         self.chain_config = ChainConfig(chain.observer, chain.wrench_frame)
         self.names = expand(list(timeseries))
         self.channels = [c for name in self.names for c in columns_of(name)]
-        self._hops: list[_HopBatch] = []
+        self._hops = _HopLog(len(self.classes))
         detector = detector or model.detector_config()
         self.detector = detector = None if detector is None else detector.for_robot(
             get_robot(self.meta.robot_setup(self.path).robot))
@@ -344,46 +367,42 @@ class ReplayStream:
             gated = labels[hops] == NONE
             probas[gated] = self._none_proba
             chosen[gated] = self.classes.index(NONE)
-        hop_batch = _HopBatch(t[rows], start + np.asarray(hops, dtype=np.int64), probas,
-                              window_probas, chosen.astype(np.int16))
-        self._hops.append(hop_batch)
+        at, samples = t[rows], start + np.asarray(hops, dtype=np.int64)
+        self._hops.append(t=at, sample=samples, proba=probas, window_proba=window_probas,
+                          label=chosen)
         names = [self.classes[i] for i in chosen.tolist()]
-        return list(zip(hop_batch.t.tolist(), hop_batch.sample.tolist(), list(probas), names,
-                        strict=True))
+        return list(zip(at.tolist(), samples.tolist(), list(probas), names, strict=True))
 
     @property
     def pred_t(self) -> np.ndarray:
-        """Times [s] of the hops predicted so far, (m,)."""
-        return self._hop_column("t", np.zeros(0))
+        """Times [s] of the hops predicted so far, (m,): a read-only view, which later hops
+        do not change."""
+        return self._hops.column("t")
 
     @property
     def pred_sample(self) -> np.ndarray:
-        """Session sample index of each hop predicted so far, (m,)."""
-        return self._hop_column("sample", np.zeros(0, dtype=np.int64))
+        """Session sample index of each hop predicted so far, (m,); a read-only view, as
+        :attr:`pred_t`."""
+        return self._hops.column("sample")
 
     @property
     def pred_proba(self) -> np.ndarray:
         """Probabilities of each hop predicted so far (gated by the detector where there
-        is one), (m, classes), columns in :attr:`classes`' order."""
-        return self._hop_column("proba", np.zeros((0, len(self.classes))))
+        is one), (m, classes), columns in :attr:`classes`' order; a read-only view, as
+        :attr:`pred_t`."""
+        return self._hops.column("proba")
 
     @property
     def pred_window_proba(self) -> np.ndarray:
         """The window classifier's own probabilities of each hop, ungated, (m,
-        classes)."""
-        return self._hop_column("window_proba", np.zeros((0, len(self.classes))))
+        classes); a read-only view, as :attr:`pred_t`."""
+        return self._hops.column("window_proba")
 
     @property
     def pred_label(self) -> list[str]:
-        """The label of each hop predicted so far (gated like :attr:`pred_proba`)."""
-        return [self.classes[i] for i in self._hop_column(
-            "label", np.zeros(0, dtype=np.int16)).tolist()]
-
-    def _hop_column(self, name: str, empty: np.ndarray) -> np.ndarray:
-        """Return one column of every hop so far, joined (``empty`` before any hop)."""
-        if not self._hops:
-            return empty
-        return np.concatenate([getattr(batch, name) for batch in self._hops])
+        """The label of each hop predicted so far (gated like :attr:`pred_proba`), a new
+        list at each read."""
+        return [self.classes[i] for i in self._hops.column("label").tolist()]
 
     def run(self) -> ReplayStream:
         """Process the whole session at once; return self."""

@@ -209,3 +209,22 @@ def test_replay_streamed_in_small_batches_logs_the_chain(tmp_path, shove, quick_
     values = np.concatenate([np.array(b.column("Scalars:scalars").to_pylist()) for b in logged])
     order = np.argsort(t, kind="stable")
     assert np.abs(values[order] - expected).max() <= 1e-9
+
+
+def test_per_hop_predictions_grow_as_views_later_hops_leave_alone(shove, quick_model) -> None:
+    """A paced replay reads the predictions while it streams: each read is a read-only
+    view of the hops so far, a prefix of the final columns, and later hops leave it as
+    it was."""
+    stream = engine.ReplayStream(shove, load_model(quick_model), batch_rows=137)
+    seen = []
+    for block in stream.blocks(every_hop=True):
+        seen.append((stream.pred_t, stream.pred_proba, len(block.pred_t)))
+    final_t, final_proba = stream.pred_t, stream.pred_proba
+    assert len(final_t) == sum(n for _, _, n in seen) > 10
+    assert len(stream.pred_label) == len(stream.pred_sample) == len(final_t)
+    for t, proba, _ in seen:
+        assert np.array_equal(t, final_t[:len(t)])
+        assert np.array_equal(proba, final_proba[:len(proba)])
+    assert not final_t.flags.writeable and not final_proba.flags.writeable
+    with pytest.raises(ValueError):
+        final_proba[0, 0] = 2.0
