@@ -69,15 +69,19 @@ class LiveEvents:
     contact detector settings and intent classifier, ``decide_after_s`` [s] the
     decision delay (None: the model's), ``report`` receives every onset, decision
     and release as it happens, ``isolator`` estimates the touched link, point and force.
+    The events keep their estimates at the decision and at the peak; with ``keep_track``
+    they also keep every estimate of their track (50 Hz while a contact lasts, about 1.7
+    kB each), which the session's metadata leaves out: without it (the default) a
+    capture's memory does not grow with the time spent in contact.
     """
 
     def __init__(self, chain: ChainConfig, robot: RobotSetup, detector: DetectorConfig,
                  model: EventModel | None = None, decide_after_s: float | None = None,
                  report: Report | None = None,
-                 isolator: ContactIsolator | None = None) -> None:
+                 isolator: ContactIsolator | None = None, keep_track: bool = False) -> None:
         self.chain = TimeseriesChain(chain, robot, ["r"])
         self.pipeline = EventPipeline(detector.for_robot(self.chain.model.spec), model,
-                                      decide_after_s, isolator)
+                                      decide_after_s, isolator, keep_track)
         self.report = report
         self.samples = 0
 

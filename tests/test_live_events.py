@@ -12,6 +12,7 @@ import pytest
 from contactkit.classify.event_listener import LiveEvents
 from contactkit.classify.modelfile import load_model
 from contactkit.cli.default_model import build_default_model
+from contactkit.features.isolation import robot_isolator
 from contactkit.recorder.capture.record import record_session
 from contactkit.recorder.sources import ProtocolChoices, open_source
 from contactkit.replay.engine import ReplayStream
@@ -139,3 +140,23 @@ def test_event_options_need_events(tmp_path, model_path) -> None:
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "--events" in lines[0], result.stderr
+
+
+def test_a_capture_keeps_no_contact_track_unless_asked(captured, model_path) -> None:
+    """The events of a capture with isolation keep their estimates at the decision and
+    the peak, and the same metadata, with or without their 50 Hz tracks; only with
+    ``keep_track`` do they hold the tracks (which the metadata leaves out)."""
+    path, _ = captured
+    model = load_model(model_path)
+    chain = model.online_transformer().chain_config()
+    robot = chain.robot_setup(read_session(path).meta)
+    listeners = [LiveEvents(chain, robot, model.detector_config(), model.event_model(),
+                            isolator=robot_isolator(robot), keep_track=keep)
+                 for keep in (False, True)]
+    for chunk in _chunks(path, 50):
+        for listener in listeners:
+            listener.on_chunk(chunk)
+    light, full = (listener.events for listener in listeners)
+    assert [e.to_dict() for e in light] == [e.to_dict() for e in full] != []
+    assert light[0].contact_at_peak is not None and light[0].contact_at_decision is not None
+    assert all(not e.contact_track for e in light) and full[0].contact_track
