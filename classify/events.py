@@ -192,7 +192,8 @@ class EventPipeline:
     """Streaming detect -> decide -> hold (see the module docstring).
 
     ``detector`` and ``model`` are the contact detector's settings and the intent
-    classifier, ``decide_after_s`` [s] the decision delay (None: the model's), and
+    classifier, ``decide_after_s`` [s] the decision delay (None: the model's, or
+    ``DEFAULT_DECIDE_AFTER_S`` without a model), and
     ``isolator`` estimates the touched link, point and force. With ``keep_track``
     (the default) each event keeps its estimates in ``contact_track``; without it the
     events' tracks stay empty and each estimate is only handed over in the

@@ -27,9 +27,11 @@ def __getattr__(name: str) -> str:
     import importlib.metadata
 
     try:
-        return importlib.metadata.version("contactkit")
+        version = importlib.metadata.version("contactkit")
     except importlib.metadata.PackageNotFoundError:
-        return "0+unknown"
+        version = "0+unknown"
+    globals()["__version__"] = version  # found once: later reads are plain attributes
+    return version
 
 # The version and the subpackages (names only: importing contactkit stays light).
 __all__ = ["__version__", "classify", "cli", "errors", "features", "recorder", "replay",

@@ -19,7 +19,7 @@ import pinocchio as pin
 _AXES = {"JointModelRX": 0, "JointModelRY": 1, "JointModelRZ": 2}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _Joint:
     """A revolute joint: its index in the model, its parent's (0: the world), its
     column of q and of the Jacobian, the axis it turns about (0, 1, 2: x, y, z of its
@@ -35,7 +35,7 @@ class _Joint:
     translation: np.ndarray
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class FrameKinematics:
     """Forward kinematics of the joints that carry one frame, vectorised over samples.
 

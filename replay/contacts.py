@@ -25,7 +25,7 @@ class ContactTrackLogger:
     the blocks come: a point [m] and a force arrow [N] (base frame) at each estimate
     with a point, none at one without (cleared), and none from each release whose
     event's last estimate came before it. Keeps only the time of the last estimate
-    sent and how many released events it has handled."""
+    sent, how many released events it has handled and the last block's last sample."""
 
     def __init__(self, rec: rr.RecordingStream, stream: ReplayStream) -> None:
         self.rec, self.stream = rec, stream
