@@ -105,15 +105,18 @@ def solve_recurrence(a: np.ndarray, b: np.ndarray, r_before: np.ndarray | None =
     return _solve_blocks(a, b, r_prev, edges)
 
 
+def reduce_rows(ufunc: np.ufunc, x: np.ndarray) -> np.ndarray:
+    """Return ``ufunc`` (``np.maximum``, ``np.minimum``) reduced along each row of ``x``
+    (n, k >= 1), as (n,), NaN where a row holds one: taken column by column, which for
+    rows of seven costs about a fifteenth of NumPy's reduction along them."""
+    return functools.reduce(ufunc, x.T[1:], x[:, 0])
+
+
 def _block_edges(a: np.ndarray) -> np.ndarray:
     """Return the rows (ascending, none 0) where a block of :func:`solve_recurrence`
     starts: where the running sum of the rows' smallest log a crosses a multiple of
     :data:`BLOCK_DECAY`."""
-    log_a = np.log(a)
-    # the smallest of each row, column by column: a reduction along rows of 7 costs
-    # about 15 times as much
-    smallest = functools.reduce(np.minimum, log_a.T[1:], log_a[:, 0])
-    decay = np.cumsum(smallest)
+    decay = np.cumsum(reduce_rows(np.minimum, np.log(a)))
     return np.flatnonzero(np.diff(np.floor(decay / BLOCK_DECAY))) + 1
 
 
