@@ -10,8 +10,10 @@ runs after start-up) against the chain alone and against the computation without
 logging (what logging adds to the replay a user waits for, the file's atomic write
 and Rerun's encoding thread, which shares the cores with the computation, included;
 the two are timed in turn, five times each, and the best of each taken),
-the file size per second of session, and for a paced replay at --rate 1 the lag
-between wall clock and session time at each hop (median, max). Every baseline is
+what Rerun alone takes to send and write the lanes logged at every sample (the floor
+of logging at full rate, no Python around the calls), logging thinned to 250 and
+100 Hz (``--log-rate``), the file size per second of session, and for a paced replay
+at --rate 1 the lag between wall clock and session time at each hop (median, max). Every baseline is
 measured in the same run; each time is the best of 5.
 
     .venv/bin/python benchmarks/bench_replay.py
@@ -27,6 +29,7 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
+import rerun as rr
 
 from contactkit.classify.data import load_features
 from contactkit.classify.modelfile import load_model, save_model
@@ -63,20 +66,28 @@ def setup(tmp: Path) -> tuple[Path, Path]:
                        feature_names=data.names, classes=list(estimator.classes_),
                        kind=get_kind("svm"), scheme="full",
                        fingerprint="", training={})
-    config = SimConfig(rate_hz=1000.0)
+    return simulated_session(tmp / "s.parquet", DURATION_S), model
+
+
+def simulated_session(path: Path, duration_s: float) -> Path:
+    """Write a simulated session of ``duration_s`` [s] at 1 kHz, a shove on link 6 at
+    5 s, to ``path``; return it."""
     spec = plan_session(seed=9, condition="static", action="shove", pose="B", link=6,
-                        duration_s=DURATION_S, planned_at_s=5.0)
-    source = SimSource(spec, config, chunk=500)
+                        duration_s=duration_s, planned_at_s=5.0)
+    source = SimSource(spec, SimConfig(rate_hz=1000.0), chunk=500)
     chunks = list(source.stream())
     columns = {k: np.concatenate([c[k] for c in chunks]) for k in SIM_COLUMNS}
-    session = write_session(tmp / "s.parquet", columns,
-                            source.session_meta())
-    return session, model
+    return write_session(path, columns, source.session_meta())
 
 
 DURATION_S = 10.0
+LONG_S = 60.0
+"""A second, longer session [s]: logging's cost per second of session, beyond what a
+recording costs however short (blueprint, robot model, closing the file)."""
 REPEATS = 5
 """Runs of each timing; the best is reported."""
+THINNED_HZ = (250.0, 100.0)
+"""Log rates [Hz] of the thinned-logging rows (``replay --log-rate``)."""
 DETECTOR = DetectorConfig()
 
 
@@ -112,17 +123,44 @@ def compute(session_path: Path, model_path: Path
     return stream, blocks, answer, time.perf_counter() - start
 
 
-def log_to_file(stream: ReplayStream, blocks: list[Block], answer, rrd: Path) -> float:
-    """Log a computed replay to an .rrd file exactly as the CLI does; return wall time [s]."""
+def log_to_file(stream: ReplayStream, blocks: list[Block], answer, rrd: Path,
+                log_rate_hz: float | None = None) -> float:
+    """Log a computed replay to an .rrd file exactly as the CLI does (with ``--log-rate
+    log_rate_hz``; None: every sample); return wall time [s]."""
     start = time.perf_counter()
     rec = new_recording("bench", "bench")
     rec.save(rrd, default_blueprint=layout.replay_blueprint())
-    logger = BlockLogger(rec, log_static(rec, stream), stream)
+    logger = BlockLogger(rec, log_static(rec, stream), stream, log_rate_hz)
     for block in blocks:
         logger.log(block)
     logger.finish()
     log_results(rec, stream, answer)
     rec.flush()
+    rec.disconnect()
+    return time.perf_counter() - start
+
+
+def full_rate_lanes(block: Block) -> list[tuple[str, np.ndarray]]:
+    """Return (entity path, values) of each lane the replay logs at every sample."""
+    return [(layout.Q, block.q), (layout.DQ, block.dq), (layout.TAU, block.tau),
+            (layout.RESIDUAL, block.r), (layout.FORCE, block.force),
+            (layout.MOMENT, block.moment), (layout.FORCE_NORM, block.norms[:, :1]),
+            (layout.MOMENT_NORM, block.norms[:, 1:])]
+
+
+def dense_lanes_alone(blocks: list[Block], rrd: Path) -> float:
+    """Send only the replay's full-rate lanes (joints, residual, force, moment and
+    their norms), each as one column with the time and sample timelines, to an .rrd
+    file and close it: no blueprint, styles, robot, events or predictions, no Python
+    around the calls. What Rerun itself takes for the bulk of the data; return wall
+    time [s]."""
+    start = time.perf_counter()
+    rec = rr.RecordingStream("bench-floor", recording_id="bench-floor")
+    rec.save(rrd)
+    for block in blocks:
+        index = layout.time_columns(block.t, block.sample)
+        for path, values in full_rate_lanes(block):
+            rec.send_columns(path, indexes=index, columns=rr.Scalars.columns(scalars=values))
     rec.disconnect()
     return time.perf_counter() - start
 
@@ -164,7 +202,19 @@ def main() -> None:
         logging = min(log_to_file(stream, blocks, answer, Path(tmp) / f"r{i}.rrd")
                       for i in range(REPEATS))
         size = (Path(tmp) / "r0.rrd").stat().st_size
+        floor = min(dense_lanes_alone(blocks, Path(tmp) / f"d{i}.rrd") for i in range(REPEATS))
+        thinned = {rate: min(log_to_file(stream, blocks, answer, Path(tmp) / f"t{i}.rrd", rate)
+                             for i in range(REPEATS)) for rate in THINNED_HZ}
         lags = paced_lag(session, model, Path(tmp) / "paced.rrd")
+        long_session = simulated_session(Path(tmp) / "long.parquet", LONG_S)
+        long_bare, long_log = [], {None: [], THINNED_HZ[0]: []}
+        for i in range(3):
+            long_stream, long_blocks, long_answer, seconds = compute(long_session, model)
+            long_bare.append(seconds)
+            for rate, times in long_log.items():
+                times.append(log_to_file(long_stream, long_blocks, long_answer,
+                                         Path(tmp) / f"long{i}.rrd", rate))
+            del long_stream, long_blocks
     events = len(stream.events)
     print(f"replay of a {DURATION_S:g} s session at 1 kHz ({stream.n_samples} samples), "
           f"--rate max, with a contact detector ({events} contact events)")
@@ -174,11 +224,28 @@ def main() -> None:
           f"time, {bare / chain:.2f}x the chain)")
     print(f"  Rerun logging of it:            {logging:.3f} s  (+{100 * logging / bare:.1f} % "
           "of the replay without logging)")
+    lanes = len(full_rate_lanes(blocks[0]))
+    print(f"  of which Rerun alone, for the full-rate lanes: {floor:.3f} s  "
+          f"(+{100 * floor / bare:.1f} %: sending the {lanes} lanes as columns and "
+          "writing them, nothing else)")
+    for rate, seconds in thinned.items():
+        print(f"  logging with --log-rate {rate:g}:    {seconds:.3f} s  "
+              f"(+{100 * seconds / bare:.1f} % of the replay without logging)")
     print(f"  whole replay to an .rrd:        {whole:.3f} s  ({DURATION_S / whole:.1f}x real "
           f"time, {whole / chain:.2f}x the chain; +{100 * (whole - bare) / bare:.1f} % of the "
           "replay without logging)")
     print(f"  .rrd size:                      {size / 1e6:.2f} MB  "
           f"({size / 1e6 / DURATION_S:.3f} MB per second of session)")
+    bare_rate = (min(long_bare) - bare) / (LONG_S - DURATION_S)
+    print(f"per second of session, from the {DURATION_S:g} s session to a {LONG_S:g} s one "
+          f"(best of 3): replay without logging {1e3 * bare_rate:.2f} ms")
+    for rate, times in long_log.items():
+        short = logging if rate is None else thinned[rate]
+        log_rate = (min(times) - short) / (LONG_S - DURATION_S)
+        what = "every sample" if rate is None else f"--log-rate {rate:g}"
+        once = short - log_rate * DURATION_S
+        print(f"  logging, {what}: {1e3 * log_rate:.2f} ms (+{100 * log_rate / bare_rate:.1f} % "
+              f"of the replay without logging), and {1e3 * once:.1f} ms once per recording")
     print(f"paced replay at --rate 1: lag behind session time median "
           f"{1e3 * np.median(lags):.2f} ms, max {1e3 * lags.max():.2f} ms over {len(lags)} hops")
 
