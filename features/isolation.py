@@ -474,10 +474,13 @@ class ContactIsolator:
         # the first one within reach on
         first = next((i for i, k in enumerate(self._link_list) if reach[k]),
                      len(self._link_list))
-        coarse = self._coarse(coeffs, rr, first)
-        fits = self._search(coarse, coeffs, rr, errors)
+        if not self._link_list:  # no link has a surface: judged by their wrenches alone
+            coarse, fits = None, {}
+        else:
+            coarse = self._coarse(coeffs, rr, first)
+            fits = self._search(coarse, coeffs, rr, errors)
         last, link, other = _decide(errors.tolist(), tie)
-        if not (reach[last] and reach[link] and reach[other]):
+        if coarse is not None and not (reach[last] and reach[link] and reach[other]):
             coarse = self._coarse(coeffs, rr, 0)
             fits = self._search(coarse, coeffs, rr, errors)
             last, link, other = _decide(errors.tolist(), tie)

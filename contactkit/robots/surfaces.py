@@ -3,14 +3,18 @@
 The simulator draws its contact points on them, contact isolation searches them,
 and the viewer draws the links with them (coarse collision meshes: about 150 kB
 for a Franka arm, against about 10 MB of visual meshes that every recording would
-carry). Meshes are binary STL files named by the URDF's ``<collision>`` elements:
-``package://PKG/PATH`` is looked up in the folders above the URDF (as
-example-robot-data installs it), a relative name beside the URDF.
+carry). Meshes are STL files (binary or ASCII) named by the URDF's ``<collision>``
+elements: ``package://PKG/PATH`` is looked up in the folders above the URDF (as
+example-robot-data installs it), a relative name beside the URDF. A mesh that cannot be
+found or read (another format, a package not installed) is left out with a warning,
+once per file: its link then has less surface, or none, which contact isolation and
+the viewer handle, instead of stopping the replay.
 """
 
 from __future__ import annotations
 
 import hashlib
+import logging
 import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -24,6 +28,9 @@ from contactkit.robots.registry import get_robot
 from contactkit.robots.spec import RobotSetup, RobotSpec
 from contactkit.util.atomic import any_regular_file, write_text
 from contactkit.util.cache import cache_dir
+
+log = logging.getLogger(__name__)
+_SKIPPED: set[str] = set()
 
 STL_TRIANGLE = np.dtype([("normal", "<f4", 3), ("vertices", "<f4", (3, 3)), ("attr", "<u2")])
 
@@ -45,10 +52,32 @@ class LinkSurface:
 
 
 def read_stl(path: Path) -> np.ndarray:
-    """Return the triangles of a binary STL file as an (n, 3, 3) array [file units]."""
+    """Return the triangles of an STL file (binary or ASCII) as an (n, 3, 3) array [file
+    units]. Raises ValueError for a file that is neither."""
     raw = path.read_bytes()
-    count = int(np.frombuffer(raw, "<u4", 1, 80)[0])
-    return np.frombuffer(raw, STL_TRIANGLE, count, 84)["vertices"].astype(float)
+    count = int(np.frombuffer(raw, "<u4", 1, 80)[0]) if len(raw) >= 84 else -1
+    binary = count >= 0 and len(raw) >= 84 + count * STL_TRIANGLE.itemsize
+    if binary and len(raw) == 84 + count * STL_TRIANGLE.itemsize:
+        return np.frombuffer(raw, STL_TRIANGLE, count, 84)["vertices"].astype(float)
+    if raw.lstrip()[:5].lower() == b"solid":  # ASCII (or a binary header saying solid)
+        words = raw.decode("ascii", "replace").split()
+        values = [words[i + 1:i + 4] for i, w in enumerate(words) if w.lower() == "vertex"]
+        try:
+            vertices = np.array(values, dtype=float).reshape(-1, 3, 3)
+        except ValueError:
+            vertices = None
+        if vertices is not None and len(vertices):
+            return vertices
+    if binary:  # trailing bytes after the triangles
+        return np.frombuffer(raw, STL_TRIANGLE, count, 84)["vertices"].astype(float)
+    raise ValueError(f"{path} is not an STL file")
+
+
+def _skip_mesh(problem: str) -> None:
+    """Warn, once per problem, that a mesh is left out."""
+    if problem not in _SKIPPED:
+        _SKIPPED.add(problem)
+        log.warning("collision mesh left out: %s", problem)
 
 
 def resolve_mesh(urdf_file: Path, filename: str) -> Path:
@@ -93,14 +122,25 @@ def _collision_meshes(spec: RobotSpec, with_hand: bool, link_name: str
             rpy = np.zeros(3) if origin is None else np.array(
                 origin.get("rpy", "0 0 0").split(), dtype=float)
             scale = np.array(mesh.get("scale", "1 1 1").split(), dtype=float)
-            found.append((resolve_mesh(spec.urdf_file(), mesh.get("filename")),
-                          _rpy_matrix(rpy), xyz, scale))
+            try:
+                path = resolve_mesh(spec.urdf_file(), mesh.get("filename", ""))
+            except FileNotFoundError as err:
+                _skip_mesh(str(err))
+                continue
+            found.append((path, _rpy_matrix(rpy), xyz, scale))
     return found
 
 
 def _mesh_triangles(spec: RobotSpec, with_hand: bool, link_name: str) -> list[np.ndarray]:
-    return [(read_stl(path) * scale) @ rotation.T + xyz
-            for path, rotation, xyz, scale in _collision_meshes(spec, with_hand, link_name)]
+    triangles = []
+    for path, rotation, xyz, scale in _collision_meshes(spec, with_hand, link_name):
+        try:
+            mesh = read_stl(path)
+        except (OSError, ValueError) as err:
+            _skip_mesh(str(err))
+            continue
+        triangles.append((mesh * scale) @ rotation.T + xyz)
+    return triangles
 
 
 @cache
@@ -150,7 +190,13 @@ def _viewer_urdf(setup: RobotSetup) -> tuple[str, str]:
             collision.tag = "visual"
             mesh = collision.find("geometry/mesh")
             if mesh is not None:
-                mesh.set("filename", str(resolve_mesh(spec.urdf_file(), mesh.get("filename"))))
+                try:
+                    path = resolve_mesh(spec.urdf_file(), mesh.get("filename", ""))
+                except FileNotFoundError as err:
+                    _skip_mesh(str(err))
+                    link.remove(collision)  # the viewer draws the link without it
+                    continue
+                mesh.set("filename", str(path))
     text = ET.tostring(root, encoding="unicode")
     digest = hashlib.sha256(text.encode()).hexdigest()[:12]
     stem = re.sub(r"[^A-Za-z0-9_-]", "_", spec.name)[:40]

@@ -41,6 +41,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import pyarrow as pa
 
+from contactkit.errors import InputError
 from contactkit.recorder.protocol import MAX_ONSET_DELAY_S
 from contactkit.robots.model import RobotModel
 from contactkit.robots.surfaces import LinkSurface, link_surface
@@ -137,6 +138,9 @@ def sample_contact(rng: np.random.Generator, action: str, planned_at_s: float, l
     """
     if action == "none":
         return None
+    if surface.empty:
+        raise InputError(f"link {link} has no collision mesh to touch (a mesh the URDF "
+                         "names could not be read, or it has none)")
     ranges = PROFILE_RANGES[action]
     draw = {k: float(rng.uniform(*v)) for k, v in ranges.items()}
     for _ in range(MAX_DIRECTION_DRAWS):

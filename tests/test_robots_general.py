@@ -1,0 +1,66 @@
+"""Robots in general: 7-joint arms given as ``urdf:PATH`` that differ from the Panda in the
+ways real URDFs do (meshes that are not there or not binary STL, relative paths,
+continuous joints, branches), through the model, the surfaces, isolation and the
+simulator."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from contactkit.errors import InputError
+from contactkit.features.isolation import NO_SURFACE, ContactIsolator
+from contactkit.recorder.sim.forces import Persona, sample_contact
+from contactkit.robots import PANDA, RobotSetup
+from contactkit.robots.model import RobotModel
+from contactkit.robots.surfaces import link_surface, read_stl, viewer_urdf_file
+
+Q = np.array([0.1, -0.78, 0.2, -2.36, 0.3, 1.57, 0.78])
+
+
+def _arm(tmp_path: Path, text: str, name: str = "arm.urdf") -> str:
+    urdf = tmp_path / name
+    urdf.write_text(text)
+    return f"urdf:{urdf}"
+
+
+def test_meshes_that_cannot_be_found_leave_links_bare_not_a_crash(tmp_path: Path) -> None:
+    """A URDF whose package:// meshes are not installed (or not STL): the model works,
+    the links have no surface, the viewer's URDF leaves those meshes out, isolation
+    names the link by its wrench, and a simulated touch there is a one-line error."""
+    text = PANDA.urdf_text(False).replace("package://example-robot-data",
+                                          "package://not_installed_pkg")
+    text = text.replace("collision/link7.stl", "collision/link7.dae")
+    robot = _arm(tmp_path, text)
+    setup = RobotSetup(robot, with_hand=False)
+    assert all(link_surface(setup, k).empty for k in range(1, 8))
+    viewer = viewer_urdf_file(setup).read_text()
+    assert "not_installed_pkg" not in viewer and "<mesh" not in viewer
+    model = RobotModel(setup)
+    isolator = ContactIsolator(model, lambda k: None)
+    r = model.point_jacobian(Q, 4, np.array([0.0, 0.05, 0.0]))[:3].T @ np.array([0, 0, 30.0])
+    est = isolator.estimate(1.0, Q, r)
+    assert est.status == NO_SURFACE and est.link is not None and est.force is None
+    with pytest.raises(InputError, match="link 4 has no collision mesh"):
+        sample_contact(np.random.default_rng(0), "bump", 5.0, 4, link_surface(setup, 4),
+                       np.eye(3), Persona.from_name("sim"))
+
+
+def test_stl_files_binary_ascii_and_neither(tmp_path: Path) -> None:
+    ascii_stl = tmp_path / "tri.stl"
+    ascii_stl.write_text("solid t\n facet normal 0 0 1\n  outer loop\n   vertex 0 0 0\n"
+                         "   vertex 1 0 0\n   vertex 0 1 0\n  endloop\n endfacet\nendsolid t\n")
+    assert np.array_equal(read_stl(ascii_stl), [[[0, 0, 0], [1, 0, 0], [0, 1, 0]]])
+    collada = tmp_path / "link.dae"
+    collada.write_text("<?xml version='1.0'?><COLLADA>" + " " * 200 + "</COLLADA>")
+    with pytest.raises(ValueError, match="not an STL file"):
+        read_stl(collada)
+    binary = tmp_path / "bin.stl"
+    triangle = np.zeros(1, dtype=[("normal", "<f4", 3), ("vertices", "<f4", (3, 3)),
+                                  ("attr", "<u2")])
+    triangle["vertices"] = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+    binary.write_bytes(b"solid header of a binary file".ljust(80, b" ")
+                       + np.uint32(1).tobytes() + triangle.tobytes())
+    assert np.array_equal(read_stl(binary), read_stl(ascii_stl))
