@@ -13,9 +13,11 @@ import pytest
 from contactkit.errors import InputError
 from contactkit.features.isolation import NO_SURFACE, ContactIsolator
 from contactkit.recorder.sim.forces import Persona, sample_contact
-from contactkit.robots import PANDA, RobotSetup
+from contactkit.recorder.sim.simulator import SimConfig
+from contactkit.robots import PANDA, RobotSetup, canonical_robot_name, get_robot
 from contactkit.robots.model import RobotModel
 from contactkit.robots.surfaces import link_surface, read_stl, viewer_urdf_file
+from contactkit.schemas import SessionMeta
 
 Q = np.array([0.1, -0.78, 0.2, -2.36, 0.3, 1.57, 0.78])
 
@@ -64,3 +66,18 @@ def test_stl_files_binary_ascii_and_neither(tmp_path: Path) -> None:
     binary.write_bytes(b"solid header of a binary file".ljust(80, b" ")
                        + np.uint32(1).tobytes() + triangle.tobytes())
     assert np.array_equal(read_stl(binary), read_stl(ascii_stl))
+
+
+def test_a_relative_urdf_path_is_stored_absolute(tmp_path: Path,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """`--robot urdf:arm.urdf` given in the URDF's folder names the file for good: a
+    session's metadata holds its absolute path, readable from any other folder."""
+    _arm(tmp_path, PANDA.urdf_text(False))
+    monkeypatch.chdir(tmp_path)
+    config = SimConfig(robot="urdf:arm.urdf", with_hand=False)
+    assert config.robot == f"urdf:{tmp_path / 'arm.urdf'}"
+    assert canonical_robot_name("urdf:./arm.urdf") == config.robot
+    meta = SessionMeta(session_id="s", source="t", action="none", with_hand=False,
+                       robot=config.robot, urdf_sha256=get_robot(config.robot).urdf_sha256(False))
+    monkeypatch.chdir(tmp_path.parent)
+    assert meta.robot_setup().robot == config.robot

@@ -23,6 +23,7 @@ A session names its robot in its metadata (``robot``). The name is looked up her
 from __future__ import annotations
 
 import importlib
+import os
 import xml.etree.ElementTree as ET
 from functools import cache
 from pathlib import Path
@@ -57,12 +58,18 @@ def robot_names() -> list[str]:
 
 def canonical_robot_name(name: str) -> str:
     """Return the registry name of ``name`` (an alias such as ``franka_panda`` becomes
-    ``panda``; ``urdf:PATH`` stays as it is). Raises InputError listing the known
+    ``panda``; ``urdf:PATH`` gets the absolute path, so that a session recorded with a
+    relative one names its file from any folder). Raises InputError listing the known
     robots for an unknown name."""
     if not isinstance(name, str) or not name:
         raise InputError(f"robot name {name!r} is not a name")
     name = _ALIASES.get(name, name)
-    if name in _BUILTIN or name.startswith(URDF_PREFIX) or name in _plugins():
+    if name.startswith(URDF_PREFIX):
+        path = name[len(URDF_PREFIX):]
+        if not path:
+            raise InputError(f"robot {name!r} names no URDF file ({URDF_PREFIX}PATH)")
+        return URDF_PREFIX + os.path.abspath(os.path.expanduser(path))
+    if name in _BUILTIN or name in _plugins():
         return name
     shown = name if len(name) <= 60 else name[:57] + "..."
     raise InputError(f"unknown robot {shown!r} (known: {', '.join(robot_names())}, or "
