@@ -16,6 +16,7 @@ from contactkit.recorder.sim.forces import Persona, sample_contact
 from contactkit.recorder.sim.simulator import SimConfig
 from contactkit.robots import PANDA, RobotSetup, canonical_robot_name, get_robot
 from contactkit.robots.model import RobotModel
+from contactkit.robots.registry import urdf_robot
 from contactkit.robots.surfaces import link_surface, read_stl, viewer_urdf_file
 from contactkit.schemas import SessionMeta
 
@@ -81,3 +82,13 @@ def test_a_relative_urdf_path_is_stored_absolute(tmp_path: Path,
                        robot=config.robot, urdf_sha256=get_robot(config.robot).urdf_sha256(False))
     monkeypatch.chdir(tmp_path.parent)
     assert meta.robot_setup().robot == config.robot
+
+
+def test_a_session_whose_urdf_is_gone_names_the_missing_file(tmp_path: Path) -> None:
+    robot = _arm(tmp_path, PANDA.urdf_text(False))
+    meta = SessionMeta(session_id="s", source="t", action="none", with_hand=False,
+                       robot=robot, urdf_sha256=get_robot(robot).urdf_sha256(False))
+    (tmp_path / "arm.urdf").rename(tmp_path / "moved.urdf")
+    urdf_robot.cache_clear()  # as a later process, which reads the file anew
+    with pytest.raises(InputError, match=r"^s\.parquet: .*arm\.urdf: cannot read the robot's"):
+        meta.robot_setup("s.parquet")
