@@ -92,3 +92,37 @@ def test_a_session_whose_urdf_is_gone_names_the_missing_file(tmp_path: Path) -> 
     urdf_robot.cache_clear()  # as a later process, which reads the file anew
     with pytest.raises(InputError, match=r"^s\.parquet: .*arm\.urdf: cannot read the robot's"):
         meta.robot_setup("s.parquet")
+
+
+def _continuous(text: str, joints: tuple[int, ...]) -> str:
+    """The Panda's URDF with ``joints`` made continuous, their limits as real URDFs of
+    such arms (Kinova Gen3's joints 1, 3, 5, 7) have them: effort and velocity only."""
+    import re
+
+    for j in joints:
+        text = re.sub(rf'(<joint name="panda_joint{j}") type="revolute">(.*?)<limit [^>]*/>',
+                      r'\1 type="continuous">\2<limit effort="12.0" velocity="2.61"/>',
+                      text, count=1, flags=re.S)
+    return text
+
+
+def test_continuous_joints_are_revolute_joints_without_position_limits(tmp_path: Path
+                                                                       ) -> None:
+    """The docs take "the first 7 revolute (or continuous) joints"; a continuous joint
+    was a 'has 8 joints, not 7' error (pinocchio's cos/sin joint) or a missing limit."""
+    text = _continuous(PANDA.urdf_text(False), (1, 3, 5, 7))
+    assert text.count('type="continuous"') == 4
+    robot = _arm(tmp_path, text)
+    spec = get_robot(robot)
+    assert spec.joint_names == PANDA.joint_names
+    limits = spec.limits
+    assert np.isinf(limits.q_min[[0, 2, 4, 6]]).all() and np.isinf(limits.q_max[0])
+    assert np.isfinite(limits.q_min[[1, 3, 5]]).all() and limits.dq_max[6] == 2.61
+    model = RobotModel(RobotSetup(robot, with_hand=False))
+    panda = RobotModel(RobotSetup(with_hand=False))
+    assert model.model.nq == 7
+    far = Q + np.array([4.0, 0, -5.0, 0, 7.0, 0, 9.0])  # beyond a revolute joint's range
+    np.testing.assert_allclose(model.gravity(far), panda.gravity(far), atol=1e-9)
+    rotation, _ = model.frame_placements(far[None], 7)
+    np.testing.assert_allclose(rotation[0], panda.frame_placement(far, 7).rotation,
+                               atol=1e-12)

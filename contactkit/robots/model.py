@@ -12,6 +12,7 @@ Joint vectors are numpy arrays of shape (7,), joint 1 first.
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ET
 from functools import cache
 
 import numpy as np
@@ -22,11 +23,32 @@ from contactkit.robots.registry import get_robot
 from contactkit.robots.spec import N_JOINTS, RobotSetup, RobotSpec
 
 
+def _revolute(text: str, joints: tuple[str, ...]) -> str:
+    """Return URDF ``text`` with its continuous arm ``joints`` made revolute: one angle
+    each, as sessions record them (pinocchio gives a continuous joint two configuration
+    values, its angle's cosine and sine), with position limits that never bind."""
+    if "continuous" not in text:
+        return text
+    root = ET.fromstring(text)
+    changed = False
+    for joint in root.iter("joint"):
+        if joint.get("type") == "continuous" and joint.get("name") in joints:
+            joint.set("type", "revolute")
+            limit = joint.find("limit")
+            if limit is None:
+                limit = ET.SubElement(joint, "limit", effort="0", velocity="0")
+            limit.set("lower", "-1e9")
+            limit.set("upper", "1e9")
+            changed = True
+    return ET.tostring(root, encoding="unicode") if changed else text
+
+
 @cache
 def _nominal_model(setup: RobotSetup) -> pin.Model:
     spec = get_robot(setup.robot)
     try:
-        full = pin.buildModelFromXML(spec.urdf_text(setup.with_hand))
+        full = pin.buildModelFromXML(_revolute(spec.urdf_text(setup.with_hand),
+                                               spec.joint_names))
     except (RuntimeError, ValueError) as err:
         raise InputError(f"robot {setup.robot!r}: pinocchio cannot build its URDF: {err}"
                          ) from err

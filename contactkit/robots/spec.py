@@ -188,7 +188,8 @@ def strip_links(text: str, links: tuple[str, ...]) -> str:
 def urdf_joint_limits(text: str, joint_names: tuple[str, ...]
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Return (q_min, q_max, dq_max, tau_max) of the named joints from URDF ``text``
-    (rad, rad, rad/s, Nm). Raises ValueError when a joint or its limit is missing."""
+    (rad, rad, rad/s, Nm); a continuous joint's positions are unlimited (-inf, inf).
+    Raises ValueError when a joint or its limit is missing."""
     root = ET.fromstring(text)
     joints = {j.get("name"): j for j in root.iter("joint")}
     rows = []
@@ -197,10 +198,12 @@ def urdf_joint_limits(text: str, joint_names: tuple[str, ...]
         limit = None if joint is None else joint.find("limit")
         if limit is None:
             raise ValueError(f"the URDF has no joint {name!r} with a <limit>")
-        rows.append([float(limit.get(k, "nan")) for k in ("lower", "upper", "velocity",
-                                                            "effort")])
+        row = [float(limit.get(k, "nan")) for k in ("lower", "upper", "velocity", "effort")]
+        if joint.get("type") == "continuous":
+            row[:2] = -np.inf, np.inf
+        rows.append(row)
     values = np.array(rows, dtype=float)
-    if not np.isfinite(values).all():
+    if np.isnan(values).any() or not np.isfinite(values[:, 2:]).all():
         raise ValueError("a joint limit of the URDF is missing or not a number")
     return values[:, 0], values[:, 1], values[:, 2], values[:, 3]
 

@@ -168,7 +168,8 @@ def _deep_plots(summaries: list[dict]) -> list[tuple[str, str, bytes]]:
                            (axes[1], "max_speed_fraction", "max |dq| / limit"),
                            (axes[2], "max_torque_fraction", "max |tau| / limit")):
         values = np.array([s[key] for s in summaries])
-        parts = ax.boxplot([values[:, j] for j in range(7)], tick_labels=joints,
+        # a continuous joint's margin is infinite: no position limit to approach
+        parts = ax.boxplot([v[np.isfinite(v)] for v in values.T], tick_labels=joints,
                            patch_artist=True)
         for patch, color in zip(parts["boxes"], JOINT_COLORS, strict=True):
             patch.set_facecolor(tuple(c / 255 for c in color))
