@@ -126,3 +126,25 @@ def test_continuous_joints_are_revolute_joints_without_position_limits(tmp_path:
     rotation, _ = model.frame_placements(far[None], 7)
     np.testing.assert_allclose(rotation[0], panda.frame_placement(far, 7).rotation,
                                atol=1e-12)
+
+
+def test_a_fixed_side_branch_before_the_7th_joint_is_not_the_chain(tmp_path: Path) -> None:
+    """A camera or sensor frame fixed to link 3 (a second child of that link) was 'the
+    URDF branches at link panda_link3'; the chain is the branch that moves. A second
+    branch with a revolute joint is still refused."""
+    camera = ('<link name="camera"/><joint name="camera_joint" type="fixed">'
+              '<parent link="panda_link3"/><child link="camera"/>'
+              '<origin xyz="0 0.1 0"/></joint>')
+    text = PANDA.urdf_text(False).replace('<joint name="panda_joint4"',
+                                          camera + '<joint name="panda_joint4"', 1)
+    robot = _arm(tmp_path, text)
+    spec = get_robot(robot)
+    assert spec.joint_names == PANDA.joint_names and spec.flange == "panda_link8"
+    np.testing.assert_allclose(RobotModel(RobotSetup(robot, False)).gravity(Q),
+                               RobotModel(RobotSetup(with_hand=False)).gravity(Q), atol=1e-9)
+    moving = camera.replace('type="fixed">', 'type="revolute"><limit lower="-1" '
+                            'upper="1" effort="1" velocity="1"/>')
+    text = PANDA.urdf_text(False).replace('<joint name="panda_joint4"',
+                                          moving + '<joint name="panda_joint4"', 1)
+    with pytest.raises(InputError, match="branches at link 'panda_link3'"):
+        get_robot(_arm(tmp_path, text, "two.urdf"))

@@ -105,8 +105,9 @@ def urdf_robot(path: str) -> RobotSpec:
     """Return a spec for the 7-joint serial arm in the URDF file at ``path``.
 
     The arm's joints are the first 7 revolute (or continuous) joints along the chain
-    from the root link; links 1..7 are their child links and the flange is the last
-    link of the chain. No hand, friction or armature. Raises InputError for a file
+    from the root link (side branches without such joints, frames of cameras or
+    sensors, are left beside it); links 1..7 are their child links and the flange is
+    the last link of the chain. No hand, friction or armature. Raises InputError for a file
     that cannot be read or holds no such chain.
     """
     file = Path(path).expanduser()
@@ -126,12 +127,23 @@ def urdf_robot(path: str) -> RobotSpec:
         child_links.add(child.get("link"))
     roots = [link.get("name") for link in root.iter("link")
              if link.get("name") not in child_links]
+    def moves(joint: ET.Element, depth: int = 0) -> bool:
+        """Whether ``joint`` or a joint below it turns (a side branch of fixed frames,
+        a camera's or a sensor's, does not)."""
+        if joint.get("type") in ("revolute", "continuous"):
+            return True
+        below = children.get(joint.find("child").get("link"), [])
+        return depth < 1000 and any(moves(j, depth + 1) for j in below)
+
     joints, links = [], []
     link = roots[0] if len(roots) == 1 else None
     while link is not None:
         following = children.get(link, [])
         if len(following) > 1 and len(joints) < N_JOINTS:
-            raise InputError(f"the URDF branches at link {link!r} before its 7th joint", file)
+            following = [j for j in following if moves(j)]
+            if len(following) > 1:
+                raise InputError(f"the URDF branches at link {link!r} before its 7th joint",
+                                 file)
         if not following:
             break
         joint = following[0]
