@@ -148,3 +148,20 @@ def test_a_fixed_side_branch_before_the_7th_joint_is_not_the_chain(tmp_path: Pat
                                           moving + '<joint name="panda_joint4"', 1)
     with pytest.raises(InputError, match="branches at link 'panda_link3'"):
         get_robot(_arm(tmp_path, text, "two.urdf"))
+
+
+@pytest.mark.timeout(20)
+def test_a_urdf_whose_joints_form_a_loop_is_refused_not_followed_forever(tmp_path: Path
+                                                                         ) -> None:
+    links = "".join(f'<link name="{n}"/>' for n in "rab")
+    joints = "".join(f'<joint name="j{i}" type="fixed"><parent link="{p}"/>'
+                     f'<child link="{c}"/></joint>' for i, (p, c) in enumerate(("ra", "ab", "ba")))
+    with pytest.raises(InputError, match="loop"):
+        get_robot(_arm(tmp_path, f'<robot name="x">{links}{joints}</robot>'))
+    # the loop in a side branch: the branch is looked at, once
+    loop = ('<link name="s"/><joint name="side" type="fixed"><parent link="panda_link3"/>'
+            '<child link="s"/></joint><joint name="back" type="fixed"><parent link="s"/>'
+            '<child link="s"/></joint>')
+    text = PANDA.urdf_text(False).replace('<joint name="panda_joint4"',
+                                          loop + '<joint name="panda_joint4"', 1)
+    assert get_robot(_arm(tmp_path, text, "side.urdf")).joint_names == PANDA.joint_names

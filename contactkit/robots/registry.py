@@ -127,17 +127,25 @@ def urdf_robot(path: str) -> RobotSpec:
         child_links.add(child.get("link"))
     roots = [link.get("name") for link in root.iter("link")
              if link.get("name") not in child_links]
-    def moves(joint: ET.Element, depth: int = 0) -> bool:
+    def moves(joint: ET.Element) -> bool:
         """Whether ``joint`` or a joint below it turns (a side branch of fixed frames,
         a camera's or a sensor's, does not)."""
-        if joint.get("type") in ("revolute", "continuous"):
-            return True
-        below = children.get(joint.find("child").get("link"), [])
-        return depth < 1000 and any(moves(j, depth + 1) for j in below)
+        stack, visited = [joint], set()
+        while stack:
+            joint = stack.pop()
+            if joint.get("type") in ("revolute", "continuous"):
+                return True
+            if id(joint) not in visited:
+                visited.add(id(joint))
+                stack += children.get(joint.find("child").get("link"), [])
+        return False
 
-    joints, links = [], []
+    joints, links, seen = [], [], set()
     link = roots[0] if len(roots) == 1 else None
     while link is not None:
+        if link in seen:
+            raise InputError(f"the URDF's joints form a loop at link {link!r}", file)
+        seen.add(link)
         following = children.get(link, [])
         if len(following) > 1 and len(joints) < N_JOINTS:
             following = [j for j in following if moves(j)]
