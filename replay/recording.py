@@ -25,6 +25,7 @@ import numpy as np
 import rerun as rr
 
 from contactkit.classify.events import ContactEvent
+from contactkit.errors import InputError
 from contactkit.replay.contacts import ContactTrackLogger, log_contact_links
 from contactkit.replay.engine import Block, OfflineAnswer, ReplayStream
 from contactkit.robots.model import RobotModel
@@ -317,3 +318,19 @@ def save_path_for(save: Path, session_path: Path, many: bool) -> Path:
     if not many:
         return save
     return inside(save.parent, f"{save.stem}_{session_path.stem}.rrd")
+
+
+def save_paths_for(save: Path, session_paths: Sequence[Path]) -> list[Path]:
+    """Return the .rrd path of each session (:func:`save_path_for`); raise InputError
+    when two sessions would be saved under one name (equal file names in different
+    directories), so that no session's recording silently replaces another's."""
+    many = len(session_paths) > 1
+    targets, first = [], {}
+    for session_path in session_paths:
+        target = save_path_for(save, Path(session_path), many)
+        if target in first:
+            raise InputError(f"sessions {first[target]} and {session_path} would both be "
+                             f"saved as {target.name}; replay them separately", target)
+        first[target] = session_path
+        targets.append(target)
+    return targets

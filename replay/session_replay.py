@@ -25,7 +25,7 @@ from contactkit.replay.recording import (
     log_results,
     log_static,
     new_recording,
-    save_path_for,
+    save_paths_for,
 )
 from contactkit.schemas import InputError
 from contactkit.schemas.dataset import session_files
@@ -164,15 +164,15 @@ def replay_sessions(paths: Sequence[Path], model: ModelFile, *, save: Path | Non
                     on_done: Callable[[ReplaySummary | InputError], None] | None = None
                     ) -> tuple[list[ReplaySummary], list[InputError]]:
     """Replay each session into its own recording (with several sessions and ``save``,
-    one file each, see :func:`contactkit.replay.recording.save_path_for`); return the
+    one file each, see :func:`contactkit.replay.recording.save_paths_for`); return the
     summaries and the sessions refused, which do not stop the others. ``detector``,
     ``decide_after_s``, ``log_rate_hz``, ``robot``, ``overwrite`` and ``owned`` are as
     for :func:`replay_session`. ``on_done`` is called after each session with its
-    summary or its error."""
-    many = len(paths) > 1
+    summary or its error. Two sessions that would be saved under one name (equal file
+    names in different directories) raise InputError before any is replayed."""
+    targets = [None] * len(paths) if save is None else save_paths_for(save, paths)
     summaries, problems = [], []
-    for path in paths:
-        target = None if save is None else save_path_for(save, Path(path), many)
+    for path, target in zip(paths, targets, strict=True):
         try:
             result = replay_session(path, model, save=target, connect=connect, spawn=spawn,
                                     rate=rate, hop_s=hop_s, detector=detector,

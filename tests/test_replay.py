@@ -432,3 +432,27 @@ def test_a_labelled_contact_column_is_shown_without_a_simulated_force(session, m
     entities = read_rrd(summaries[0].saved)
     assert layout.TRUE_CONTACT in entities and layout.TRUE_FORCE not in entities
     assert_frames_ok(summaries[0].saved)
+
+
+def test_sessions_of_one_name_never_save_over_each_other(tmp_path, session, model_path,
+                                                         capsys, monkeypatch) -> None:
+    """Two sessions named alike in different directories would both be saved as
+    ``<save>_<name>.rrd``: the second replaced the first (silently with the default
+    replay.rrd). Refused before any work, as one line naming both."""
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "s.parquet").write_bytes(session.read_bytes())
+    pair = [str(tmp_path / "a" / "s.parquet"), str(tmp_path / "b" / "s.parquet")]
+    out = tmp_path / "out"
+    out.mkdir()
+    monkeypatch.chdir(out)
+    for save in ([], ["--save", str(out / "r.rrd")], ["--save", str(out / "r.rrd"),
+                                                     "--overwrite"]):
+        code = run_app(replay_cli.app, "replay", [*pair, "--viewer", "none", *save,
+                                                  "--model", str(model_path)])
+        err = capsys.readouterr().err
+        assert code == 2 and "would both be saved as" in err, err
+        assert "rerun " not in err and list(out.iterdir()) == []
+    with pytest.raises(InputError, match="would both be saved"):
+        replay_sessions([Path(p) for p in pair], load_model(model_path), save=out / "r.rrd")
+    assert list(out.iterdir()) == []

@@ -103,7 +103,7 @@ def replay_command(
         model_or_default,
     )
     from contactkit.features.detector import load_calibration
-    from contactkit.replay.recording import owned_recording, save_path_for
+    from contactkit.replay.recording import owned_recording, save_paths_for
     from contactkit.replay.session_replay import ReplaySummary, replay_sessions, session_inputs
 
     if build_default_model_:
@@ -129,9 +129,8 @@ def replay_command(
     if viewer is Viewer.none and save is None and connect is None:
         save = DEFAULT_SAVE
     if save is not None:
-        for path in paths:
-            check_target(save_path_for(save, path, len(paths) > 1), overwrite=overwrite,
-                         owned=owned)
+        for target in save_paths_for(save, paths):
+            check_target(target, overwrite=overwrite, owned=owned)
     if model is None and default_model_missing():
         err_console.print("No --model given: building the default model once (simulated "
                           "data, then an SVM); it is cached for next time.")
