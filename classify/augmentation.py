@@ -37,7 +37,13 @@ from contactkit.classify.inputs import GRIDS
 from contactkit.classify.kind import ModelKind, ModelOptions
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.dataset import session_files
-from contactkit.util.atomic import owned_result, write_figure, write_text
+from contactkit.util.atomic import (
+    owned_result,
+    result_json,
+    result_markdown,
+    write_figure,
+    write_text,
+)
 
 FRACTIONS = (0.5, 0.75, 1.0)
 NOISE_LEVELS = (1, 5, 10)
@@ -169,13 +175,13 @@ def _write(out_dir: Path, cells: dict, conditions: list[str], model: str, spec: 
             row.append(f"{100 * mean:.1f} [{100 * lo:.1f}, {100 * hi:.1f}]")
         lines.append(f"| {int(fraction * 100)} % | " + " | ".join(row) + " |")
     md, js, png = (out_dir / f"augmentation.{ext}" for ext in ("md", "json", "png"))
-    write_text(md, "\n".join(lines) + "\n", owned=owned_result)
-    write_text(js, json.dumps({"model": model, "grid": spec.as_dict(), "repeats": repeats,
-                              "noise_baseline_nm": baseline.tolist(),
-                              "cells": [{"fraction": c.fraction, "condition": c.condition,
-                                         "balanced_accuracy": c.scores,
-                                         "mean_ci": c.interval()} for c in cells.values()]},
-                             indent=2))
+    write_text(md, result_markdown("\n".join(lines) + "\n"), owned=owned_result)
+    write_text(js, json.dumps(result_json({
+        "model": model, "grid": spec.as_dict(), "repeats": repeats,
+        "noise_baseline_nm": baseline.tolist(),
+        "cells": [{"fraction": c.fraction, "condition": c.condition,
+                   "balanced_accuracy": c.scores, "mean_ci": c.interval()}
+                  for c in cells.values()]}), indent=2))
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
     for fraction in FRACTIONS:
         for ax, names, labels in ((left, conditions[:3], ["real", "1xSim", "2xSim"]),

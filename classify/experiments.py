@@ -45,7 +45,13 @@ from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import SCALARS
 from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS, columns_of
 from contactkit.schemas import InputError
-from contactkit.util.atomic import owned_result, write_figure, write_text
+from contactkit.util.atomic import (
+    owned_result,
+    result_json,
+    result_markdown,
+    write_figure,
+    write_text,
+)
 
 MVR = ("mean", "variance", "range")
 WINDOW_LENGTHS = (0.1, 0.2, 0.3, 0.5)
@@ -280,11 +286,11 @@ def run_experiment(name: str, sources: Sequence[Path], out_dir: Path, setting: S
         rows = window_lengths(sources, setting, progress)
         title, series = "Accuracy against window length", True
     md, js, png = (out_dir / f"{name}.{ext}" for ext in ("md", "json", "png"))
-    write_text(md, _markdown(title, rows, setting, extra), owned=owned_result)
-    write_text(js, json.dumps({"experiment": name, "setting": vars(setting),
-                              "sources": [str(s) for s in sources],
-                              "rows": [{"label": r.label, "detail": r.detail,
-                                        "report": r.report.as_dict()} for r in rows],
-                              **doc_extra}, indent=2))
+    write_text(md, result_markdown(_markdown(title, rows, setting, extra)),
+               owned=owned_result)
+    write_text(js, json.dumps(result_json({
+        "experiment": name, "setting": vars(setting), "sources": [str(s) for s in sources],
+        "rows": [{"label": r.label, "detail": r.detail, "report": r.report.as_dict()}
+                 for r in rows], **doc_extra}), indent=2))
     _plot(png, title, rows, series)
     return [md, js, png]

@@ -33,7 +33,7 @@ from contactkit.classify.schemes import check_scheme, scheme_classes
 from contactkit.classify.training import TrainedModel, train, training_set
 from contactkit.errors import check_choice
 from contactkit.schemas import InputError
-from contactkit.util.atomic import owned_result, write_text
+from contactkit.util.atomic import owned_result, result_json, result_markdown, write_text
 from contactkit.util.parallel import map_ordered, resolve_scheduler
 from contactkit.util.progress import LabelledProgress
 
@@ -275,8 +275,8 @@ def write_results(out_dir: Path, results: Sequence[TrialResult], protocol: Proto
     """Write ``gridsearch.md`` and ``gridsearch.json`` into ``out_dir``; return both paths."""
     out_dir.mkdir(parents=True, exist_ok=True)
     md, js = out_dir / "gridsearch.md", out_dir / "gridsearch.json"
-    write_text(md, results_markdown(results, protocol), owned=owned_result)
-    write_text(js, json.dumps(results_json(results, protocol), indent=1) + "\n",
+    write_text(md, result_markdown(results_markdown(results, protocol)), owned=owned_result)
+    write_text(js, json.dumps(result_json(results_json(results, protocol)), indent=1) + "\n",
                owned=owned_result)
     return md, js
 

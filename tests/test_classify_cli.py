@@ -112,6 +112,19 @@ def test_experiments_write_table_json_and_plot(static: Path, tmp_path: Path, nam
         assert doc["chosen"] and all("(" in feature for feature in doc["chosen"])
 
 
+def test_an_experiment_never_replaces_a_users_file_of_its_names(static: Path,
+                                                                 tmp_path: Path) -> None:
+    """window.md is a fixed name: a user's own Markdown there (it starts with '# ' as
+    the tool's results do) is refused, not replaced."""
+    notes = tmp_path / "window.md"
+    notes.write_text("# My notes\n\nprecious\n")
+    result = run_command("classify", "experiment", "window", str(static), "--out",
+                         str(tmp_path), "--workers", "2")
+    assert result.returncode == 2 and "not a file contactkit wrote" in result.stderr
+    assert "Traceback" not in result.stderr
+    assert notes.read_text() == "# My notes\n\nprecious\n"
+
+
 def test_speed_experiment(static: Path, dynamic: Path, tmp_path: Path) -> None:
     result = run_command("classify", "experiment", "speed", str(static), str(dynamic), "--out",
                          str(tmp_path), "--group", "session", "--workers", "2")

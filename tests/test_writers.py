@@ -89,6 +89,41 @@ def test_owned_outputs_are_replaced_and_foreign_ones_kept(tmp_path: Path) -> Non
     assert target.read_text() == "someone else's notes"
 
 
+def test_fixed_name_results_replace_only_their_own_files(tmp_path: Path) -> None:
+    """gridsearch.md, window.json, augmentation.png ...: a user's Markdown notes, JSON
+    object or picture of that name is not the tool's (it was replaced: the test was a
+    leading '# ', '{' or a PNG signature); a result the tool wrote is."""
+    import json
+
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure()
+    mine = {"notes.md": "# My notes\n\nprecious\n", "notes.json": '{"precious": 1}'}
+    for name, text in mine.items():
+        (tmp_path / name).write_text(text)
+    fig.savefig(tmp_path / "notes.png")
+    picture = (tmp_path / "notes.png").read_bytes()
+    for name in ("notes.md", "notes.json", "notes.png"):
+        assert not atomic.owned_result(tmp_path / name), name
+    with pytest.raises(InputError, match="not a file contactkit wrote"):
+        atomic.write_text(tmp_path / "notes.md", atomic.result_markdown("# Results\n"),
+                          owned=atomic.owned_result)
+    with pytest.raises(InputError, match="not a file contactkit wrote"):
+        atomic.write_figure(tmp_path / "notes.png", fig, owned=atomic.owned_result)
+    assert (tmp_path / "notes.md").read_text() == mine["notes.md"]
+    assert (tmp_path / "notes.png").read_bytes() == picture
+    results = {"r.md": atomic.result_markdown("# Results\n"),
+               "r.json": json.dumps(atomic.result_json({"rows": []}), indent=1)}
+    for _ in range(2):  # a re-run replaces its own results
+        for name, text in results.items():
+            atomic.write_text(tmp_path / name, text, owned=atomic.owned_result)
+        atomic.write_figure(tmp_path / "r.png", fig, owned=atomic.owned_result)
+    plt.close(fig)
+    assert all(atomic.owned_result(tmp_path / n) for n in ("r.md", "r.json", "r.png"))
+
+
 @pytest.mark.parametrize("umask", [0o022, 0o077, 0o002])
 def test_written_files_get_the_umask_s_permissions(umask: int, tmp_path: Path) -> None:
     """A file written through a temporary has the permissions ``open()`` would give it

@@ -280,23 +280,42 @@ def owned_by_marker(marker: bytes, within: int = 4096) -> Owned:
     return test
 
 
-RESULT_MARKERS = {".md": b"# ", ".json": b"{", ".png": b"\x89PNG"}
+RESULT_MARK = "contactkit result"
+"""Written into every fixed-name result file (:func:`result_markdown`,
+:func:`result_json`, the PNG's ``Software`` of :func:`write_figure`), so that a re-run
+recognises its own results, and no other file of that name, as replaceable."""
+RESULT_MARKERS = {".md": b"<!-- ", ".json": b"{", ".png": b"\x89PNG"}
+
+
+def result_markdown(text: str) -> str:
+    """Return a result file's Markdown ``text`` with :data:`RESULT_MARK` on its first
+    line (an HTML comment, which Markdown does not show)."""
+    return f"<!-- {RESULT_MARK} -->\n{text}"
+
+
+def result_json(doc: dict) -> dict:
+    """Return a result file's JSON object ``doc`` with :data:`RESULT_MARK` first."""
+    return {"generator": RESULT_MARK} | doc
 
 
 def owned_result(path: Path) -> bool:
     """:data:`Owned` for the fixed-name result files a command writes into its output
     directory (``gridsearch.md``, ``augmentation.png``, ...): a regular file of the kind
-    its suffix names (Markdown heading, JSON object, PNG)."""
+    its suffix names (Markdown, JSON object, PNG) that holds :data:`RESULT_MARK` near its
+    start. A user's own notes, JSON or picture of that name are not replaced."""
     marker = RESULT_MARKERS.get(path.suffix.lower())
     if marker is None or not path.is_file() or path.is_symlink():
         return False
     with open(path, "rb") as fh:
-        return fh.read(len(marker)) == marker
+        head = fh.read(4096)
+    return head.startswith(marker) and RESULT_MARK.encode() in head
 
 
 def write_figure(path: str | Path, fig, *, overwrite: bool = False,
                  owned: Owned | None = None, **savefig) -> Path:
-    """Save a Matplotlib figure as PNG to ``path`` with :func:`atomic_write`; return it."""
+    """Save a Matplotlib figure as PNG to ``path`` with :func:`atomic_write`; return it.
+    The PNG's ``Software`` is :data:`RESULT_MARK` unless ``metadata`` says otherwise."""
+    savefig.setdefault("metadata", {"Software": RESULT_MARK})
     with atomic_write(path, overwrite=overwrite, owned=owned) as tmp:
         fig.savefig(tmp.file, format="png", **savefig)
     return Path(path)
