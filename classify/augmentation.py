@@ -181,7 +181,7 @@ def _write(out_dir: Path, cells: dict, conditions: list[str], model: str, spec: 
         "noise_baseline_nm": baseline.tolist(),
         "cells": [{"fraction": c.fraction, "condition": c.condition,
                    "balanced_accuracy": c.scores, "mean_ci": c.interval()}
-                  for c in cells.values()]}), indent=2))
+                  for c in cells.values()]}), indent=2), owned=owned_result)
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
     for fraction in FRACTIONS:
         for ax, names, labels in ((left, conditions[:3], ["real", "1xSim", "2xSim"]),

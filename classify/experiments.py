@@ -291,6 +291,6 @@ def run_experiment(name: str, sources: Sequence[Path], out_dir: Path, setting: S
     write_text(js, json.dumps(result_json({
         "experiment": name, "setting": vars(setting), "sources": [str(s) for s in sources],
         "rows": [{"label": r.label, "detail": r.detail, "report": r.report.as_dict()}
-                 for r in rows], **doc_extra}), indent=2))
+                 for r in rows], **doc_extra}), indent=2), owned=owned_result)
     _plot(png, title, rows, series)
     return [md, js, png]

@@ -123,6 +123,11 @@ def test_an_experiment_never_replaces_a_users_file_of_its_names(static: Path,
     assert result.returncode == 2 and "not a file contactkit wrote" in result.stderr
     assert "Traceback" not in result.stderr
     assert notes.read_text() == "# My notes\n\nprecious\n"
+    notes.unlink()
+    for _ in range(2):  # a re-run replaces its own results (the .json was refused)
+        result = run_command("classify", "experiment", "window", str(static), "--out",
+                             str(tmp_path), "--workers", "2")
+        assert result.returncode == 0, result.stderr
 
 
 def test_speed_experiment(static: Path, dynamic: Path, tmp_path: Path) -> None:
