@@ -2,9 +2,12 @@
 and grouping keys.
 
 Features of a dataset directory are computed once per feature configuration and
-cached in ``DATASET/.cache/`` (keyed by the configuration and the names, sizes and
-modification times of the session files), so ``train`` after ``evaluate`` does not
-recompute them. A feature table written by ``classify features`` is read as is.
+cached in contactkit's cache directory (``features/`` under $CONTACTKIT_CACHE or
+~/.cache/contactkit; keyed by the configuration, the dataset's path and the names,
+sizes and modification times of the session files), so ``train`` after ``evaluate``
+does not recompute them. Nothing is written into the dataset directory, which may be
+read-only or hold a planted ``.cache`` link. A feature table written by ``classify
+features`` is read as is.
 """
 
 from __future__ import annotations
@@ -27,8 +30,7 @@ from contactkit.schemas.dataset import session_files
 from contactkit.schemas.features import read_feature_table
 from contactkit.schemas.session import atomic_write_parquet
 from contactkit.util.atomic import any_regular_file
-
-CACHE_DIR = ".cache"
+from contactkit.util.cache import cache_dir
 
 
 @dataclass
@@ -108,8 +110,9 @@ def _from_table(table: pa.Table, doc: dict, problems: list, X: np.ndarray | None
     return FeatureSet(X, names, info, doc["config"], problems)
 
 
-def _cache_key(files: list[Path], config: dict) -> str:
+def _cache_key(source: Path, files: list[Path], config: dict) -> str:
     digest = hashlib.sha256(json.dumps(config, sort_keys=True).encode())
+    digest.update(f"{source.resolve()}\n".encode())
     for path in files:
         stat = path.stat()
         digest.update(f"{path.name}:{stat.st_size}:{stat.st_mtime_ns}\n".encode())
@@ -150,7 +153,7 @@ def _load_one(source: Path, extractor: SessionFeatures, workers: int,
         raise InputError("no session files (*.parquet) in this directory", source)
     extractor.fit(None)
     config = extractor.config()
-    cache_path = source / CACHE_DIR / f"features-{_cache_key(files, config)}.parquet"
+    cache_path = cache_dir() / "features" / f"{_cache_key(source, files, config)}.parquet"
     if cache and cache_path.is_file():
         table, doc = read_feature_table(cache_path)
         return _from_table(table, doc, [])

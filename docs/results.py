@@ -4,8 +4,8 @@
 
 Simulates ``thesis-static`` and ``thesis-dynamic`` into DATA/static and
 DATA/dynamic when they are missing (about 15 minutes on 2 cores; existing sessions
-are kept), computes features (cached in each dataset's .cache), and evaluates the
-SVM and the per-joint ensembles under the thesis protocol (25 random 80/20 splits)
+are kept), computes features (cached in contactkit's cache directory), and
+evaluates the SVM and the per-joint ensembles under the thesis protocol (25 random 80/20 splits)
 and the group protocol (leave one pose out), on the static, dynamic and combined
 sets. Then it breaks the best model's leave-one-pose-out predictions down by the
 touched link. Everything is seeded; re-running gives the same page. The sections

@@ -38,7 +38,27 @@ def test_feature_set_and_cache(dataset, features) -> None:
     assert sorted(set(features.groups("pose"))) == ["A", "B", "C", "D"]
     cached = load_features([dataset], SessionFeatures(), workers=1)
     assert np.array_equal(cached.X, features.X)
-    assert list((dataset / ".cache").glob("features-*.parquet"))
+    assert not [p for p in dataset.iterdir() if not p.name.endswith(".parquet")]
+
+
+def test_the_feature_cache_never_writes_into_a_dataset(tmp_path, monkeypatch) -> None:
+    """The cache lived in DATASET/.cache: a read-only dataset failed with a traceback,
+    and a .cache link planted in a dataset sent the cache file outside."""
+    from tests.conftest import make_session
+
+    monkeypatch.setenv("CONTACTKIT_CACHE", str(tmp_path / "cache"))
+    data, outside = tmp_path / "data", tmp_path / "outside"
+    data.mkdir()
+    outside.mkdir()
+    for seed, action in ((3, "none"), (4, "shove")):
+        make_session(data, seed=seed, action=action, duration_s=3.0)
+    (data / ".cache").symlink_to(outside)
+    before = sorted(p.name for p in data.iterdir())
+    first = load_features([data], SessionFeatures(), workers=1)
+    again = load_features([data], SessionFeatures(), workers=1)
+    assert np.array_equal(first.X, again.X)
+    assert list(outside.iterdir()) == [] and sorted(p.name for p in data.iterdir()) == before
+    assert len(list((tmp_path / "cache" / "features").glob("*.parquet"))) == 1
 
 
 def test_per_joint_ensemble_sums_member_probabilities(features) -> None:
