@@ -214,3 +214,21 @@ def test_export_mcap_overwrites_a_bag_but_never_another_directory(source, tmp_pa
                                          "with --overwrite"):
         export_mcap(source, keep, overwrite=True)
     assert [p.name for p in keep.iterdir()] == ["notes.txt"]
+
+
+def test_export_mcap_never_replaces_the_session_it_reads(source, tmp_path):
+    """The default output is the session's name without suffix: for a session file
+    without one that is the session itself, which --overwrite (as the refusal
+    suggested) replaced by a bag directory. Refused in one line, the session kept."""
+    session = tmp_path / "run"
+    session.write_bytes(source.read_bytes())
+    for overwrite in (False, True):
+        done = run_command("recorder", "export-mcap", str(session),
+                           *(["--overwrite"] if overwrite else []))
+        assert done.returncode == 2 and "the session it exports" in done.stderr, done.stderr
+        assert session.is_file() and session.read_bytes() == source.read_bytes()
+    link = tmp_path / "link.parquet"
+    link.symlink_to(session)
+    with pytest.raises(InputError, match="the session it exports"):
+        export_mcap(link, session, overwrite=True)
+    assert session.read_bytes() == source.read_bytes()

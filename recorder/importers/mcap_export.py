@@ -14,6 +14,7 @@ estimate) and ``/contactkit/applied_force`` (ground truth), and ``std_msgs/Bool`
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 from typing import Any
@@ -28,7 +29,7 @@ from contactkit.recorder.importers.bags import (
     WRENCH_STAMPED,
 )
 from contactkit.robots import get_robot
-from contactkit.schemas import Session, joint_columns, read_session
+from contactkit.schemas import InputError, Session, joint_columns, read_session
 from contactkit.schemas.session import FORCE_COLUMNS, WRENCH_HAT_COLUMNS
 from contactkit.util.atomic import atomic_directory, atomic_write, scratch_directory
 
@@ -46,10 +47,14 @@ def export_mcap(session_path: Path, out: Path, *, start_ns: int = 0,
     and ``<name>.mcap``). Time stamps are ``start_ns`` plus the session time [ns]. The
     output is written aside and moved into place at the end (a failure leaves nothing);
     an existing ``out`` is replaced only with ``overwrite``, and a directory only when it
-    is such a bag (:func:`is_mcap_bag`), never another folder named by mistake."""
+    is such a bag (:func:`is_mcap_bag`), never another folder named by mistake, and
+    never the session file itself (a session named without a suffix)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
+    if os.path.lexists(out) and session_path.exists() and os.path.samefile(out, session_path):
+        raise InputError("is the session it exports: not replaced, even with --overwrite "
+                         "(give --out)", out)
     session = read_session(session_path)
     store = get_typestore(Stores.ROS2_HUMBLE)
     stamps = _stamps_ns(session.t, start_ns)
