@@ -38,6 +38,7 @@ from contactkit.classify.kind import ModelKind, ModelOptions
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.dataset import session_files
 from contactkit.util.atomic import (
+    check_results,
     owned_result,
     result_json,
     result_markdown,
@@ -107,6 +108,7 @@ def run_augmentation(real_dir: Path, sim_dir: Path, out_dir: Path, *, kind: Mode
                          f"{kind.name} model takes {kind.input.name}")
     if repeats < 1:
         raise InputError(f"repeats must be at least 1, got {repeats}")
+    check_results(out_dir, [f"augmentation.{ext}" for ext in ("md", "json", "png")])
     options = kind.check_options(options)
     spec = kind.transformer(options).spec
     seed = options.seed

@@ -46,6 +46,7 @@ from contactkit.features.scalars import SCALARS
 from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS, columns_of
 from contactkit.schemas import InputError
 from contactkit.util.atomic import (
+    check_results,
     owned_result,
     result_json,
     result_markdown,
@@ -261,6 +262,7 @@ def run_experiment(name: str, sources: Sequence[Path], out_dir: Path, setting: S
                    progress: Progress | None = None) -> list[Path]:
     """Run one experiment and write its Markdown, JSON and PNG; return the paths."""
     check_choice("experiment", name, EXPERIMENTS)
+    check_results(out_dir, [f"{name}.{ext}" for ext in ("md", "json", "png")])
     out_dir.mkdir(parents=True, exist_ok=True)
     extra, series, doc_extra = "", False, {}
     if name == "features":

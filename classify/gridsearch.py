@@ -270,11 +270,15 @@ def results_json(results: Sequence[TrialResult], protocol: Protocol) -> dict:
                         "problem": r.problem} for r in results]}
 
 
+RESULTS_MD, RESULTS_JSON = "gridsearch.md", "gridsearch.json"
+"""The names of the grid search's result files in its output directory."""
+
+
 def write_results(out_dir: Path, results: Sequence[TrialResult], protocol: Protocol
                   ) -> tuple[Path, Path]:
     """Write ``gridsearch.md`` and ``gridsearch.json`` into ``out_dir``; return both paths."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    md, js = out_dir / "gridsearch.md", out_dir / "gridsearch.json"
+    md, js = out_dir / RESULTS_MD, out_dir / RESULTS_JSON
     write_text(md, result_markdown(results_markdown(results, protocol)), owned=owned_result)
     write_text(js, json.dumps(result_json(results_json(results, protocol)), indent=1) + "\n",
                owned=owned_result)

@@ -19,7 +19,7 @@ from contactkit.cli.common import run_app
 from contactkit.cli.recorder import app as recorder_app
 from contactkit.errors import InputError
 from contactkit.util import atomic
-from tests.conftest import make_session
+from tests.conftest import make_session, run_command
 
 VICTIM_TEXT = b"precious, outside the output directory\n"
 
@@ -399,3 +399,31 @@ def test_the_index_never_replaces_a_session_or_a_link(sessions, tmp_path, capsys
     code, _, err = recorder(capsys, "index", data)
     one_line(code, err, "index.parquet", "symbolic link")
     assert victim.read_bytes() == VICTIM_TEXT
+
+
+def test_fixed_name_results_are_checked_before_any_work(tmp_path: Path) -> None:
+    """An experiment, the augmentation experiment and a grid search refuse a user's file
+    at one of their result names before they start (they ran for hours and refused it
+    at the end): here the refusal comes before the missing dataset is even looked at."""
+    from contactkit.classify.augmentation import run_augmentation
+    from contactkit.classify.experiments import Setting, run_experiment
+    from contactkit.classify.kind import ModelOptions
+    from contactkit.classify.registry import get_kind
+
+    for name in ("window.png", "augmentation.json"):
+        (tmp_path / name).write_text("mine\n")
+    missing = tmp_path / "no-such-dataset"
+    with pytest.raises(InputError, match="not a file contactkit wrote") as found:
+        run_experiment("window", [missing], tmp_path, Setting())
+    assert found.value.path == str(tmp_path / "window.png")
+    lstm = get_kind("lstm")
+    with pytest.raises(InputError, match="not a file contactkit wrote") as found:
+        run_augmentation(missing, missing, tmp_path, kind=lstm, options=ModelOptions("lstm"))
+    assert found.value.path == str(tmp_path / "augmentation.json")
+    assert atomic.check_results(tmp_path / "new", ["window.md"]) == [tmp_path / "new/window.md"]
+    (tmp_path / "gridsearch.md").write_text("# mine\n")
+    result = run_command("classify", "gridsearch", str(missing), "--out", str(tmp_path))
+    assert result.returncode == 2 and "gridsearch.md: exists and is not a file contactkit " \
+        "wrote" in result.stderr, result.stderr
+    for name, text in (("window.png", "mine\n"), ("gridsearch.md", "# mine\n")):
+        assert (tmp_path / name).read_text() == text

@@ -42,7 +42,7 @@ from contactkit.features.names import ALL_TIMESERIES, GROUPS
 from contactkit.features.scalars import SCALARS
 from contactkit.features.windows import METHODS
 from contactkit.schemas import InputError, read_session
-from contactkit.util.atomic import check_target, write_text
+from contactkit.util.atomic import check_results, check_target, write_text
 from contactkit.util.parallel import available_cpus
 from contactkit.util.params import Param
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar
@@ -477,8 +477,9 @@ def gridsearch_command(
     stopping, a ranked table with 95 % intervals (gridsearch.md, .json), and the best
     network saved as a model file that predict and replay --model take. The network's
     parameters are the options after --overwrite."""
-    from contactkit.classify.gridsearch import Protocol as GridProtocol
     from contactkit.classify.gridsearch import (
+        RESULTS_JSON,
+        RESULTS_MD,
         best_model_path,
         best_trial,
         grid_trials,
@@ -486,6 +487,7 @@ def gridsearch_command(
         train_best,
         write_results,
     )
+    from contactkit.classify.gridsearch import Protocol as GridProtocol
 
     kind = get_kind(Network(model).value)
     given = owner_values(GRID_FLAGS, ctx.meta["params"], kind.name, "model")
@@ -499,6 +501,7 @@ def gridsearch_command(
     setting.check()
     best_path = best_model_path(out, setting)
     _refuse_existing(best_path, overwrite)
+    check_results(out, [RESULTS_MD, RESULTS_JSON])
     trials = grid_trials(kind, grid, _numbers("--steps", steps, int),
                          [_split(i) for i in inputs] if inputs else [kind.default_timeseries])
     with progress_bar("grid search") as bar:

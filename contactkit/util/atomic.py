@@ -33,7 +33,7 @@ import re
 import shutil
 import tempfile
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
@@ -310,6 +310,20 @@ def owned_result(path: Path) -> bool:
         head = fh.read(4096)
     return head.startswith(marker) and RESULT_MARK.encode() in head
 
+
+
+def check_results(out_dir: str | Path, names: Sequence[str]) -> list[Path]:
+    """Check, before any work, that the fixed-name result files ``names`` may be written
+    into ``out_dir``: each is missing or contactkit's own (:func:`owned_result`); return
+    their paths. A directory that does not exist yet holds nothing to refuse. Raises the
+    one-line :class:`InputError` of :func:`check_target` otherwise, so that a command
+    that runs for hours does not find out at its end."""
+    out_dir = Path(out_dir)
+    paths = [out_dir / name for name in names]
+    if out_dir.is_dir():
+        for path in paths:
+            check_target(path, owned=owned_result)
+    return paths
 
 def write_figure(path: str | Path, fig, *, overwrite: bool = False,
                  owned: Owned | None = None, **savefig) -> Path:
