@@ -26,7 +26,13 @@ from rich.table import Table
 
 from contactkit.recorder.stats.deep import PROFILE_T
 from contactkit.schemas import ACTIONS
-from contactkit.util.atomic import Owned, owned_by_marker, write_bytes, write_text
+from contactkit.util.atomic import (
+    Owned,
+    check_target,
+    owned_by_marker,
+    write_bytes,
+    write_text,
+)
 from contactkit.util.text import console_text
 from contactkit.viewer.palette import CLASS_COLORS, JOINT_COLORS
 
@@ -330,6 +336,9 @@ def write_report(report: dict, out: Path, fmt: str, *, overwrite: bool = False,
     intro = _summary_lines(report)
     problems = report["problems"]
     if fmt == "md":
+        names = [f"{out.stem}_plot{i + 1}.png" for i in range(len(plots))]
+        for path in [out, *(out.parent / name for name in names)]:  # all, before any is written
+            check_target(path, overwrite=overwrite, owned=owned)
         parts = [f"<!-- {REPORT_MARK} -->", f"# Dataset report: {report['dataset']}", "",
                  *[f"- {x}" for x in intro]]
         parts += ["", "## Warnings", ""] + [f"- {w}" for w in report["class_balance_warnings"]
@@ -339,8 +348,7 @@ def write_report(report: dict, out: Path, fmt: str, *, overwrite: bool = False,
                                                                     "problem": "none"}]]
         for title, table in _tables(report):
             parts += ["", f"## {title}", "", _markdown_table(table)]
-        for i, (title, caption, png) in enumerate(plots):
-            name = f"{out.stem}_plot{i + 1}.png"
+        for name, (title, caption, png) in zip(names, plots, strict=True):
             write_bytes(out.parent / name, png, overwrite=overwrite, owned=owned)
             parts += ["", f"## {title}", "", caption, "", f"![{title}]({name})"]
         return put(out, "\n".join(parts) + "\n")
