@@ -267,6 +267,33 @@ class SessionMeta:
         if not (_finite(incomplete) and float(incomplete).is_integer() and incomplete >= 0):
             raise InputError(f"metadata source_info.incomplete_samples {_short(incomplete)} "
                              "is not a count", path)
+        _check_true_contact(self.simulator, path)
+
+
+MAX_CONTACT_POINT_M = 10.0
+"""Farthest a simulated contact point may lie from its link's frame [m]."""
+
+
+def _check_true_contact(simulator: Mapping[str, Any] | None,
+                        path: str | Path | None) -> None:
+    """Raise :class:`InputError` unless the simulated contact that replay draws
+    (``simulator.session.contact``) is absent or a link 1..7 with a point of 3 finite
+    coordinates [m] in its frame."""
+    session = (simulator or {}).get("session")
+    contact = session.get("contact") if isinstance(session, Mapping) else None
+    if session is not None and not isinstance(session, Mapping):
+        raise InputError(f"metadata simulator.session has the wrong type "
+                         f"({type(session).__name__}: {_short(session)})", path)
+    if contact is None:
+        return
+    link = contact.get("link") if isinstance(contact, Mapping) else None
+    point = contact.get("point_local") if isinstance(contact, Mapping) else None
+    if not (isinstance(link, int) and not isinstance(link, bool) and 1 <= link <= N_JOINTS
+            and isinstance(point, (list, tuple)) and len(point) == 3
+            and all(_finite(v) and abs(v) <= MAX_CONTACT_POINT_M for v in point)):
+        raise InputError(f"metadata simulator.session.contact {_short(contact)} is not a "
+                         f"link 1..{N_JOINTS} with a point_local of 3 coordinates within "
+                         f"{MAX_CONTACT_POINT_M:g} m", path)
 
 
 MAX_PAYLOAD_KG = 100.0

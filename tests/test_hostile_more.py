@@ -1,0 +1,80 @@
+"""More hostile input for the commands: each bad file is one line naming it, exit code 2,
+no traceback (the readers' rule in docs/reference/guarantees.md)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+
+from contactkit.cli.common import run_app
+from contactkit.cli.recorder import app as recorder_app
+from contactkit.cli.replay import app as replay_app
+from contactkit.schemas.session import METADATA_KEY
+from tests.conftest import make_session
+
+
+@pytest.fixture(scope="module")
+def good(tmp_path_factory) -> Path:
+    """A 2 s simulated bump on link 5 at 200 Hz."""
+    return make_session(tmp_path_factory.mktemp("good"), seed=4, action="bump", link=5,
+                        duration_s=2.0, planned_at_s=1.0, rate_hz=200.0)
+
+
+def _run(app, prog: str, capsys, *argv) -> tuple[int, str, str]:
+    code = run_app(app, prog, [str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, " ".join(err.split())  # the console wraps long lines
+
+
+def _one_line(code: int, err: str, *texts: str) -> None:
+    assert code == 2, err
+    assert "Traceback" not in err, err
+    for text in texts:
+        assert text in err, err
+
+
+def _edit_meta(source: Path, target: Path, edit) -> Path:
+    table = pq.read_table(source)
+    doc = json.loads(table.schema.metadata[METADATA_KEY])
+    edit(doc)
+    pq.write_table(table.replace_schema_metadata({METADATA_KEY: json.dumps(doc).encode()}),
+                   target)
+    return target
+
+
+def _set_contact(value):
+    def edit(doc):
+        doc["simulator"]["session"]["contact"] = value
+    return edit
+
+
+def _set_sim_session(value):
+    def edit(doc):
+        doc["simulator"]["session"] = value
+    return edit
+
+
+@pytest.mark.parametrize("edit", [
+    _set_sim_session([1]), _set_sim_session("x"), _set_contact({}),
+    _set_contact({"link": "x", "point_local": [0, 0, 0]}),
+    _set_contact({"link": 99, "point_local": [0, 0, 0]}),
+    _set_contact({"link": 0, "point_local": [0, 0, 0]}),
+    _set_contact({"link": 3, "point_local": [1]}),
+    _set_contact({"link": 3, "point_local": "abc"}),
+    _set_contact({"link": 3, "point_local": None}),
+    _set_contact({"link": 3, "point_local": [1e308, 0, 0]}),
+    _set_contact("x")], ids=["session-list", "session-str", "contact-empty", "link-str",
+                             "link-99", "link-0", "point-short", "point-str", "point-none",
+                             "point-huge", "contact-str"])
+def test_simulated_contact_metadata_of_the_wrong_shape_is_one_line(good, tmp_path, capsys,
+                                                                   edit) -> None:
+    bad = _edit_meta(good, tmp_path / "bad sim.parquet", edit)
+    for app, prog, argv in ((recorder_app, "recorder", ["info", bad]),
+                            (replay_app, "replay", [bad, "--viewer", "none", "--save",
+                                                    tmp_path / "r.rrd"])):
+        code, _, err = _run(app, prog, capsys, *argv)
+        _one_line(code, err, "bad sim.parquet", "simulator.session")
+        assert not (tmp_path / "r.rrd").exists()
