@@ -4,6 +4,7 @@ no traceback (the readers' rule in docs/reference/guarantees.md)."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pyarrow.parquet as pq
@@ -78,3 +79,31 @@ def test_simulated_contact_metadata_of_the_wrong_shape_is_one_line(good, tmp_pat
         code, _, err = _run(app, prog, capsys, *argv)
         _one_line(code, err, "bad sim.parquet", "simulator.session")
         assert not (tmp_path / "r.rrd").exists()
+
+
+# -- urdf:PATH robots --------------------------------------------------------------------
+
+FR3_DATA = Path(__file__).resolve().parents[1] / "contactkit" / "robots" / "data" / "fr3"
+
+
+@pytest.fixture
+def urdf_dir(tmp_path: Path) -> Path:
+    """A copy of the bundled FR3 URDF (no hand) with its collision meshes."""
+    directory = tmp_path / "arm"
+    shutil.copytree(FR3_DATA / "meshes", directory / "meshes")
+    shutil.copy(FR3_DATA / "fr3.urdf", directory / "arm.urdf")
+    return directory
+
+
+def _replay_with(robot_file: Path, session: Path, tmp_path: Path, capsys):
+    return _run(replay_app, "replay", capsys, session, "--robot", f"urdf:{robot_file}",
+                "--viewer", "none", "--save", tmp_path / "u.rrd")
+
+
+def test_urdf_that_is_not_utf8_is_one_line(urdf_dir, good, tmp_path, capsys) -> None:
+    bad = urdf_dir / "latin.urdf"
+    bad.write_bytes((urdf_dir / "arm.urdf").read_text().replace("fr3_link1", "fr3_l\xe9nk1")
+                    .encode("latin-1"))
+    code, _, err = _replay_with(bad, good, tmp_path, capsys)
+    _one_line(code, err, "not UTF-8")
+    assert not (tmp_path / "u.rrd").exists()

@@ -113,8 +113,10 @@ def urdf_robot(path: str) -> RobotSpec:
     file = Path(path).expanduser()
     try:
         root = ET.fromstring(file.read_text())
-    except (OSError, UnicodeDecodeError) as err:
+    except OSError as err:
         raise InputError(f"cannot read the robot's URDF: {err.strerror or err}", file) from err
+    except UnicodeDecodeError as err:
+        raise InputError(f"the robot's URDF is not UTF-8 text (byte {err.start})", file) from err
     except ET.ParseError as err:
         raise InputError(f"the robot's URDF is not XML: {err}", file) from err
     children: dict[str, list[ET.Element]] = {}
