@@ -97,3 +97,11 @@ def problem_text(err: BaseException) -> str:
         return err.problem
     detail = " ".join(str(err).split())[:200]
     return f"cannot process this session ({type(err).__name__}: {detail})"
+
+
+def input_error_about(err: InputError, path: str | Path | None) -> InputError:
+    """Return ``err`` as an InputError about ``path`` (a session); a file ``err`` named
+    that is not ``path`` (the robot's URDF) stays in the problem, so the line names both."""
+    if path is None or err.path is None or Path(err.path) == Path(path):
+        return InputError(err.problem, path or err.path)
+    return InputError(f"{err.path}: {err.problem}", path)

@@ -60,7 +60,7 @@ from typing import NamedTuple
 import numpy as np
 import pinocchio as pin
 
-from contactkit.errors import InputError
+from contactkit.errors import InputError, input_error_about
 from contactkit.features.kinematics import FrameKinematics
 from contactkit.features.names import ALL_TIMESERIES, GROUPS
 from contactkit.features.names import MODEL as MODEL  # re-exported: chain_cache's names
@@ -133,7 +133,7 @@ class ChainConfig:
         try:
             return meta.with_robot(self.robot).robot_setup(path)
         except InputError as err:
-            raise InputError(err.problem, path or err.path) from err
+            raise input_error_about(err, path) from err
 
     def model(self, robot: RobotSetup) -> RobotModel:
         """Return the dynamics model the chain uses for ``robot``."""

@@ -47,6 +47,7 @@ import pyarrow.parquet as pq
 
 from contactkit.classify.events import NONE, ContactEvent, EventPipeline
 from contactkit.classify.modelfile import ModelFile
+from contactkit.errors import input_error_about
 from contactkit.features.agreement import ResidualAgreement
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.isolation import ContactEstimate, robot_isolator
@@ -199,7 +200,7 @@ class ReplayStream:
         try:
             self.meta = self.meta.with_robot(robot)
         except InputError as err:
-            raise InputError(err.problem, self.path) from err
+            raise input_error_about(err, self.path) from err
         self.model = model
         self.hop_s = hop_s
         self.batch_rows = batch_rows or BATCH_ROWS

@@ -47,7 +47,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from contactkit.errors import InputError
+from contactkit.errors import InputError, input_error_about
 from contactkit.robots import (
     DEFAULT_ROBOT,
     URDF_PREFIX,
@@ -172,10 +172,7 @@ class SessionMeta:
                                      f"stored {self.urdf_sha256[:12]}); pass --robot to "
                                      "choose the model")
         except InputError as err:
-            # the session's file first, then the URDF's that the problem is about
-            inner = err.problem if path is None or err.path is None else \
-                f"{err.path}: {err.problem}"
-            raise InputError(inner, path or err.path) from err
+            raise input_error_about(err, path) from err
         com = self.payload_com_m or (0.0, 0.0, 0.0)
         return RobotSetup(robot=name, with_hand=self.with_hand,
                           payload_kg=float(self.payload_kg),

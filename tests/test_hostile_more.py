@@ -10,6 +10,7 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
+from contactkit.cli.classify import app as classify_app
 from contactkit.cli.common import run_app
 from contactkit.cli.recorder import app as recorder_app
 from contactkit.cli.replay import app as replay_app
@@ -106,4 +107,23 @@ def test_urdf_that_is_not_utf8_is_one_line(urdf_dir, good, tmp_path, capsys) -> 
                     .encode("latin-1"))
     code, _, err = _replay_with(bad, good, tmp_path, capsys)
     _one_line(code, err, "not UTF-8")
+    assert not (tmp_path / "u.rrd").exists()
+
+
+def test_urdf_errors_name_the_urdf_as_well_as_the_session(urdf_dir, good, tmp_path,
+                                                          capsys) -> None:
+    six = urdf_dir / "six joints.urdf"
+    six.write_text((urdf_dir / "arm.urdf").read_text().replace(
+        'name="fr3_joint7" type="revolute"', 'name="fr3_joint7" type="fixed"'))
+    code, _, err = _replay_with(six, good, tmp_path, capsys)
+    _one_line(code, err, "six joints.urdf", good.name, "no serial chain of 7")
+    code, _, err = _run(classify_app, "classify", capsys, "features", good, "--robot",
+                        f"urdf:{six}", "--out", tmp_path / "f.parquet")
+    _one_line(code, err, "six joints.urdf", "no serial chain of 7")
+    gone = urdf_dir / "gone.urdf"
+    named = _edit_meta(good, tmp_path / "named.parquet",
+                       lambda doc: doc.update(robot=f"urdf:{gone}"))
+    code, _, err = _run(replay_app, "replay", capsys, named, "--viewer", "none", "--save",
+                        tmp_path / "u.rrd")
+    _one_line(code, err, "gone.urdf", "named.parquet", "cannot read the robot's URDF")
     assert not (tmp_path / "u.rrd").exists()
