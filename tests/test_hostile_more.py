@@ -127,3 +127,25 @@ def test_urdf_errors_name_the_urdf_as_well_as_the_session(urdf_dir, good, tmp_pa
                         tmp_path / "u.rrd")
     _one_line(code, err, "gone.urdf", "named.parquet", "cannot read the robot's URDF")
     assert not (tmp_path / "u.rrd").exists()
+
+
+@pytest.mark.parametrize(("mesh", "text"), [
+    ('filename="meshes/collision/nothere.stl"', "No such file"),
+    ('filename="meshes"', "Is a directory"),
+    ('filename="../../../../../../etc/hostname"', "not a binary STL"),
+    ('filename="package://nothere/x.stl"', "not found"),
+    ('filename="meshes/collision/link3.stl" scale="a b c"', "not 3 finite numbers")],
+    ids=["missing", "directory", "not-stl", "package", "scale"])
+def test_urdf_with_a_bad_collision_mesh_is_one_line(urdf_dir, good, tmp_path, capsys,
+                                                    mesh, text) -> None:
+    bad = urdf_dir / "bad mesh.urdf"
+    bad.write_text((urdf_dir / "arm.urdf").read_text().replace(
+        'filename="meshes/collision/link3.stl"', mesh))
+    code, _, err = _replay_with(bad, good, tmp_path, capsys)
+    _one_line(code, err, "bad mesh.urdf", text)
+    assert not (tmp_path / "u.rrd").exists()
+    code, _, err = _run(recorder_app, "recorder", capsys, "capture", "--robot", f"urdf:{bad}",
+                        "--pose", "A", "--action", "bump", "--link", "3", "--duration", "2",
+                        "--planned-at", "1", "--out", tmp_path / "cap")
+    _one_line(code, err, "bad mesh.urdf", text)
+    assert not list(tmp_path.rglob("*.parquet"))

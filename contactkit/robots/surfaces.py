@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from contactkit.errors import InputError
 from contactkit.robots.model import RobotModel
 from contactkit.robots.registry import get_robot
 from contactkit.robots.spec import RobotSetup, RobotSpec
@@ -83,7 +84,11 @@ def _skip_mesh(problem: str) -> None:
 def resolve_mesh(urdf_file: Path, filename: str) -> Path:
     """Return the file a URDF mesh name refers to: ``package://PKG/PATH`` found in a folder
     above the URDF (``PKG/PATH`` below it, or a folder named PKG holding PATH),
-    ``file://`` and absolute names as they are, other names beside the URDF."""
+    ``file://`` and absolute names as they are, other names beside the URDF. Raises
+    FileNotFoundError for a mesh without a name or not found (its link is then drawn and
+    searched without it)."""
+    if not filename:
+        raise FileNotFoundError("a <mesh> has no filename")
     if filename.startswith("file://"):
         return Path(filename[len("file://"):])
     if not filename.startswith("package://"):
@@ -94,7 +99,7 @@ def resolve_mesh(urdf_file: Path, filename: str) -> Path:
             return folder / package / rest
         if folder.name == package and (folder / rest).exists():
             return folder / rest
-    raise FileNotFoundError(f"mesh {filename} not found above {urdf_file}")
+    raise FileNotFoundError(f"mesh {filename} not found in the folders above the URDF")
 
 
 def _rpy_matrix(rpy: np.ndarray) -> np.ndarray:
@@ -117,18 +122,33 @@ def _collision_meshes(spec: RobotSpec, with_hand: bool, link_name: str
             if mesh is None:
                 continue
             origin = collision.find("origin")
-            xyz = np.zeros(3) if origin is None else np.array(
-                origin.get("xyz", "0 0 0").split(), dtype=float)
-            rpy = np.zeros(3) if origin is None else np.array(
-                origin.get("rpy", "0 0 0").split(), dtype=float)
-            scale = np.array(mesh.get("scale", "1 1 1").split(), dtype=float)
+            if origin is None:
+                origin = ET.Element("origin")
+            xyz = _vector(spec, link_name, origin, "xyz", "0 0 0")
+            rpy = _vector(spec, link_name, origin, "rpy", "0 0 0")
+            scale = _vector(spec, link_name, mesh, "scale", "1 1 1")
             try:
                 path = resolve_mesh(spec.urdf_file(), mesh.get("filename", ""))
             except FileNotFoundError as err:
-                _skip_mesh(str(err))
+                _skip_mesh(f"{spec.urdf_file()}: link {link_name!r}: {err}")
                 continue
             found.append((path, _rpy_matrix(rpy), xyz, scale))
     return found
+
+
+def _vector(spec: RobotSpec, link_name: str, element: ET.Element, attribute: str,
+            default: str) -> np.ndarray:
+    """Return the 3 finite numbers of a collision element's attribute; raise InputError
+    naming the URDF otherwise."""
+    text = element.get(attribute, default)
+    try:
+        value = np.array(text.split(), dtype=float)
+    except ValueError:
+        value = np.zeros(0)
+    if value.shape != (3,) or not np.isfinite(value).all():
+        raise InputError(f"the collision {element.tag} {attribute}={text[:60]!r} of link "
+                         f"{link_name!r} is not 3 finite numbers", spec.urdf_file())
+    return value
 
 
 def _mesh_triangles(spec: RobotSpec, with_hand: bool, link_name: str) -> list[np.ndarray]:
@@ -137,7 +157,8 @@ def _mesh_triangles(spec: RobotSpec, with_hand: bool, link_name: str) -> list[np
         try:
             mesh = read_stl(path)
         except (OSError, ValueError) as err:
-            _skip_mesh(str(err))
+            _skip_mesh(f"{spec.urdf_file()}: link {link_name!r}: the collision mesh {path}: "
+                       f"{getattr(err, 'strerror', None) or err}")
             continue
         triangles.append((mesh * scale) @ rotation.T + xyz)
     return triangles
