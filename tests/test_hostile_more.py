@@ -15,7 +15,7 @@ from contactkit.cli.common import run_app
 from contactkit.cli.recorder import app as recorder_app
 from contactkit.cli.replay import app as replay_app
 from contactkit.schemas.session import METADATA_KEY
-from tests.conftest import make_session
+from tests.conftest import make_session, run_cli
 
 
 @pytest.fixture(scope="module")
@@ -149,3 +149,23 @@ def test_urdf_with_a_bad_collision_mesh_is_one_line(urdf_dir, good, tmp_path, ca
                         "--planned-at", "1", "--out", tmp_path / "cap")
     _one_line(code, err, "bad mesh.urdf", text)
     assert not list(tmp_path.rglob("*.parquet"))
+
+
+@pytest.mark.parametrize(("old", "new"), [
+    ('<link name="fr3_link8"/>', '<link name="fr3_link8"/><link name="fr3_link3"/>'),
+    ('ixx="0.02410142547240885"', 'ixx="abc"'),
+    ('xyz="0 0 0.333"', 'xyz="a b c"')], ids=["duplicate-link", "inertia", "origin"])
+def test_urdf_that_urdfdom_cannot_parse_is_one_line(urdf_dir, good, tmp_path,
+                                                    old, new) -> None:
+    """urdfdom prints its parse errors to fd 2 (and pinocchio may go on without the
+    inertia it could not parse): they are the one line's detail, not extra lines."""
+    bad = urdf_dir / "unparsed.urdf"
+    text = (urdf_dir / "arm.urdf").read_text()
+    assert old in text
+    bad.write_text(text.replace(old, new))
+    result = run_cli("replay", str(good), "--robot", f"urdf:{bad}", "--viewer", "none",
+                     "--save", str(tmp_path / "u.rrd"))
+    lines = [line for line in result.stderr.splitlines() if line.strip() and "━" not in line]
+    assert result.returncode == 2 and len(lines) == 1, result.stderr
+    assert "unparsed.urdf" in lines[0] and "cannot build its URDF" in lines[0], lines
+    assert not (tmp_path / "u.rrd").exists()

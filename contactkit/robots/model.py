@@ -12,7 +12,12 @@ Joint vectors are numpy arrays of shape (7,), joint 1 first.
 
 from __future__ import annotations
 
+import os
+import sys
+import tempfile
 import xml.etree.ElementTree as ET
+from collections.abc import Iterator
+from contextlib import contextmanager
 from functools import cache
 
 import numpy as np
@@ -43,15 +48,46 @@ def _revolute(text: str, joints: tuple[str, ...]) -> str:
     return ET.tostring(root, encoding="unicode") if changed else text
 
 
+@contextmanager
+def _native_stderr() -> Iterator[list[str]]:
+    """Capture what native code writes to file descriptor 2 (urdfdom's parse errors,
+    printed even when pinocchio goes on with a model missing what it could not parse);
+    the lines are in the yielded list after the block. Nothing is captured when fd 2
+    cannot be duplicated."""
+    lines: list[str] = []
+    try:
+        saved = os.dup(2)
+    except OSError:
+        yield lines
+        return
+    sys.stderr.flush()
+    with tempfile.TemporaryFile() as captured:
+        os.dup2(captured.fileno(), 2)
+        try:
+            yield lines
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            captured.seek(0)
+            lines += captured.read(100_000).decode(errors="replace").splitlines()
+
+
 @cache
 def _nominal_model(setup: RobotSetup) -> pin.Model:
     spec = get_robot(setup.robot)
-    try:
-        full = pin.buildModelFromXML(_revolute(spec.urdf_text(setup.with_hand),
-                                               spec.joint_names))
-    except (RuntimeError, ValueError) as err:
-        raise InputError(f"robot {setup.robot!r}: pinocchio cannot build its URDF: {err}"
-                         ) from err
+    failure: Exception | None = None
+    with _native_stderr() as messages:
+        try:
+            full = pin.buildModelFromXML(_revolute(spec.urdf_text(setup.with_hand),
+                                                   spec.joint_names))
+        except (RuntimeError, ValueError) as err:
+            failure = err
+    complaints = [m.strip()[len("Error:"):].strip() for m in messages
+                  if m.strip().startswith("Error:")]
+    if failure is not None or complaints:
+        detail = "; ".join(complaints[:2]) if complaints else str(failure)
+        raise InputError(f"robot {setup.robot!r}: pinocchio cannot build its URDF: "
+                         f"{detail[:300]}") from failure
     # every joint beyond the 7 arm joints (a hand's fingers, a gripper) is locked at rest
     locked = [full.getJointId(n) for n in full.names[1:] if n not in spec.joint_names]
     model = full if not locked else pin.buildReducedModel(full, locked, pin.neutral(full))
