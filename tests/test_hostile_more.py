@@ -4,6 +4,7 @@ no traceback (the readers' rule in docs/reference/guarantees.md)."""
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -169,3 +170,18 @@ def test_urdf_that_urdfdom_cannot_parse_is_one_line(urdf_dir, good, tmp_path,
     assert result.returncode == 2 and len(lines) == 1, result.stderr
     assert "unparsed.urdf" in lines[0] and "cannot build its URDF" in lines[0], lines
     assert not (tmp_path / "u.rrd").exists()
+
+
+def test_urdf_with_a_negative_mass_is_one_line(urdf_dir, good, tmp_path, capsys) -> None:
+    """A negative mass crashed contact isolation (argmin of an empty sequence) in replay
+    and let capture simulate and write a session of an impossible arm."""
+    bad = urdf_dir / "negative.urdf"
+    bad.write_text(re.sub(r'<mass value="[^"]*"/>', '<mass value="-1"/>',
+                          (urdf_dir / "arm.urdf").read_text(), count=3))
+    code, _, err = _replay_with(bad, good, tmp_path, capsys)
+    _one_line(code, err, "negative.urdf", "mass of -1 kg")
+    code, _, err = _run(recorder_app, "recorder", capsys, "capture", "--robot", f"urdf:{bad}",
+                        "--pose", "A", "--action", "bump", "--duration", "2",
+                        "--planned-at", "1", "--out", tmp_path / "cap")
+    _one_line(code, err, "negative.urdf", "mass of -1 kg")
+    assert not list(tmp_path.rglob("*.parquet")) and not (tmp_path / "u.rrd").exists()

@@ -93,6 +93,12 @@ def _nominal_model(setup: RobotSetup) -> pin.Model:
     model = full if not locked else pin.buildReducedModel(full, locked, pin.neutral(full))
     if model.nq != N_JOINTS:
         raise InputError(f"robot {setup.robot!r} has {model.nq} joints, not {N_JOINTS}")
+    for name, inertia in zip(model.names, model.inertias, strict=True):
+        if not (np.isfinite(inertia.mass) and inertia.mass >= 0
+                and np.isfinite(inertia.inertia).all()):
+            raise InputError(f"robot {setup.robot!r}: the links on joint {name!r} have a "
+                             f"mass of {inertia.mass:g} kg or an inertia that is not finite "
+                             "(masses must be finite and not negative)")
     if setup.payload_kg:
         flange = model.frames[model.getFrameId(spec.flange)]
         payload = pin.Inertia(setup.payload_kg, np.array(setup.payload_com_m, dtype=float),
