@@ -114,7 +114,11 @@ def _cache_key(source: Path, files: list[Path], config: dict) -> str:
     digest = hashlib.sha256(json.dumps(config, sort_keys=True).encode())
     digest.update(f"{source.resolve()}\n".encode())
     for path in files:
-        stat = path.stat()
+        try:
+            stat = path.stat()
+        except OSError:  # a dangling link: listed as a problem when its features fail
+            digest.update(f"{path.name}:unreadable\n".encode())
+            continue
         digest.update(f"{path.name}:{stat.st_size}:{stat.st_mtime_ns}\n".encode())
     return digest.hexdigest()[:16]
 

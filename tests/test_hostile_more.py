@@ -185,3 +185,25 @@ def test_urdf_with_a_negative_mass_is_one_line(urdf_dir, good, tmp_path, capsys)
                         "--planned-at", "1", "--out", tmp_path / "cap")
     _one_line(code, err, "negative.urdf", "mass of -1 kg")
     assert not list(tmp_path.rglob("*.parquet")) and not (tmp_path / "u.rrd").exists()
+
+
+# -- directories of mixed files ----------------------------------------------------------
+
+@pytest.mark.parametrize("command", ["train", "evaluate"])
+def test_dataset_with_a_dangling_or_looping_link_lists_it(good, tmp_path, capsys,
+                                                          command) -> None:
+    """A dataset directory holding a link named *.parquet that leads nowhere (or to
+    itself): the session is listed as a problem, not a FileNotFoundError traceback from
+    the feature cache's key."""
+    dataset = tmp_path / "ds"
+    dataset.mkdir()
+    for seed, action in enumerate(("none", "bump", "none", "bump")):
+        make_session(dataset, seed=seed, action=action, link=5, duration_s=2.0,
+                     planned_at_s=1.0, rate_hz=200.0)
+    (dataset / "gone.parquet").symlink_to(tmp_path / "nowhere.parquet")
+    (dataset / "loop.parquet").symlink_to(dataset / "loop.parquet")
+    argv = [command, dataset] + (["--out", tmp_path / "m.skops"] if command == "train" else [])
+    code, _, err = _run(classify_app, "classify", capsys, *argv)
+    assert code == 2 and "Traceback" not in err, err
+    if command == "train":  # evaluate then stops at its too small split
+        assert "gone.parquet" in err and "loop.parquet" in err, err
