@@ -58,9 +58,14 @@ def noise_baseline(real_dir: Path, noise_file: Path | None = None) -> np.ndarray
         try:
             doc = json.loads(noise_file.read_text())
             values = doc.get("thesis_tau_std_nm") or doc["tau_sigma_nm"]
-        except (OSError, KeyError, json.JSONDecodeError) as err:
-            raise InputError(f"not a noise file ({err})", noise_file) from err
-        return np.asarray(values, dtype=float)
+            baseline = np.asarray(values, dtype=float)
+        except (OSError, KeyError, ValueError, TypeError, AttributeError) as err:
+            raise InputError(f"not a noise file ({type(err).__name__}: "
+                             f"{' '.join(str(err).split())[:200]})", noise_file) from err
+        if baseline.shape != (7,) or not np.isfinite(baseline).all() or (baseline < 0).any():
+            raise InputError("the torque noise baseline is not 7 finite non-negative numbers "
+                             "[Nm]", noise_file)
+        return baseline
     stds = []
     for path in session_files(real_dir):
         try:

@@ -15,6 +15,7 @@ from contactkit.cli.classify import app as classify_app
 from contactkit.cli.common import run_app
 from contactkit.cli.recorder import app as recorder_app
 from contactkit.cli.replay import app as replay_app
+from contactkit.errors import InputError
 from contactkit.schemas.session import METADATA_KEY
 from tests.conftest import make_session, run_cli
 
@@ -207,3 +208,25 @@ def test_dataset_with_a_dangling_or_looping_link_lists_it(good, tmp_path, capsys
     assert code == 2 and "Traceback" not in err, err
     if command == "train":  # evaluate then stops at its too small split
         assert "gone.parquet" in err and "loop.parquet" in err, err
+
+
+# -- noise files of the augmentation experiment --------------------------------------------
+
+@pytest.mark.parametrize("text", ["[1, 2]", '{"tau_sigma_nm": "abc"}', '{"tau_sigma_nm": [1, 2]}',
+                                  '{"thesis_tau_std_nm": {"a": 1}}', "\udcff{}",
+                                  '{"tau_sigma_nm": [NaN, 1, 1, 1, 1, 1, 1]}',
+                                  '{"tau_sigma_nm": [-1, 1, 1, 1, 1, 1, 1]}',
+                                  '{"tau_sigma_nm": [[1], 1, 1, 1, 1, 1, 1]}'])
+def test_augmentation_noise_file_of_the_wrong_shape_is_one_line(tmp_path, text) -> None:
+    """``classify experiment augmentation --noise-file``: the baseline it reads is 7
+    finite non-negative torques [Nm], or the file is refused naming itself."""
+    from contactkit.classify.augmentation import noise_baseline
+
+    path = tmp_path / "noise.json"
+    path.write_bytes(text.encode(errors="surrogateescape"))
+    with pytest.raises(InputError) as caught:
+        noise_baseline(tmp_path, path)
+    assert caught.value.path == str(path) and "\n" not in str(caught.value)
+    (tmp_path / "dir.json").mkdir()
+    with pytest.raises(InputError):
+        noise_baseline(tmp_path, tmp_path / "dir.json")
