@@ -94,9 +94,18 @@ def load_onnx_model(path: Path, trusted_types: object = None) -> tuple[OnnxClass
     if META_KEY not in props:
         raise InputError("not a contactkit model (no contactkit metadata in the ONNX file)",
                          path)
-    meta = json.loads(props[META_KEY])
+    try:
+        meta = json.loads(props[META_KEY])
+    except ValueError as err:
+        raise InputError(f"not a contactkit model (its ONNX metadata is not JSON: "
+                         f"{' '.join(str(err).split())[:80]})", path) from err
+    if not isinstance(meta, dict):
+        raise InputError("not a contactkit model (its ONNX metadata is not an object)", path)
     if meta.get("graph_sha256") != _graph_digest(model):
         raise InputError("model file was modified after it was written (digest mismatch); "
                          "refusing to load it", path)
-    return OnnxClassifier(path, meta["classes"]), meta
+    classes = meta.get("classes")
+    if not (isinstance(classes, list) and classes and all(isinstance(c, str) for c in classes)):
+        raise InputError("not a contactkit model (its ONNX metadata lists no classes)", path)
+    return OnnxClassifier(path, classes), meta
 

@@ -230,3 +230,31 @@ def test_augmentation_noise_file_of_the_wrong_shape_is_one_line(tmp_path, text) 
     (tmp_path / "dir.json").mkdir()
     with pytest.raises(InputError):
         noise_baseline(tmp_path, tmp_path / "dir.json")
+
+
+# -- ONNX model files ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("doc", ["{", "[1, 2]", '"x"', "{}", '{"classes": "abc"}'],
+                         ids=["not-json", "list", "string", "no-classes", "classes-str"])
+def test_onnx_model_with_metadata_of_the_wrong_shape_is_one_line(tmp_path, good, capsys,
+                                                                  doc) -> None:
+    """The ``contactkit`` metadata of an ONNX file that is not JSON, not an object or
+    lacks its classes: one line naming the file, not a JSONDecodeError/AttributeError/
+    KeyError traceback (the digest matches: it is a checksum anyone can recompute)."""
+    onnx = pytest.importorskip("onnx")
+    from onnx import TensorProto, helper
+
+    from contactkit.classify.onnx_model import _graph_digest
+
+    x = helper.make_tensor_value_info("grid", TensorProto.FLOAT, [1, 3])
+    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3])
+    model = helper.make_model(helper.make_graph([helper.make_node("Identity", ["grid"],
+                                                                  ["y"])], "g", [x], [y]))
+    if doc.startswith("{") and doc.endswith("}"):
+        doc = json.dumps(json.loads(doc) | {"graph_sha256": _graph_digest(model)})
+    entry = model.metadata_props.add()
+    entry.key, entry.value = "contactkit", doc
+    path = tmp_path / "net.onnx"
+    onnx.save(model, str(path))
+    code, _, err = _run(classify_app, "classify", capsys, "predict", path, good)
+    _one_line(code, err, "net.onnx", "not a contactkit model")
