@@ -134,23 +134,38 @@ def test_urdf_errors_name_the_urdf_as_well_as_the_session(urdf_dir, good, tmp_pa
 @pytest.mark.parametrize(("mesh", "text"), [
     ('filename="meshes/collision/nothere.stl"', "No such file"),
     ('filename="meshes"', "Is a directory"),
-    ('filename="../../../../../../etc/hostname"', "not a binary STL"),
-    ('filename="package://nothere/x.stl"', "not found"),
-    ('filename="meshes/collision/link3.stl" scale="a b c"', "scale")],
-    ids=["missing", "directory", "not-stl", "package", "scale"])
-def test_urdf_with_a_bad_collision_mesh_is_one_line(urdf_dir, good, tmp_path, capsys,
-                                                    mesh, text) -> None:
+    ('filename="../../../../../../etc/hostname"', "is not an STL file"),
+    ('filename="package://nothere/x.stl"', "not found")],
+    ids=["missing", "directory", "not-stl", "package"])
+def test_urdf_with_an_unreadable_collision_mesh_leaves_it_out(urdf_dir, good, tmp_path,
+                                                              capsys, mesh, text) -> None:
+    """A mesh that cannot be found or read is left out with a warning naming the URDF, the
+    link and the mesh: the replay runs (its dynamics need no mesh); a simulated touch on
+    the link that has lost its only mesh is one line."""
     bad = urdf_dir / "bad mesh.urdf"
     bad.write_text((urdf_dir / "arm.urdf").read_text().replace(
         'filename="meshes/collision/link3.stl"', mesh))
     code, _, err = _replay_with(bad, good, tmp_path, capsys)
-    _one_line(code, err, "bad mesh.urdf", text)
-    assert not (tmp_path / "u.rrd").exists()
+    assert code == 0 and "Traceback" not in err, err
+    for part in ("collision mesh left out", "bad mesh.urdf", "fr3_link3", text):
+        assert part in err, err
+    assert (tmp_path / "u.rrd").is_file()
     code, _, err = _run(recorder_app, "recorder", capsys, "capture", "--robot", f"urdf:{bad}",
                         "--pose", "A", "--action", "bump", "--link", "3", "--duration", "2",
                         "--planned-at", "1", "--out", tmp_path / "cap")
-    _one_line(code, err, "bad mesh.urdf", text)
+    _one_line(code, err, "link 3 has no collision mesh to touch")
     assert not list(tmp_path.rglob("*.parquet"))
+
+
+def test_urdf_with_a_malformed_collision_mesh_is_one_line(urdf_dir, good, tmp_path,
+                                                          capsys) -> None:
+    bad = urdf_dir / "bad mesh.urdf"
+    bad.write_text((urdf_dir / "arm.urdf").read_text().replace(
+        'filename="meshes/collision/link3.stl"',
+        'filename="meshes/collision/link3.stl" scale="a b c"'))
+    code, _, err = _replay_with(bad, good, tmp_path, capsys)
+    _one_line(code, err, "bad mesh.urdf", "scale")
+    assert not (tmp_path / "u.rrd").exists()
 
 
 @pytest.mark.parametrize(("old", "new"), [

@@ -214,7 +214,7 @@ def _viewer_urdf(setup: RobotSetup) -> tuple[str, str]:
                 try:
                     path = resolve_mesh(spec.urdf_file(), mesh.get("filename", ""))
                 except FileNotFoundError as err:
-                    _skip_mesh(str(err))
+                    _skip_mesh(f"{spec.urdf_file()}: link {link.get('name')!r}: {err}")
                     link.remove(collision)  # the viewer draws the link without it
                     continue
                 mesh.set("filename", str(path))
