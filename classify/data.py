@@ -25,6 +25,7 @@ from contactkit.classify.kind import ModelKind, ModelOptions
 from contactkit.classify.names import GROUP_KEYS
 from contactkit.classify.schemes import limited_mask, relabel
 from contactkit.features.extract import SessionFeatures, feature_rows
+from contactkit.features.window_features import check_config
 from contactkit.schemas import InputError
 from contactkit.schemas.dataset import session_files
 from contactkit.schemas.features import read_feature_table
@@ -181,5 +182,7 @@ def features_for(options: ModelOptions, kind: ModelKind) -> SessionFeatures:
 
 
 def features_from_config(config: dict) -> SessionFeatures:
-    """Return the scalar-feature input a model file's configuration describes."""
-    return SessionFeatures(**config)
+    """Return the scalar-feature input a model file's configuration describes; InputError
+    (naming no file) if it is malformed
+    (:func:`contactkit.features.window_features.check_config`)."""
+    return SessionFeatures(**check_config(config))

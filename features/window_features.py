@@ -16,14 +16,16 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from contactkit.features.chain_cache import chain_series
+from contactkit.features.names import ALL_TIMESERIES
 from contactkit.features.observer import ObserverConfig
 from contactkit.features.scalars import SCALARS, scalar_blocks, scalar_features
 from contactkit.features.sliding import SLIDING_SCALARS, window_scalar_blocks
 from contactkit.features.timeseries import ChainConfig, columns_of, expand
 from contactkit.features.window_stream import streamed_window_values
-from contactkit.features.windows import Window, WindowSpec, find_window
+from contactkit.features.windows import CALIBRATIONS, METHODS, Window, WindowSpec, find_window
 from contactkit.schemas import InputError, Session, read_session
 from contactkit.schemas.session import ROW_GROUP_ROWS, read_session_meta
+from contactkit.util.params import Choice, Interval, Param, check_settings
 
 DEFAULT_TIMESERIES = ("dq", "tau", "r")
 STREAMED_ABOVE_ROWS = ROW_GROUP_ROWS
@@ -196,6 +198,65 @@ PARAMETERS = tuple(inspect.signature(WindowFeatures).parameters)
 """The parameters of :class:`WindowFeatures` (those of its ``__init__``), by name."""
 
 
+_DEFAULTS = {name: p.default for name, p in
+             inspect.signature(WindowFeatures).parameters.items()}
+
+
+def _setting(name: str, kind: type, *constraints: Interval | Choice, unit: str | None = None
+             ) -> Param:
+    return Param(name, kind, _DEFAULTS[name], unit=unit, constraints=constraints,
+                 optional=_DEFAULTS[name] is None)
+
+
+SETTINGS = (
+    _setting("window", str, Choice(METHODS)),
+    _setting("window_s", float, Interval(0, None, "neither"), unit="s"),
+    _setting("shift_s", float, unit="s"),
+    _setting("signal", str, Choice(tuple(ALL_TIMESERIES))),
+    _setting("calibration", str, Choice(CALIBRATIONS)),
+    _setting("fft_k", int, Interval(1, None)),
+    _setting("gain", float, Interval(0, None, "neither"), unit="1/s"),
+    _setting("friction", bool),
+    _setting("timeseries", list),
+    _setting("scalars", list),
+    _setting("wrench_frame", object),
+    _setting("robot", str),
+)
+"""The stored settings of :class:`WindowFeatures` (:data:`PARAMETERS`) as declarations,
+for :func:`check_config`; the defaults are ``__init__``'s."""
+
+
+def check_config(config: object, owner: str = "features settings") -> dict:
+    """Return a stored window-feature configuration (a model file's ``features``) as
+    keywords of :class:`WindowFeatures`, checked as the features' own checks would
+    (feature names, window method and length, robot); raise a one-line InputError
+    naming ``owner`` for a document that is not an object, a setting that is unknown, of
+    the wrong type, not finite or out of range, and an unknown feature or robot."""
+    config = check_settings(SETTINGS, config, owner)
+    for name in ("timeseries", "scalars"):
+        values = config.get(name)
+        if values is not None and (not values or not all(isinstance(v, str) for v in values)):
+            raise InputError(f"{owner}: {name} must be a non-empty list of names, got "
+                             f"{values!r:.80}")
+    frame = config.get("wrench_frame", "ee")
+    if not ((isinstance(frame, str) and frame)
+            or (isinstance(frame, int) and not isinstance(frame, bool) and 1 <= frame <= 7)):
+        raise InputError(f"{owner}: wrench_frame must be 'ee', a frame name or a link 1..7, "
+                         f"got {frame!r:.80}")
+    features = WindowFeatures(**config)
+    try:
+        features._check()
+        features.window_spec  # noqa: B018 (checks the window's method and length)
+        if features.robot is not None:
+            from contactkit.robots.registry import canonical_robot_name
+
+            canonical_robot_name(features.robot)
+    except InputError as err:
+        raise InputError(f"{owner}: {err.problem}") from err
+    return config
+
+
 def window_features_from_config(config: dict) -> WindowFeatures:
-    """Return the window features a model file's configuration describes."""
-    return WindowFeatures(**config)
+    """Return the window features a model file's configuration describes; InputError
+    (naming no file) if it is malformed (:func:`check_config`)."""
+    return WindowFeatures(**check_config(config))

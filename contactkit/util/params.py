@@ -202,3 +202,37 @@ def dataclass_params(cls: type) -> list[Param]:
             optional=_without_none(hints[f.name]) is not hints[f.name],
             flag=None if flag is None else flag.replace("_", "-")))
     return out
+
+
+def check_settings(params: Sequence[Param], values: object, owner: str) -> dict[str, Any]:
+    """Return the settings ``values`` (a stored document: a model file's, a table's) that
+    give some of the declared parameters, checked strictly; the ones not given are left
+    to their owner's defaults.
+
+    Stricter than :func:`check_params`, as a document is not typed by a command line: it
+    must be an object; a name that is not declared, None for a parameter that is not
+    ``optional``, a value of the wrong type (a bool is no number, a number no bool or
+    string, a string no list) and a float that is not finite are refused, like a
+    broken constraint, with an InputError naming ``owner``."""
+    if not isinstance(values, Mapping):
+        raise InputError(f"{owner} must be an object, got {type(values).__name__}")
+    declared = {p.name: p for p in params}
+    unknown = sorted(str(k) for k in set(values) - set(declared))
+    if unknown:
+        raise InputError(f"{owner}: unknown setting {unknown[0][:80]!r} (known: "
+                         f"{', '.join(declared) or 'none'})")
+    out = {}
+    for name, value in values.items():
+        p = declared[name]
+        if value is None:
+            if not p.optional:
+                raise InputError(f"{owner}: {name} must be given, got None")
+            out[name] = None
+            continue
+        if p.type in (bool, str, list, dict) and not isinstance(value, p.type):
+            raise InputError(f"{owner}: {name} must be {p.type.__name__}, got {value!r:.80}")
+        value = p.check(value, owner)
+        if isinstance(value, float) and not math.isfinite(value):
+            raise InputError(f"{owner}: {name} must be finite, got {value!r}")
+        out[name] = value
+    return out
