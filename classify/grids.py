@@ -37,10 +37,11 @@ from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.chain_cache import chain_series
 from contactkit.features.observer import DEFAULT_GAIN, ObserverConfig
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
-from contactkit.features.windows import Window, WindowSpec, find_window
+from contactkit.features.windows import METHODS, Window, WindowSpec, find_window
 from contactkit.schemas import InputError, Session, read_session
 from contactkit.schemas.dataset import session_files
 from contactkit.util.parallel import map_ordered, split_problems
+from contactkit.util.params import Choice, Interval, Param, check_settings
 
 
 @dataclass(frozen=True)
@@ -290,13 +291,37 @@ def grids_for(options: ModelOptions, kind: ModelKind) -> SessionGrids:
                         window_s=options.window_s, steps=options.steps)
 
 
-def grids_from_config(config: dict) -> SessionGrids:
+GRID_SETTINGS = (
+    Param("timeseries", list, list(GridSpec.timeseries)),
+    Param("window", str, GridSpec.window, constraints=(Choice(METHODS),)),
+    Param("window_s", float, GridSpec.window_s, unit="s",
+          constraints=(Interval(0, None, "neither"),)),
+    Param("steps", int, GridSpec.steps, constraints=(Interval(2, None),)),
+    Param("gain", float, GridSpec.gain, unit="1/s", constraints=(Interval(0, None, "neither"),)),
+    Param("baseline_s", float, GridSpec.baseline_s, unit="s", constraints=(Interval(0, None),)),
+)
+"""The stored settings of a grid input (:class:`GridSpec`'s fields), for
+:func:`grids_from_config`."""
+
+
+def grids_from_config(config: dict, owner: str = "grid settings") -> SessionGrids:
     """Return the grid input a model file's configuration describes (files without a
-    ``baseline_s`` kept absolute values)."""
-    config = dict(config)
-    config["timeseries"] = tuple(config["timeseries"])
+    ``baseline_s`` kept absolute values); a one-line InputError naming ``owner`` (no
+    file) for a document that is not an object, lacks its timeseries, or holds an
+    unknown setting, a value of the wrong type, out of range or not finite, or an
+    unknown timeseries feature (:meth:`SessionGrids.fit`'s checks)."""
+    config = check_settings(GRID_SETTINGS, config, owner)
+    timeseries = config.get("timeseries")
+    if not (timeseries and all(isinstance(name, str) for name in timeseries)):
+        raise InputError(f"{owner}: timeseries must be a non-empty list of names, got "
+                         f"{timeseries!r:.80}")
+    config["timeseries"] = tuple(timeseries)
     config.setdefault("baseline_s", 0.0)
-    return SessionGrids(**config)
+    grids = SessionGrids(**config)
+    try:
+        return grids.fit(None)
+    except InputError as err:
+        raise InputError(f"{owner}: {err.problem}") from err
 
 
 def load_grid_set(sources: Sequence[Path], grids: SessionGrids, workers: int = 1,
