@@ -19,6 +19,7 @@ with other features are refused by :meth:`ModelFile.check_features`.
 from __future__ import annotations
 
 import io
+import math
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
@@ -30,6 +31,7 @@ from contactkit.classify.fast import Compiled, compile_estimator
 from contactkit.classify.kind import ModelKind
 from contactkit.classify.online_arrays import online_members, read_online
 from contactkit.classify.registry import get_kind, kind_names
+from contactkit.classify.schemes import check_scheme
 from contactkit.classify.skops_format import (
     EVENTS_MEMBER,
     FORMAT,
@@ -46,6 +48,7 @@ from contactkit.classify.svm_kinds import SVM_TRUSTED_TYPES as EVENT_TRUSTED_TYP
 from contactkit.errors import ContactkitError
 from contactkit.schemas import InputError
 from contactkit.util.atomic import check_target
+from contactkit.util.params import Interval
 
 if TYPE_CHECKING:
     from sklearn.pipeline import Pipeline
@@ -263,16 +266,118 @@ def load_model(path: str | Path, *, lazy: bool = False) -> ModelFile:
         model = _load_lazily(path)
     else:
         estimator, meta = file_format.load(path, lambda meta: _kind_of(meta, path).trusted_types)
-        model = ModelFile(estimator, meta, _load_event_estimator(path, meta))
+        check_meta(meta, path)
+        model = ModelFile(_check_classes(estimator, meta["classes"], path), meta,
+                          _check_classes(_load_event_estimator(path, meta),
+                                         meta.get("events", {}).get("classes"), path,
+                                         "event classifier"))
     try:
-        model.detector_config()
+        model.event_model()
     except InputError as err:
-        raise InputError(f"model file carries invalid detector settings ({err})", path) from err
-    kind = _kind_of(model.meta, path)
-    if model.meta.get("input", "features") != kind.input.name:
-        raise InputError(f"a {kind.name} model takes {kind.input.name} input, the file says "
-                         f"{model.meta.get('input')!r}", path)
+        raise InputError(f"model file carries invalid event settings ({err.problem})",
+                         path) from err
     return model
+
+
+def check_meta(meta: dict, path: Path) -> None:
+    """Raise a one-line InputError naming the model file ``path`` unless its metadata
+    document is well formed and consistent: a known kind and its input; classes a
+    non-empty list of distinct strings; the input's settings (``features``, ``grid``)
+    an object its input kind accepts (the kind's own checks: feature names, window,
+    robot); ``feature_names``, where given, the list of names those settings produce;
+    a known class scheme; valid detector settings; event settings of the right shape.
+
+    The digest only tells that a file is whole: anyone can rewrite a document and
+    recompute it, so the document is checked as any other input."""
+    kind = _kind_of(meta, path)
+    if meta.get("input", "features") != kind.input.name:
+        raise InputError(f"a {kind.name} model takes {kind.input.name} input, the file says "
+                         f"{str(meta.get('input'))[:80]!r}", path)
+    _check_labels(meta.get("classes"), "classes", path)
+    if "scheme" in meta:
+        try:
+            check_scheme(meta["scheme"])
+        except (InputError, TypeError) as err:
+            raise InputError(f"model file names an unknown class scheme "
+                             f"{str(meta['scheme'])[:80]!r}", path) from err
+    key = kind.input.meta_key
+    if meta.get(key) is None:
+        raise InputError(f"model file lacks its {key} settings", path)
+    if not isinstance(meta[key], dict):
+        raise InputError(f"model file's {key} settings are not an object (a "
+                         f"{type(meta[key]).__name__})", path)
+    try:
+        transformer = kind.input.online_from_config(dict(meta[key]))
+        produced = [str(name) for name in transformer.get_feature_names_out()]
+    except InputError as err:
+        problem = err.problem if err.problem.startswith(f"{key} settings") else \
+            f"{key} settings: {err.problem}"
+        raise InputError(f"model file's {problem}", path) from err
+    names = meta.get("feature_names", produced)
+    if not (isinstance(names, list) and all(isinstance(name, str) for name in names)):
+        raise InputError("model file's feature_names are not a list of names", path)
+    if names != produced:
+        at = next((i for i, (a, b) in enumerate(zip(names, produced, strict=False)) if a != b),
+                  min(len(names), len(produced)))
+        raise InputError(f"model file's feature_names ({len(names)}) are not the "
+                         f"{len(produced)} its {key} settings produce (at {at}: "
+                         f"{names[at] if at < len(names) else 'none'!r:.60} vs "
+                         f"{produced[at] if at < len(produced) else 'none'!r:.60})", path)
+    from contactkit.features.detector import DetectorConfig
+
+    try:
+        if meta.get("detector") is not None:
+            DetectorConfig.from_dict(meta["detector"])
+    except InputError as err:
+        raise InputError(f"model file carries invalid detector settings ({err.problem})",
+                         path) from err
+    if "events" in meta:
+        _check_event_meta(meta["events"], path)
+
+
+def _check_labels(labels: object, what: str, path: Path) -> None:
+    """Raise InputError naming ``path`` unless ``labels`` are a non-empty list of distinct
+    strings."""
+    if not (isinstance(labels, list) and labels and all(isinstance(c, str) for c in labels)
+            and len(set(labels)) == len(labels)):
+        raise InputError(f"model file's {what} are not a non-empty list of distinct names "
+                         f"({str(labels)[:80]})", path)
+
+
+def _check_event_meta(doc: object, path: Path) -> None:
+    """Raise InputError naming ``path`` unless ``doc`` has the shape of
+    :meth:`contactkit.classify.events.EventModel.meta`'s document."""
+    from contactkit.classify.events import EVENT_FEATURES
+
+    if not isinstance(doc, dict):
+        raise InputError("model file's event settings are not an object", path)
+    _check_labels(doc.get("classes"), "event classes", path)
+    if doc.get("features") != EVENT_FEATURES:
+        raise InputError("the event classifier was trained on other event features", path)
+    decide = doc.get("decide_after_s")
+    problem = Interval(0, None).problem(decide)
+    if problem is None and not math.isfinite(decide):
+        problem = f"must be finite, got {decide!r}"
+    if problem is not None:
+        raise InputError(f"model file's event decide_after_s {problem}", path)
+    for key in ("low", "high"):
+        values = doc.get(key)
+        if not (isinstance(values, list) and len(values) == len(EVENT_FEATURES)
+                and all(isinstance(v, int | float) and not isinstance(v, bool)
+                        and not math.isnan(v) for v in values)):
+            raise InputError(f"model file's event {key} must be {len(EVENT_FEATURES)} "
+                             "numbers", path)
+
+
+def _check_classes(estimator: object | None, classes: list[str] | None, path: Path,
+                   what: str = "model") -> object | None:
+    """Return ``estimator``; raise InputError naming ``path`` when the classes it was
+    fitted on (``classes_``, where it has them) are not the file's ``classes``."""
+    fitted = getattr(estimator, "classes_", None)
+    if fitted is not None and [str(c) for c in fitted] != classes:
+        raise InputError(f"the {what} was fitted on other classes than the file lists "
+                         f"({len(fitted)}: {', '.join(map(str, fitted))[:80]})", path)
+    return estimator
 
 
 def _load_lazily(path: Path) -> ModelFile:
@@ -280,20 +385,23 @@ def _load_lazily(path: Path) -> ModelFile:
     be built on first use; a file that lacks arrays for one of its classifiers is
     loaded whole, from the bytes read once."""
     data, meta = read_verified(path)
+    check_meta(meta, path)
     kind = _kind_of(meta, path)
     events = meta.get("events")
-    names, classes = meta.get("feature_names"), meta.get("classes")
-    if ("online" not in meta or not isinstance(names, list) or not isinstance(classes, list)
-            or (events is not None and not (
-                isinstance(events, dict) and "online" in events
-                and isinstance(events.get("features"), list)
-                and isinstance(events.get("classes"), list)))):
-        return ModelFile(build_skops(data, kind.trusted_types, path), meta,
-                         _load_event_estimator(path, meta))
+    names, classes = meta.get("feature_names"), meta["classes"]
+
+    def build() -> object:
+        return _check_classes(build_skops(data, kind.trusted_types, path), classes, path)
+
+    if "online" not in meta or names is None or (events is not None
+                                                  and "online" not in events):
+        return ModelFile(build(), meta,
+                         _check_classes(_load_event_estimator(path, meta),
+                                        None if events is None else events["classes"], path,
+                                        "event classifier"))
     with zipfile.ZipFile(io.BytesIO(data)) as archive:
         online = read_online(meta["online"], archive.read, len(names), len(classes), path)
         event_online = (None if events is None else
                         read_online(events["online"], archive.read, len(events["features"]),
                                     len(events["classes"]), path))
-    return ModelFile(None, meta, event_online, online=online,
-                     build_estimator=lambda: build_skops(data, kind.trusted_types, path))
+    return ModelFile(None, meta, event_online, online=online, build_estimator=build)
