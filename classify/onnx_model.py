@@ -83,6 +83,7 @@ def load_onnx_model(path: Path, trusted_types: object = None) -> tuple[OnnxClass
     and its metadata. ``trusted_types`` is ignored: an ONNX file builds no Python objects."""
     try:
         import onnx
+        import onnxruntime  # noqa: F401 (OnnxClassifier runs the graph with it)
     except ImportError as err:
         raise DependencyMissing("ONNX models need onnx and onnxruntime: pip install "
                                 "'contactkit[nn]'", path) from err
@@ -107,5 +108,9 @@ def load_onnx_model(path: Path, trusted_types: object = None) -> tuple[OnnxClass
     classes = meta.get("classes")
     if not (isinstance(classes, list) and classes and all(isinstance(c, str) for c in classes)):
         raise InputError("not a contactkit model (its ONNX metadata lists no classes)", path)
-    return OnnxClassifier(path, classes), meta
+    try:
+        return OnnxClassifier(path, classes), meta
+    except Exception as err:  # onnxruntime raises InvalidGraph, Fail and others
+        raise InputError(f"onnxruntime cannot run this ONNX graph ({type(err).__name__}: "
+                         f"{' '.join(str(err).split())[:120]})", path) from err
 

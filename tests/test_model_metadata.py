@@ -189,17 +189,20 @@ def test_old_files_without_feature_names_still_load(made, tmp_path: Path) -> Non
 
 # ONNX: a graph built with onnx alone (no PyTorch), its digest recomputed.
 
-def _onnx_model(tmp_path: Path, meta: dict, name: str = "net.onnx") -> Path:
+def _onnx_model(tmp_path: Path, meta: dict, name: str = "net.onnx", opset: int = 13) -> Path:
+    """An ONNX file whose graph averages the grid over its channels (a valid graph in
+    opset 13; in opset 18 ReduceMean takes its axes as an input, so onnxruntime refuses
+    it) with ``meta`` as contactkit's metadata and the graph's digest."""
     onnx = pytest.importorskip("onnx", reason="ONNX cases need onnx")
     from onnx import TensorProto, helper
 
     from contactkit.classify.onnx_model import _graph_digest
 
     x = helper.make_tensor_value_info("grid", TensorProto.FLOAT, [1, 21, 30])
-    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 4])
-    graph = helper.make_graph([helper.make_node("ReduceMean", ["grid"], ["y"], axes=[1])],
-                              "g", [x], [y])
-    model = helper.make_model(graph)
+    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 30])
+    graph = helper.make_graph([helper.make_node("ReduceMean", ["grid"], ["y"], axes=[1],
+                                                keepdims=0)], "g", [x], [y])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", opset)])
     entry = model.metadata_props.add()
     entry.key, entry.value = "contactkit", json.dumps(meta | {"graph_sha256":
                                                               _graph_digest(model)})
@@ -229,6 +232,16 @@ def test_malformed_onnx_metadata_is_one_line(made, tmp_path: Path, case: str) ->
     meta = copy.deepcopy(GOOD_ONNX)
     ONNX_CASES[case](meta)
     model = _onnx_model(tmp_path, meta)
+    _check_both(model, made["session"], tmp_path)
+
+
+def test_onnx_graph_that_onnxruntime_refuses_is_one_line(made, tmp_path: Path) -> None:
+    """A whole file (its digest matches) whose graph onnxruntime cannot load: one line,
+    not onnxruntime's InvalidGraph traceback."""
+    pytest.importorskip("onnxruntime", reason="ONNX models load with onnxruntime")
+    good = load_model(_onnx_model(tmp_path, copy.deepcopy(GOOD_ONNX), "good.onnx"))
+    assert good.classes == GOOD_ONNX["classes"] and len(good.feature_names) == 21
+    model = _onnx_model(tmp_path, copy.deepcopy(GOOD_ONNX), opset=18)
     _check_both(model, made["session"], tmp_path)
 
 
