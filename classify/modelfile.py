@@ -12,7 +12,9 @@ with ``lazy=True``, a model classifies online (a replay, ``recorder capture
 --events``) from those, and builds its estimator through skops only when something asks for it.
 
 Loading refuses a file changed after it was written and any type outside what the
-file's kind trusts, before anything is constructed. Feature tables or sessions prepared
+file's kind trusts, before anything is constructed, and checks the metadata document as
+any other input (:func:`check_meta`): its digest only tells that the file is whole, as
+anyone can rewrite the document and compute the digest again. Feature tables or sessions prepared
 with other features are refused by :meth:`ModelFile.check_features`.
 """
 
@@ -313,6 +315,10 @@ def check_meta(meta: dict, path: Path) -> None:
         problem = err.problem if err.problem.startswith(f"{key} settings") else \
             f"{key} settings: {err.problem}"
         raise InputError(f"model file's {problem}", path) from err
+    except (TypeError, KeyError, ValueError, AttributeError) as err:  # a plugin's input kind
+        raise InputError(f"model file's {key} settings are not what a {kind.input.name} input "
+                         f"takes ({type(err).__name__}: {' '.join(str(err).split())[:80]})",
+                         path) from err
     names = meta.get("feature_names", produced)
     if not (isinstance(names, list) and all(isinstance(name, str) for name in names)):
         raise InputError("model file's feature_names are not a list of names", path)
