@@ -20,8 +20,13 @@ def job(_):
     return os.getpid()
 
 if __name__ == "__main__":
-    scheduler = sys.argv[1] if len(sys.argv) > 1 else None
-    for _ in map_ordered(job, range(4), workers=2, spawn=True, scheduler=scheduler):
+    mode = sys.argv[1] if len(sys.argv) > 1 else None
+    if mode == "polars":  # a thread pool in this process: workers come from a fork server
+        import polars as pl
+        pl.DataFrame({"a": [1, 2, 3]}).lazy().select(pl.col("a").sum()).collect()
+        for _ in map_ordered(job, range(4), workers=2):
+            pass
+    for _ in map_ordered(job, range(4), workers=2, spawn=True, scheduler=mode):
         pass
 """
 
@@ -53,9 +58,9 @@ def _alive(pid: int) -> bool:
 
 @pytest.mark.skipif(not os.path.exists("/proc/self/task"), reason="needs Linux /proc")
 @pytest.mark.timeout(240)
-@pytest.mark.parametrize("scheduler", [None, "local:2"])
+@pytest.mark.parametrize("scheduler", [None, "local:2", "polars"])
 def test_workers_die_with_a_killed_parent(scheduler, tmp_path) -> None:
-    if scheduler is not None:
+    if scheduler == "local:2":
         pytest.importorskip("distributed")
     script = tmp_path / "child.py"
     script.write_text(CHILD)

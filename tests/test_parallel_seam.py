@@ -61,3 +61,32 @@ def test_a_pool_is_never_larger_than_the_machine_or_the_jobs(monkeypatch, caplog
         range(50, 0, -1))
     assert sizes == [3, 2 * parallel.WORKERS_PER_CPU]
     assert "100000 workers asked for; using 8" in caplog.text
+
+
+POLARS_IN_PARENT = """
+import polars as pl
+from contactkit.util.parallel import map_ordered
+
+def job(n):
+    return pl.DataFrame({"a": list(range(n))}).lazy().select(pl.col("a").sum()).collect().item()
+
+if __name__ == "__main__":
+    pl.DataFrame({"a": list(range(10000))}).lazy().group_by(pl.col("a") % 7).agg(
+        pl.len()).collect()  # starts Polars' thread pool here
+    print(list(map_ordered(job, [10, 100, 1000], workers=2)))
+"""
+
+
+def test_a_parent_that_ran_polars_still_gets_working_workers(tmp_path: Path) -> None:
+    """A forked child of a process whose Polars thread pool has started hangs in its first
+    query (the CI's import test hung so, after an earlier in-process import); with Polars
+    loaded the pool forks its workers from a clean server instead."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "polars_parent.py"
+    script.write_text(POLARS_IN_PARENT)
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[45, 4950, 499500]"

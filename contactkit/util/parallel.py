@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from contactkit.util.progress import ProgressCallback
-from contactkit.util.workers import die_with_parent, ordered_results
+from contactkit.util.workers import die_with, die_with_parent, ordered_results
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -113,6 +113,30 @@ def dask_worker_rank() -> int | None:
     return int(tail) if tail.isdigit() else 0
 
 
+FORK_UNSAFE_MODULES = ("polars",)
+"""Libraries whose thread pools do not survive ``fork``: a forked child of a process that
+has run one (a Polars query, say, in a notebook or an earlier in-process import) hangs
+in its next call. While one is loaded, the local pool forks its workers from a clean
+server process instead (``forkserver``)."""
+
+
+def pool_context(spawn: bool = False
+                 ) -> tuple[multiprocessing.context.BaseContext | None, Callable[[int], None]]:
+    """Return the multiprocessing context of the local pool (fresh interpreters with
+    ``spawn``; workers forked from a clean server process where a library of
+    :data:`FORK_UNSAFE_MODULES` is loaded; else forks of this process, the platform's
+    default, None) and the initializer that makes its workers end with this process,
+    given this process's pid: :func:`~contactkit.util.workers.die_with_parent` for
+    its own children, :func:`~contactkit.util.workers.die_with` for a server's, whose
+    server lives as long as they do."""
+    if spawn:
+        return multiprocessing.get_context("spawn"), die_with_parent
+    if "forkserver" in multiprocessing.get_all_start_methods() and any(
+            name in sys.modules for name in FORK_UNSAFE_MODULES):
+        return multiprocessing.get_context("forkserver"), die_with
+    return None, die_with_parent
+
+
 def map_ordered(fn: Callable[..., R], items: Iterable[Any], *, workers: int = 1,
                 progress: ProgressCallback | None = None, total: int | None = None,
                 spawn: bool = False, in_flight: int = 4,
@@ -122,9 +146,10 @@ def map_ordered(fn: Callable[..., R], items: Iterable[Any], *, workers: int = 1,
     ``workers`` <= 1 runs in this process. Otherwise a pool of ``workers`` processes,
     at most one per job and :data:`WORKERS_PER_CPU` per usable CPU (with a warning)
     (``spawn``: fresh interpreters, needed where a library keeps threads, such as
-    PyTorch; scripts must then guard with ``if __name__ == "__main__":``) holds at most
-    ``in_flight`` jobs per worker, so ``items`` may be a lazy generator of large
-    inputs. ``progress(done, total)`` is called as jobs finish; ``total`` defaults to
+    PyTorch; scripts must then guard with ``if __name__ == "__main__":``; forked from a
+    clean server where a library that forks badly is loaded, see :func:`pool_context`)
+    holds at most ``in_flight`` jobs per worker, so ``items`` may be a lazy generator of
+    large inputs. ``progress(done, total)`` is called as jobs finish; ``total`` defaults to
     ``len(items)`` where it has one. An exception raised by ``fn`` propagates.
     ``scheduler`` (see :func:`resolve_scheduler`) other than local sends the jobs to
     a Dask cluster instead; ``workers`` and ``spawn`` then do not apply.
@@ -152,8 +177,8 @@ def map_ordered(fn: Callable[..., R], items: Iterable[Any], *, workers: int = 1,
         log.warning("%d workers asked for; using %d (%d per usable CPU)", workers, most,
                     WORKERS_PER_CPU)
     workers = max(1, min(workers, most, total or workers))
-    context = multiprocessing.get_context("spawn") if spawn else None
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=die_with_parent,
+    context, ends_with = pool_context(spawn)
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=ends_with,
                              initargs=(os.getpid(),)) as pool:
         yield from ordered_results(
             lambda item: pool.submit(fn, item),

@@ -49,6 +49,34 @@ def die_with_parent(parent_pid: int | None = None) -> None:
     threading.Thread(target=watch, name="contactkit-parent-watch", daemon=True).start()
 
 
+def die_with(pid: int) -> None:
+    """Make this (worker) process end when process ``pid`` ends, where that is not its
+    parent: a fork server's worker (see :func:`contactkit.util.parallel.pool_context`),
+    whose parent, the server, lives as long as its workers do. A daemon thread checks
+    every :data:`PARENT_POLL_S` s that ``pid`` is still running (a zombie is not)."""
+    def running() -> bool:
+        try:
+            with open(f"/proc/{pid}/stat") as fh:
+                return fh.read().rsplit(")", 1)[-1].split()[0] != "Z"
+        except FileNotFoundError:
+            return False
+        except OSError:  # no /proc: ask the kernel (a zombie still answers there)
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                return False
+            except PermissionError:
+                pass
+            return True
+
+    def watch() -> None:
+        while running():
+            time.sleep(PARENT_POLL_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="contactkit-parent-watch", daemon=True).start()
+
+
 def ordered_results(submit: Callable[[Any], Any], wait_first: Callable[[list], Iterable],
                     items: Iterable[Any], limit: int, progress: ProgressCallback | None,
                     total: int | None) -> Iterator[Any]:
