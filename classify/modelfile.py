@@ -21,6 +21,7 @@ with other features are refused by :meth:`ModelFile.check_features`.
 from __future__ import annotations
 
 import io
+import logging
 import math
 import zipfile
 from collections.abc import Callable
@@ -51,6 +52,8 @@ from contactkit.errors import ContactkitError
 from contactkit.schemas import InputError
 from contactkit.util.atomic import check_target
 from contactkit.util.params import Interval
+
+log = logging.getLogger(__name__)
 
 if TYPE_CHECKING:
     from sklearn.pipeline import Pipeline
@@ -87,6 +90,31 @@ class ModelFile:
         if self._estimator is None:
             self._estimator = self._build_estimator()
         return self._estimator
+
+    @property
+    def trained_robots(self) -> list[str] | None:
+        """The arms (registry names) of the sessions the model was trained on, None where
+        the file does not say (trained on feature tables, or by an older version)."""
+        training = self.meta.get("training")
+        robots = training.get("robots") if isinstance(training, dict) else None
+        return None if robots is None else list(robots)
+
+    def check_robot(self, robot: str, path: str | Path | None = None) -> bool:
+        """Return whether the model was trained on sessions of the arm ``robot`` (a
+        registry name), or cannot tell; warn once per arm (a logging warning naming the
+        session ``path``) when it was not: the features come from that arm's own model,
+        but the classifier has not seen its sessions."""
+        trained = self.trained_robots
+        if trained is None or robot in trained:
+            return True
+        warned = self.__dict__.setdefault("_warned_robots", set())
+        if robot not in warned:
+            warned.add(robot)
+            where = f"{Path(path).name}: " if path is not None else ""
+            log.warning("%sthe model was trained on %s sessions only, this session's arm is "
+                        "%s (its features come from that arm's model; the classifier has "
+                        "not seen it)", where, " and ".join(trained), robot)
+        return False
 
     def detector_config(self):
         """Return the contact detector's settings the model carries, or None."""
@@ -339,6 +367,12 @@ def check_meta(meta: dict, path: Path) -> None:
                          path) from err
     if "events" in meta:
         _check_event_meta(meta["events"], path)
+    training = meta.get("training", {})
+    robots = training.get("robots") if isinstance(training, dict) else None
+    if robots is not None and not (isinstance(robots, list)
+                                   and all(isinstance(r, str) for r in robots)):
+        raise InputError(f"model file's training robots are not a list of names "
+                         f"({str(robots)[:80]})", path)
 
 
 def _check_labels(labels: object, what: str, path: Path) -> None:

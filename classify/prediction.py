@@ -80,6 +80,7 @@ def predict_sources(model: ModelFile, sources: Sequence[Path], robot: str | None
     given. Return the predictions in order and the sessions that could not be used
     (unreadable, window too short), which do not stop the others."""
     pipeline = model.pipeline()
+    chain = pipeline.named_steps["input"].chain_config()  # the arm whose model gives the features
     predictions: list[Prediction] = []
     problems: list[InputError] = []
     for source in sources:
@@ -90,6 +91,7 @@ def predict_sources(model: ModelFile, sources: Sequence[Path], robot: str | None
             try:
                 session = read_session(path)
                 session.meta = session.meta.with_robot(robot)
+                model.check_robot(chain.robot_setup(session.meta, path).robot, path)
                 proba = pipeline.predict_proba([session])
             except DATA_ERRORS as err:
                 problems.append(err if isinstance(err, InputError)

@@ -19,7 +19,10 @@ from contactkit.classify.names import PROTOCOLS
 from contactkit.classify.registry import get_kind
 from contactkit.classify.schemes import check_scheme, check_two_classes, scheme_classes
 from contactkit.errors import check_choice
+from contactkit.robots.registry import canonical_robot_name
 from contactkit.schemas import InputError
+from contactkit.schemas.dataset import session_files
+from contactkit.schemas.session import read_session_meta
 from contactkit.util.atomic import check_target
 from contactkit.util.progress import LabelledProgress
 
@@ -61,6 +64,26 @@ class TrainedModel:
     problems: list[tuple[str, str]]
 
 
+def trained_robots(datasets: Sequence[Path], robot: str | None = None) -> list[str] | None:
+    """Return the arms (registry names, sorted) whose models computed the features of
+    the sessions in ``datasets``: ``robot`` where the features name one, else each
+    session's own, read from the session files' footers. None when a dataset is a
+    feature table, which does not say which arms its sessions come from. A session
+    whose metadata cannot be read is left out (training lists it as a problem)."""
+    if robot is not None:
+        return [canonical_robot_name(robot)]
+    robots = set()
+    for source in datasets:
+        if not Path(source).is_dir():
+            return None
+        for path in session_files(source):
+            try:
+                robots.add(canonical_robot_name(read_session_meta(path)[0].robot))
+            except InputError:
+                continue
+    return sorted(robots)
+
+
 def train(datasets: Sequence[Path], out: Path, options: ModelOptions, *, scheme: str = "full",
           limited: bool = False, workers: int = 1, overwrite: bool = False,
           progress: LabelledProgress | None = None, detector: dict | None = None,
@@ -89,7 +112,8 @@ def train(datasets: Sequence[Path], out: Path, options: ModelOptions, *, scheme:
     classes = [str(c) for c in estimator.classes_]
     training = {"datasets": [str(d) for d in datasets], "limited": limited,
                 "sessions": len(data), "options": asdict(options),
-                "epochs": getattr(estimator, "n_epochs_", None)}
+                "epochs": getattr(estimator, "n_epochs_", None),
+                "robots": trained_robots(datasets, getattr(found.transformer, "robot", None))}
     path = save_model(out, estimator, kind=kind, transformer=found.transformer,
                       feature_names=list(data.names), classes=classes, scheme=scheme,
                       fingerprint=data.fingerprint(), training=training,

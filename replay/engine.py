@@ -215,6 +215,7 @@ class ReplayStream:
         timeseries, self.window_s = self.transformer.timeseries, float(self.transformer.window_s)
         chain = self.transformer.chain_config()
         self.chain_config = ChainConfig(chain.observer, chain.wrench_frame)
+        model.check_robot(self.chain_config.robot_setup(self.meta, self.path).robot, self.path)
         self.names = expand(list(timeseries))
         self.channels = [c for name in self.names for c in columns_of(name)]
         self._hops = _HopLog(len(self.classes))

@@ -12,7 +12,7 @@ from contactkit.classify.evaluate import evaluate
 from contactkit.classify.models import svm_pipeline
 from contactkit.classify.schemes import scheme_classes
 from contactkit.features.extract import SessionFeatures
-from tests.conftest import make_dataset, run_command
+from tests.conftest import make_dataset, make_session, run_command
 
 
 @pytest.fixture(scope="module")
@@ -53,6 +53,34 @@ def test_train_evaluate_predict(static: Path, tmp_path: Path) -> None:
     refused = run_command("classify", "predict", str(model), str(features))
     assert refused.returncode == 2 and "other features" in refused.stderr
 
+
+
+def test_a_model_says_when_a_session_comes_from_an_arm_it_was_not_trained_on(
+        static: Path, tmp_path: Path) -> None:
+    """A model file lists the arms of its training sessions; predicting or replaying a
+    session of another arm warns once, naming the session and both arms, and goes on
+    (its features come from that arm's own model)."""
+    from contactkit.classify.modelfile import load_model
+
+    model = tmp_path / "model.skops"
+    trained = run_command("classify", "train", str(static), "--out", str(model), "--model",
+                          "three-joint", "--workers", "1")
+    assert trained.returncode == 0, trained.stderr
+    assert load_model(model).trained_robots == ["panda"]
+    fr3 = make_session(tmp_path, seed=5, action="bump", link=5, robot="fr3", duration_s=2.0,
+                       planned_at_s=1.0, rate_hz=200.0)
+    panda = sorted(static.glob("*.parquet"))[0]
+    for command in (["classify", "predict", str(model)],
+                    ["replay", "--viewer", "none", "--save", str(tmp_path / "r.rrd"),
+                     "--overwrite", "--model", str(model)]):
+        warned = run_command(*command, str(fr3), str(panda))
+        assert warned.returncode == 0, warned.stderr
+        text = " ".join(warned.stderr.split())
+        assert text.count("the model was trained on panda sessions only") == 1, text
+        assert f"{fr3.name}: the model was trained on panda sessions only, this session's " \
+               "arm is fr3" in text
+        quiet = run_command(*command, str(panda))
+        assert "trained on" not in quiet.stderr, quiet.stderr
 
 def test_bad_input(static: Path, tmp_path: Path) -> None:
     cases = [

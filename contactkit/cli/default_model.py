@@ -64,9 +64,10 @@ Progress = Callable[[str, int, int], None]
 def recipe_dir() -> Path:
     """Return the cache directory of the current recipe and simulator defaults."""
     # The simulator's defaults and the event features are part of the key: a
-    # recalibrated simulator or new event features build anew.
+    # recalibrated simulator or new event features build anew; so is what the training
+    # document records (since the arms of its sessions, which a replay checks).
     recipe = {**RECIPE, "simulator": SimConfig().to_dict(), "event_features": EVENT_FEATURES,
-              "model_format": MODEL_FORMAT}
+              "model_format": MODEL_FORMAT, "training_records": ["robots"]}
     key = hashlib.sha256(json.dumps(recipe, sort_keys=True).encode()).hexdigest()[:12]
     return cache_dir() / "default-model" / key
 
