@@ -91,8 +91,8 @@ def predict_sources(model: ModelFile, sources: Sequence[Path], robot: str | None
             try:
                 session = read_session(path)
                 session.meta = session.meta.with_robot(robot)
-                model.check_robot(chain.robot_setup(session.meta, path).robot, path)
                 proba = pipeline.predict_proba([session])
+                model.check_robot(chain.robot_setup(session.meta, path).robot, path)
             except DATA_ERRORS as err:
                 problems.append(err if isinstance(err, InputError)
                                 else InputError(problem_text(err), path))

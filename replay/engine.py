@@ -215,7 +215,6 @@ class ReplayStream:
         timeseries, self.window_s = self.transformer.timeseries, float(self.transformer.window_s)
         chain = self.transformer.chain_config()
         self.chain_config = ChainConfig(chain.observer, chain.wrench_frame)
-        model.check_robot(self.chain_config.robot_setup(self.meta, self.path).robot, self.path)
         self.names = expand(list(timeseries))
         self.channels = [c for name in self.names for c in columns_of(name)]
         self._hops = _HopLog(len(self.classes))
@@ -275,10 +274,11 @@ class ReplayStream:
     def blocks(self, every_hop: bool = False) -> Iterator[Block]:
         """Stream the session; yield a :class:`Block` per batch read, or with
         ``every_hop`` after every prediction (and at the end of each batch)."""
-        chain = TimeseriesChain(self.chain_config,
-                                self.chain_config.robot_setup(self.meta, self.path),
+        robot = self.chain_config.robot_setup(self.meta, self.path)
+        chain = TimeseriesChain(self.chain_config, robot,
                                 list(dict.fromkeys([*self.names, "r", "f", "m", "fm_norm",
                                                     self.window_spec.signal])))
+        self.model.check_robot(robot.robot, self.path)  # once its model is built
         history_t, history_v = np.zeros(0), np.zeros((0, len(self.channels)))
         next_hop = last_t = None
         start = 0
