@@ -391,7 +391,6 @@ class TimeseriesChain:
                            None if r is None else r[-1].copy())
         return {name: out[name] for name in names}, after
 
-
     def _residual(self, t: np.ndarray, p: np.ndarray, u: np.ndarray, gaps: np.ndarray,
                   before: ChainState | None) -> np.ndarray:
         """Return the observer residual r [Nm] (n, 7) of samples with times ``t`` [s],

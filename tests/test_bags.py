@@ -232,3 +232,8 @@ def test_export_mcap_never_replaces_the_session_it_reads(source, tmp_path):
     with pytest.raises(InputError, match="the session it exports"):
         export_mcap(link, session, overwrite=True)
     assert session.read_bytes() == source.read_bytes()
+    dangling = tmp_path / "dangling"  # a link to nothing is not the session: the usual refusal
+    dangling.symlink_to(tmp_path / "nothing")
+    done = run_command("recorder", "export-mcap", str(session), "--out", str(dangling))
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert "--overwrite" in done.stderr and dangling.is_symlink(), done.stderr

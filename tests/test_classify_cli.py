@@ -54,7 +54,6 @@ def test_train_evaluate_predict(static: Path, tmp_path: Path) -> None:
     assert refused.returncode == 2 and "other features" in refused.stderr
 
 
-
 def test_a_model_says_when_a_session_comes_from_an_arm_it_was_not_trained_on(
         static: Path, tmp_path: Path) -> None:
     """A model file lists the arms of its training sessions; predicting or replaying a
@@ -81,6 +80,7 @@ def test_a_model_says_when_a_session_comes_from_an_arm_it_was_not_trained_on(
                "arm is fr3" in text
         quiet = run_command(*command, str(panda))
         assert "trained on" not in quiet.stderr, quiet.stderr
+
 
 def test_bad_input(static: Path, tmp_path: Path) -> None:
     cases = [

@@ -203,6 +203,21 @@ def test_urdf_with_a_negative_mass_is_one_line(urdf_dir, good, tmp_path, capsys)
     assert not list(tmp_path.rglob("*.parquet")) and not (tmp_path / "u.rrd").exists()
 
 
+def test_urdf_with_an_inertia_that_is_not_positive_is_one_line(urdf_dir, good, tmp_path,
+                                                               capsys) -> None:
+    """A negative principal inertia passed the mass check and crashed the simulator
+    ('The 3d inertia should be positive', a traceback)."""
+    bad = urdf_dir / "inertia.urdf"
+    bad.write_text((urdf_dir / "arm.urdf").read_text().replace(
+        'ixx="0.02410142547240885"', 'ixx="-5.0"'))
+    assert bad.read_text() != (urdf_dir / "arm.urdf").read_text()
+    code, _, err = _run(recorder_app, "recorder", capsys, "capture", "--robot", f"urdf:{bad}",
+                        "--pose", "A", "--action", "bump", "--duration", "2",
+                        "--planned-at", "1", "--out", tmp_path / "cap")
+    _one_line(code, err, "inertia.urdf", "positive semi-definite")
+    assert not list(tmp_path.rglob("*.parquet"))
+
+
 # -- directories of mixed files ----------------------------------------------------------
 
 @pytest.mark.parametrize("command", ["train", "evaluate"])

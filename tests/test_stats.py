@@ -78,7 +78,6 @@ def test_deep_report_markdown_and_noise_file(dataset: Path, tmp_path: Path) -> N
     assert "files (session ids and file SHA-256)" in result.stderr.replace("\n", "")
 
 
-
 def test_markdown_report_refuses_a_foreign_plot_before_writing_any(dataset: Path,
                                                                   tmp_path: Path) -> None:
     """The Markdown report's plots and page are checked together before any is written:
@@ -88,6 +87,7 @@ def test_markdown_report_refuses_a_foreign_plot_before_writing_any(dataset: Path
                          str(tmp_path / "r.md"))
     assert result.returncode == 2 and "r_plot2.png" in result.stderr, result.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r_plot2.png"]
+
 
 def test_deep_json_sections_and_html(dataset: Path, tmp_path: Path) -> None:
     out = tmp_path / "deep.json"

@@ -421,6 +421,9 @@ def test_fixed_name_results_are_checked_before_any_work(tmp_path: Path) -> None:
         run_augmentation(missing, missing, tmp_path, kind=lstm, options=ModelOptions("lstm"))
     assert found.value.path == str(tmp_path / "augmentation.json")
     assert atomic.check_results(tmp_path / "new", ["window.md"]) == [tmp_path / "new/window.md"]
+    (tmp_path / "a file").write_text("")
+    with pytest.raises(InputError, match="is not a directory"):
+        run_experiment("window", [missing], tmp_path / "a file", Setting())
     (tmp_path / "gridsearch.md").write_text("# mine\n")
     result = run_command("classify", "gridsearch", str(missing), "--out", str(tmp_path))
     assert result.returncode == 2 and "gridsearch.md: exists and is not a file contactkit " \

@@ -88,17 +88,20 @@ def _nominal_model(setup: RobotSetup) -> pin.Model:
         detail = "; ".join(complaints[:2]) if complaints else str(failure)
         raise InputError(f"robot {setup.robot!r}: pinocchio cannot build its URDF: "
                          f"{detail[:300]}") from failure
+    # every link, a locked gripper's too (before locking adds it to its parent's)
+    for name, inertia in zip(full.names, full.inertias, strict=True):
+        tensor = np.asarray(inertia.inertia, dtype=float)
+        if not (np.isfinite(inertia.mass) and inertia.mass >= 0 and np.isfinite(tensor).all()
+                and np.linalg.eigvalsh(tensor).min() >= -1e-9 * max(1.0, np.abs(tensor).max())):
+            raise InputError(f"robot {setup.robot!r}: the links on joint {name!r} have a "
+                             f"mass of {inertia.mass:g} kg or an inertia that is not finite "
+                             "and positive (masses must be finite and not negative, inertia "
+                             "tensors positive semi-definite)")
     # every joint beyond the 7 arm joints (a hand's fingers, a gripper) is locked at rest
     locked = [full.getJointId(n) for n in full.names[1:] if n not in spec.joint_names]
     model = full if not locked else pin.buildReducedModel(full, locked, pin.neutral(full))
     if model.nq != N_JOINTS:
         raise InputError(f"robot {setup.robot!r} has {model.nq} joints, not {N_JOINTS}")
-    for name, inertia in zip(model.names, model.inertias, strict=True):
-        if not (np.isfinite(inertia.mass) and inertia.mass >= 0
-                and np.isfinite(inertia.inertia).all()):
-            raise InputError(f"robot {setup.robot!r}: the links on joint {name!r} have a "
-                             f"mass of {inertia.mass:g} kg or an inertia that is not finite "
-                             "(masses must be finite and not negative)")
     if setup.payload_kg:
         flange = model.frames[model.getFrameId(spec.flange)]
         payload = pin.Inertia(setup.payload_kg, np.array(setup.payload_com_m, dtype=float),

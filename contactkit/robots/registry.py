@@ -129,6 +129,7 @@ def urdf_robot(path: str) -> RobotSpec:
         child_links.add(child.get("link"))
     roots = [link.get("name") for link in root.iter("link")
              if link.get("name") not in child_links]
+
     def moves(joint: ET.Element) -> bool:
         """Whether ``joint`` or a joint below it turns (a side branch of fixed frames,
         a camera's or a sensor's, does not)."""

@@ -311,19 +311,22 @@ def owned_result(path: Path) -> bool:
     return head.startswith(marker) and RESULT_MARK.encode() in head
 
 
-
 def check_results(out_dir: str | Path, names: Sequence[str]) -> list[Path]:
     """Check, before any work, that the fixed-name result files ``names`` may be written
     into ``out_dir``: each is missing or contactkit's own (:func:`owned_result`); return
-    their paths. A directory that does not exist yet holds nothing to refuse. Raises the
-    one-line :class:`InputError` of :func:`check_target` otherwise, so that a command
-    that runs for hours does not find out at its end."""
+    their paths. A directory that does not exist yet holds nothing to refuse; a file or
+    a link to nothing at its name is refused. Raises the one-line :class:`InputError` of
+    :func:`check_target` otherwise, so that a command that runs for hours does not find
+    out at its end."""
     out_dir = Path(out_dir)
     paths = [out_dir / name for name in names]
+    if os.path.lexists(out_dir) and not out_dir.is_dir():
+        raise InputError("is not a directory: results go into one", out_dir)
     if out_dir.is_dir():
         for path in paths:
             check_target(path, owned=owned_result)
     return paths
+
 
 def write_figure(path: str | Path, fig, *, overwrite: bool = False,
                  owned: Owned | None = None, **savefig) -> Path:

@@ -52,7 +52,7 @@ def export_mcap(session_path: Path, out: Path, *, start_ns: int = 0,
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
-    if os.path.lexists(out) and session_path.exists() and os.path.samefile(out, session_path):
+    if os.path.exists(out) and session_path.exists() and os.path.samefile(out, session_path):
         raise InputError("is the session it exports: not replaced, even with --overwrite "
                          "(give --out)", out)
     session = read_session(session_path)
