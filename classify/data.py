@@ -2,12 +2,12 @@
 and grouping keys.
 
 Features of a dataset directory are computed once per feature configuration and
-cached in contactkit's cache directory (``features/`` under $CONTACTKIT_CACHE or
-~/.cache/contactkit; keyed by the configuration, the dataset's path and the names,
-sizes and modification times of the session files), so ``train`` after ``evaluate``
-does not recompute them. Nothing is written into the dataset directory, which may be
-read-only or hold a planted ``.cache`` link. A feature table written by ``classify
-features`` is read as is.
+cached in contactkit's cache directory (``features/`` under $CONTACTKIT_CACHE, else
+$XDG_CACHE_HOME/contactkit or ~/.cache/contactkit; keyed by the configuration, the
+dataset's path and the names, sizes and modification times of the session files), so
+``train`` after ``evaluate`` does not recompute them. Nothing is written into the
+dataset directory, which may be read-only or hold a planted ``.cache`` link. A feature
+table written by ``classify features`` is read as is.
 """
 
 from __future__ import annotations
@@ -158,15 +158,16 @@ def _load_one(source: Path, extractor: SessionFeatures, workers: int,
         raise InputError("no session files (*.parquet) in this directory", source)
     extractor.fit(None)
     config = extractor.config()
-    cache_path = cache_dir() / "features" / f"{_cache_key(source, files, config)}.parquet"
-    if cache and cache_path.is_file():
+    cache_path = cache_dir() / "features" / f"{_cache_key(source, files, config)}.parquet" \
+        if cache else None
+    if cache_path is not None and cache_path.is_file():
         table, doc = read_feature_table(cache_path)
         return _from_table(table, doc, [])
     result = feature_rows(files, extractor, workers, progress, scheduler=scheduler)
     if not len(result):
         raise InputError("no session could be processed", source)
     table = result.table(config)
-    if cache:
+    if cache_path is not None:
         cache_path.parent.mkdir(exist_ok=True)
         atomic_write_parquet(table, cache_path, overwrite=False, owned=any_regular_file)
     return _from_table(table, {"config": config, "features": result.names}, result.problems,

@@ -64,12 +64,14 @@ class TrainedModel:
     problems: list[tuple[str, str]]
 
 
-def trained_robots(datasets: Sequence[Path], robot: str | None = None) -> list[str] | None:
+def trained_robots(datasets: Sequence[Path], robot: str | None = None,
+                   used: set[str] | None = None) -> list[str] | None:
     """Return the arms (registry names, sorted) whose models computed the features of
-    the sessions in ``datasets``: ``robot`` where the features name one, else each
-    session's own, read from the session files' footers. None when a dataset is a
-    feature table, which does not say which arms its sessions come from. A session
-    whose metadata cannot be read is left out (training lists it as a problem)."""
+    the sessions in ``datasets`` (those whose file names are in ``used``, None: all):
+    ``robot`` where the features name one, else each session's own, read from the
+    session files' footers. None when a dataset is a feature table, which does not say
+    which arms its sessions come from. A session whose metadata cannot be read is left
+    out (training lists it as a problem)."""
     if robot is not None:
         return [canonical_robot_name(robot)]
     robots = set()
@@ -77,6 +79,8 @@ def trained_robots(datasets: Sequence[Path], robot: str | None = None) -> list[s
         if not Path(source).is_dir():
             return None
         for path in session_files(source):
+            if used is not None and path.name not in used:
+                continue
             try:
                 robots.add(canonical_robot_name(read_session_meta(path)[0].robot))
             except InputError:
@@ -113,7 +117,8 @@ def train(datasets: Sequence[Path], out: Path, options: ModelOptions, *, scheme:
     training = {"datasets": [str(d) for d in datasets], "limited": limited,
                 "sessions": len(data), "options": asdict(options),
                 "epochs": getattr(estimator, "n_epochs_", None),
-                "robots": trained_robots(datasets, getattr(found.transformer, "robot", None))}
+                "robots": trained_robots(datasets, getattr(found.transformer, "robot", None),
+                                         set(data.info["file"]))}
     path = save_model(out, estimator, kind=kind, transformer=found.transformer,
                       feature_names=list(data.names), classes=classes, scheme=scheme,
                       fingerprint=data.fingerprint(), training=training,

@@ -26,8 +26,9 @@ if __name__ == "__main__":
         pl.DataFrame({"a": [1, 2, 3]}).lazy().select(pl.col("a").sum()).collect()
         for _ in map_ordered(job, range(4), workers=2):
             pass
-    for _ in map_ordered(job, range(4), workers=2, spawn=True, scheduler=mode):
-        pass
+    else:
+        for _ in map_ordered(job, range(4), workers=2, spawn=True, scheduler=mode):
+            pass
 """
 
 

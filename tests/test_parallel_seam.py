@@ -64,29 +64,44 @@ def test_a_pool_is_never_larger_than_the_machine_or_the_jobs(monkeypatch, caplog
 
 
 POLARS_IN_PARENT = """
+import os
+import sys
+
 import polars as pl
 from contactkit.util.parallel import map_ordered
 
 def job(n):
     return pl.DataFrame({"a": list(range(n))}).lazy().select(pl.col("a").sum()).collect().item()
 
+def where(_):
+    return os.environ.get("CK_LATER"), os.getcwd()
+
 if __name__ == "__main__":
     pl.DataFrame({"a": list(range(10000))}).lazy().group_by(pl.col("a") % 7).agg(
         pl.len()).collect()  # starts Polars' thread pool here
     print(list(map_ordered(job, [10, 100, 1000], workers=2)))
+    os.environ["CK_LATER"] = "set later"  # after the fork server started
+    os.chdir(sys.argv[1])
+    print(set(map_ordered(where, range(4), workers=2)))
 """
 
 
 def test_a_parent_that_ran_polars_still_gets_working_workers(tmp_path: Path) -> None:
     """A forked child of a process whose Polars thread pool has started hangs in its first
     query (the CI's import test hung so, after an earlier in-process import); with Polars
-    loaded the pool forks its workers from a clean server instead."""
+    loaded the pool forks its workers from a clean server instead, and they take on the
+    parent's environment and working directory of the moment, not the server's."""
     import subprocess
     import sys
 
     script = tmp_path / "polars_parent.py"
     script.write_text(POLARS_IN_PARENT)
-    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
-                          timeout=120)
+    later = tmp_path / "later"
+    later.mkdir()
+    done = subprocess.run([sys.executable, str(script), str(later)], capture_output=True,
+                          text=True, timeout=120)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.strip() == "[45, 4950, 499500]"
+    sums, seen = done.stdout.strip().splitlines()
+    assert sums == "[45, 4950, 499500]"
+    # the workers see the parent's environment and directory as they are at the map
+    assert seen == str({("set later", str(later))})

@@ -51,6 +51,24 @@ def test_meshes_that_cannot_be_found_leave_links_bare_not_a_crash(tmp_path: Path
                        np.eye(3), Persona.from_name("sim"))
 
 
+
+def test_the_viewer_leaves_out_a_mesh_that_exists_but_is_not_stl(tmp_path: Path) -> None:
+    """The viewer's URDF had kept a mesh that was found but could not be read (a .dae, a
+    corrupt file) while the surfaces left it out: it draws what the surfaces have."""
+    mesh = tmp_path / "link3.dae"
+    mesh.write_text("<?xml version='1.0'?><COLLADA>" + " " * 200 + "</COLLADA>")
+    share = next(p for p in PANDA.urdf_file().parents if p.name == "example-robot-data")
+    text = PANDA.urdf_text(False).replace("package://example-robot-data", f"file://{share}")
+    start = text.index('<link name="panda_link3"')
+    end = text.index("</link>", start)
+    link3 = text[start:end]
+    fixed = link3.replace(link3[link3.index('filename="', link3.index("<collision")):].split(
+        '"')[1], str(mesh))
+    setup = RobotSetup(_arm(tmp_path, text[:start] + fixed + text[end:]), with_hand=False)
+    viewer = viewer_urdf_file(setup).read_text()
+    assert "link3.dae" not in viewer and viewer.count("<mesh") == 7  # links 0-2 and 4-7
+    assert link_surface(setup, 3).empty and not link_surface(setup, 4).empty
+
 def test_stl_files_binary_ascii_and_neither(tmp_path: Path) -> None:
     ascii_stl = tmp_path / "tri.stl"
     ascii_stl.write_text("solid t\n facet normal 0 0 1\n  outer loop\n   vertex 0 0 0\n"
@@ -127,6 +145,32 @@ def test_continuous_joints_are_revolute_joints_without_position_limits(tmp_path:
     np.testing.assert_allclose(rotation[0], panda.frame_placement(far, 7).rotation,
                                atol=1e-12)
 
+
+
+def test_deep_stats_of_an_arm_with_continuous_joints_is_valid_json(tmp_path: Path) -> None:
+    """A continuous joint has no position limit: its margin is null, where it was an
+    infinite float that json wrote as Infinity (not JSON for jq or a browser)."""
+    import json
+
+    from tests.conftest import make_session, run_command
+
+    robot = _arm(tmp_path, _continuous(PANDA.urdf_text(False), (1, 3, 5, 7)))
+    data = tmp_path / "data"
+    data.mkdir()
+    make_session(data, action="none", link=None, robot=robot, with_hand=False,
+                 duration_s=1.0, planned_at_s=0.5, rate_hz=200.0)
+    out = tmp_path / "deep.json"
+    done = run_command("recorder", "stats", str(data), "--deep", "--format", "json", "--out",
+                       str(out), "--workers", "1")
+    assert done.returncode == 0, done.stderr
+
+    def refuse(constant: str) -> None:
+        raise AssertionError(f"{constant} in the report")
+
+    for path in (out, tmp_path / "deep_noise.json"):
+        json.loads(path.read_text(), parse_constant=refuse)
+    margins = json.loads(out.read_text())["deep"]["joint_limits"]["min_margin_rad"]
+    assert [m is None for m in margins] == [True, False] * 3 + [True]
 
 def test_a_fixed_side_branch_before_the_7th_joint_is_not_the_chain(tmp_path: Path) -> None:
     """A camera or sensor frame fixed to link 3 (a second child of that link) was 'the

@@ -12,6 +12,7 @@ Joint vectors are numpy arrays of shape (7,), joint 1 first.
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 import tempfile
@@ -26,6 +27,8 @@ import pinocchio as pin
 from contactkit.errors import InputError
 from contactkit.robots.registry import get_robot
 from contactkit.robots.spec import N_JOINTS, RobotSetup, RobotSpec
+
+log = logging.getLogger(__name__)
 
 
 def _revolute(text: str, joints: tuple[str, ...]) -> str:
@@ -84,6 +87,9 @@ def _nominal_model(setup: RobotSetup) -> pin.Model:
             failure = err
     complaints = [m.strip()[len("Error:"):].strip() for m in messages
                   if m.strip().startswith("Error:")]
+    for line in messages:  # urdfdom's other lines (warnings) are said, not swallowed
+        if line.strip() and not line.strip().startswith("Error:"):
+            log.warning("robot %r, building its model: %s", setup.robot, line.strip())
     if failure is not None or complaints:
         detail = "; ".join(complaints[:2]) if complaints else str(failure)
         raise InputError(f"robot {setup.robot!r}: pinocchio cannot build its URDF: "

@@ -71,7 +71,7 @@ def read_stl(path: Path) -> np.ndarray:
             return vertices
     if binary:  # trailing bytes after the triangles
         return np.frombuffer(raw, STL_TRIANGLE, count, 84)["vertices"].astype(float)
-    raise ValueError(f"{path} is not an STL file")
+    raise ValueError("not an STL file (binary or ASCII)")
 
 
 def _skip_mesh(problem: str) -> None:
@@ -211,11 +211,19 @@ def _viewer_urdf(setup: RobotSetup) -> tuple[str, str]:
             collision.tag = "visual"
             mesh = collision.find("geometry/mesh")
             if mesh is not None:
-                try:
+                where = f"{spec.urdf_file()}: link {link.get('name')!r}"
+                try:  # the viewer draws the meshes the surfaces have (the same warnings)
                     path = resolve_mesh(spec.urdf_file(), mesh.get("filename", ""))
                 except FileNotFoundError as err:
-                    _skip_mesh(f"{spec.urdf_file()}: link {link.get('name')!r}: {err}")
-                    link.remove(collision)  # the viewer draws the link without it
+                    _skip_mesh(f"{where}: {err}")
+                    link.remove(collision)
+                    continue
+                try:
+                    read_stl(path)
+                except (OSError, ValueError) as err:
+                    _skip_mesh(f"{where}: the collision mesh {path}: "
+                               f"{getattr(err, 'strerror', None) or err}")
+                    link.remove(collision)
                     continue
                 mesh.set("filename", str(path))
     text = ET.tostring(root, encoding="unicode")

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from contactkit.util.progress import ProgressCallback
-from contactkit.util.workers import die_with, die_with_parent, ordered_results
+from contactkit.util.workers import die_with_parent, join_parent, ordered_results
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -121,20 +121,24 @@ server process instead (``forkserver``)."""
 
 
 def pool_context(spawn: bool = False
-                 ) -> tuple[multiprocessing.context.BaseContext | None, Callable[[int], None]]:
-    """Return the multiprocessing context of the local pool (fresh interpreters with
-    ``spawn``; workers forked from a clean server process where a library of
-    :data:`FORK_UNSAFE_MODULES` is loaded; else forks of this process, the platform's
-    default, None) and the initializer that makes its workers end with this process,
-    given this process's pid: :func:`~contactkit.util.workers.die_with_parent` for
-    its own children, :func:`~contactkit.util.workers.die_with` for a server's, whose
-    server lives as long as they do."""
+                 ) -> tuple[multiprocessing.context.BaseContext | None, Callable[..., None],
+                            tuple]:
+    """Return the multiprocessing context of the local pool and the initializer of its
+    workers with its arguments, which make them end with this process: fresh
+    interpreters with ``spawn``; where a library of :data:`FORK_UNSAFE_MODULES` is
+    loaded, workers forked from a clean server process (started once, with this
+    process's state then), which take on this process's environment and working
+    directory as they are now (:func:`~contactkit.util.workers.join_parent`); else
+    forks of this process (the platform's default, None). Like spawned workers, a
+    server's do not see what this process changed in its modules, and a script that
+    maps must guard with ``if __name__ == "__main__":``."""
     if spawn:
-        return multiprocessing.get_context("spawn"), die_with_parent
+        return multiprocessing.get_context("spawn"), die_with_parent, (os.getpid(),)
     if "forkserver" in multiprocessing.get_all_start_methods() and any(
             name in sys.modules for name in FORK_UNSAFE_MODULES):
-        return multiprocessing.get_context("forkserver"), die_with
-    return None, die_with_parent
+        return (multiprocessing.get_context("forkserver"), join_parent,
+                (os.getpid(), dict(os.environ), os.getcwd()))
+    return None, die_with_parent, (os.getpid(),)
 
 
 def map_ordered(fn: Callable[..., R], items: Iterable[Any], *, workers: int = 1,
@@ -146,8 +150,8 @@ def map_ordered(fn: Callable[..., R], items: Iterable[Any], *, workers: int = 1,
     ``workers`` <= 1 runs in this process. Otherwise a pool of ``workers`` processes,
     at most one per job and :data:`WORKERS_PER_CPU` per usable CPU (with a warning)
     (``spawn``: fresh interpreters, needed where a library keeps threads, such as
-    PyTorch; scripts must then guard with ``if __name__ == "__main__":``; forked from a
-    clean server where a library that forks badly is loaded, see :func:`pool_context`)
+    PyTorch; forked from a clean server where a library that forks badly is loaded, see
+    :func:`pool_context`; scripts must then guard with ``if __name__ == "__main__":``)
     holds at most ``in_flight`` jobs per worker, so ``items`` may be a lazy generator of
     large inputs. ``progress(done, total)`` is called as jobs finish; ``total`` defaults to
     ``len(items)`` where it has one. An exception raised by ``fn`` propagates.
@@ -177,9 +181,9 @@ def map_ordered(fn: Callable[..., R], items: Iterable[Any], *, workers: int = 1,
         log.warning("%d workers asked for; using %d (%d per usable CPU)", workers, most,
                     WORKERS_PER_CPU)
     workers = max(1, min(workers, most, total or workers))
-    context, ends_with = pool_context(spawn)
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=ends_with,
-                             initargs=(os.getpid(),)) as pool:
+    context, initializer, initargs = pool_context(spawn)
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=initializer,
+                             initargs=initargs) as pool:
         yield from ordered_results(
             lambda item: pool.submit(fn, item),
             lambda jobs: wait(jobs, return_when=FIRST_COMPLETED).done,

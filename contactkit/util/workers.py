@@ -77,6 +77,16 @@ def die_with(pid: int) -> None:
     threading.Thread(target=watch, name="contactkit-parent-watch", daemon=True).start()
 
 
+def join_parent(pid: int, environ: dict[str, str], cwd: str) -> None:
+    """Start a fork server's worker as a child of process ``pid`` would start: with its
+    environment ``environ`` and working directory ``cwd`` as they are now (the server
+    keeps those of when it started), ending with it (:func:`die_with`)."""
+    os.environ.clear()
+    os.environ.update(environ)
+    os.chdir(cwd)
+    die_with(pid)
+
+
 def ordered_results(submit: Callable[[Any], Any], wait_first: Callable[[list], Iterable],
                     items: Iterable[Any], limit: int, progress: ProgressCallback | None,
                     total: int | None) -> Iterator[Any]:

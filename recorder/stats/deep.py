@@ -226,7 +226,9 @@ def _summary(path: Path, meta: SessionMeta, rows: int) -> dict:
     out["robot"] = robot
     out["residual_agreement"] = session_residual_agreement(path, meta)
     limits = robot_limits(meta)
-    out["limit_margin_rad"] = np.minimum(q_low - limits.q_min, limits.q_max - q_high).tolist()
+    margins = np.minimum(q_low - limits.q_min, limits.q_max - q_high)
+    # a continuous joint has no position limit: no margin (None, as JSON has no infinity)
+    out["limit_margin_rad"] = [float(m) if np.isfinite(m) else None for m in margins]
     out["max_speed_fraction"] = (dq_peak / limits.dq_max).tolist()
     out["max_torque_fraction"] = (tau_peak / limits.tau_max).tolist()
     return out

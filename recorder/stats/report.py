@@ -173,8 +173,8 @@ def _deep_plots(summaries: list[dict]) -> list[tuple[str, str, bytes]]:
     for ax, key, label in ((axes[0], "limit_margin_rad", "distance to position limit [rad]"),
                            (axes[1], "max_speed_fraction", "max |dq| / limit"),
                            (axes[2], "max_torque_fraction", "max |tau| / limit")):
-        values = np.array([s[key] for s in summaries])
-        # a continuous joint's margin is infinite: no position limit to approach
+        values = np.array([s[key] for s in summaries], dtype=float)
+        # a continuous joint has no margin (None, here nan): no position limit to approach
         parts = ax.boxplot([v[np.isfinite(v)] for v in values.T], tick_labels=joints,
                            patch_artist=True)
         for patch, color in zip(parts["boxes"], JOINT_COLORS, strict=True):

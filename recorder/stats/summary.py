@@ -169,12 +169,19 @@ def beyond_limits(summary: dict) -> str | None:
             return (f"beyond the robot's limits: {what} of joint {joint} reaches "
                     f"{np.nanmax(fractions):.3g} x its limit (unstable simulation or corrupt "
                     "recording?)")
-    margins = np.asarray(summary.get("limit_margin_rad") or [0.0], dtype=float)
-    if np.nanmin(margins) < -POSITION_SLACK_RAD:
+    margins = np.asarray(summary.get("limit_margin_rad") or [0.0], dtype=float)  # None: nan
+    if np.any(margins < -POSITION_SLACK_RAD):
         joint = int(np.nanargmin(margins)) + 1
         return (f"beyond the robot's limits: joint {joint} leaves its range by "
                 f"{-np.nanmin(margins):.3g} rad")
     return None
+
+
+def _least_margins(margins: list[list[float | None]]) -> list[float | None]:
+    """Return each joint's least margin to its position limits [rad] over the sessions,
+    None for a joint without limits (a continuous one)."""
+    least = np.fmin.reduce(np.array(margins, dtype=float), axis=0)  # skips None (nan)
+    return [None if np.isnan(m) else float(m) for m in least]
 
 
 def deep_stats(paths: list[Path], workers: int,
@@ -263,7 +270,7 @@ def _aggregate(good: list[dict]) -> dict:
         "onset_delay_s": _spread([s["onset_delay_s"] for s in good]),
         "residual_agreement": _agreement_by_robot(good),
         "joint_limits": {
-            "min_margin_rad": np.min([s["limit_margin_rad"] for s in good], axis=0).tolist(),
+            "min_margin_rad": _least_margins([s["limit_margin_rad"] for s in good]),
             "max_speed_fraction": np.max([s["max_speed_fraction"] for s in good],
                                          axis=0).tolist(),
             "max_torque_fraction": np.max([s["max_torque_fraction"] for s in good],
