@@ -21,12 +21,15 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
-import can
 import numpy as np
 
 from contactkit.recorder.importers.can_map import QUANTITIES, FrameMap
 from contactkit.schemas import N_JOINTS, joint_columns
+
+if TYPE_CHECKING:  # python-can is imported where frames are made: not for --help
+    import can
 
 FRAME_SPACING_S = 10e-6
 SYNC_COUNTER_MAX = 240
@@ -47,6 +50,8 @@ def sample_frames(fmap: FrameMap, t: float, values: np.ndarray, counter: int | N
                   ) -> list[can.Message]:
     """Return the frames of one sample: ``values`` holds q, dq, tau (21 values, joint
     order) in rad, rad/s, Nm; NaN values leave their frame out."""
+    import can
+
     frames = []
     layouts = sorted(fmap.frames.values(), key=lambda f: f.can_id)
     for i, layout in enumerate(layouts):

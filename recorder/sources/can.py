@@ -16,15 +16,17 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import can
 import numpy as np
 
 from contactkit.recorder.importers.can_codec import COLUMNS, SampleAssembler, rows_to_columns
 from contactkit.recorder.importers.can_map import FrameMap, load_map
 from contactkit.recorder.sources.base import ProtocolChoices, Source
 from contactkit.schemas import InputError
+
+if TYPE_CHECKING:  # python-can is imported when a bus opens: not for capture --help
+    import can
 
 log = logging.getLogger(__name__)
 CHUNK_S = 0.01
@@ -39,6 +41,8 @@ class BusConfig:
 
     def open(self, fd: bool, receive_own_messages: bool = False) -> can.BusABC:
         """Open the bus; raise InputError when python-can cannot."""
+        import can
+
         try:
             return can.Bus(interface=self.interface, channel=self.channel, fd=fd,
                            receive_own_messages=receive_own_messages)
@@ -113,6 +117,8 @@ class CanSource(Source):
 
     def stream(self) -> Iterator[dict[str, np.ndarray]]:
         """Yield chunks of samples until the duration is reached or the bus goes silent."""
+        import can
+
         bus = self.bus_config.open(self.fmap.fd, receive_own_messages=self.cue is not None)
         reader = can.BufferedReader()
         notifier = can.Notifier(bus, [reader], timeout=0.05)
@@ -124,6 +130,8 @@ class CanSource(Source):
 
     def _read(self, bus: can.BusABC, reader: can.BufferedReader
               ) -> Iterator[dict[str, np.ndarray]]:
+        import can
+
         rows: list[np.ndarray] = []
         last_frame = time.monotonic()
         last_yield = last_frame
