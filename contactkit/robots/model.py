@@ -87,13 +87,13 @@ def _nominal_model(setup: RobotSetup) -> pin.Model:
             failure = err
     complaints = [m.strip()[len("Error:"):].strip() for m in messages
                   if m.strip().startswith("Error:")]
-    for line in messages:  # urdfdom's other lines (warnings) are said, not swallowed
-        if line.strip() and not line.strip().startswith("Error:"):
-            log.warning("robot %r, building its model: %s", setup.robot, line.strip())
     if failure is not None or complaints:
         detail = "; ".join(complaints[:2]) if complaints else str(failure)
         raise InputError(f"robot {setup.robot!r}: pinocchio cannot build its URDF: "
                          f"{detail[:300]}") from failure
+    for line in messages:  # what urdfdom says beside errors (warnings) is said, not swallowed
+        if line.strip() and not line.strip().startswith("at line "):
+            log.warning("robot %r, building its model: %s", setup.robot, line.strip())
     # every link, a locked gripper's too (before locking adds it to its parent's)
     for name, inertia in zip(full.names, full.inertias, strict=True):
         tensor = np.asarray(inertia.inertia, dtype=float)
