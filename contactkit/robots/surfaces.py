@@ -109,9 +109,29 @@ def _rpy_matrix(rpy: np.ndarray) -> np.ndarray:
                      [-sp, cp * sr, cp * cr]])
 
 
+def _mesh_file(spec: RobotSpec, link_name: str, filename: str
+               ) -> tuple[Path, np.ndarray] | None:
+    """Return the file a collision ``<mesh>`` of link ``link_name`` names and its
+    triangles (n, 3, 3) [file units]; None, with a warning once per problem, for a mesh
+    that cannot be found or read: the surfaces and the viewer then leave it out."""
+    where = f"{spec.urdf_file()}: link {link_name!r}"
+    try:
+        path = resolve_mesh(spec.urdf_file(), filename)
+    except FileNotFoundError as err:
+        _skip_mesh(f"{where}: {err}")
+        return None
+    try:
+        return path, read_stl(path)
+    except (OSError, ValueError) as err:
+        _skip_mesh(f"{where}: the collision mesh {path}: "
+                   f"{getattr(err, 'strerror', None) or err}")
+        return None
+
+
 def _collision_meshes(spec: RobotSpec, with_hand: bool, link_name: str
-                      ) -> list[tuple[Path, np.ndarray, np.ndarray, np.ndarray]]:
-    """Return (file, rotation, translation, scale) of each collision mesh of a link."""
+                      ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """Return (triangles [file units], rotation, translation, scale) of each collision
+    mesh of a link that can be read."""
     root = ET.fromstring(spec.urdf_text(with_hand))
     found = []
     for link in root.iter("link"):
@@ -127,12 +147,9 @@ def _collision_meshes(spec: RobotSpec, with_hand: bool, link_name: str
             xyz = _vector(spec, link_name, origin, "xyz", "0 0 0")
             rpy = _vector(spec, link_name, origin, "rpy", "0 0 0")
             scale = _vector(spec, link_name, mesh, "scale", "1 1 1")
-            try:
-                path = resolve_mesh(spec.urdf_file(), mesh.get("filename", ""))
-            except FileNotFoundError as err:
-                _skip_mesh(f"{spec.urdf_file()}: link {link_name!r}: {err}")
-                continue
-            found.append((path, _rpy_matrix(rpy), xyz, scale))
+            read = _mesh_file(spec, link_name, mesh.get("filename", ""))
+            if read is not None:
+                found.append((read[1], _rpy_matrix(rpy), xyz, scale))
     return found
 
 
@@ -152,16 +169,8 @@ def _vector(spec: RobotSpec, link_name: str, element: ET.Element, attribute: str
 
 
 def _mesh_triangles(spec: RobotSpec, with_hand: bool, link_name: str) -> list[np.ndarray]:
-    triangles = []
-    for path, rotation, xyz, scale in _collision_meshes(spec, with_hand, link_name):
-        try:
-            mesh = read_stl(path)
-        except (OSError, ValueError) as err:
-            _skip_mesh(f"{spec.urdf_file()}: link {link_name!r}: the collision mesh {path}: "
-                       f"{getattr(err, 'strerror', None) or err}")
-            continue
-        triangles.append((mesh * scale) @ rotation.T + xyz)
-    return triangles
+    return [(mesh * scale) @ rotation.T + xyz
+            for mesh, rotation, xyz, scale in _collision_meshes(spec, with_hand, link_name)]
 
 
 @cache
@@ -211,21 +220,12 @@ def _viewer_urdf(setup: RobotSetup) -> tuple[str, str]:
             collision.tag = "visual"
             mesh = collision.find("geometry/mesh")
             if mesh is not None:
-                where = f"{spec.urdf_file()}: link {link.get('name')!r}"
-                try:  # the viewer draws the meshes the surfaces have (the same warnings)
-                    path = resolve_mesh(spec.urdf_file(), mesh.get("filename", ""))
-                except FileNotFoundError as err:
-                    _skip_mesh(f"{where}: {err}")
+                # the viewer draws the meshes the surfaces have (with the same warnings)
+                read = _mesh_file(spec, link.get("name"), mesh.get("filename", ""))
+                if read is None:
                     link.remove(collision)
                     continue
-                try:
-                    read_stl(path)
-                except (OSError, ValueError) as err:
-                    _skip_mesh(f"{where}: the collision mesh {path}: "
-                               f"{getattr(err, 'strerror', None) or err}")
-                    link.remove(collision)
-                    continue
-                mesh.set("filename", str(path))
+                mesh.set("filename", str(read[0]))
     text = ET.tostring(root, encoding="unicode")
     digest = hashlib.sha256(text.encode()).hexdigest()[:12]
     stem = re.sub(r"[^A-Za-z0-9_-]", "_", spec.name)[:40]
