@@ -41,7 +41,7 @@ from contactkit.features.windows import METHODS, Window, WindowSpec, find_window
 from contactkit.schemas import InputError, Session, read_session
 from contactkit.schemas.dataset import session_files
 from contactkit.util.parallel import map_ordered, split_problems
-from contactkit.util.params import Choice, Interval, Param, check_settings
+from contactkit.util.params import Choice, Interval, Param, check_names, check_settings
 
 
 @dataclass(frozen=True)
@@ -311,11 +311,8 @@ def grids_from_config(config: dict, owner: str = "grid settings") -> SessionGrid
     unknown setting, a value of the wrong type, out of range or not finite, or an
     unknown timeseries feature (:meth:`SessionGrids.fit`'s checks)."""
     config = check_settings(GRID_SETTINGS, config, owner)
-    timeseries = config.get("timeseries")
-    if not (timeseries and all(isinstance(name, str) for name in timeseries)):
-        raise InputError(f"{owner}: timeseries must be a non-empty list of names, got "
-                         f"{timeseries!r:.80}")
-    config["timeseries"] = tuple(timeseries)
+    check_names(config.get("timeseries"), "timeseries", owner)
+    config["timeseries"] = tuple(config["timeseries"])
     config.setdefault("baseline_s", 0.0)
     grids = SessionGrids(**config)
     try:

@@ -25,7 +25,7 @@ from contactkit.features.window_stream import streamed_window_values
 from contactkit.features.windows import CALIBRATIONS, METHODS, Window, WindowSpec, find_window
 from contactkit.schemas import InputError, Session, read_session
 from contactkit.schemas.session import ROW_GROUP_ROWS, read_session_meta
-from contactkit.util.params import Choice, Interval, Param, check_settings
+from contactkit.util.params import Choice, Interval, Param, check_names, check_settings
 
 DEFAULT_TIMESERIES = ("dq", "tau", "r")
 STREAMED_ABOVE_ROWS = ROW_GROUP_ROWS
@@ -234,10 +234,8 @@ def check_config(config: object, owner: str = "features settings") -> dict:
     the wrong type, not finite or out of range, and an unknown feature or robot."""
     config = check_settings(SETTINGS, config, owner)
     for name in ("timeseries", "scalars"):
-        values = config.get(name)
-        if values is not None and (not values or not all(isinstance(v, str) for v in values)):
-            raise InputError(f"{owner}: {name} must be a non-empty list of names, got "
-                             f"{values!r:.80}")
+        if config.get(name) is not None:
+            check_names(config[name], name, owner)
     frame = config.get("wrench_frame", "ee")
     if not ((isinstance(frame, str) and frame)
             or (isinstance(frame, int) and not isinstance(frame, bool) and 1 <= frame <= 7)):

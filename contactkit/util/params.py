@@ -236,3 +236,12 @@ def check_settings(params: Sequence[Param], values: object, owner: str) -> dict[
             raise InputError(f"{owner}: {name} must be finite, got {value!r}")
         out[name] = value
     return out
+
+
+def check_names(values: object, name: str, owner: str) -> None:
+    """Raise an InputError naming ``owner`` unless the setting ``name`` of a stored
+    document, ``values``, is a non-empty list of names (strings)."""
+    if not (values and isinstance(values, list | tuple)
+            and all(isinstance(v, str) for v in values)):
+        raise InputError(f"{owner}: {name} must be a non-empty list of names, got "
+                         f"{values!r:.80}")
