@@ -1,0 +1,172 @@
+"""Hostile input, second pass (issue 39): paths named inside files (special files, huge
+files), hostile URDFs (loops, absurd inertias), bounded JSON, extreme time stamps,
+full disks, long names, symbolic links and read-only files, caches that must remember
+failures. Each case succeeds correctly or is one line naming the file, exit code 2."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+
+from contactkit.cli.classify import app as classify_app
+from contactkit.cli.common import run_app
+from contactkit.cli.recorder import app as recorder_app
+from contactkit.cli.replay import app as replay_app
+from contactkit.errors import InputError
+from contactkit.robots import PANDA, get_robot
+from contactkit.robots.registry import urdf_robot
+from contactkit.schemas.session import METADATA_KEY
+from contactkit.util.safe_open import (
+    MAX_JSON_DEPTH,
+    parse_json,
+    read_input_bytes,
+    read_input_text,
+    read_json,
+)
+from tests.conftest import make_session
+
+FR3_DATA = Path(__file__).resolve().parents[1] / "contactkit" / "robots" / "data" / "fr3"
+
+
+@pytest.fixture(scope="module")
+def good(tmp_path_factory) -> Path:
+    """A 1 s simulated bump on link 5 at 200 Hz."""
+    return make_session(tmp_path_factory.mktemp("good"), seed=4, action="bump", link=5,
+                        duration_s=1.5, planned_at_s=0.7, rate_hz=200.0)
+
+
+def _run(app, prog: str, capsys, *argv) -> tuple[int, str, str]:
+    code = run_app(app, prog, [str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, " ".join(err.split())
+
+
+def _one_line(code: int, err: str, *texts: str) -> None:
+    assert code == 2, err
+    assert "Traceback" not in err, err
+    for text in texts:
+        assert text in err, err
+
+
+def _edit_meta(source: Path, target: Path, edit) -> Path:
+    table = pq.read_table(source)
+    doc = json.loads(table.schema.metadata[METADATA_KEY])
+    edit(doc)
+    pq.write_table(table.replace_schema_metadata({METADATA_KEY: json.dumps(doc).encode()}),
+                   target)
+    return target
+
+
+# -- special files -----------------------------------------------------------------------
+
+@pytest.fixture
+def fifo(tmp_path: Path) -> Path:
+    path = tmp_path / "arm.urdf"
+    os.mkfifo(path)
+    return path
+
+
+@pytest.mark.timeout(30)
+@pytest.mark.parametrize("special", ["fifo", "/dev/zero", "/dev/null", "dir"])
+def test_the_opener_refuses_special_files_before_opening_them(tmp_path, special) -> None:
+    path = {"fifo": tmp_path / "f", "dir": tmp_path}.get(special, Path(special))
+    if special == "fifo":
+        os.mkfifo(path)
+    for read in (read_input_bytes, read_input_text, read_json):
+        with pytest.raises(InputError, match="not a regular file"):
+            read(path)
+
+
+def test_the_opener_bounds_sizes(tmp_path) -> None:
+    big = tmp_path / "big.json"
+    big.write_bytes(b" " * (17 << 20))
+    with pytest.raises(InputError, match="larger than"):
+        read_json(big)
+    with pytest.raises(InputError, match="no such file"):
+        read_input_bytes(tmp_path / "missing")
+
+
+@pytest.mark.parametrize("text, problem", [
+    ("[" * 100_000 + "]" * 100_000, "nested too deeply"),
+    ("[" * (MAX_JSON_DEPTH + 1) + "]" * (MAX_JSON_DEPTH + 1), "nested too deeply"),
+    ("1" * 5000, "number of 5000 characters"),
+    ('{"a": 1.' + "5" * 400 + "}", "number of"),
+    ("{", "not valid JSON")])
+def test_json_is_parsed_with_bounds(tmp_path, text, problem) -> None:
+    with pytest.raises(InputError, match=problem) as err:
+        parse_json(text, "calibration", tmp_path / "c.json")
+    assert "\n" not in str(err.value) and len(str(err.value)) < 400
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("target", ["fifo", "/dev/zero", "dir"])
+def test_a_session_naming_a_special_urdf_is_one_line_in_every_reader(good, tmp_path, capsys,
+                                                                     target) -> None:
+    path = {"fifo": tmp_path / "arm.urdf", "dir": tmp_path}.get(target, Path(target))
+    if target == "fifo":
+        os.mkfifo(path)
+    urdf_robot.cache_clear()
+    named = _edit_meta(good, tmp_path / "named.parquet",
+                       lambda doc: doc.update(robot=f"urdf:{path}", urdf_sha256="0" * 64))
+    code, _, err = _run(recorder_app, "recorder", capsys, "info", named)  # needs no model
+    assert code == 0 or "not a regular file" in err, err
+    for app, prog, argv in (
+            (replay_app, "replay", [named, "--viewer", "none", "--save", tmp_path / "r.rrd"]),
+            (classify_app, "classify", ["features", named, "--out", tmp_path / "f.parquet"]),
+            (recorder_app, "recorder", ["export-mcap", named, "--out", tmp_path / "x.mcap"])):
+        code, _, err = _run(app, prog, capsys, *argv)
+        _one_line(code, err, "named.parquet", "not a regular file")
+    assert not any(p.name.endswith((".rrd", ".mcap")) for p in tmp_path.iterdir())
+
+
+# -- hostile URDFs -----------------------------------------------------------------------
+
+def _arm(tmp_path: Path, text: str, name: str = "arm.urdf") -> str:
+    urdf = tmp_path / name
+    urdf.write_text(text)
+    urdf_robot.cache_clear()
+    return f"urdf:{urdf}"
+
+
+def _value(text: str, attribute: str, value: str) -> str:
+    """Return URDF ``text`` with the first ``attribute``'s value (of a link) set."""
+    return re.sub(rf'{attribute}="[^"]*"', f'{attribute}="{value}"', text, count=1)
+
+
+_TWO_PARENTS = ('<link name="extra"/><joint name="again" type="fixed">'
+                '<parent link="panda_link2"/><child link="panda_link5"/></joint>')
+_BACK = ('<joint name="back" type="fixed"><parent link="panda_link7"/>'
+         '<child link="panda_link0"/></joint>')
+
+
+@pytest.mark.parametrize("edit, problem", [
+    (lambda t: t.replace("</robot>", _TWO_PARENTS + "</robot>"), "child of two joints"),
+    (lambda t: t.replace("</robot>", _BACK + "</robot>"), "root links"),
+    (lambda t: _value(t, "mass value", "1e300"), r"mass 1e\+300 kg is outside"),
+    (lambda t: _value(t, "mass value", "-1"), "outside"),
+    (lambda t: _value(t, "mass value", "nan"), "not finite"),
+    (lambda t: _value(t, "ixx", "1e300"), "inertia ixx"),
+    (lambda t: _value(t, "ixx", "x"), "not a number"),
+    (lambda t: t.replace('<child link="panda_link3" />', '<child link="nowhere" />', 1),
+     "does not declare")])
+def test_hostile_urdfs_are_refused_before_pinocchio_sees_them(tmp_path, edit, problem
+                                                              ) -> None:
+    robot = _arm(tmp_path, edit(PANDA.urdf_text(False)))
+    with pytest.raises(InputError, match=problem) as err:
+        get_robot(robot)
+    assert "arm.urdf" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_replay_of_a_session_whose_urdf_loops_is_one_line_no_crash(good, tmp_path,
+                                                                   capsys) -> None:
+    robot = _arm(tmp_path, PANDA.urdf_text(False).replace("</robot>", _TWO_PARENTS
+                                                          + "</robot>"))
+    code, _, err = _run(replay_app, "replay", capsys, good, "--robot", robot, "--viewer",
+                        "none", "--save", tmp_path / "r.rrd")
+    _one_line(code, err, "arm.urdf", "loop")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["arm.urdf"]
