@@ -53,6 +53,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import os
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -64,6 +65,7 @@ from contactkit.features.observer import reduce_rows, solve_recurrence
 from contactkit.features.timing import RESTART_STEP_S, restarts
 from contactkit.robots import RobotSpec
 from contactkit.util.atomic import write_text
+from contactkit.util.safe_open import read_json
 
 N_JOINTS = 7
 FORMAT = "contactkit-detector/1"
@@ -176,12 +178,9 @@ def load_calibration(path: str | Path) -> DetectorConfig:
     """Read a calibration written by :func:`save_calibration`; InputError naming the
     file and the problem when it is missing, not JSON or not a valid calibration."""
     path = Path(path)
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise InputError("no such calibration file", path)
-    try:
-        doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise InputError(f"calibration is not JSON ({err})", path) from err
+    doc = read_json(path, "calibration")
     return DetectorConfig.from_dict(doc, path)
 
 

@@ -96,7 +96,7 @@ def test_the_opener_bounds_sizes(tmp_path) -> None:
     ("[" * (MAX_JSON_DEPTH + 1) + "]" * (MAX_JSON_DEPTH + 1), "nested too deeply"),
     ("1" * 5000, "number of 5000 characters"),
     ('{"a": 1.' + "5" * 400 + "}", "number of"),
-    ("{", "not valid JSON")])
+    ("{", "is not JSON")])
 def test_json_is_parsed_with_bounds(tmp_path, text, problem) -> None:
     with pytest.raises(InputError, match=problem) as err:
         parse_json(text, "calibration", tmp_path / "c.json")

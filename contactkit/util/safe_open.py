@@ -162,7 +162,7 @@ def parse_json(text: str | bytes, what: str = "JSON", path: str | Path | None = 
                          "levels)", path) from err
     except (ValueError, UnicodeDecodeError) as err:
         detail = " ".join(str(err).split())[:200]
-        raise InputError(f"the {what} is not valid JSON ({detail})", path) from err
+        raise InputError(f"the {what} is not JSON ({detail})", path) from err
     if _depth(value) > MAX_JSON_DEPTH:
         raise InputError(f"the {what} is nested too deeply (at most {MAX_JSON_DEPTH} levels)",
                          path)

@@ -11,6 +11,8 @@ from pathlib import Path
 from typing import TypeVar
 
 from contactkit.schemas import InputError
+from contactkit.util.safe_open import read_input_text
+from contactkit.util.text import printable
 
 Parsed = TypeVar("Parsed")
 
@@ -18,20 +20,19 @@ Parsed = TypeVar("Parsed")
 def load_map_file(path: Path, what: str, parse: Callable[[dict, str], Parsed]) -> Parsed:
     """Read the TOML file ``path`` and return ``parse(document, str(path))``.
 
-    ``what`` names the kind of file in messages ("frame map", "column map"). A missing
-    or unreadable file, invalid TOML, and any KeyError, TypeError, ValueError,
-    AttributeError or ArithmeticError of ``parse`` (a missing key, a value of the wrong
-    type or out of range) become one :class:`InputError` naming the file.
+    ``what`` names the kind of file in messages ("frame map", "column map"). The file
+    is read through :func:`~contactkit.util.safe_open.read_input_text` (a regular file
+    of at most 1 MiB). A missing, special or unreadable file, invalid TOML, and any
+    KeyError, TypeError, ValueError, AttributeError or ArithmeticError of ``parse`` (a
+    missing key, a value of the wrong type or out of range) become one
+    :class:`InputError` naming the file.
     """
+    text = read_input_text(path, what, "map")
     try:
-        doc = tomllib.loads(path.read_text())
-    except FileNotFoundError as err:
-        raise InputError(f"no such {what}", path) from err
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as err:
+        doc = tomllib.loads(text)
+    except (tomllib.TOMLDecodeError, RecursionError) as err:
         raise InputError(f"not a valid TOML {what} ({type(err).__name__}: "
-                         f"{str(err)[:200]})", path) from err
-    except OSError as err:
-        raise InputError(f"cannot read the {what} ({err.strerror or err})", path) from err
+                         f"{printable(str(err)[:200])})", path) from err
     try:
         return parse(doc, str(path))
     except KeyError as err:
