@@ -170,3 +170,30 @@ def test_replay_of_a_session_whose_urdf_loops_is_one_line_no_crash(good, tmp_pat
                         "none", "--save", tmp_path / "r.rrd")
     _one_line(code, err, "arm.urdf", "loop")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["arm.urdf"]
+
+
+# -- names -------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("length", [240, 251, 255])
+def test_every_atomic_writer_writes_a_legal_name_of_up_to_255_bytes(tmp_path, length) -> None:
+    from contactkit.util.atomic import (
+        atomic_directory,
+        remove_stale_temporaries,
+        temporary_stem,
+        write_text,
+    )
+
+    name = "é" * ((length - 5) // 2) + "x" * ((length - 5) % 2) + ".json"
+    assert len(name.encode()) == length
+    write_text(tmp_path / name, "{}")
+    write_text(tmp_path / name, "[]", overwrite=True)
+    assert (tmp_path / name).read_text() == "[]"
+    with atomic_directory(tmp_path / ("d" * length)) as inner:
+        inner.mkdir()
+    assert sorted(len(p.name.encode()) for p in tmp_path.iterdir()) == [length, length]
+    # a killed writer's temporary of the long name is recognised as that target's
+    stale = tmp_path / f".{temporary_stem(name)}.contactkit-99999999-abcdefgh.tmp"
+    stale.write_text("")
+    assert len(stale.name.encode()) <= 255
+    assert not remove_stale_temporaries(tmp_path, target="other.json")
+    assert remove_stale_temporaries(tmp_path, target=name) == [stale]
