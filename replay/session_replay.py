@@ -31,6 +31,7 @@ from contactkit.schemas import InputError
 from contactkit.schemas.dataset import session_files
 from contactkit.util.atomic import Owned, atomic_write
 from contactkit.util.pacing import paced
+from contactkit.util.rrd_file import check_space, finish_recording, start_recording
 from contactkit.viewer import layout
 
 
@@ -132,7 +133,7 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
         if save is not None:
             tmp = stack.enter_context(atomic_write(save, overwrite=overwrite, owned=owned,
                                                    suffix=".rrd"))
-            rec.save(tmp.path, default_blueprint=blueprint)
+            start_recording(rec, tmp.path, save, blueprint)
         try:
             if connect is not None:
                 rec.connect_grpc(connect, default_blueprint=blueprint)
@@ -141,11 +142,16 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
             logger = BlockLogger(rec, log_static(rec, stream), stream, log_rate_hz)
             for block in paced(stream.blocks(every_hop=rate is not None), lambda b: b.t[-1],
                                rate, origin_s=t0):
+                if save is not None:
+                    check_space(save)
                 logger.log(block)
             logger.finish()
             answer = stream.offline()
             log_results(rec, stream, answer)
-            rec.flush()
+            if save is not None:
+                finish_recording(rec, tmp.path, save)
+            else:
+                rec.flush()
         finally:
             rec.disconnect()
     return ReplaySummary(Path(path), stream.meta.action, answer, stream.pred_t.tolist(),

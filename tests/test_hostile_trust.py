@@ -197,3 +197,38 @@ def test_every_atomic_writer_writes_a_legal_name_of_up_to_255_bytes(tmp_path, le
     assert len(stale.name.encode()) <= 255
     assert not remove_stale_temporaries(tmp_path, target="other.json")
     assert remove_stale_temporaries(tmp_path, target=name) == [stale]
+
+
+# -- a full disk during a streamed write ---------------------------------------------------
+
+@pytest.fixture
+def small_disk(tmp_path: Path):
+    """A 4 MiB tmpfs (root only; skipped elsewhere), unmounted at the end."""
+    import subprocess
+
+    mount = tmp_path / "disk"
+    mount.mkdir()
+    if os.geteuid() != 0 or subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(mount)],
+            capture_output=True).returncode != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], capture_output=True)
+
+
+@pytest.mark.parametrize("free_kib, margin", [(100, None), (300, 0)],
+                         ids=["below-the-margin", "fills-while-writing"])
+def test_a_full_disk_during_replay_save_leaves_nothing(good, small_disk, capsys, monkeypatch,
+                                                       free_kib, margin) -> None:
+    import contactkit.util.rrd_file as rrd_file
+
+    if margin is not None:  # let Rerun's writer run into the full disk itself
+        monkeypatch.setattr(rrd_file, "MIN_FREE_BYTES", margin)
+    fill = small_disk / "fill"
+    fill.write_bytes(b"\0" * (4096 - free_kib) * 1024)
+    code, _, err = _run(replay_app, "replay", capsys, good, "--viewer", "none", "--save",
+                        small_disk / "r.rrd")
+    _one_line(code, err, "r.rrd", "nothing was written")
+    assert [p.name for p in small_disk.iterdir()] == ["fill"]
