@@ -33,7 +33,8 @@ from contactkit.classify.schemes import check_scheme, scheme_classes
 from contactkit.classify.training import TrainedModel, train, training_set
 from contactkit.errors import check_choice
 from contactkit.schemas import InputError
-from contactkit.util.atomic import owned_result, result_json, result_markdown, write_text
+from contactkit.util.atomic import write_text
+from contactkit.util.owned import owned_result, result_json, result_markdown
 from contactkit.util.parallel import map_ordered, resolve_scheduler
 from contactkit.util.progress import LabelledProgress
 
