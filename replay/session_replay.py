@@ -18,6 +18,7 @@ from pathlib import Path
 
 from contactkit.classify.events.contact_events import ContactEvent
 from contactkit.classify.modelfile.model_file import ModelFile
+from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.detector import DetectorConfig
 from contactkit.replay.engine import DEFAULT_HOP_S, OfflineAnswer, ReplayStream
 from contactkit.replay.recording import (
@@ -186,9 +187,10 @@ def replay_sessions(paths: Sequence[Path], model: ModelFile, *, save: Path | Non
                                     log_rate_hz=log_rate_hz, robot=robot,
                                     overwrite=overwrite, owned=owned)
             summaries.append(result)
-        except InputError as err:
-            result = err
-            problems.append(err)
+        except DATA_ERRORS as err:  # one bad session never stops the others
+            result = err if isinstance(err, InputError) else InputError(problem_text(err),
+                                                                        path)
+            problems.append(result)
         if on_done is not None:
             on_done(result)
     return summaries, problems

@@ -87,7 +87,7 @@ def test_the_opener_bounds_sizes(tmp_path) -> None:
     big.write_bytes(b" " * (17 << 20))
     with pytest.raises(InputError, match="larger than"):
         read_json(big)
-    with pytest.raises(InputError, match="no such file"):
+    with pytest.raises(InputError, match="No such file"):
         read_input_bytes(tmp_path / "missing")
 
 
@@ -147,7 +147,7 @@ _BACK = ('<joint name="back" type="fixed"><parent link="panda_link7"/>'
 @pytest.mark.parametrize("edit, problem", [
     (lambda t: t.replace("</robot>", _TWO_PARENTS + "</robot>"), "child of two joints"),
     (lambda t: t.replace("</robot>", _BACK + "</robot>"), "root links"),
-    (lambda t: _value(t, "mass value", "1e300"), r"mass 1e\+300 kg is outside"),
+    (lambda t: _value(t, "mass value", "1e300"), r"mass of 1e\+300 kg is outside"),
     (lambda t: _value(t, "mass value", "-1"), "outside"),
     (lambda t: _value(t, "mass value", "nan"), "not finite"),
     (lambda t: _value(t, "ixx", "1e300"), "inertia ixx"),
@@ -232,3 +232,68 @@ def test_a_full_disk_during_replay_save_leaves_nothing(good, small_disk, capsys,
                         small_disk / "r.rrd")
     _one_line(code, err, "r.rrd", "nothing was written")
     assert [p.name for p in small_disk.iterdir()] == ["fill"]
+
+
+# -- the time rule on every reader -------------------------------------------------------
+
+def _with_t(source: Path, target: Path, make) -> Path:
+    import pyarrow as pa
+
+    table = pq.read_table(source)
+    t = table.column("t").to_numpy()
+    table = table.set_column(table.schema.get_field_index("t"), "t", pa.array(make(t)))
+    pq.write_table(table.replace_schema_metadata(pq.read_schema(source).metadata), target)
+    return target
+
+
+@pytest.fixture(scope="module")
+def time_dir(good, tmp_path_factory) -> Path:
+    """A dataset of one good session and one each of stamps near 1e15 s, steps of
+    1e-300 s and text stamps (ids made unique, so that only the stamps are bad)."""
+    import numpy as np
+
+    directory = tmp_path_factory.mktemp("times")
+    for name, make in (("big", lambda t: t + 1e15),
+                       ("tiny", lambda t: np.arange(len(t)) * 1e-300),
+                       ("text", lambda t: [str(v) for v in t])):
+        _with_t(good, directory / "raw.parquet", make)
+        _edit_meta(directory / "raw.parquet", directory / f"{name}.parquet",
+                   lambda doc, name=name: doc.update(session_id=f"s{name}"))
+    (directory / "raw.parquet").unlink()
+    (directory / "good.parquet").write_bytes(good.read_bytes())
+    return directory
+
+
+def test_replay_of_a_directory_lists_sessions_with_extreme_stamps_and_goes_on(
+        time_dir, tmp_path, capsys) -> None:
+    code, _, err = _run(replay_app, "replay", capsys, time_dir, "--viewer", "none", "--save",
+                        tmp_path / "r.rrd")
+    _one_line(code, err, "big.parquet", "tiny.parquet", "text.parquet", "1e-06 s",
+              "1e+10 s", "type string")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r_good.rrd"]
+
+
+@pytest.mark.parametrize("argv", [["index"], ["stats", "--out", "OUT/report.html"]])
+def test_stats_and_index_list_sessions_with_bad_stamps(time_dir, tmp_path, capsys, argv
+                                                       ) -> None:
+    argv = [a.replace("OUT", str(tmp_path)) for a in argv]
+    code, _, err = _run(recorder_app, "recorder", capsys, argv[0], time_dir, *argv[1:])
+    assert "Traceback" not in err and code in (0, 2), err
+    assert "text.parquet" in err and "type string" in err
+
+
+def test_export_mcap_refuses_negative_times_in_one_line(good, tmp_path, capsys) -> None:
+    neg = _with_t(good, tmp_path / "neg.parquet", lambda t: t - 100.0)
+    code, _, err = _run(recorder_app, "recorder", capsys, "export-mcap", neg, "--out",
+                        tmp_path / "n.mcap")
+    _one_line(code, err, "neg.parquet", "cannot be negative")
+    assert not (tmp_path / "n.mcap").exists()
+
+
+def test_names_with_control_characters_are_escaped_on_the_terminal(good, tmp_path, capsys
+                                                                   ) -> None:
+    out = tmp_path / "a\x1b[31mb\nc.mcap"
+    code, printed, _ = _run(recorder_app, "recorder", capsys, "export-mcap", good, "--out",
+                            out)
+    assert code == 0 and out.exists()
+    assert "\x1b" not in printed and printed.count("\n") == 1 and "\\x1b" in printed

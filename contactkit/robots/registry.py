@@ -243,7 +243,7 @@ def _check_inertial(link: ET.Element, file: Path) -> None:
         if not math.isfinite(numbers[key]):
             raise InputError(f"{where}: inertial {key} is not finite", file)
     if not 0 <= numbers["mass"] <= MAX_LINK_MASS_KG:
-        raise InputError(f"{where}: mass {numbers['mass']:g} kg is outside [0, "
+        raise InputError(f"{where}: mass of {numbers['mass']:g} kg is outside [0, "
                          f"{MAX_LINK_MASS_KG:g}] kg", file)
     for key, number in numbers.items():
         if key != "mass" and abs(number) > MAX_LINK_INERTIA:

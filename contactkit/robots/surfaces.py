@@ -125,8 +125,9 @@ def _mesh_file(spec: RobotSpec, link_name: str, filename: str
     try:
         return path, read_stl(path)
     except (OSError, ValueError) as err:
-        _skip_mesh(f"{where}: the collision mesh {path}: "
-                   f"{getattr(err, 'strerror', None) or err}")
+        problem = err.problem if isinstance(err, InputError) else (
+            getattr(err, "strerror", None) or err)
+        _skip_mesh(f"{where}: the collision mesh {path}: {problem}")
         return None
 
 

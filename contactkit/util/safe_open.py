@@ -64,8 +64,6 @@ def check_regular(path: str | Path, what: str = "file", kind: str = "data") -> o
     otherwise (missing, a FIFO, a device, a directory, too large). Opens nothing."""
     try:
         info = os.stat(path)
-    except FileNotFoundError as err:
-        raise InputError(f"cannot read the {what}: no such file", path) from err
     except (OSError, ValueError) as err:
         detail = getattr(err, "strerror", None) or type(err).__name__
         raise InputError(f"cannot read the {what}: {detail}", path) from err
