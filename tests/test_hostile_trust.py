@@ -297,3 +297,25 @@ def test_names_with_control_characters_are_escaped_on_the_terminal(good, tmp_pat
                             out)
     assert code == 0 and out.exists()
     assert "\x1b" not in printed and printed.count("\n") == 1 and "\\x1b" in printed
+
+
+# -- caches remember failures --------------------------------------------------------------
+
+def test_a_warm_feature_cache_still_names_every_failed_session(tmp_path, capsys,
+                                                               monkeypatch) -> None:
+    """train on a dataset with a bad session, then evaluate from the warm cache: both
+    exit 2 naming it (evaluate had exited 0, the cache holding only the good ones)."""
+    monkeypatch.setenv("CONTACTKIT_CACHE", str(tmp_path / "cache"))
+    dataset = tmp_path / "ds"
+    dataset.mkdir()
+    for seed, (action, pose) in enumerate([(a, p) for p in "ABCD" for a in ("none", "bump")]):
+        make_session(dataset, seed=seed, action=action, pose=pose, link=5, duration_s=1.5,
+                     planned_at_s=0.7, rate_hz=100.0)
+    (dataset / "bad.parquet").write_bytes(b"not parquet" * 10)
+    code, _, err = _run(classify_app, "classify", capsys, "train", dataset, "--out",
+                        tmp_path / "m.skops")
+    assert code == 2 and "bad.parquet" in err and "Traceback" not in err, err
+    assert list((tmp_path / "cache" / "features").glob("*.parquet"))
+    code, _, err = _run(classify_app, "classify", capsys, "evaluate", dataset, "--protocol",
+                        "thesis")
+    assert code == 2 and "bad.parquet" in err and "Traceback" not in err, err
