@@ -145,24 +145,25 @@ def _depth(value: Any) -> int:
 
 
 def parse_json(text: str | bytes, what: str = "JSON", path: str | Path | None = None,
-               limit: int = LIMITS["json"]) -> Any:
+               limit: int = LIMITS["json"], max_depth: int = MAX_JSON_DEPTH) -> Any:
     """Return the JSON value of ``text`` with bounded size (``limit`` bytes), depth
-    (:data:`MAX_JSON_DEPTH`) and number length (:data:`MAX_NUMBER_CHARS`); raise one
-    InputError naming ``path`` and ``what`` otherwise (not JSON, too deep, too long a
-    number, too large)."""
+    (``max_depth``, :data:`MAX_JSON_DEPTH` unless a format nests deeper, such as a skops
+    schema) and number length (:data:`MAX_NUMBER_CHARS`); raise one InputError naming
+    ``path`` and ``what`` otherwise (not JSON, too deep, too long a number, too
+    large)."""
     if len(text) > limit:
         raise InputError(f"the {what} is larger than {limit} bytes", path)
     try:
         value = json.loads(text, parse_int=lambda s: int(_number(s)),
                            parse_float=lambda s: float(_number(s)))
     except RecursionError as err:
-        raise InputError(f"the {what} is nested too deeply (at most {MAX_JSON_DEPTH} "
+        raise InputError(f"the {what} is nested too deeply (at most {max_depth} "
                          "levels)", path) from err
     except (ValueError, UnicodeDecodeError) as err:
         detail = " ".join(str(err).split())[:200]
         raise InputError(f"the {what} is not JSON ({detail})", path) from err
-    if _depth(value) > MAX_JSON_DEPTH:
-        raise InputError(f"the {what} is nested too deeply (at most {MAX_JSON_DEPTH} levels)",
+    if _depth(value) > max_depth:
+        raise InputError(f"the {what} is nested too deeply (at most {max_depth} levels)",
                          path)
     return value
 
