@@ -319,3 +319,62 @@ def test_a_warm_feature_cache_still_names_every_failed_session(tmp_path, capsys,
     code, _, err = _run(classify_app, "classify", capsys, "evaluate", dataset, "--protocol",
                         "thesis")
     assert code == 2 and "bad.parquet" in err and "Traceback" not in err, err
+
+
+# -- files changed in place ----------------------------------------------------------------
+
+def test_set_robot_edits_a_linked_session_at_its_target_and_keeps_its_mode(good, tmp_path,
+                                                                          capsys) -> None:
+    target = tmp_path / "real.parquet"
+    target.write_bytes(good.read_bytes())
+    target.chmod(0o640)
+    link = tmp_path / "link.parquet"
+    link.symlink_to(target)
+    code, _, err = _run(recorder_app, "recorder", capsys, "set-robot", link, "--robot", "fr3")
+    assert code == 0, err
+    assert link.is_symlink() and link.resolve() == target
+    assert json.loads(pq.read_schema(target).metadata[METADATA_KEY])["robot"] == "fr3"
+    assert target.stat().st_mode & 0o777 == 0o640
+    target.chmod(0o444)
+    code, _, err = _run(recorder_app, "recorder", capsys, "set-robot", link, "--robot", "panda")
+    _one_line(code, err, "link.parquet", "read-only")
+    assert json.loads(pq.read_schema(target).metadata[METADATA_KEY])["robot"] == "fr3"
+
+
+def test_recover_never_follows_a_linked_journal(good, tmp_path, capsys) -> None:
+    elsewhere = tmp_path / "elsewhere.parquet.journal"
+    elsewhere.write_bytes(b"whatever")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "x.parquet.journal").symlink_to(elsewhere)
+    code, printed, err = _run(recorder_app, "recorder", capsys, "recover", out)
+    assert code == 2 and "symbolic link" in printed + err and "Traceback" not in err
+    assert elsewhere.read_bytes() == b"whatever" and (out / "x.parquet.journal").is_symlink()
+    assert sorted(p.name for p in out.iterdir()) == ["x.parquet.journal"]
+
+
+def test_stats_of_a_read_only_dataset_without_an_index_writes_out_elsewhere(
+        good, tmp_path, capsys) -> None:
+    import subprocess
+
+    dataset = tmp_path / "ds"
+    dataset.mkdir()
+    (dataset / "a.parquet").write_bytes(good.read_bytes())
+    readonly = tmp_path / "ro"
+    readonly.mkdir()
+    mounted = os.geteuid() == 0 and subprocess.run(
+        ["mount", "--bind", "-o", "ro", str(dataset), str(readonly)],
+        capture_output=True).returncode == 0
+    if not mounted:
+        dataset.chmod(0o555)
+        readonly = dataset
+    try:
+        code, _, err = _run(recorder_app, "recorder", capsys, "stats", readonly, "--out",
+                                  tmp_path / "report.html")
+        assert code == 0, err
+        assert (tmp_path / "report.html").is_file()
+        assert not (readonly / "index.parquet").exists()
+    finally:
+        if mounted:
+            subprocess.run(["umount", "-l", str(readonly)], capture_output=True)
+        dataset.chmod(0o755)
