@@ -378,3 +378,64 @@ def test_stats_of_a_read_only_dataset_without_an_index_writes_out_elsewhere(
         if mounted:
             subprocess.run(["umount", "-l", str(readonly)], capture_output=True)
         dataset.chmod(0o755)
+
+
+# -- strict map keys and metadata values ---------------------------------------------------
+
+_CSV_MAP = Path(__file__).resolve().parents[1] / "recorder" / "data" / "mindlab_csv_map.toml"
+_CAN_MAP = Path(__file__).resolve().parents[1] / "recorder" / "data" / "can_default_map.toml"
+
+
+@pytest.mark.parametrize("old, new, problem", [
+    ('columns = "q{j}"', 'columns = ["a", "a", "a", "a", "a", "a", "a"]', "'a' more than once"),
+    ('name = "mindlab-zhaw"', 'name = "m"\ndelimiter = "é"', "single-byte"),
+    ('name = "mindlab-zhaw"', 'name = "m"\ndelimiter = "\\""', "single-byte"),
+    ('columns = "q{j}"', 'columns = [1, 2, 3, 4, 5, 6, 7]', "list of names")])
+def test_csv_map_mistakes_are_one_line_naming_the_key(tmp_path, old, new, problem) -> None:
+    from contactkit.recorder.importers.csv_map import load_csv_map
+
+    text = _CSV_MAP.read_text()
+    assert old in text
+    path = tmp_path / "map.toml"
+    path.write_text(text.replace(old, new, 1))
+    with pytest.raises(InputError, match=problem) as err:
+        load_csv_map(path)
+    assert "map.toml" in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("old, new, problem", [
+    ("fd = false", 'fd = "false"', "fd must be true or false"),
+    ("sync_id = 0x080", 'sync_id = "128"', "sync_id must be an integer"),
+    ("length = 8", 'length = "8"', "PDO length must be an integer"),
+    ("start = 0,", 'start = "0",', "signal start must be an integer"),
+    ("factor = 0.001", 'factor = "0.001"', "signal factor must be a number"),
+    ("base_id = 0x180", "base_id = 0x1FFFFFFF", "beyond")])
+def test_can_map_mistakes_are_one_line_naming_the_key(tmp_path, old, new, problem) -> None:
+    from contactkit.recorder.importers.can_map import load_map
+
+    text = _CAN_MAP.read_text()
+    assert old in text
+    path = tmp_path / "map.toml"
+    path.write_text(text.replace(old, new, 1))
+    with pytest.raises(InputError, match=problem) as err:
+        load_map(path)
+    assert "map.toml" in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("key, value, problem", [
+    ("urdf_sha256", "zz", "urdf_sha256 'zz' is not a SHA-256"),
+    ("events", [1, 2], "events \\[1, 2\\] is not a list of event objects")])
+def test_metadata_values_of_the_wrong_shape_name_the_key(good, tmp_path, capsys, key, value,
+                                                         problem) -> None:
+    bad = _edit_meta(good, tmp_path / "bad.parquet", lambda doc: doc.update({key: value}))
+    code, _, err = _run(recorder_app, "recorder", capsys, "info", bad)
+    _one_line(code, err, "bad.parquet", problem.replace("\\", ""))
+
+
+def test_meta_events_on_the_command_line_is_one_line() -> None:
+    from contactkit.recorder.importers.writer import parse_meta
+    from contactkit.schemas import SessionMeta
+
+    doc = parse_meta(["events=[1,2]"])
+    with pytest.raises(InputError, match="metadata events"):
+        SessionMeta(session_id="s", source="t", action="none", **doc).check()
