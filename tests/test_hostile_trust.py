@@ -439,3 +439,13 @@ def test_meta_events_on_the_command_line_is_one_line() -> None:
     doc = parse_meta(["events=[1,2]"])
     with pytest.raises(InputError, match="metadata events"):
         SessionMeta(session_id="s", source="t", action="none", **doc).check()
+
+
+def test_a_huge_csv_cell_is_a_short_error_line(tmp_path, capsys) -> None:
+    header = "time," + ",".join(f"q{j},dq{j},tau_J{j}" for j in range(7))
+    csv = tmp_path / "big.csv"
+    csv.write_text(f"{header}\n0.0,{'x' * 5_000_000}{',1' * 20}\n")
+    code, _, err = _run(recorder_app, "recorder", capsys, "import", csv, "--map", _CSV_MAP,
+                        "--out", tmp_path / "out")
+    _one_line(code, err, "big.csv", "characters)")
+    assert len(err) < 3000
