@@ -93,6 +93,8 @@ FEATURE_CASES = {
     "wrench-frame": _set("features", "wrench_frame", value=99),
     "robot-unknown": _set("features", "robot", value="bogus"),
     "robot-number": _set("features", "robot", value=3),
+    "robot-dev-zero": _set("features", "robot", value="urdf:/dev/zero"),
+    "robot-directory": _set("features", "robot", value="urdf:/"),
 }
 OTHER_CASES = {
     "classes-numbers": _set("classes", value=[1, 2, 3, 4]),

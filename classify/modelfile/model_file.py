@@ -351,6 +351,15 @@ def check_meta(meta: dict, path: Path) -> None:
         raise InputError(f"model file's {key} settings are not what a {kind.input.name} input "
                          f"takes ({type(err).__name__}: {' '.join(str(err).split())[:80]})",
                          path) from err
+    robot = meta[key].get("robot")
+    if isinstance(robot, str):  # read as predict reads it: a special file is refused here
+        from contactkit.robots import get_robot
+
+        try:
+            get_robot(robot)
+        except InputError as err:
+            raise InputError(f"model file's {key} settings name a robot that cannot be used "
+                             f"({err})", path) from err
     names = meta.get("feature_names", produced)
     if not (isinstance(names, list) and all(isinstance(name, str) for name in names)):
         raise InputError("model file's feature_names are not a list of names", path)
