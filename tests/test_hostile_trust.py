@@ -301,10 +301,32 @@ def test_names_with_control_characters_are_escaped_on_the_terminal(good, tmp_pat
 
 # -- caches remember failures --------------------------------------------------------------
 
-def test_a_warm_feature_cache_still_names_every_failed_session(tmp_path, capsys,
+def test_a_warm_feature_cache_still_names_every_failed_session(good, tmp_path,
                                                                monkeypatch) -> None:
-    """train on a dataset with a bad session, then evaluate from the warm cache: both
-    exit 2 naming it (evaluate had exited 0, the cache holding only the good ones)."""
+    """Features of a dataset with a bad session, computed then read from the warm cache
+    (as evaluate after train): both name it (the cache had held only the good ones, and
+    evaluate exited 0)."""
+    from contactkit.classify.data import load_features
+    from contactkit.features.extract import SessionFeatures
+
+    monkeypatch.setenv("CONTACTKIT_CACHE", str(tmp_path / "cache"))
+    dataset = tmp_path / "ds"
+    dataset.mkdir()
+    (dataset / "good.parquet").write_bytes(good.read_bytes())
+    (dataset / "bad.parquet").write_bytes(b"not parquet" * 10)
+    cold = load_features([dataset], SessionFeatures(window="planned"))
+    assert list((tmp_path / "cache" / "features").glob("*.parquet"))
+    warm = load_features([dataset], SessionFeatures(window="planned"))
+    assert [name for name, _ in cold.problems] == [name for name, _ in warm.problems] == [
+        "bad.parquet"]
+    assert warm.problems == cold.problems and len(warm.X) == len(cold.X) == 1
+
+
+@pytest.mark.slow
+def test_evaluate_after_train_names_the_bad_session_from_the_warm_cache(tmp_path, capsys,
+                                                                        monkeypatch) -> None:
+    """The commands themselves: train, then evaluate from the warm cache, both exit 2
+    naming the bad session."""
     monkeypatch.setenv("CONTACTKIT_CACHE", str(tmp_path / "cache"))
     dataset = tmp_path / "ds"
     dataset.mkdir()
@@ -315,7 +337,6 @@ def test_a_warm_feature_cache_still_names_every_failed_session(tmp_path, capsys,
     code, _, err = _run(classify_app, "classify", capsys, "train", dataset, "--out",
                         tmp_path / "m.skops")
     assert code == 2 and "bad.parquet" in err and "Traceback" not in err, err
-    assert list((tmp_path / "cache" / "features").glob("*.parquet"))
     code, _, err = _run(classify_app, "classify", capsys, "evaluate", dataset, "--protocol",
                         "thesis")
     assert code == 2 and "bad.parquet" in err and "Traceback" not in err, err
