@@ -470,3 +470,17 @@ def test_a_huge_csv_cell_is_a_short_error_line(tmp_path, capsys) -> None:
                         "--out", tmp_path / "out")
     _one_line(code, err, "big.csv", "characters)")
     assert len(err) < 3000
+
+
+def test_a_full_disk_during_capture_save_rrd_leaves_nothing_at_the_target(
+        small_disk, tmp_path, capsys, monkeypatch) -> None:
+    import contactkit.util.rrd_file as rrd_file
+
+    monkeypatch.setattr(rrd_file, "MIN_FREE_BYTES", 100)  # Rerun's writer fills the disk
+    (small_disk / "fill").write_bytes(b"\0" * 3800 * 1024)
+    code, _, err = _run(recorder_app, "recorder", capsys, "capture", "--pose", "B",
+                        "--action", "bump", "--duration", "3", "--planned-at", "1.5",
+                        "--out", tmp_path / "cap", "--viewer", "none", "--save-rrd",
+                        small_disk / "c.rrd")
+    _one_line(code, err, "c.rrd", "nothing was written")
+    assert [p.name for p in small_disk.iterdir()] == ["fill"]
