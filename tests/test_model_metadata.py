@@ -208,6 +208,9 @@ def test_compiled_arrays_changed_apart_from_the_estimator_are_refused_by_both(
     model = _zero_member(made["plain"], tmp_path / "zeroed.skops",
                          "online/0/support_vectors.npy")
     _check_both(model, made["session"], tmp_path)
+    events = _zero_member(made["events"], tmp_path / "zeroed-events.skops",
+                          "events-online/0/support_vectors.npy")
+    _check_both(events, made["session"], tmp_path)
 
 
 def test_old_files_without_feature_names_still_load(made, tmp_path: Path) -> None:

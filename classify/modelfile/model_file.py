@@ -453,20 +453,27 @@ def check_compiled(data: bytes, meta: dict, path: Path) -> None:
         raise InputError(f"the model was fitted on other classes than the file lists "
                          f"({', '.join(stored[-1])[:80]})", path)
     with zipfile.ZipFile(io.BytesIO(data)) as archive:
-        _check_copies(archive, meta["online"], path)
+        _check_copies(archive, meta["online"], archive, path)
+        events = meta.get("events")
+        if isinstance(events, dict) and "online" in events and EVENTS_MEMBER in \
+                archive.namelist():
+            with zipfile.ZipFile(io.BytesIO(archive.read(EVENTS_MEMBER))) as estimator:
+                _check_copies(archive, events["online"], estimator, path)
 
 
-def _check_copies(archive: zipfile.ZipFile, online: object, path: Path) -> None:
+def _check_copies(archive: zipfile.ZipFile, online: object, estimator: zipfile.ZipFile,
+                  path: Path) -> None:
     """Raise InputError naming ``path`` when a compiled array of :data:`COPIED_ARRAYS`
-    is not one of the estimator's arrays stored in ``archive`` (a compiled classifier
+    (members of ``archive`` the ``online`` document names) is not one of the
+    estimator's arrays stored in the skops archive ``estimator`` (a compiled classifier
     edited apart from its estimator and re-sealed)."""
     prefixes = [part.get("prefix") for part in online.get("parts", [])
                 if isinstance(part, dict)] if isinstance(online, dict) else []
     stored = {}
-    for name in archive.namelist():
+    for name in estimator.namelist():
         if name.endswith(".npy") and "/" not in name:
             with suppress(ValueError, OSError, EOFError):
-                array = np.load(io.BytesIO(archive.read(name)), allow_pickle=False)
+                array = np.load(io.BytesIO(estimator.read(name)), allow_pickle=False)
                 stored.setdefault(array.shape, []).append(array)
     for prefix in prefixes:
         for name in COPIED_ARRAYS:

@@ -30,7 +30,7 @@ from contactkit.errors import InputError
 MiB = 1 << 20
 LIMITS: dict[str, int] = {
     "urdf": 32 * MiB,
-    "mesh": 256 * MiB,
+    "mesh": 32 * MiB,
     "json": 16 * MiB,
     "map": 1 * MiB,
     "model": 2048 * MiB,
@@ -38,9 +38,9 @@ LIMITS: dict[str, int] = {
     "data": 64 * 1024 * MiB,
 }
 """Largest size [bytes] read of each kind of input file: a URDF (32 MiB; real ones are
-below 1 MiB), a collision mesh (256 MiB), a JSON file (calibration, noise, dynamics,
-model metadata: 16 MiB), a CSV or CAN map (1 MiB), a model file (2 GiB), a data file
-streamed in pieces (CSV, logs, arrays: 64 GiB)."""
+below 1 MiB), a collision mesh (32 MiB; an ASCII STL is split into words), a JSON file
+(calibration, noise, dynamics, model metadata: 16 MiB), a CSV or CAN map (1 MiB), a
+model file (2 GiB), a data file streamed in pieces (CSV, logs, arrays: 64 GiB)."""
 
 MAX_JSON_DEPTH = 64
 """Deepest nesting of arrays and objects accepted in a JSON document."""
