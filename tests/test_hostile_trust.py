@@ -282,6 +282,18 @@ def test_stats_and_index_list_sessions_with_bad_stamps(time_dir, tmp_path, capsy
     assert "text.parquet" in err and "type string" in err
 
 
+def test_index_lists_a_foreign_table_that_carries_session_metadata(good, tmp_path, capsys
+                                                                   ) -> None:
+    import pyarrow as pa
+
+    (tmp_path / "good.parquet").write_bytes(good.read_bytes())
+    pq.write_table(pa.table({"x": [1.0, 2.0]}).replace_schema_metadata(
+        {METADATA_KEY: pq.read_schema(good).metadata[METADATA_KEY]}), tmp_path / "odd.parquet")
+    code, _, err = _run(recorder_app, "recorder", capsys, "index", tmp_path)
+    assert code in (0, 2) and "Traceback" not in err, err
+    assert "odd.parquet" in err and "no time column" in err
+
+
 def test_export_mcap_refuses_negative_times_in_one_line(good, tmp_path, capsys) -> None:
     neg = _with_t(good, tmp_path / "neg.parquet", lambda t: t - 100.0)
     code, _, err = _run(recorder_app, "recorder", capsys, "export-mcap", neg, "--out",
@@ -411,7 +423,8 @@ _CAN_MAP = Path(__file__).resolve().parents[1] / "recorder" / "data" / "can_defa
     ('columns = "q{j}"', 'columns = ["a", "a", "a", "a", "a", "a", "a"]', "'a' more than once"),
     ('name = "mindlab-zhaw"', 'name = "m"\ndelimiter = "é"', "single-byte"),
     ('name = "mindlab-zhaw"', 'name = "m"\ndelimiter = "\\""', "single-byte"),
-    ('columns = "q{j}"', 'columns = [1, 2, 3, 4, 5, 6, 7]', "list of names")])
+    ('columns = "q{j}"', 'columns = [1, 2, 3, 4, 5, 6, 7]', "list of names"),
+    ("\nsign = 1", "\nsign = 2", "sign must be 1 or -1")])
 def test_csv_map_mistakes_are_one_line_naming_the_key(tmp_path, old, new, problem) -> None:
     from contactkit.recorder.importers.csv_map import load_csv_map
 
