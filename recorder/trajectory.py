@@ -21,6 +21,7 @@ velocity, acceleration or jerk limits, or one not at rest at both ends.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import os
 import stat
@@ -63,6 +64,11 @@ class Trajectory:
     def duration_s(self) -> float:
         """The time of the last sample [s]."""
         return float(self.t[-1])
+
+    def sha256(self) -> str:
+        """Return the SHA-256 (hex) of the samples (t, q, dq, ddq as float64 rows)."""
+        table = np.column_stack([self.t, self.q, self.dq, self.ddq])
+        return hashlib.sha256(np.ascontiguousarray(table).tobytes()).hexdigest()
 
     def jerk(self) -> np.ndarray:
         """Return the jerk [rad/s^3] (N - 1, 7): ddq's finite differences between

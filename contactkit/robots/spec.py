@@ -111,9 +111,9 @@ class RobotSpec:
     end effector's frame with the hand (the flange without); ``ddq_max`` [rad/s^2],
     ``dtau_max`` [Nm/s] and ``jerk_max`` [rad/s^3] the limits a URDF does not hold
     (positions, velocities and torques come from it; an arm that states no jerk limit,
-    a ``urdf:`` robot, gets :data:`DEFAULT_JERK_MAX`, below the Franka arms' own); ``friction`` the identified joint friction (the
-    observer compensates it), or None; ``armature_kgm2`` the motors' reflected inertia
-    the simulator puts on the plant;
+    a ``urdf:`` robot, gets :data:`DEFAULT_JERK_MAX`, below the Franka arms' own);
+    ``friction`` the identified joint friction (the observer compensates it), or None;
+    ``armature_kgm2`` the motors' reflected inertia the simulator puts on the plant;
     ``detector_floor_nm`` (7 values) and ``detector_motion_scale`` adapt a contact
     detector calibrated on another arm (the default model's, on a simulated Panda) to
     this one: its at-rest thresholds are raised to the floor [Nm] and its growth with
