@@ -26,14 +26,15 @@ from typing import Any
 from contactkit.classify.data import FeatureSet
 from contactkit.classify.evaluate import Report, evaluate
 from contactkit.classify.grids import session_paths
-from contactkit.classify.kind import ModelKind, ModelOptions
+from contactkit.classify.kinds.kind import ModelKind, ModelOptions
+from contactkit.classify.kinds.registry import DEFAULT_SEARCHED, get_kind, searchable_kinds
 from contactkit.classify.names import PROTOCOLS
-from contactkit.classify.registry import DEFAULT_SEARCHED, get_kind, searchable_kinds
 from contactkit.classify.schemes import check_scheme, scheme_classes
 from contactkit.classify.training import TrainedModel, train, training_set
 from contactkit.errors import check_choice
 from contactkit.schemas import InputError
-from contactkit.util.atomic import owned_result, result_json, result_markdown, write_text
+from contactkit.util.atomic import write_text
+from contactkit.util.owned import owned_result, result_json, result_markdown
 from contactkit.util.parallel import map_ordered, resolve_scheduler
 from contactkit.util.progress import LabelledProgress
 
@@ -65,12 +66,6 @@ def _text(value: Any) -> str:
 def searched_params(kind: ModelKind) -> list[str]:
     """Return the names of the parameters of ``kind`` that declare a search grid."""
     return [p.name for p in kind.params if p.grid]
-
-
-def default_grid(kind: ModelKind) -> dict[str, tuple]:
-    """Return the declared grid of every searched parameter of ``kind`` (for the thesis's
-    networks: depth 1, 2, 4; width 0.5, 1, 2; dropout 0, 0.1, 0.25)."""
-    return {p.name: p.grid for p in kind.params if p.grid}
 
 
 def grid_trials(kind: ModelKind, grid: Mapping[str, Sequence], steps: Sequence[int],
