@@ -177,3 +177,28 @@ def test_a_trajectory_for_another_arm_is_refused_by_its_limits(written, tmp_path
     with pytest.raises(InputError, match="position limits") as err:
         read_trajectory(bad, "fr3")
     assert str(bad) in str(err.value)
+
+
+def test_excite_capture_identify_loop(tmp_path: Path) -> None:
+    """excite -> simulated capture on a perturbed robot instance -> identify: the
+    identification runs on the recorded trajectory and its model explains the torques
+    better than the nominal one. Skipped until `recorder identify` is there (issue 37)."""
+    identification = pytest.importorskip("contactkit.features.identification")
+    settings = ExcitationSettings(duration_s=8.0, harmonics=5, base_hz=0.25, seed=2,
+                                  budget_s=4.0)
+    result = excite(RobotSetup("panda"), pose_q("A"), settings)
+    path = write_trajectory(tmp_path / "traj.csv", result.trajectory.sampled("panda"))
+    sessions = tmp_path / "sessions"
+    sessions.mkdir()
+    done = run_command("recorder", "capture", "--source", "sim", "--trajectory", str(path),
+                       "--pose", "A", "--action", "none", "--seed", "4", "--robot-seed", "11",
+                       "--out", str(sessions))
+    assert done.returncode == 0, done.stderr
+    out = tmp_path / "dynamics.json"
+    identified = run_command("recorder", "identify", done.stdout.strip(), "--out", str(out))
+    assert identified.returncode == 0, identified.stderr
+    assert out.exists()
+    fitted = identification.identify_sessions([Path(done.stdout.strip())], None, problems=[])
+    report = fitted.excitation
+    assert report.determined
+    assert np.mean(report.rms_after_nm) < 0.7 * np.mean(report.rms_before_nm)
