@@ -214,11 +214,13 @@ def excite_command(
     friction columns), in a bounded time (about 10-20 s on one core).
 
     The file is CSV at 1 kHz: t [s], q_1..q_7 [rad], dq_1..dq_7 [rad/s], ddq_1..ddq_7
-    [rad/s^2]. Run it with your own controller (docs/howto/excite.md: franky or
-    libfranka) while `recorder capture --source franka --action none` records, or in
-    simulation: `recorder capture --source sim --trajectory FILE --pose A --action none`.
-    Hand-guided motion cannot replace it: the hand on the arm is an external force,
-    which the identification would take for the arm's own dynamics.
+    [rad/s^2]. Run it with your own controller, which records the robot's states as it
+    plays it (FCI admits one client, so `recorder capture --source franka` cannot
+    connect meanwhile), then `recorder import` them (docs/howto/excite.md: franky and
+    pylibfranka); or in simulation: `recorder capture --source sim --trajectory FILE
+    --pose A --action none`. Hand-guided motion cannot replace it: the hand on the arm
+    is an external force, which the identification would take for the arm's own
+    dynamics.
     """
     from contactkit.recorder.excitation import (
         ExcitationSettings,
