@@ -202,3 +202,15 @@ def test_excite_capture_identify_loop(tmp_path: Path) -> None:
     report = fitted.excitation
     assert report.determined
     assert np.mean(report.rms_after_nm) < 0.7 * np.mean(report.rms_before_nm)
+
+
+def test_jerk_limits_in_the_spec(tmp_path: Path) -> None:
+    """The Franka arms' datasheet jerk limits; a urdf: arm gets the conservative default."""
+    from contactkit.robots.builtin import panda_urdf_path
+    from contactkit.robots.spec import DEFAULT_JERK_MAX
+
+    assert get_robot("panda").limits.jerk_max.tolist() == [7500.0, 3750.0, 5000.0, 6250.0,
+                                                           7500.0, 10000.0, 10000.0]
+    assert get_robot("fr3").limits.jerk_max.tolist() == [5000.0] * 7
+    urdf = get_robot(f"urdf:{panda_urdf_path()}").limits.jerk_max
+    assert urdf.tolist() == list(DEFAULT_JERK_MAX) and urdf.max() < 3750.0
