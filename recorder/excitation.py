@@ -24,8 +24,8 @@ table (the base's plane z = 0) and every pair of links three or more joints apar
 :data:`SELF_MARGIN_M` from each other (closer pairs share a short link whose joints'
 limits keep them apart: their meshes are 2-7 cm apart in every pose). The
 optimisation checks 30 instants per period on 16 points a link; the result is checked
-at every 1 kHz sample against the table (all points) and at 100 Hz between links (48
-points a link), and shrunk toward the pose until it passes.
+on 48 points a link, at every 1 kHz sample against the table and at 100 Hz between
+links, and shrunk toward the pose until it passes.
 
 **Criterion.** The condition number of the base-parameter regressor: pinocchio's
 joint-torque regressor (10 inertial parameters per link, the hand and payload in link

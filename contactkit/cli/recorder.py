@@ -245,7 +245,9 @@ def excite_command(
         f"condition number {result.condition_start:.0f} at the random start, "
         f"{result.condition:.0f} optimised ({result.base_parameters} base parameters, "
         f"{result.iterations} iterations, {result.seconds:.1f} s); "
-        f"{settings.periods} periods of {settings.duration_s / settings.periods:.2f} s",
+        f"{settings.periods} periods of {settings.duration_s / settings.periods:.2f} s"
+        + (f"; shrunk to {result.shrunk:.2f} of its amplitude to keep clear"
+           if result.shrunk < 1.0 else ""),
         highlight=False)
     written = write_trajectory(out, sampled, overwrite=overwrite)
     if preview is not None:
