@@ -24,8 +24,8 @@ table (the base's plane z = 0) and every pair of links three or more joints apar
 :data:`SELF_MARGIN_M` from each other (closer pairs share a short link whose joints'
 limits keep them apart: their meshes are 2-7 cm apart in every pose). The
 optimisation checks 30 instants per period on 16 points a link; the result is checked
-on 48 points a link, at every 1 kHz sample against the table and at 100 Hz between
-links, and shrunk toward the pose until it passes.
+at every 1 kHz sample against the table (every vertex of the surfaces) and at 100 Hz
+between links (48 points a link), and shrunk toward the pose until it passes.
 
 **Criterion.** The condition number of the base-parameter regressor: pinocchio's
 joint-torque regressor (10 inertial parameters per link, the hand and payload in link
@@ -75,8 +75,9 @@ SELF_MARGIN_M = 0.05
 SELF_PAIRS = tuple((i, j) for i in range(1, N_JOINTS + 1) for j in range(i + 3, N_JOINTS + 1))
 CRITERION_SAMPLES = 60
 """Instants of one period the criterion is evaluated at (every other one: the clearance)."""
-OPTIMISATION_POINTS, CHECK_POINTS = 16, 48
-"""Surface points per link while optimising, and when checking the result between links."""
+OPTIMISATION_POINTS, CHECK_POINTS, ALL_POINTS = 16, 48, 10**6
+"""Surface points per link while optimising, and when checking the result between links;
+every vertex when checking it against the table."""
 MAX_ITERATIONS = 100
 START_FRACTION = 0.5
 """A random start uses this share of the (margined) limits."""
@@ -261,9 +262,9 @@ class Clearance:
         self.points = [_surface_points(model.setup, link, points_per_link)
                        for link in range(1, N_JOINTS + 1)]
 
-    def world_points(self, q: np.ndarray) -> list[np.ndarray]:
-        """Return each link's surface points in the base frame at every row of ``q``
-        (N, 7): a list of 7 arrays (N, n, 3) [m] (empty for a link without surface)."""
+    def _placements(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Return the world rotations (7, N, 3, 3) and translations (7, N, 3) [m] of
+        links 1..7 at every row of ``q`` (N, 7)."""
         model, data = self.model.model, self.model.data
         frames = [self.model.frame_id(link) for link in range(1, N_JOINTS + 1)]
         rotation = np.empty((N_JOINTS, len(q), 3, 3))
@@ -273,8 +274,23 @@ class Clearance:
             for k, frame in enumerate(frames):
                 placement = data.oMf[frame]
                 rotation[k, row], translation[k, row] = placement.rotation, placement.translation
+        return rotation, translation
+
+    def world_points(self, q: np.ndarray) -> list[np.ndarray]:
+        """Return each link's surface points in the base frame at every row of ``q``
+        (N, 7): a list of 7 arrays (N, n, 3) [m] (empty for a link without surface)."""
+        rotation, translation = self._placements(q)
         return [points @ rotation[k].transpose(0, 2, 1) + translation[k][:, None]
                 for k, points in enumerate(self.points)]
+
+    def lowest(self, q: np.ndarray) -> np.ndarray:
+        """Return the lowest surface point's height above the table [m] at each row of
+        ``q`` (N, 7) (heights only: cheap for many points)."""
+        rotation, translation = self._placements(q)
+        heights = [points @ rotation[k, :, 2, :].T + translation[k, :, 2:3].T
+                   for k, points in enumerate(self.points) if len(points)]
+        return np.min([h.min(axis=0) for h in heights], axis=0) if heights else \
+            np.full(len(q), np.inf)
 
     def measure(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Return, at each row of ``q`` (N, 7), the lowest surface point's height above
@@ -463,7 +479,8 @@ def _checked(problem: _Problem, x: np.ndarray) -> tuple[FourierTrajectory, float
 
 def sample_problem(trajectory: FourierTrajectory, model: RobotModel) -> str | None:
     """Return what makes ``trajectory`` fail at its 1 kHz samples (limits with their
-    margins, jerk by finite differences, the table at every sample, links at 100 Hz),
+    margins, jerk by finite differences, every surface vertex above the table at every
+    sample, links apart at 100 Hz),
     or None when it passes."""
     sampled = trajectory.sampled(model.setup.robot)
     limits = model.limits
@@ -476,12 +493,11 @@ def sample_problem(trajectory: FourierTrajectory, model: RobotModel) -> str | No
                                 ("jerk", sampled.jerk(), limits.jerk_max)):
         if (np.abs(values) > keep * limit).any():
             return what
-    clearance = Clearance(model, CHECK_POINTS)
+    every_vertex, clearance = Clearance(model, ALL_POINTS), Clearance(model, CHECK_POINTS)
     stride = round(RATE_HZ / 100.0)
     for start in range(0, len(sampled.t), 5000):
         q = sampled.q[start:start + 5000]
-        heights = [p[..., 2].min(axis=1) for p in clearance.world_points(q) if p.shape[1]]
-        if heights and (np.min(heights, axis=0) < TABLE_MARGIN_M).any():
+        if (every_vertex.lowest(q) < TABLE_MARGIN_M).any():
             return "table"
         if (clearance.measure(q[::stride])[1] < SELF_MARGIN_M).any():
             return "links"
