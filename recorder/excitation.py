@@ -33,8 +33,8 @@ joint-torque regressor (10 inertial parameters per link, the hand and payload in
 offset), stacked over :data:`CRITERION_SAMPLES` instants of one period, restricted to
 the base columns: a largest set of independent columns, chosen once per arm by QR
 with column pivoting on random states. SLSQP (scipy) minimises its logarithm from a
-random start (the best of :data:`START_CANDIDATES`, drawn from ``seed``) within a
-time budget.
+random start (``seed``) within a time budget. (Starting from the best of 20 random
+starts did worse: on the Panda from pose A, seeds 0-3, 460-960 against 340-920.)
 
 Units: q [rad], dq [rad/s], ddq [rad/s^2], jerk [rad/s^3], t [s], f [Hz], lengths [m].
 """
@@ -80,9 +80,7 @@ OPTIMISATION_POINTS, CHECK_POINTS, ALL_POINTS = 16, 48, 10**6
 every vertex when checking it against the table."""
 MAX_ITERATIONS = 100
 START_FRACTION = 0.5
-"""A random start uses this share of the (margined) limits."""
-START_CANDIDATES = 20
-"""Random starts drawn; the optimisation begins at the one with the best criterion."""
+"""The random start uses this share of the (margined) limits."""
 DURATION_RANGE_S = (2.0, MAX_DURATION_S)
 BASE_HZ_RANGE = (0.02, 2.0)
 HARMONICS_RANGE = (3, 12)
@@ -172,7 +170,7 @@ class FourierTrajectory:
 @dataclass(frozen=True)
 class Excitation:
     """The result: the trajectory, its criterion (the base-parameter regressor's
-    condition number) at the best random start and at the end, the regressor's base-parameter count,
+    condition number) at the random start and at the end, the regressor's base-parameter count,
     and the optimiser's iterations and time [s]."""
 
     trajectory: FourierTrajectory
@@ -428,10 +426,9 @@ def _excite(robot: RobotSetup, q0: np.ndarray, settings: ExcitationSettings,
     check_pose(q0, model)
     problem = _Problem(model, q0, settings)
     rng = np.random.default_rng(settings.seed)
+    x = problem.start(rng)
     began = time.perf_counter()
-    starts = [problem.start(rng) for _ in range(START_CANDIDATES)]
-    values = [problem.criterion(x) for x in starts]
-    x, start_value = starts[int(np.argmin(values))], min(values)
+    start_value = problem.criterion(x)
     best = {"x": x, "value": start_value, "iterations": 0}
 
     def follow(xk: np.ndarray) -> None:
