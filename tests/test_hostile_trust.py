@@ -122,6 +122,12 @@ def test_a_session_naming_a_special_urdf_is_one_line_in_every_reader(good, tmp_p
         code, _, err = _run(app, prog, capsys, *argv)
         _one_line(code, err, "named.parquet", "not a regular file")
     assert not any(p.name.endswith((".rrd", ".mcap")) for p in tmp_path.iterdir())
+    dataset = tmp_path / "ds"
+    dataset.mkdir()
+    named.rename(dataset / "named.parquet")
+    code, _, err = _run(recorder_app, "recorder", capsys, "stats", dataset, "--deep", "--out",
+                        tmp_path / "report.html")
+    assert "Traceback" not in err and "named.parquet" in err and "not a regular file" in err
 
 
 # -- hostile URDFs -----------------------------------------------------------------------
