@@ -18,6 +18,7 @@ from pathlib import Path
 
 from contactkit.classify.events.contact_events import ContactEvent
 from contactkit.classify.modelfile.model_file import ModelFile
+from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.detector import DetectorConfig
 from contactkit.replay.engine import DEFAULT_HOP_S, OfflineAnswer, ReplayStream
 from contactkit.replay.recording import (
@@ -31,6 +32,7 @@ from contactkit.schemas import InputError
 from contactkit.schemas.dataset import session_files
 from contactkit.util.atomic import Owned, atomic_write
 from contactkit.util.pacing import paced
+from contactkit.util.rrd_file import check_space, finish_recording, start_recording
 from contactkit.viewer import layout
 
 
@@ -132,7 +134,7 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
         if save is not None:
             tmp = stack.enter_context(atomic_write(save, overwrite=overwrite, owned=owned,
                                                    suffix=".rrd"))
-            rec.save(tmp.path, default_blueprint=blueprint)
+            start_recording(rec, tmp.path, save, blueprint)
         try:
             if connect is not None:
                 rec.connect_grpc(connect, default_blueprint=blueprint)
@@ -141,11 +143,16 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
             logger = BlockLogger(rec, log_static(rec, stream), stream, log_rate_hz)
             for block in paced(stream.blocks(every_hop=rate is not None), lambda b: b.t[-1],
                                rate, origin_s=t0):
+                if save is not None:
+                    check_space(save)
                 logger.log(block)
             logger.finish()
             answer = stream.offline()
             log_results(rec, stream, answer)
-            rec.flush()
+            if save is not None:
+                finish_recording(rec, tmp.path, save)
+            else:
+                rec.flush()
         finally:
             rec.disconnect()
     return ReplaySummary(Path(path), stream.meta.action, answer, stream.pred_t.tolist(),
@@ -180,9 +187,10 @@ def replay_sessions(paths: Sequence[Path], model: ModelFile, *, save: Path | Non
                                     log_rate_hz=log_rate_hz, robot=robot,
                                     overwrite=overwrite, owned=owned)
             summaries.append(result)
-        except InputError as err:
-            result = err
-            problems.append(err)
+        except DATA_ERRORS as err:  # one bad session never stops the others
+            result = err if isinstance(err, InputError) else InputError(problem_text(err),
+                                                                        path)
+            problems.append(result)
         if on_done is not None:
             on_done(result)
     return summaries, problems

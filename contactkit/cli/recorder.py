@@ -39,6 +39,7 @@ from contactkit.util.progress import (
     labelled_progress,
     progress_bar,
 )
+from contactkit.util.text import console_text, printable
 
 if TYPE_CHECKING:
     from contactkit.recorder.importers.jobs import Imported
@@ -168,7 +169,7 @@ def simulate_command(
                       + f"; index has {result.index.table.num_rows} sessions")
     print_problems(result.failed, "failed")
     print_problems(result.index.problems)
-    print(out_dir / "index.parquet")
+    print(printable(out_dir / "index.parquet"))
     if result.failed:
         raise typer.Exit(2)
 
@@ -295,7 +296,7 @@ def set_robot_command(
     is rewritten atomically; its samples are unchanged."""
     for path in sessions:
         meta = set_session_robot(path, robot)
-        err_console.print(f"{path}: robot {meta.robot}")
+        err_console.print(f"{console_text(path)}: robot {console_text(meta.robot)}")
 
 
 @app.command("index")
@@ -308,7 +309,7 @@ def index_command(
     result = rebuild_index(directory)
     err_console.print(f"{result.table.num_rows} sessions indexed")
     print_problems(result.problems)
-    print(directory / "index.parquet")
+    print(printable(directory / "index.parquet"))
 
 
 @app.command("recover")
@@ -326,7 +327,7 @@ def recover_command(
     if not recoveries:
         err_console.print("no journals to recover")
     for rec in recoveries:
-        print(f"{rec.session or rec.journal}: {rec.note}")
+        print(printable(f"{rec.session or rec.journal}: {rec.note}"))
     exit_if_failed([rec for rec in recoveries if rec.failed])
 
 
@@ -475,7 +476,7 @@ def import_command(
 
 def _report_import(result: Imported) -> None:
     err_console.print(f"{result.recording}: {result.summary}", markup=False, highlight=False)
-    print(result.session)
+    print(printable(result.session))
 
 
 app.command("import")(import_command)
@@ -563,7 +564,8 @@ def export_mcap_command(
     the Rerun viewer; print the .mcap file's path. `recorder import` reads it back."""
     from contactkit.recorder.importers.mcap_export import export_mcap
 
-    print(export_mcap(session, out or session.with_suffix(""), overwrite=overwrite))
+    print(printable(export_mcap(session, out or session.with_suffix(""),
+                                overwrite=overwrite)))
 
 
 @app.command("can-bridge")

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from contactkit.util.safe_open import read_input_text
+
 N_JOINTS = 7
 DEFAULT_JERK_MAX = (1000.0,) * N_JOINTS
 """The joint jerk limit [rad/s^3] of an arm that states none (a ``urdf:`` robot): a
@@ -177,7 +179,7 @@ def _urdf_text(spec: RobotSpec, with_hand: bool) -> str:
     path = spec.urdf_file()
     key = (spec.name, path, with_hand)
     if key not in _TEXTS:
-        text = path.read_text()
+        text = read_input_text(path, "robot's URDF", "urdf")
         _TEXTS[key] = text if with_hand or not spec.hand_links else strip_links(
             text, spec.hand_links)
     return _TEXTS[key]

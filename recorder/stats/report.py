@@ -240,10 +240,11 @@ def _tables(report: dict) -> list[tuple[str, pl.DataFrame]]:
                                "correlation": agreement["correlation"],
                                "RMS difference [Nm]": agreement["rms_difference_nm"]})))
         limits = deep["joint_limits"]
-        tables.append(("Joint-limit proximity", pl.DataFrame({
-            "joint": list(range(1, 8)), "min margin [rad]": limits["min_margin_rad"],
-            "max |dq| / limit [%]": limits["max_speed_fraction"],
-            "max |tau| / limit [%]": limits["max_torque_fraction"]})))
+        if limits is not None:  # None when no session could be read
+            tables.append(("Joint-limit proximity", pl.DataFrame({
+                "joint": list(range(1, 8)), "min margin [rad]": limits["min_margin_rad"],
+                "max |dq| / limit [%]": limits["max_speed_fraction"],
+                "max |tau| / limit [%]": limits["max_torque_fraction"]})))
     return [(title, table) for title, table in tables if table.height]
 
 
