@@ -17,6 +17,7 @@ from contactkit.cli.capture_protocol import (
     Condition,
     Pose,
 )
+from contactkit.cli.catalog import register as register_catalog
 from contactkit.cli.common import (
     CommandsBuilder,
     deferred_commands,
@@ -171,6 +172,9 @@ def simulate_command(
     print(out_dir / "index.parquet")
     if result.failed:
         raise typer.Exit(2)
+
+
+register_catalog(app)
 
 
 @app.command("robots")
