@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from contactkit.errors import InputError
 from contactkit.recorder.importers.writer import parse_meta
-from contactkit.schemas.session import MAX_ABS_T_S, MAX_STEP_S, check_times
+from contactkit.schemas.columns import MAX_ABS_T_S, MAX_STEP_S, check_times
 from contactkit.util import atomic
 from contactkit.util.text import printable
 from tests.fuzz_support import FLOATS, refused_or
