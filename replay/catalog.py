@@ -45,7 +45,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from contactkit.classify.modelfile import ModelFile, load_model
+from contactkit.classify.modelfile.model_file import ModelFile, load_model
 from contactkit.errors import InputError
 from contactkit.replay.engine import ReplayStream
 from contactkit.replay.recording import RRD_MAGIC
