@@ -18,6 +18,7 @@ Anything else is one :class:`~contactkit.errors.InputError` line.
 from __future__ import annotations
 
 import re
+import shlex
 from pathlib import Path
 from typing import Any
 
@@ -87,5 +88,5 @@ def open_command(out: Path, row: dict[str, Any]) -> str | None:
         return None
     at = next((row[k] for k in ("onset_s", "decision_s", "planned_at_s")
                if isinstance(row.get(k), float | int)), None)
-    command = f"recorder browse {out} --session {session}"
+    command = f"recorder browse {shlex.quote(str(out))} --session {shlex.quote(session)}"
     return command + (f" --at {at:.3f}" if at is not None else "")
