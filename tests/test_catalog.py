@@ -213,3 +213,17 @@ def test_browse_serves_the_catalog_until_ctrl_c_and_refuses_a_taken_port(catalog
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def test_stats_report_links_each_session_to_its_recording(tmp_path, smoke, catalog):
+    (tmp_path / "smoke").symlink_to(smoke)
+    (tmp_path / "smoke-catalog").symlink_to(catalog)  # the default place: beside the dataset
+    done = run_command("recorder", "stats", str(tmp_path / "smoke"), "--out",
+                       str(tmp_path / "report.html"))
+    assert done.returncode == 0, done.stderr
+    page = (tmp_path / "report.html").read_text()
+    for sid in _session_ids(smoke):
+        assert f'<a href="smoke-catalog/{sid}.rrd">{sid}</a>' in page
+    missing = run_command("recorder", "stats", str(smoke), "--catalog", str(tmp_path / "nope"),
+                          "--out", str(tmp_path / "r2.html"))
+    assert "catalog folder not found" in _one_line_error(missing)

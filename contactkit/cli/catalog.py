@@ -20,6 +20,7 @@ import typer
 from contactkit.cli.common import RobotOpt, print_problems, scheduler_of
 from contactkit.errors import InputError
 from contactkit.util.parallel import available_cpus
+from contactkit.util.paths import catalog_beside
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar
 from contactkit.util.text import printable
 
@@ -151,7 +152,7 @@ def browse_command(
         raise InputError(f"--port must be 0..65535, got {port}")
     folder = source
     if not is_catalog(source):
-        folder = out or default_catalog(source)
+        folder = out or catalog_beside(source)
         result = build(source, folder, model, workers, False, None, scheduler_of(ctx))
         if not (result.replayed or result.kept):
             raise InputError("no session could be replayed", source)
@@ -185,13 +186,6 @@ def _wait_for_interrupt() -> None:
         pass
     finally:
         signal.signal(signal.SIGTERM, previous)
-
-
-def default_catalog(dataset: Path) -> Path:
-    """Return the default catalog folder of a dataset: ``<name>-catalog`` beside it,
-    where ``recorder stats`` looks for it."""
-    dataset = Path(dataset).resolve()
-    return dataset.parent / f"{dataset.name}-catalog"
 
 
 def register(app: typer.Typer) -> None:
