@@ -52,8 +52,12 @@ def start_catalog_server(out: Path, host: str = DEFAULT_HOST, port: int = 0):
 
 def segment_url(server, session_id: str, at_s: float | None = None) -> str:
     """Return the URL that opens session ``session_id`` of the server's dataset, at time
-    ``at_s`` [s] of its ``time`` timeline where given."""
+    ``at_s`` [s] of its ``time`` timeline where given; raise InputError for a session the
+    dataset does not hold."""
     dataset = server.client().get_dataset(DATASET)
+    if session_id not in dataset.segment_ids():
+        raise InputError(f"session {session_id} is not in the catalog (recorder query lists "
+                         "its sessions)")
     if at_s is None:
         return dataset.segment_url(session_id)
     return dataset.segment_url(session_id, "time", timedelta(seconds=at_s))

@@ -13,7 +13,7 @@ import json
 import signal
 import threading
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import typer
 
@@ -25,6 +25,7 @@ from contactkit.util.progress import bar_callback, err_console, labelled_progres
 from contactkit.util.text import printable
 
 DEFAULT_WORKERS = available_cpus()
+ViewerChoice = Literal["auto", "native", "web", "none"]
 
 
 def build(dataset: Path, out: Path, model: Path | None, workers: int, overwrite: bool,
@@ -130,7 +131,7 @@ def browse_command(
         help="Open this session (its id) instead of the dataset's table.")] = None,
     at: Annotated[float | None, typer.Option(
         help="With --session: the time to open it at [s].")] = None,
-    viewer: Annotated[str, typer.Option(
+    viewer: Annotated[ViewerChoice, typer.Option(
         help="auto (native with a display, else web), native, web or none (only serve).")
                       ] = "auto",
     model: Annotated[Path | None, typer.Option(
@@ -144,8 +145,6 @@ def browse_command(
     from contactkit.replay.browse import open_viewer, segment_url, start_catalog_server
     from contactkit.replay.catalog import is_catalog
 
-    if viewer not in ("auto", "native", "web", "none"):
-        raise InputError(f"--viewer must be auto, native, web or none, got {viewer!r}")
     if at is not None and session is None:
         raise InputError("--at needs --session")
     if not (0 <= port < 65536):
