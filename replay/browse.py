@@ -50,6 +50,11 @@ def start_catalog_server(out: Path, host: str = DEFAULT_HOST, port: int = 0):
                          f"{' '.join(str(err).split())}") from err
 
 
+def dataset_url(server) -> str:
+    """Return the URL that opens the catalog's dataset table on the server."""
+    return f"{server.url()}/dataset/{server.client().get_dataset(DATASET).id}"
+
+
 def segment_url(server, session_id: str, at_s: float | None = None) -> str:
     """Return the URL that opens session ``session_id`` of the server's dataset, at time
     ``at_s`` [s] of its ``time`` timeline where given; raise InputError for a session the

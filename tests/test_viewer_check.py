@@ -118,3 +118,23 @@ def test_a_stalled_check_kills_its_children_and_says_so(tmp_path) -> None:
 def test_a_timed_out_command_takes_its_children_with_it() -> None:
     with pytest.raises(subprocess.TimeoutExpired):
         run_cli("/bin/sh", "-c", "sleep 60 & sleep 60", timeout=2)
+
+
+@pytest.mark.browser
+def test_catalog_table_lists_every_session_and_a_session_opens(browser_ready, tmp_path,
+                                                               model_path) -> None:  # noqa: F811
+    data = tmp_path / "data"
+    data.mkdir()
+    for seed, action in ((4, "bump"), (5, "shove")):
+        make_session(data, seed=seed, action=action, link=5, duration_s=2.0, planned_at_s=1.0)
+    catalog = tmp_path / "catalog"
+    built = run_cli("recorder", "catalog", str(data), "--out", str(catalog), "--model",
+                    str(model_path), "--workers", "1")
+    assert built.returncode == 0, built.stderr
+    out = tmp_path / "check"
+    check = run_check("--catalog", str(catalog), "--out", str(out), "--timeout", "150",
+                      timeout=480)
+    assert check.returncode == 0, check.stdout + check.stderr
+    findings = json.loads((out / "viewer_check.json").read_text())
+    assert [f["ok"] for f in findings] == [True, True]
+    assert (out / "catalog_table.png").stat().st_size > 10_000

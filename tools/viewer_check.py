@@ -2,6 +2,7 @@
 report what the viewer complains about.
 
     python tools/viewer_check.py demo.rrd real.rrd --report report.html --out viewer-check/
+    python tools/viewer_check.py --catalog smoke-catalog --out viewer-check/
 
 For each ``.rrd``: serve it with the SDK's own ``rerun --serve-web`` on 127.0.0.1,
 open the web viewer in Chromium at 1600x1000 (``&renderer=webgl``: software
@@ -15,7 +16,13 @@ changing), then collect
 - the error markers that views draw in their title bars (the viewer's error red);
   the tooltip of each is hovered and saved as a screenshot;
 
-and write ``<name>.png`` (the whole window). For each HTML report: open it, fail on
+and write ``<name>.png`` (the whole window). For a catalog (``recorder catalog``):
+start Rerun's catalog server on it (``recorder browse``'s, on 127.0.0.1), open the web
+viewer connected to it, check that the dataset's table the viewer received from the
+server lists every session of the catalog and the properties' columns (the gRPC
+answers the page read, which the canvas does not show as text), screenshot it
+(``<catalog>_table.png``), then open the first session and check it as a recording
+(``<catalog>_session.png``). For each HTML report: open it, fail on
 an image that does not load, and write a full-page screenshot. A summary goes to
 ``viewer_check.json``. Exit code 0: no problems; 1: problems found; 2: Chromium or
 Playwright missing, or bad arguments.
@@ -182,6 +189,94 @@ def check_recording(browser, rrd: Path, out: Path, timeout_s: float,
     return finding
 
 
+CATALOG_COLUMNS = (b"session:action", b"result:offline_label", b"events:label")
+"""Property columns the viewer must receive in a catalog's dataset table."""
+
+
+def _settle(page, cdp, console: list[tuple[str, str]], timeout_s: float,
+            ready=lambda: True) -> tuple[list[bytes], bool]:
+    """Screenshot ``page`` every :data:`POLL_S` until ``ready()`` and the screen stops
+    changing; return the screenshots and whether it settled within ``timeout_s`` [s]."""
+    started = time.monotonic()
+    shots: list[bytes] = []
+    while time.monotonic() - started < timeout_s:
+        time.sleep(POLL_S)
+        shots.append(_capture(cdp))
+        if ready() and len(shots) >= STABLE_SHOTS and len(set(shots[-STABLE_SHOTS:])) == 1:
+            return shots, True
+    return shots, False
+
+
+def check_catalog(browser, catalog: Path, out: Path, timeout_s: float) -> list[Finding]:
+    """Serve a catalog, open its dataset table and its first session in the web viewer;
+    return the findings of both (see the module docstring)."""
+    import pyarrow.parquet as pq
+
+    from contactkit.replay.browse import (
+        dataset_url,
+        open_viewer,
+        segment_url,
+        start_catalog_server,
+    )
+    from contactkit.replay.catalog import catalog_tables
+
+    table = pq.read_table(catalog_tables(catalog)["sessions"])
+    sessions = table.column("session_id").to_pylist()
+    planned = table.column("planned_at_s").to_pylist()[0]
+    server = start_catalog_server(catalog)
+    findings = []
+    try:
+        targets = [("table", dataset_url(server)),
+                   ("session", segment_url(server, sessions[0], planned))]
+        for kind, target in targets:
+            viewer, page_url = open_viewer(target, web=True)
+            shot = out / f"{catalog.name}_{kind}.png"
+            finding = Finding(f"{catalog} ({kind})", str(shot))
+            page = browser.new_page(viewport=VIEWPORT)
+            console: list[tuple[str, str]] = []
+            received = bytearray()  # what the page read from the catalog server
+            server_http = server.url().replace("rerun+http", "http")
+
+            def keep(response, received=received, server_http=server_http) -> None:
+                if response.url.startswith(server_http):
+                    with contextlib.suppress(Exception):
+                        received.extend(response.body())
+
+            def listed(received=received, kind=kind) -> bool:
+                return kind != "table" or all(s.encode() in received for s in sessions)
+
+            page.on("console", lambda m, console=console: console.append((m.type, m.text)))
+            page.on("pageerror", lambda e, console=console: console.append(("pageerror",
+                                                                            str(e))))
+            page.on("response", keep)
+            try:
+                cdp = page.context.new_cdp_session(page)
+                started = time.monotonic()
+                page.goto(page_url + "&renderer=webgl")
+                shots, settled = _settle(page, cdp, console, timeout_s, listed)
+                if not settled:
+                    finding.errors.append(f"the viewer did not settle within {timeout_s:.0f} s")
+                finding.load_s = round(time.monotonic() - started, 1)
+                if kind == "table":
+                    finding.errors += [f"the dataset table lacks session {s}" for s in sessions
+                                       if s.encode() not in received]
+                    finding.errors += [f"the dataset table lacks the column {c.decode()}"
+                                       for c in CATALOG_COLUMNS if c not in received]
+                if shots:
+                    write_bytes(shot, shots[-1], overwrite=True)
+                errors, warnings = viewer_messages(console)
+                finding.errors += errors
+                finding.warnings += warnings
+            finally:
+                page.close()
+                viewer.terminate()
+                viewer.wait()
+            findings.append(finding)
+    finally:
+        server.shutdown()
+    return findings
+
+
 def check_report(browser, report: Path, out: Path) -> Finding:
     """Open an HTML report and return its broken images; write a full-page screenshot."""
     shot = out / f"{report.stem}.png"
@@ -201,8 +296,9 @@ def check_report(browser, report: Path, out: Path) -> Finding:
 
 
 def run(recordings: list[Path], reports: list[Path], out: Path, timeout_s: float,
-        chromium: str, cursor: float | None = None) -> list[Finding]:
-    """Check every recording and report in one browser; return the findings."""
+        chromium: str, cursor: float | None = None,
+        catalogs: list[Path] | None = None) -> list[Finding]:
+    """Check every recording, catalog and report in one browser; return the findings."""
     from playwright.sync_api import sync_playwright
 
     out.mkdir(parents=True, exist_ok=True)
@@ -213,6 +309,10 @@ def run(recordings: list[Path], reports: list[Path], out: Path, timeout_s: float
             for rrd in recordings:
                 findings.append(check_recording(browser, rrd, out, timeout_s, cursor))
                 print(_line(findings[-1]), flush=True)
+            for catalog in catalogs or []:
+                for finding in check_catalog(browser, catalog, out, timeout_s):
+                    findings.append(finding)
+                    print(_line(finding), flush=True)
             for report in reports:
                 findings.append(check_report(browser, report, out))
                 print(_line(findings[-1]), flush=True)
@@ -265,6 +365,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("recordings", nargs="*", type=Path, help=".rrd files to open")
     parser.add_argument("--report", action="append", default=[], type=Path,
                         help="an HTML report to open (repeatable)")
+    parser.add_argument("--catalog", action="append", default=[], type=Path,
+                        help="a catalog folder (recorder catalog) to serve and open "
+                             "(repeatable)")
     parser.add_argument("--out", type=Path, default=Path("viewer-check"),
                         help="directory for screenshots and viewer_check.json")
     parser.add_argument("--timeout", type=float, default=240.0,
@@ -274,7 +377,8 @@ def main(argv: list[str] | None = None) -> int:
                              "before the screenshot (default: the end)")
     args = parser.parse_args(argv)
     missing = [p for p in [*args.recordings, *args.report] if not p.is_file()]
-    if missing or not (args.recordings or args.report):
+    missing += [p for p in args.catalog if not p.is_dir()]
+    if missing or not (args.recordings or args.report or args.catalog):
         print(f"viewer_check: error: {missing[0] if missing else 'nothing'} to check"
               + (": no such file" if missing else ""), file=sys.stderr)
         return 2
@@ -289,11 +393,12 @@ def main(argv: list[str] | None = None) -> int:
         print("viewer_check: error: Playwright is not installed (pip install "
               "'contactkit[browser]')", file=sys.stderr)
         return 2
-    watchdog = start_watchdog(len(args.recordings) * (args.timeout + REPORT_BUDGET_S)
+    watchdog = start_watchdog((len(args.recordings) + 2 * len(args.catalog))
+                              * (args.timeout + REPORT_BUDGET_S)
                               + len(args.report) * REPORT_BUDGET_S + REPORT_BUDGET_S)
     try:
         findings = run(args.recordings, args.report, args.out, args.timeout, chromium,
-                       args.cursor)
+                       args.cursor, args.catalog)
     except InputError as err:
         print(f"viewer_check: error: {err}", file=sys.stderr)
         return 2

@@ -142,7 +142,12 @@ def browse_command(
     """Serve a catalog with Rerun's catalog server and open a viewer on it: the dataset's
     table of sessions with their properties, each session's recording a click away.
     Prints the URL to connect to; Ctrl-C stops it."""
-    from contactkit.replay.browse import open_viewer, segment_url, start_catalog_server
+    from contactkit.replay.browse import (
+        dataset_url,
+        open_viewer,
+        segment_url,
+        start_catalog_server,
+    )
     from contactkit.replay.catalog import is_catalog
 
     if at is not None and session is None:
@@ -158,7 +163,7 @@ def browse_command(
     server = start_catalog_server(folder, host, port)
     process = None
     try:
-        target = server.url() if session is None else segment_url(server, session, at)
+        target = dataset_url(server) if session is None else segment_url(server, session, at)
         print(target, flush=True)
         if viewer != "none":
             process, page = open_viewer(target, web=None if viewer == "auto"
