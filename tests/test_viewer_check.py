@@ -138,3 +138,41 @@ def test_catalog_table_lists_every_session_and_a_session_opens(browser_ready, tm
     findings = json.loads((out / "viewer_check.json").read_text())
     assert [f["ok"] for f in findings] == [True, True]
     assert (out / "catalog_table.png").stat().st_size > 10_000
+
+
+def _literal_lz4(data: bytes) -> bytes:
+    """Return ``data`` as one LZ4 block of literals only (valid LZ4, no compression)."""
+    n = len(data)
+    head = bytes([min(n, 15) << 4])
+    if n >= 15:
+        rest = n - 15
+        head += b"\xff" * (rest // 255) + bytes([rest % 255])
+    return head + data
+
+
+def test_catalog_answers_are_decoded_as_the_viewer_reads_them() -> None:
+    import pyarrow as pa
+
+    table = pa.table({"rerun_segment_id": ["a1", "b2"], "property:session:action": ["x", "y"]})
+    sink = pa.BufferOutputStream()
+    with pa.ipc.new_stream(sink, table.schema) as writer:
+        writer.write_table(table)
+    payload = _literal_lz4(sink.getvalue().to_pybytes())
+    part = b"\x08\x01\x12" + _varint_bytes(len(payload)) + payload
+    message = b"\x0a" + _varint_bytes(len(part)) + part
+    trailer = b"grpc-status:0\r\n"
+    body = (b"\x00" + len(message).to_bytes(4, "big") + message
+            + b"\x80" + len(trailer).to_bytes(4, "big") + trailer)
+    segments, columns = viewer_check.table_contents([body])
+    assert segments == {"a1", "b2"}
+    assert "property:session:action" in columns
+    assert viewer_check.lz4_block(b"\x1fa\x01\x00\x00") == b"a" * 20  # a match copies back
+
+
+def _varint_bytes(value: int) -> bytes:
+    out = bytearray()
+    while True:
+        out.append((value & 0x7F) | (0x80 if value > 0x7F else 0))
+        value >>= 7
+        if not value:
+            return bytes(out)
