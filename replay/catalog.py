@@ -46,7 +46,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from contactkit.classify.modelfile.model_file import ModelFile, load_model
-from contactkit.errors import InputError
+from contactkit.errors import DATA_ERRORS, InputError, problem_text
 from contactkit.replay.engine import ReplayStream
 from contactkit.replay.recording import RRD_MAGIC
 from contactkit.replay.session_replay import ReplaySummary, replay_session
@@ -268,8 +268,8 @@ def replay_into_catalog(job: CatalogJob) -> tuple[str, dict | None, str | None]:
     try:
         replay_session(job.path, _model(job.model_path), save=job.target, robot=job.robot,
                        overwrite=True, session_file=job.file, properties=properties)
-    except InputError as err:
-        return job.file, None, str(err)
+    except DATA_ERRORS as err:
+        return job.file, None, problem_text(err)
     return job.file, rows, None
 
 
@@ -306,22 +306,30 @@ def read_manifest(out: Path) -> dict | None:
         raise InputError(f"unreadable catalog manifest ({err})", path) from err
 
 
-def dataset_sessions(dataset: Path) -> dict[str, tuple[Path, str]]:
-    """Return {session id: (path, file relative to ``dataset``)} of a dataset's sessions;
-    raise InputError when two files hold one session (they would be one segment)."""
+def dataset_sessions(dataset: Path) -> tuple[dict[str, tuple[Path, str]], list[tuple[str, str]]]:
+    """Return {session id: (path, file relative to ``dataset``)} of a dataset's sessions
+    and the files whose metadata cannot be read, as ``(file, problem)``; raise InputError
+    when two files hold one session (they would be one segment) or there is no session
+    file."""
     dataset = Path(dataset)
     found: dict[str, tuple[Path, str]] = {}
-    for path in session_files(dataset):
-        meta, _ = read_session_meta(path)
+    unreadable = []
+    paths = session_files(dataset)
+    if not paths:
+        raise InputError("no session files in the dataset", dataset)
+    for path in paths:
         rel = path.relative_to(dataset).as_posix()
+        try:
+            meta, _ = read_session_meta(path)
+        except DATA_ERRORS as err:
+            unreadable.append((rel, problem_text(err)))
+            continue
         if meta.session_id in found:
             raise InputError(f"session {meta.session_id} is in two files, "
                              f"{found[meta.session_id][1]} and {rel}; a catalog holds one "
                              "recording per session: remove one", dataset)
         found[meta.session_id] = (path, rel)
-    if not found:
-        raise InputError("no session files in the dataset", dataset)
-    return found
+    return found, unreadable
 
 
 def _stat(path: Path) -> dict:
@@ -390,11 +398,11 @@ def build_catalog(dataset: Path, out: Path, model_path: Path, identity: CatalogI
     session, a foreign ``.rrd`` in ``out``, or a catalog of another identity (unless
     ``overwrite``)."""
     dataset, out = Path(dataset), Path(out)
-    found = dataset_sessions(dataset)
+    found, unreadable = dataset_sessions(dataset)
     previous = check_catalog(out, identity, overwrite=overwrite)
     output_directory(out)
     output_directory(out / TABLES)
-    result = CatalogResult(out)
+    result = CatalogResult(out, failed=list(unreadable))
     hashes = {sid: file_sha256(path) for sid, (path, _) in found.items()}
     manifest_sessions = {sid: entry for sid, entry in previous.items()
                          if sid in found and entry.get("sha256") == hashes[sid]
@@ -427,6 +435,9 @@ def build_catalog(dataset: Path, out: Path, model_path: Path, identity: CatalogI
                               scheduler=scheduler), strict=True):
         if problem is not None:
             result.failed.append((file, problem))
+            stale = previous.get(sid)
+            if stale is not None and _ours(out, stale):  # of the file before it changed
+                (out / stale["recording"]).unlink()
         else:
             sessions[sid], events[sid] = rows["session"], rows["events"]
             target = out / recording_name(sid)

@@ -227,3 +227,18 @@ def test_stats_report_links_each_session_to_its_recording(tmp_path, smoke, catal
     missing = run_command("recorder", "stats", str(smoke), "--catalog", str(tmp_path / "nope"),
                           "--out", str(tmp_path / "r2.html"))
     assert "catalog folder not found" in _one_line_error(missing)
+
+
+def test_a_session_that_fails_is_listed_and_the_others_are_written(tmp_path, smoke, model):
+    dataset = tmp_path / "data"
+    dataset.mkdir()
+    for path in sorted(smoke.glob("static_A_[bs]*.parquet")):
+        shutil.copy2(path, dataset)
+    (dataset / "broken.parquet").write_bytes(b"not parquet")
+    out = tmp_path / "cat"
+    done = run_command("recorder", "catalog", str(dataset), "--out", str(out), "--model",
+                       str(model), "--workers", "2")
+    assert done.returncode == 2
+    assert "2 replayed" in done.stderr and "1 failed" in done.stderr
+    assert "failed broken.parquet:" in " ".join(done.stderr.split())
+    assert len(list(out.glob("*.rrd"))) == 2
