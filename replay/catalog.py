@@ -35,7 +35,6 @@ import functools
 import hashlib
 import json
 import math
-import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -71,9 +70,6 @@ FORMAT = 1
 """The manifest's format; a catalog of another format is rebuilt only with overwrite."""
 TABLE_MARK = b"contactkit catalog"
 """Schema metadata key of the catalog's Parquet tables: a re-run replaces only those."""
-MANIFEST_EVERY_S = 2.0
-"""The manifest is rewritten at most this often [s] while sessions finish (and at the
-end), so that a killed build keeps what it finished."""
 _HASH_CHUNK = 1 << 20
 
 
@@ -422,7 +418,6 @@ def build_catalog(dataset: Path, out: Path, model_path: Path, identity: CatalogI
     manifest_sessions = {sid: manifest_sessions[sid] for sid in sessions}
     jobs = [CatalogJob(found[sid][0], found[sid][1], out / recording_name(sid), model_path,
                        identity.to_dict(), robot) for sid in todo]
-    last_write = time.monotonic()
 
     def save_manifest() -> None:
         write_text(out / TABLES / MANIFEST, json.dumps(result_json(
@@ -444,12 +439,9 @@ def build_catalog(dataset: Path, out: Path, model_path: Path, identity: CatalogI
             manifest_sessions[sid] = {"file": file, "sha256": hashes[sid],
                                       "recording": target.name, **_stat(target)}
             result.replayed.append(sid)
+        save_manifest()  # after every session: a killed build keeps what it finished
         if on_done is not None:
             on_done(file, problem)
-        if time.monotonic() - last_write > MANIFEST_EVERY_S:
-            save_manifest()
-            last_write = time.monotonic()
-    save_manifest()
     order = [sid for sid in found if sid in sessions]
     write_table(out / TABLES / SESSIONS, [sessions[sid] for sid in order], SESSION_SCHEMA)
     write_table(out / TABLES / EVENTS, [row for sid in order for row in events[sid]],
