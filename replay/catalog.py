@@ -285,7 +285,8 @@ def write_table(path: Path, rows: list[dict], schema: pa.Schema) -> Path:
 
 def read_table(path: Path) -> list[dict]:
     """Return the rows of one of the catalog's tables ([] when it does not exist)."""
-    return pq.read_table(path).to_pylist() if path.is_file() else []
+    # ParquetFile, not read_table: that one imports pyarrow.dataset (a second, here)
+    return pq.ParquetFile(path).read().to_pylist() if path.is_file() else []
 
 
 def read_manifest(out: Path) -> dict | None:

@@ -33,8 +33,10 @@ def build(dataset: Path, out: Path, model: Path | None, workers: int, overwrite:
     """Build or update the catalog of ``dataset`` in ``out`` with a progress bar and a line
     per failed session; return the :class:`~contactkit.replay.catalog.CatalogResult`."""
     from contactkit.cli.default_model import build_default_model, default_model_missing
+    from contactkit.cli.replay import pyarrow_without_pandas
     from contactkit.replay.catalog import CatalogIdentity, build_catalog, model_identity
 
+    pyarrow_without_pandas()  # as the replay command: a catalog converts nothing to pandas
     if not Path(dataset).is_dir():
         raise InputError("is not a dataset directory", dataset)
     if model is None and default_model_missing():
