@@ -51,13 +51,8 @@ from contactkit.replay.recording import RRD_MAGIC
 from contactkit.replay.session_replay import ReplaySummary, replay_session
 from contactkit.schemas import read_session_meta
 from contactkit.schemas.dataset import session_files
-from contactkit.util.atomic import (
-    atomic_write,
-    output_directory,
-    owned_result,
-    result_json,
-    write_text,
-)
+from contactkit.util.atomic import atomic_write, output_directory, write_text
+from contactkit.util.owned import owned_result, result_json
 from contactkit.util.parallel import map_ordered
 from contactkit.util.progress import ProgressCallback
 
