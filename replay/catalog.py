@@ -24,8 +24,8 @@ session id), which :mod:`contactkit.replay.query` queries. ``DIR``'s top level h
 only the recordings; ``DIR/tables/manifest.json`` records, per session, its file's
 SHA-256 and the recording written, and the model and dynamics of the catalog. A re-run
 replays only the sessions that are new or whose file changed, and removes only
-recordings it wrote (same name, size and modification time as recorded) whose session
-is gone. A ``.rrd`` in ``DIR`` that the manifest does not list is refused, never
+recordings it wrote (same name and size as recorded, a recording) whose session is
+gone. A ``.rrd`` in ``DIR`` that the manifest does not list is refused, never
 replaced or removed: the server would serve it as a segment.
 """
 
@@ -324,11 +324,6 @@ def dataset_sessions(dataset: Path) -> tuple[dict[str, tuple[Path, str]], list[t
     return found, unreadable
 
 
-def _stat(path: Path) -> dict:
-    st = path.stat()
-    return {"size": st.st_size, "mtime_ns": st.st_mtime_ns}
-
-
 def _ours(out: Path, entry: Mapping[str, Any]) -> bool:
     """Whether the recording of a manifest entry is still the file the catalog wrote."""
     path = out / entry["recording"]
@@ -337,7 +332,8 @@ def _ours(out: Path, entry: Mapping[str, Any]) -> bool:
     with open(path, "rb") as fh:
         if fh.read(len(RRD_MAGIC)) != RRD_MAGIC:
             return False
-    return _stat(path) == {"size": entry["size"], "mtime_ns": entry["mtime_ns"]}
+    # the size, not the modification time: a copied catalog (cp -r) stays the catalog's
+    return path.stat().st_size == entry["size"]
 
 
 def check_catalog(out: Path, identity: CatalogIdentity, *, overwrite: bool = False
@@ -373,6 +369,20 @@ def check_catalog(out: Path, identity: CatalogIdentity, *, overwrite: bool = Fal
     return sessions
 
 
+def check_inputs(dataset: Path, out: Path, identity: CatalogIdentity, *,
+                 overwrite: bool = False
+                 ) -> tuple[dict[str, tuple[Path, str]], list[tuple[str, str]], dict]:
+    """Check a catalog's inputs before any work (what :func:`build_catalog` checks
+    first); return the dataset's sessions, its unreadable files and the catalog's
+    manifest entries (:func:`dataset_sessions`, :func:`check_catalog`). Raises
+    InputError (one line) as those do, and when ``out`` is the dataset itself."""
+    if Path(out).resolve() == Path(dataset).resolve():
+        raise InputError("the catalog folder cannot be the dataset itself: give another --out",
+                         out)
+    found, unreadable = dataset_sessions(dataset)
+    return found, unreadable, check_catalog(out, identity, overwrite=overwrite)
+
+
 def build_catalog(dataset: Path, out: Path, model_path: Path, identity: CatalogIdentity, *,
                   workers: int = 1, overwrite: bool = False, robot: str | None = None,
                   scheduler: str | None = None, progress: ProgressCallback | None = None,
@@ -390,8 +400,7 @@ def build_catalog(dataset: Path, out: Path, model_path: Path, identity: CatalogI
     session, a foreign ``.rrd`` in ``out``, or a catalog of another identity (unless
     ``overwrite``)."""
     dataset, out = Path(dataset), Path(out)
-    found, unreadable = dataset_sessions(dataset)
-    previous = check_catalog(out, identity, overwrite=overwrite)
+    found, unreadable, previous = check_inputs(dataset, out, identity, overwrite=overwrite)
     output_directory(out)
     output_directory(out / TABLES)
     result = CatalogResult(out, failed=list(unreadable))
@@ -433,7 +442,8 @@ def build_catalog(dataset: Path, out: Path, model_path: Path, identity: CatalogI
             sessions[sid], events[sid] = rows["session"], rows["events"]
             target = out / recording_name(sid)
             manifest_sessions[sid] = {"file": file, "sha256": hashes[sid],
-                                      "recording": target.name, **_stat(target)}
+                                      "recording": target.name,
+                                      "size": target.stat().st_size}
             result.replayed.append(sid)
         save_manifest()  # after every session: a killed build keeps what it finished
         if on_done is not None:

@@ -114,7 +114,7 @@ def test_a_rerun_replays_only_new_sessions_and_removes_gone_ones(tmp_path, smoke
                                                                  model):
     dataset, out = tmp_path / "smoke", tmp_path / "catalog"
     shutil.copytree(smoke, dataset)
-    shutil.copytree(catalog, out)  # copy2: the recordings keep their size and mtime
+    shutil.copytree(catalog, out)  # a copied catalog is still the catalog
     notes = out / "notes.txt"
     notes.write_text("mine")
     done = run_command("recorder", "simulate", str(dataset), "--preset", "smoke", "--rate",
@@ -156,6 +156,14 @@ def test_bad_catalog_input_is_one_line_and_touches_nothing(tmp_path, smoke, mode
     built = run_command("recorder", "catalog", str(dataset), "--out", str(out), "--model",
                         str(model), "--workers", "1")
     assert built.returncode == 0, built.stderr
+    ours = sorted(out.glob("*.rrd"))[0]
+    kept = ours.read_bytes()
+    ours.write_bytes(b"a user's file under the recording's name")
+    replaced = run_command("recorder", "catalog", str(dataset), "--out", str(out), "--model",
+                           str(model), "--workers", "1")
+    assert ours.name in _one_line_error(replaced)
+    assert ours.read_bytes() == b"a user's file under the recording's name"
+    ours.write_bytes(kept)
     other = save_quick_model(tmp_path / "other.skops", events=True)
     with open(other, "ab") as fh:  # another file, another identity
         fh.write(b"\0")

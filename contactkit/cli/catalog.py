@@ -34,7 +34,12 @@ def build(dataset: Path, out: Path, model: Path | None, workers: int, overwrite:
     per failed session; return the :class:`~contactkit.replay.catalog.CatalogResult`."""
     from contactkit.cli.default_model import build_default_model, default_model_missing
     from contactkit.cli.replay import pyarrow_without_pandas
-    from contactkit.replay.catalog import CatalogIdentity, build_catalog, model_identity
+    from contactkit.replay.catalog import (
+        CatalogIdentity,
+        build_catalog,
+        check_inputs,
+        model_identity,
+    )
 
     pyarrow_without_pandas()  # as the replay command: a catalog converts nothing to pandas
     if not Path(dataset).is_dir():
@@ -52,8 +57,10 @@ def build(dataset: Path, out: Path, model: Path | None, workers: int, overwrite:
         model_path, identity = model, model_identity(model)
     # Issue 37's --dynamics FILE: pass its identity (name, SHA-256) as `dynamics=` here, so
     # that a catalog built with other dynamics is refused without --overwrite.
+    catalog = CatalogIdentity(identity)
+    check_inputs(dataset, out, catalog, overwrite=overwrite)  # before the progress bar
     with progress_bar("replaying") as bar:
-        result = build_catalog(dataset, out, model_path, CatalogIdentity(identity),
+        result = build_catalog(dataset, out, model_path, catalog,
                                workers=workers, overwrite=overwrite, robot=robot,
                                scheduler=scheduler, progress=bar_callback(bar, "sessions"))
     err_console.print(f"{len(result.replayed)} replayed, {len(result.kept)} unchanged, "
