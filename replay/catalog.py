@@ -357,10 +357,12 @@ def check_catalog(out: Path, identity: CatalogIdentity, *, overwrite: bool = Fal
                              "folder", path)
     if manifest is None:
         return {}
-    same = (manifest.get("format") == FORMAT and manifest.get("identity") == identity.to_dict())
+    built = manifest.get("identity") or {}
+    same = (manifest.get("format") == FORMAT  # the model by its bytes; its name is a label
+            and (built.get("model") or {}).get("sha256") == identity.model["sha256"]
+            and built.get("dynamics") == identity.dynamics)
     if not same:
         if not overwrite:
-            built = manifest.get("identity") or {}
             model = (built.get("model") or {}).get("name", "?")
             raise InputError(f"the catalog was built with another model or dynamics "
                              f"(model {model}, dynamics {built.get('dynamics')}); pass "
