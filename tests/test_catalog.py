@@ -250,3 +250,16 @@ def test_a_session_that_fails_is_listed_and_the_others_are_written(tmp_path, smo
     assert "2 replayed" in done.stderr and "1 failed" in done.stderr
     assert "failed broken.parquet:" in " ".join(done.stderr.split())
     assert len(list(out.glob("*.rrd"))) == 2
+
+
+def test_a_catalog_of_other_dynamics_is_refused_without_overwrite(catalog, model):
+    from contactkit.errors import InputError
+    from contactkit.replay.catalog import CatalogIdentity, check_catalog, model_identity
+
+    same = CatalogIdentity(model_identity(model, "renamed.skops"))
+    assert len(check_catalog(catalog, same)) == SESSIONS  # the same bytes: the same model
+    other = CatalogIdentity(same.model, dynamics={"name": "lab.toml", "sha256": "0" * 64})
+    with pytest.raises(InputError, match="--overwrite"):
+        check_catalog(catalog, other)
+    rebuild = check_catalog(catalog, other, overwrite=True)  # every session replayed
+    assert all(entry["sha256"] is None for entry in rebuild.values())
