@@ -422,7 +422,11 @@ def build_catalog(dataset: Path, out: Path, model_path: Path, identity: CatalogI
     events = {sid: old_events.get(sid, []) for sid in sessions}
     todo = [sid for sid in found if sid not in sessions]
     result.kept = sorted(sessions)
-    manifest_sessions = {sid: manifest_sessions[sid] for sid in sessions}
+    # the recordings still to be replaced stay listed (to be replayed) until they are, so
+    # that a build killed before then does not leave recordings its manifest disowns
+    manifest_sessions = {sid: manifest_sessions[sid] for sid in sessions} | {
+        sid: previous[sid] | {"sha256": None} for sid in todo
+        if sid in previous and _ours(out, previous[sid])}
     jobs = [CatalogJob(found[sid][0], found[sid][1], out / recording_name(sid), model_path,
                        identity.to_dict(), robot) for sid in todo]
 
@@ -437,7 +441,7 @@ def build_catalog(dataset: Path, out: Path, model_path: Path, identity: CatalogI
                               scheduler=scheduler), strict=True):
         if problem is not None:
             result.failed.append((file, problem))
-            stale = previous.get(sid)
+            stale = manifest_sessions.pop(sid, None)
             if stale is not None and _ours(out, stale):  # of the file before it changed
                 (out / stale["recording"]).unlink()
         else:
