@@ -17,6 +17,7 @@ from contactkit.cli.capture_protocol import (
     Condition,
     Pose,
 )
+from contactkit.cli.catalog import register as register_catalog
 from contactkit.cli.common import (
     CommandsBuilder,
     deferred_commands,
@@ -33,6 +34,7 @@ from contactkit.schemas import InputError, SessionMeta, read_session
 from contactkit.util.atomic import check_target, output_directory
 from contactkit.util.parallel import available_cpus
 from contactkit.util.params import Param
+from contactkit.util.paths import catalog_beside
 from contactkit.util.progress import (
     bar_callback,
     err_console,
@@ -172,6 +174,9 @@ def simulate_command(
     print(printable(out_dir / "index.parquet"))
     if result.failed:
         raise typer.Exit(2)
+
+
+register_catalog(app)
 
 
 @app.command("excite")
@@ -523,6 +528,10 @@ def stats_command(
     overwrite: Annotated[bool, typer.Option(
         help="Replace an existing --out report (the default report is replaced only "
              "when stats wrote it).")] = False,
+    catalog: Annotated[Path | None, typer.Option(
+        help="The dataset's Rerun catalog (recorder catalog): the report links each "
+             "session to its recording there. Default: DATASET-catalog beside the "
+             "dataset, where it exists.")] = None,
 ) -> None:
     """Summarise a dataset on the terminal and write a report of what it holds and of
     its problems (bad files, duplicates, sessions too short)."""
@@ -547,7 +556,12 @@ def stats_command(
                                       directory, overwrite=overwrite, default=default)
         err_console.print(f"noise baseline for the simulator: {noise_path} "
                           "(recorder capture --noise-file)")
-    print(write_report(report, out, fmt, overwrite=overwrite, default=default))
+    if catalog is None and catalog_beside(directory).is_dir():
+        catalog = catalog_beside(directory)
+    elif catalog is not None and not catalog.is_dir():
+        raise InputError("catalog folder not found", catalog)
+    print(write_report(report, out, fmt, overwrite=overwrite, default=default,
+                       catalog=catalog))
 
 
 @app.command("export-mcap")
