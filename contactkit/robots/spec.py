@@ -20,8 +20,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from contactkit.robots.dynamics import ArmDynamics
 
 N_JOINTS = 7
 
@@ -44,21 +48,31 @@ def _sigmoid(x: np.ndarray) -> np.ndarray:
     return 0.5 * (1.0 + np.tanh(0.5 * x))
 
 
+def _zeros7() -> np.ndarray:
+    return np.zeros(N_JOINTS)
+
+
 @dataclass(frozen=True)
 class FrictionModel:
-    """Joint friction of Gaz et al. 2019, per joint j:
+    """Joint friction of Gaz et al. 2019, with a viscous and a constant term, per joint j:
 
-    tau_f = phi1 / (1 + exp(-phi2 (dq + phi3))) - phi1 / (1 + exp(-phi2 phi3))  [Nm]
+    tau_f = phi1 / (1 + exp(-phi2 (dq + phi3))) - phi1 / (1 + exp(-phi2 phi3))
+            + viscous dq + offset  [Nm]
 
-    It is zero at rest and sits on the link side of the torque sensor, so the
-    measured torque is tau_J = M ddq + C dq + g + tau_f - tau_ext. The sigmoid is
-    evaluated as (1 + tanh(x / 2)) / 2, which equals 1 / (1 + exp(-x)) and cannot
-    overflow, whatever the velocity.
+    The sigmoid part is zero at rest; ``viscous`` [Nm s/rad] and ``offset`` [Nm] are
+    zero unless identified (:mod:`contactkit.robots.dynamics`). Coulomb friction Fc is
+    the sigmoid with phi1 = 2 Fc, phi3 = 0 and a steep phi2 (Fc tanh(phi2 dq / 2)).
+    Friction sits on the link side of the torque sensor, so the measured torque is
+    tau_J = M ddq + C dq + g + tau_f - tau_ext. The sigmoid is evaluated as (1 +
+    tanh(x / 2)) / 2, which equals 1 / (1 + exp(-x)) and cannot overflow, whatever
+    the velocity.
     """
 
     phi1: np.ndarray
     phi2: np.ndarray
     phi3: np.ndarray
+    viscous: np.ndarray = field(default_factory=_zeros7)
+    offset: np.ndarray = field(default_factory=_zeros7)
 
     def torque(self, dq: np.ndarray) -> np.ndarray:
         """Return the friction torque [Nm] for joint velocities ``dq`` [rad/s].
@@ -67,23 +81,26 @@ class FrictionModel:
         axis of length 7 that comes last, or first when the array is (7, B).
         """
         phi1, phi2, phi3, rest = self.phi1, self.phi2, self.phi3, self.at_rest
+        viscous, offset = self.viscous, self.offset
         if dq.ndim == 2 and dq.shape[0] == N_JOINTS and dq.shape[1] != N_JOINTS:
-            phi1, phi2, phi3, rest = phi1[:, None], phi2[:, None], phi3[:, None], rest[:, None]
-        return phi1 * _sigmoid(phi2 * (dq + phi3)) - rest
+            phi1, phi2, phi3, rest, viscous, offset = (
+                x[:, None] for x in (phi1, phi2, phi3, rest, viscous, offset))
+        return phi1 * _sigmoid(phi2 * (dq + phi3)) - rest + viscous * dq + offset
 
     @cached_property
     def sample_coefficients(self) -> tuple[list[float], ...]:
-        """Return (a, b, c, d), each 7 floats: phi1 / 2 [Nm], phi2 / 2 [s/rad], phi3
-        [rad/s] and phi1 / 2 - at_rest [Nm], so that joint j's friction torque
-        (:meth:`torque`, the same sigmoid, to about 1e-15) is a_j tanh(b_j (dq_j + c_j))
-        + d_j [Nm]: a live observer's per-sample path computes it on Python floats, where
-        seven numbers cost less than array operations."""
+        """Return (a, b, c, d, e), each 7 floats: phi1 / 2 [Nm], phi2 / 2 [s/rad], phi3
+        [rad/s], phi1 / 2 - at_rest + offset [Nm] and viscous [Nm s/rad], so that joint
+        j's friction torque (:meth:`torque`, to about 1e-15) is a_j tanh(b_j (dq_j +
+        c_j)) + d_j + e_j dq_j [Nm]: a live observer's per-sample path computes it on
+        Python floats, where seven numbers cost less than array operations."""
         return tuple(x.tolist() for x in (0.5 * self.phi1, 0.5 * self.phi2, self.phi3,
-                                           0.5 * self.phi1 - self.at_rest))
+                                           0.5 * self.phi1 - self.at_rest + self.offset,
+                                           self.viscous))
 
     @property
     def at_rest(self) -> np.ndarray:
-        """The sigmoid's value at dq = 0, subtracted so that friction is zero at rest [Nm]."""
+        """The sigmoid's value at dq = 0, subtracted so that it is zero at rest [Nm]."""
         cached = self.__dict__.get("_at_rest")
         if cached is None:
             cached = self.phi1 * _sigmoid(self.phi2 * self.phi3)
@@ -91,8 +108,10 @@ class FrictionModel:
         return cached
 
     def scaled(self, scale: np.ndarray) -> FrictionModel:
-        """Return a copy with the amplitudes phi1 multiplied by ``scale`` (per joint)."""
-        return FrictionModel(self.phi1 * scale, self.phi2, self.phi3)
+        """Return a copy with the amplitudes phi1, viscous and offset multiplied by
+        ``scale`` (per joint)."""
+        return FrictionModel(self.phi1 * scale, self.phi2, self.phi3,
+                             self.viscous * scale, self.offset * scale)
 
 
 @dataclass(frozen=True)
@@ -211,10 +230,18 @@ def urdf_joint_limits(text: str, joint_names: tuple[str, ...]
 @dataclass(frozen=True)
 class RobotSetup:
     """One arm as mounted in a session: the robot's registry name, whether its hand
-    is mounted, and a payload on the flange (``payload_kg`` [kg] at ``payload_com_m``
-    [m], flange frame; 0 kg for none)."""
+    is mounted, a payload on the flange (``payload_kg`` [kg] at ``payload_com_m``
+    [m], flange frame; 0 kg for none), and the arm's identified ``dynamics``
+    (:mod:`contactkit.robots.dynamics`; None: the robot's nominal model). Identified
+    dynamics replace the links' inertias, the armature and the friction; their link 7
+    already holds what was on the flange, so the payload is then not added again."""
 
     robot: str = "panda"
     with_hand: bool = True
     payload_kg: float = 0.0
     payload_com_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    dynamics: ArmDynamics | None = None
+
+    def friction(self, spec: RobotSpec) -> FrictionModel | None:
+        """Return the arm's joint friction: the identified one, else ``spec``'s."""
+        return spec.friction if self.dynamics is None else self.dynamics.friction_model
