@@ -37,17 +37,20 @@ Units: t [s], q [rad], dq [rad/s], ddq [rad/s^2], tau [Nm].
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 import json
 import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from datetime import UTC, datetime
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
-from contactkit.errors import InputError
+from contactkit.errors import DATA_ERRORS, InputError, problem_text
 from contactkit.robots import N_JOINTS, RobotSetup, get_robot
 from contactkit.robots.dynamics import (
     PARAMETER_NAMES,
@@ -432,3 +435,100 @@ def _detector(held_out: Sequence[Motion], setup: RobotSetup, dynamics: ArmDynami
         log.warning("no detector calibrated with the identified model: %s", err.problem)
         return None
     return replace(config, robot=dynamics.robot)
+
+
+def _sha256(path: Path) -> str:
+    """Return the SHA-256 (hex) of a file's bytes."""
+    digest = hashlib.sha256()
+    with path.open("rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def session_inputs(sources: Sequence[str | Path]) -> list[Path]:
+    """Return the session files of ``sources``: a directory's (without its index), a
+    file as given. InputError for a missing path or a directory without sessions."""
+    from contactkit.schemas.dataset import session_files
+
+    paths: list[Path] = []
+    for source in map(Path, sources):
+        if source.is_dir():
+            files = session_files(source)
+            if not files:
+                raise InputError("no session files (*.parquet) in this directory", source)
+            paths += files
+        elif source.exists():
+            paths.append(source)
+        else:
+            raise InputError("no such file or directory", source)
+    return paths
+
+
+def free_motion(path: Path, robot: str | None = None) -> tuple[Motion, RobotSetup]:
+    """Read one session's free motion (t, q, dq, tau only) and the arm it names (or
+    ``robot`` in its place, ``--robot``). Raises InputError naming the file for a file
+    that is not a session, or a session with contact: an action other than none
+    without a contact column, or a contact column that is true anywhere."""
+    from contactkit.schemas import read_session
+    from contactkit.schemas.dataset import INDEX_NAME
+
+    if path.name == INDEX_NAME:
+        raise InputError("a dataset's index, not a session", path)
+    session = read_session(path)
+    if session.has("contact"):
+        touched = int(session.column("contact").astype(bool).sum())
+        if touched:
+            raise InputError(f"session has contact ({touched} samples): identification "
+                             "needs free motion with nobody touching the arm", path)
+    elif session.meta.action != "none":
+        raise InputError(f"session has a {session.meta.action!r} contact and no contact "
+                         "column: identification needs free motion", path)
+    setup = session.meta.with_robot(robot).robot_setup(path)
+    return Motion(session.t, session.q, session.dq, session.tau, str(path)), setup
+
+
+def identify_sessions(paths: Sequence[str | Path], robot: str | None = None, *,
+                      problems: list[tuple[str, str]] | None = None,
+                      progress: Callable[[int, int], None] | None = None) -> Identified:
+    """Identify the arm of the free-motion sessions ``paths`` (:func:`identify`), with
+    the arm ``robot`` names instead of the sessions' own when given.
+
+    A file that is not a session, or a session with contact, is left out and appended
+    to ``problems`` as ``(file, why)`` (without ``problems`` its InputError is raised).
+    Raises InputError (one line) when no session is left, when the sessions are of
+    different arms (or with and without the hand), or when the motion determines
+    nothing. The provenance names each session with its SHA-256 and samples."""
+    from contactkit import __version__
+
+    motions: list[Motion] = []
+    setups: dict[RobotSetup, str] = {}
+    used = []
+    for name in paths:
+        path = Path(name)
+        try:
+            motion, setup = free_motion(path, robot)
+        except DATA_ERRORS as err:
+            if problems is None:
+                raise
+            problems.append((str(path), problem_text(err)))
+            continue
+        motions.append(motion)
+        setups.setdefault(setup, str(path))
+        used.append({"file": path.name, "sha256": _sha256(path), "samples": len(motion.t),
+                     "duration_s": round(float(motion.t[-1] - motion.t[0]), 3)})
+    if not motions:
+        raise InputError("no free-motion session to identify from (sessions with action "
+                         "none, or a contact column that is all false)")
+    if len(setups) > 1:
+        (first, a), (second, b) = list(setups.items())[:2]
+        raise InputError(f"sessions of different arms: {a} is {_arm(first)}, {b} is "
+                         f"{_arm(second)}: identify each arm on its own")
+    setup = next(iter(setups))
+    provenance = {"sessions": used, "tool": f"contactkit {__version__}",
+                  "created_utc": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")}
+    return identify(motions, setup, provenance=provenance, progress=progress)
+
+
+def _arm(setup: RobotSetup) -> str:
+    return f"{setup.robot} {'with' if setup.with_hand else 'without'} hand"
