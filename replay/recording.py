@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from contactkit.classify.events import ContactEvent
+from contactkit.classify.events.contact_events import ContactEvent
 from contactkit.errors import InputError
 from contactkit.replay.contacts import ContactTrackLogger, log_contact_links
 from contactkit.replay.engine import Block, OfflineAnswer, ReplayStream

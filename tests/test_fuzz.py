@@ -22,7 +22,7 @@ import pytest
 from hypothesis import assume, event, given
 from hypothesis import strategies as st
 
-from contactkit.classify.modelfile import load_model
+from contactkit.classify.modelfile.model_file import load_model
 from contactkit.recorder.capture.journal import SessionWriter, journal_path, recover_directory
 from contactkit.recorder.importers.arrays import load_joint_arrays
 from contactkit.recorder.importers.can_map import default_map_path, load_map

@@ -15,9 +15,9 @@ import rerun as rr
 import rerun.chunk as rc
 
 from contactkit.classify.data import load_features
-from contactkit.classify.events import ContactEvent
-from contactkit.classify.modelfile import load_model, save_model
-from contactkit.classify.registry import get_kind, make_estimator
+from contactkit.classify.events.contact_events import ContactEvent
+from contactkit.classify.kinds.registry import get_kind, make_estimator
+from contactkit.classify.modelfile.model_file import load_model, save_model
 from contactkit.cli import replay as replay_cli
 from contactkit.cli.common import run_app
 from contactkit.errors import InputError

@@ -13,7 +13,7 @@ import pyarrow.parquet as pq
 import pytest
 import rerun.chunk as rc
 
-from contactkit.classify.modelfile import load_model
+from contactkit.classify.modelfile.model_file import load_model
 from contactkit.features import chain_cache
 from contactkit.features.extract import timeseries_columns
 from contactkit.features.per_sample import write_per_sample_table

@@ -405,10 +405,10 @@ def test_fixed_name_results_are_checked_before_any_work(tmp_path: Path) -> None:
     """An experiment, the augmentation experiment and a grid search refuse a user's file
     at one of their result names before they start (they ran for hours and refused it
     at the end): here the refusal comes before the missing dataset is even looked at."""
-    from contactkit.classify.augmentation import run_augmentation
-    from contactkit.classify.experiments import Setting, run_experiment
-    from contactkit.classify.kind import ModelOptions
-    from contactkit.classify.registry import get_kind
+    from contactkit.classify.experiments.augmentation import run_augmentation
+    from contactkit.classify.experiments.thesis import Setting, run_experiment
+    from contactkit.classify.kinds.kind import ModelOptions
+    from contactkit.classify.kinds.registry import get_kind
 
     for name in ("window.png", "augmentation.json"):
         (tmp_path / name).write_text("mine\n")

@@ -33,8 +33,8 @@ from sklearn.model_selection import train_test_split
 from contactkit.classify.data import FeatureSet
 from contactkit.classify.evaluate import confusion, fit_predict_many, metrics_from_confusion
 from contactkit.classify.grids import Augmentation, GridSpec, load_grids
-from contactkit.classify.inputs import GRIDS
-from contactkit.classify.kind import ModelKind, ModelOptions
+from contactkit.classify.kinds.inputs import GRIDS
+from contactkit.classify.kinds.kind import ModelKind, ModelOptions
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.dataset import session_files
 from contactkit.util.atomic import (

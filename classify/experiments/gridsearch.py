@@ -26,9 +26,9 @@ from typing import Any
 from contactkit.classify.data import FeatureSet
 from contactkit.classify.evaluate import Report, evaluate
 from contactkit.classify.grids import session_paths
-from contactkit.classify.kind import ModelKind, ModelOptions
+from contactkit.classify.kinds.kind import ModelKind, ModelOptions
+from contactkit.classify.kinds.registry import DEFAULT_SEARCHED, get_kind, searchable_kinds
 from contactkit.classify.names import PROTOCOLS
-from contactkit.classify.registry import DEFAULT_SEARCHED, get_kind, searchable_kinds
 from contactkit.classify.schemes import check_scheme, scheme_classes
 from contactkit.classify.training import TrainedModel, train, training_set
 from contactkit.errors import check_choice
