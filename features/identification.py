@@ -16,8 +16,11 @@ Method:
    Y pinocchio's joint-torque regressor (10 parameters per link, their full values),
    F per joint a friction sigmoid of fixed shape (Gaz et al.'s phi2 and phi3 for a
    robot that has them, else a Coulomb step with phi2 = :data:`COULOMB_PHI2`), a viscous
-   term dq, a constant offset and the armature ddq. The normal equations are summed
-   sample by sample per joint, so memory does not grow with the data.
+   term dq and the armature ddq, plus a free constant per session and joint (a torque
+   sensor's offset moves between sessions; the simulator draws one per session too):
+   each session's samples are centred on their means. The normal equations are summed
+   chunk by chunk per joint, so memory does not grow with the data. The offset stored
+   is the one the sessions share (:meth:`_Normal.offset`), 0 where they disagree.
 3. The fit is regularised toward the nominal model (a Gaussian prior on every
    parameter, centred on the nominal value with a per-parameter scale
    :func:`prior_scales`), with each joint's residual weighted by its own noise level
@@ -89,7 +92,7 @@ DETERMINED = 0.25
 prior's."""
 CORRELATION = 2.0
 """How many fitted samples count as one independent one (filtered, then thinned)."""
-N_FRICTION = 4  # per joint: sigmoid amplitude, viscous, offset, armature
+N_FRICTION = 3  # per joint: sigmoid amplitude, viscous, armature
 N_LINK = len(PARAMETER_NAMES)
 
 
@@ -144,11 +147,11 @@ class Identified:
 
 def parameter_names() -> list[str]:
     """Return the names of the fitted parameters, in the fit's order: each link's 10
-    (``link3.I_zz``), then per joint the friction sigmoid's amplitude, viscous, offset
-    and armature (``joint2.viscous``)."""
+    (``link3.I_zz``), then per joint the friction sigmoid's amplitude, viscous and
+    armature (``joint2.viscous``)."""
     links = [f"link{i}.{n}" for i in range(1, N_JOINTS + 1) for n in PARAMETER_NAMES]
     joints = [f"joint{j}.{n}" for j in range(1, N_JOINTS + 1)
-              for n in ("friction", "viscous", "offset", "armature")]
+              for n in ("friction", "viscous", "armature")]
     return links + joints
 
 
@@ -205,8 +208,8 @@ def prior_scales(nominal: np.ndarray) -> np.ndarray:
     """Return the prior's standard deviation of every fitted parameter
     (:func:`parameter_names`' order) around the ``nominal`` values: 30 % of a link's
     mass (at least 0.1 kg), its mass times 5 cm for a first moment, 30 % of its largest
-    inertia entry (at least 0.005 kg m^2) for an inertia; 1 Nm for friction amplitudes
-    and offsets, 1 Nm s/rad viscous, 0.05 kg m^2 armature."""
+    inertia entry (at least 0.005 kg m^2) for an inertia; 1 Nm for friction amplitudes,
+    1 Nm s/rad viscous, 0.05 kg m^2 armature."""
     scales = np.empty_like(nominal)
     for i in range(N_JOINTS):
         link = nominal[i * N_LINK:(i + 1) * N_LINK]
@@ -215,36 +218,71 @@ def prior_scales(nominal: np.ndarray) -> np.ndarray:
         scales[i * N_LINK + 1:i * N_LINK + 4] = 0.05 * mass
         scales[i * N_LINK + 4:(i + 1) * N_LINK] = max(0.3 * np.abs(link[4:]).max(), 0.005)
     joints = scales[N_JOINTS * N_LINK:].reshape(N_JOINTS, N_FRICTION)
-    joints[:] = (1.0, 1.0, 1.0, 0.05)
+    joints[:] = (1.0, 1.0, 0.05)
     return scales
 
 
 class _Normal:
-    """Per-joint normal equations: sum of Y_j^T Y_j, Y_j^T tau_j and tau_j^2 over the
-    samples, for the regressor row Y_j of joint j."""
+    """Per-joint normal equations with a free constant per session and joint (a torque
+    sensor's offset, which moves between sessions): sums of Y_j^T Y_j, Y_j^T tau_j and
+    tau_j^2 over each session's samples, centred on the session's means, for the
+    regressor row Y_j of joint j. The sessions' means are kept to recover the
+    offsets."""
 
     def __init__(self, size: int) -> None:
         self.a = np.zeros((N_JOINTS, size, size))
         self.b = np.zeros((N_JOINTS, size))
         self.c = np.zeros(N_JOINTS)
         self.n = 0
+        self.means: list[tuple[np.ndarray, np.ndarray]] = []
+        self._rows = np.zeros((N_JOINTS, size))
+        self._tau = np.zeros(N_JOINTS)
+        self._n = 0
 
     def add(self, rows: np.ndarray, tau: np.ndarray) -> None:
-        """Add samples: ``rows`` (n, 7, size) regressor rows, ``tau`` (n, 7) [Nm]."""
+        """Add samples of the current session: ``rows`` (n, 7, size) regressor rows,
+        ``tau`` (n, 7) [Nm]."""
         self.a += np.einsum("njp,njq->jpq", rows, rows)
         self.b += np.einsum("njp,nj->jp", rows, tau)
         self.c += (tau ** 2).sum(axis=0)
-        self.n += len(tau)
+        self._rows += rows.sum(axis=0)
+        self._tau += tau.sum(axis=0)
+        self._n += len(tau)
+
+    def end_session(self) -> None:
+        """Centre the current session's sums on its means (sum of (y - m)(y - m)^T =
+        sum of y y^T - n m m^T) and start the next."""
+        if self._n:
+            rows, tau = self._rows / self._n, self._tau / self._n
+            self.a -= self._n * np.einsum("jp,jq->jpq", rows, rows)
+            self.b -= self._n * rows * tau[:, None]
+            self.c -= self._n * tau ** 2
+            self.n += self._n
+            self.means.append((rows, tau))
+        self._rows, self._tau, self._n = np.zeros_like(self._rows), np.zeros(N_JOINTS), 0
 
     def rms(self, theta: np.ndarray) -> np.ndarray:
-        """The RMS per joint [Nm] of the residual tau - Y theta."""
+        """The RMS per joint [Nm] of the residual tau - Y theta, each session's mean
+        removed."""
         sq = (self.c - 2 * self.b @ theta + np.einsum("p,jpq,q->j", theta, self.a, theta))
         return np.sqrt(np.maximum(sq, 0.0) / max(self.n, 1))
+
+    def offset(self, theta: np.ndarray) -> np.ndarray:
+        """Return the torque offset per joint [Nm] that all sessions share: the mean of
+        the sessions' own offsets where it differs from zero by more than twice its
+        standard error, else 0 (offsets that come and go with each session, as a torque
+        sensor's bias after a restart, are no property of the arm)."""
+        if len(self.means) < 2:
+            return np.zeros(N_JOINTS)
+        each = np.array([tau - rows @ theta for rows, tau in self.means])
+        mean = each.mean(axis=0)
+        error = each.std(axis=0, ddof=1) / np.sqrt(len(each))
+        return np.where(np.abs(mean) > 2.0 * error, mean, 0.0)
 
 
 def _rows(model: pin.Model, data: pin.Data, q: np.ndarray, dq: np.ndarray,
           ddq: np.ndarray, phi2: np.ndarray, phi3: np.ndarray) -> np.ndarray:
-    """Return the regressor rows (n, 7, 98) of samples (q, dq, ddq) (n, 7)."""
+    """Return the regressor rows (n, 7, 91) of samples (q, dq, ddq) (n, 7)."""
     n = len(q)
     size = N_JOINTS * (N_LINK + N_FRICTION)
     rows = np.zeros((n, N_JOINTS, size))
@@ -255,8 +293,7 @@ def _rows(model: pin.Model, data: pin.Data, q: np.ndarray, dq: np.ndarray,
     joint = np.arange(N_JOINTS)
     rows[:, joint, base + N_FRICTION * joint] = _sigmoid_shape(dq, phi2, phi3)
     rows[:, joint, base + N_FRICTION * joint + 1] = dq
-    rows[:, joint, base + N_FRICTION * joint + 2] = 1.0
-    rows[:, joint, base + N_FRICTION * joint + 3] = ddq
+    rows[:, joint, base + N_FRICTION * joint + 2] = ddq
     return rows
 
 
@@ -327,7 +364,7 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
     nominal_links = np.array([regress.inertias[j].toDynamicParameters()
                               for j in range(1, N_JOINTS + 1)])
     prior = np.concatenate([nominal_links.ravel(),
-                            np.column_stack([phi1, np.zeros((N_JOINTS, 3))]).ravel()])
+                            np.column_stack([phi1, np.zeros((N_JOINTS, 2))]).ravel()])
     scales = prior_scales(prior)
     normal = _Normal(len(prior))
     held_out: list[Motion] = []
@@ -346,6 +383,7 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
             chunk = slice(start, start + 2000)
             normal.add(_rows(regress, data, q[chunk], dq[chunk], ddq[chunk], phi2, phi3),
                        tau[chunk])
+        normal.end_session()
         if progress is not None:
             progress(done, len(motions))
     if not moving.any():
@@ -383,10 +421,10 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
                          "over a wider range (an exciting trajectory)")
     links = theta[:N_JOINTS * N_LINK].reshape(N_JOINTS, N_LINK)
     joints = theta[N_JOINTS * N_LINK:].reshape(N_JOINTS, N_FRICTION)
-    armature = np.maximum(joints[:, 3], 0.0)
+    armature = np.maximum(joints[:, 2], 0.0)
     viscous = np.maximum(joints[:, 1], 0.0)
     theta_used = theta.copy()
-    theta_used[N_JOINTS * N_LINK + 3::N_FRICTION] = armature
+    theta_used[N_JOINTS * N_LINK + 2::N_FRICTION] = armature
     theta_used[N_JOINTS * N_LINK + 1::N_FRICTION] = viscous
     excitation = Excitation(
         determined=determined, undetermined=[n for n in names if n not in determined],
@@ -403,7 +441,7 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
         inertias=tuple(tuple(float(v) for v in link) for link in links),
         armature_kgm2=tuple(float(v) for v in armature),
         friction=tuple(tuple(float(v) for v in values) for values in
-                       (joints[:, 0], phi2, phi3, viscous, joints[:, 2])),
+                       (joints[:, 0], phi2, phi3, viscous, normal.offset(theta_used))),
         payload=_payload(model, nominal_links[-1], links[-1]),
         provenance=json.dumps(doc, sort_keys=True))
     if calibrate_detector:
