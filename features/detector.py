@@ -63,6 +63,7 @@ from contactkit.errors import InputError
 from contactkit.features.observer import reduce_rows, solve_recurrence
 from contactkit.features.timing import RESTART_STEP_S, restarts
 from contactkit.robots import RobotSpec
+from contactkit.robots.dynamics import ArmDynamics
 from contactkit.util.atomic import write_text
 
 N_JOINTS = 7
@@ -183,6 +184,14 @@ def load_calibration(path: str | Path) -> DetectorConfig:
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise InputError(f"calibration is not JSON ({err})", path) from err
     return DetectorConfig.from_dict(doc, path)
+
+
+def dynamics_detector(dynamics: ArmDynamics | None) -> DetectorConfig | None:
+    """Return the detector settings stored with identified ``dynamics`` (None without
+    dynamics or settings); InputError naming their file when the settings are invalid."""
+    if dynamics is None or dynamics.detector is None:
+        return None
+    return DetectorConfig.from_dict(json.loads(dynamics.detector), dynamics.source or None)
 
 
 class DetectorState:

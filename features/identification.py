@@ -386,13 +386,13 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
         normal.end_session()
         if progress is not None:
             progress(done, len(motions))
-    if not moving.any():
-        raise InputError(f"no joint moves faster than {MIN_MOTION_RAD_S} rad/s: identifying "
-                         "needs free motion of the joints (record the arm moving)")
     if normal.n < MIN_SAMPLES:
         raise InputError(f"too little free motion to identify from ({normal.n / IDENT_RATE_HZ:.1f}"
                          f" s after filtering; at least {MIN_SAMPLES / IDENT_RATE_HZ:.0f} s of "
                          "moving joints needed)")
+    if not moving.any():
+        raise InputError(f"no joint moves faster than {MIN_MOTION_RAD_S} rad/s: identifying "
+                         "needs free motion of the joints (record the arm moving)")
     rms_before = normal.rms(prior)
     weights = np.full(N_JOINTS, 1.0 / NOISE_NM ** 2)
     theta, _ = _solve(normal, weights, prior, scales, {})
@@ -454,9 +454,10 @@ def _method() -> dict:
             "prior": "nominal model", "determined_variance_ratio": DETERMINED}
 
 
-def _detector(held_out: Sequence[Motion], setup: RobotSetup, dynamics: ArmDynamics):
-    """Return the detector calibrated on the held-out motions with the identified model,
-    or None (with a warning) when they are too short."""
+def _detector(held_out: Sequence[Motion], setup: RobotSetup, dynamics: ArmDynamics
+              ) -> str | None:
+    """Return the detector calibrated on the held-out motions with the identified model
+    (its settings' JSON text), or None (with a warning) when they are too short."""
     from contactkit.features.detector import DetectorConfig, calibrate, calibration_samples
     from contactkit.features.timeseries import TimeseriesChain
 
@@ -472,7 +473,7 @@ def _detector(held_out: Sequence[Motion], setup: RobotSetup, dynamics: ArmDynami
     except InputError as err:
         log.warning("no detector calibrated with the identified model: %s", err.problem)
         return None
-    return replace(config, robot=dynamics.robot)
+    return json.dumps(replace(config, robot=dynamics.robot).to_dict(), sort_keys=True)
 
 
 def _sha256(path: Path) -> str:
@@ -556,8 +557,10 @@ def identify_sessions(paths: Sequence[str | Path], robot: str | None = None, *,
         used.append({"file": path.name, "sha256": _sha256(path), "samples": len(motion.t),
                      "duration_s": round(float(motion.t[-1] - motion.t[0]), 3)})
     if not motions:
+        why = "" if not problems else f": {Path(problems[0][0]).name}: {problems[0][1]}" + (
+            f" (and {len(problems) - 1} more)" if len(problems) > 1 else "")
         raise InputError("no free-motion session to identify from (sessions with action "
-                         "none, or a contact column that is all false)")
+                         f"none, or a contact column that is all false){why}")
     if len(setups) > 1:
         (first, a), (second, b) = list(setups.items())[:2]
         raise InputError(f"sessions of different arms: {a} is {_arm(first)}, {b} is "

@@ -73,7 +73,7 @@ from contactkit.features.observer import (
 )
 from contactkit.features.timing import RESTART_STEP_S, restarts
 from contactkit.robots import FrictionModel, RobotSetup
-from contactkit.robots.dynamics import ArmDynamics
+from contactkit.robots.dynamics import ArmDynamics, ArmOverride, with_dynamics
 from contactkit.robots.model import RobotModel
 from contactkit.schemas.session import SampleBatch, SessionMeta
 
@@ -121,12 +121,19 @@ class ChainConfig:
     effector, or a link 1..7). Which arm, and whether it carries its hand, comes from
     each session's metadata (:meth:`SessionMeta.robot_setup`), unless ``robot`` names
     the model to use instead (``--robot``: a session recorded before its arm was
-    named, or a comparison of models)."""
+    named, or a comparison of models), and ``dynamics`` the arm's identified dynamics
+    (``--dynamics``, :mod:`contactkit.robots.dynamics`). An
+    :class:`~contactkit.robots.dynamics.ArmOverride` given as ``robot`` sets both."""
 
     observer: ObserverConfig = field(default_factory=ObserverConfig)
     wrench_frame: str | int = "ee"
-    robot: str | None = None
+    robot: str | ArmOverride | None = None
     dynamics: ArmDynamics | None = None
+
+    def __post_init__(self) -> None:
+        if isinstance(self.robot, ArmOverride):  # --robot and --dynamics as one value
+            object.__setattr__(self, "dynamics", self.robot.dynamics or self.dynamics)
+            object.__setattr__(self, "robot", self.robot.robot)
 
     def robot_setup(self, meta: SessionMeta, path: str | Path | None = None) -> RobotSetup:
         """Return the arm the chain models for a session with metadata ``meta``: the
@@ -136,7 +143,7 @@ class ChainConfig:
         arm."""
         try:
             setup = meta.with_robot(self.robot).robot_setup(path)
-            return setup if self.dynamics is None else self.dynamics.for_setup(setup)
+            return setup if self.dynamics is None else with_dynamics(setup, self.dynamics)
         except InputError as err:
             raise input_error_about(err, path) from err
 

@@ -50,12 +50,17 @@ DynamicsOpt = Annotated[Path | None, typer.Option(
 
 
 def load_dynamics_option(path: Path | None) -> ArmDynamics | None:
-    """Return the dynamics of a ``--dynamics`` file (checked as every load is), or None."""
+    """Return the dynamics of a ``--dynamics`` file, or None: every check of
+    :func:`~contactkit.robots.dynamics.load_dynamics`, and of the detector settings
+    stored in it. InputError (one line, naming the file) for a file that fails one."""
     if path is None:
         return None
+    from contactkit.features.detector import dynamics_detector
     from contactkit.robots.dynamics import load_dynamics
 
-    return load_dynamics(path)
+    dynamics = load_dynamics(path)
+    dynamics_detector(dynamics)
+    return dynamics
 
 
 VerboseOpt = Annotated[int, typer.Option(

@@ -219,6 +219,7 @@ def identify_command(
     sessions are skipped, each with a line. Pass the file with --dynamics to replay,
     classify and recorder commands.
     """
+    from contactkit.features.detector import dynamics_detector
     from contactkit.features.identification import identify_sessions, session_inputs
     from contactkit.robots.dynamics import save_dynamics
 
@@ -242,8 +243,8 @@ def identify_command(
     print(f"  residual RMS [Nm] nominal {[round(v, 3) for v in report.rms_before_nm]}, "
           f"identified {[round(v, 3) for v in report.rms_after_nm]}")
     print(f"  payload at the flange: {dynamics.payload.mass_kg:.3f} kg")
-    if dynamics.detector is not None:
-        detector = dynamics.detector
+    detector = dynamics_detector(dynamics)
+    if detector is not None:
         print(f"  detector: at rest {[round(v, 2) for v in detector.noise]} Nm, per rad/s "
               f"{[round(v, 2) for v in detector.speed]}")
     exit_if_failed(problems)

@@ -9,7 +9,9 @@ al.'s sigmoid with viscous and constant terms), the payload the identification p
 flange, the contact detector's thresholds calibrated with this model, and where the
 parameters come from. It is frozen and hashable, so it travels inside a
 :class:`~contactkit.robots.spec.RobotSetup` (``RobotSetup.dynamics``) and every stage that
-builds a :class:`~contactkit.robots.model.RobotModel` for that setup uses it.
+builds a :class:`~contactkit.robots.model.RobotModel` for that setup uses it. The class
+is defined beside ``RobotSetup`` in :mod:`contactkit.robots.spec` (re-exported here);
+this module reads, writes and checks its files.
 
 The file is JSON (:data:`FORMAT`). :func:`load_dynamics` runs the same checks on every
 load: a known arm (and, for a session, the same arm and hand), finite values, positive
@@ -25,30 +27,27 @@ friction [Nm] (phi1, offset), [s/rad] (phi2), [rad/s] (phi3), [Nm s/rad] (viscou
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
-from dataclasses import dataclass, field, replace
-from functools import cached_property
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from contactkit.errors import InputError
 from contactkit.robots.registry import canonical_robot_name, get_robot
-from contactkit.robots.spec import N_JOINTS, FrictionModel, RobotSetup
+from contactkit.robots.spec import (
+    FORMAT,
+    FRICTION_TERMS,
+    N_JOINTS,
+    PARAMETER_NAMES,
+    ArmDynamics,
+    Payload,
+    RobotSetup,
+    dynamics_checksum,
+)
 from contactkit.util.atomic import write_text
 
-if TYPE_CHECKING:
-    from contactkit.features.detector import DetectorConfig
-
-FORMAT = "contactkit-dynamics/1"
-PARAMETER_NAMES = ("m", "mc_x", "mc_y", "mc_z", "I_xx", "I_xy", "I_yy", "I_xz", "I_yz", "I_zz")
-"""The 10 inertial parameters of a link, pinocchio's ``Inertia.toDynamicParameters``
-order: mass [kg], first moment m c [kg m] and inertia about the joint frame's origin
-[kg m^2], in the link's joint frame."""
-FRICTION_TERMS = ("phi1", "phi2", "phi3", "viscous", "offset")
 MAX_BYTES = 1_000_000
 """The largest dynamics file read [bytes] (one is some 10 kB)."""
 MAX_DEPTH = 8
@@ -58,95 +57,13 @@ PSD_TOLERANCE = 1e-9
 largest (rounding of a consistent set written to JSON)."""
 
 
-@dataclass(frozen=True)
-class Payload:
-    """What the identification put on the flange beyond the nominal link 7: ``mass_kg``
-    [kg] at ``com_m`` [m] with inertia ``inertia_kgm2`` [kg m^2] about that centre of
-    mass (Ixx, Ixy, Iyy, Ixz, Iyz, Izz), all in the flange frame. It is the difference
-    between the identified and the nominal link 7 (hand included where mounted): negative
-    when the arm's end is lighter than its model. Reported, not applied on top: link 7's
-    identified parameters already hold it."""
-
-    mass_kg: float = 0.0
-    com_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    inertia_kgm2: tuple[float, ...] = (0.0,) * 6
-
-
-@dataclass(frozen=True)
-class ArmDynamics:
-    """One arm's identified dynamics (see the module's docstring).
-
-    ``robot`` the registry's name, ``with_hand`` whether the hand was mounted;
-    ``inertias`` 7 tuples of the 10 :data:`PARAMETER_NAMES`; ``armature_kgm2`` 7 values;
-    ``friction`` 5 tuples of 7 values, :data:`FRICTION_TERMS` in order; ``payload``;
-    ``detector`` the detector calibrated with this model (None when none was);
-    ``provenance`` a JSON text (sessions and their SHA-256, samples, the excitation
-    report, the tool's version, when it was made); ``source`` the file they were read
-    from (not part of their identity).
-    """
-
-    robot: str
-    with_hand: bool
-    inertias: tuple[tuple[float, ...], ...]
-    armature_kgm2: tuple[float, ...] = (0.0,) * N_JOINTS
-    friction: tuple[tuple[float, ...], ...] = ((0.0,) * N_JOINTS, (1.0,) * N_JOINTS,
-                                              (0.0,) * N_JOINTS, (0.0,) * N_JOINTS,
-                                              (0.0,) * N_JOINTS)
-    payload: Payload = field(default_factory=Payload)
-    detector: DetectorConfig | None = None
-    provenance: str = "{}"
-    source: str = field(default="", compare=False)
-
-    @cached_property
-    def friction_model(self) -> FrictionModel:
-        """Return the joint friction as the observer's :class:`FrictionModel`."""
-        return FrictionModel(*(np.array(values, dtype=float) for values in self.friction))
-
-    @cached_property
-    def parameters(self) -> np.ndarray:
-        """Return the links' inertial parameters, (7, 10)."""
-        return np.array(self.inertias, dtype=float)
-
-    @property
-    def provenance_doc(self) -> dict:
-        """Return the provenance as a dictionary."""
-        return json.loads(self.provenance)
-
-    def to_dict(self) -> dict:
-        """Return the JSON document of these dynamics, with its ``checksum``."""
-        doc = {
-            "format": FORMAT,
-            "robot": self.robot,
-            "with_hand": self.with_hand,
-            "parameter_order": list(PARAMETER_NAMES),
-            "links": [list(link) for link in self.inertias],
-            "armature_kgm2": list(self.armature_kgm2),
-            "friction": {name: list(values) for name, values in
-                         zip(FRICTION_TERMS, self.friction, strict=True)},
-            "payload": {"mass_kg": self.payload.mass_kg, "com_m": list(self.payload.com_m),
-                        "inertia_kgm2": list(self.payload.inertia_kgm2)},
-            "detector": None if self.detector is None else self.detector.to_dict(),
-            "provenance": self.provenance_doc,
-        }
-        return doc | {"checksum": _checksum(doc)}
-
-    @cached_property
-    def checksum(self) -> str:
-        """The file's checksum (``sha256:`` and 64 hex digits) over the canonical content:
-        it shows the content is whole, nothing more."""
-        return self.to_dict()["checksum"]
-
-    def for_setup(self, setup: RobotSetup, where: str | Path | None = None) -> RobotSetup:
-        """Return ``setup`` carrying these dynamics; InputError naming ``where`` (the
-        file) when they are another arm's or were identified with(out) the hand the
-        setup has."""
-        check_arm(self, setup, where or self.source or None)
-        return replace(setup, dynamics=self)
-
-
-def _checksum(doc: dict) -> str:
-    text = json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False)
-    return "sha256:" + hashlib.sha256(text.encode()).hexdigest()
+def with_dynamics(setup: RobotSetup, dynamics: ArmDynamics,
+                  where: str | Path | None = None) -> RobotSetup:
+    """Return ``setup`` carrying ``dynamics``; InputError naming ``where`` (default: the
+    dynamics' file) when they are another arm's or were identified with(out) the hand
+    the setup has."""
+    check_arm(dynamics, setup, where or dynamics.source or None)
+    return replace(setup, dynamics=dynamics)
 
 
 def check_arm(dynamics: ArmDynamics, setup: RobotSetup, where: str | Path | None = None
@@ -219,8 +136,6 @@ def _depth(value: object) -> int:
 def dynamics_from_dict(doc: object, where: str | Path | None = None) -> ArmDynamics:
     """Build and check dynamics from :meth:`ArmDynamics.to_dict`'s document; InputError
     naming ``where`` (one line) for any check that fails (see the module's docstring)."""
-    from contactkit.features.detector import DetectorConfig
-
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise InputError(f"not a dynamics file (format must be {FORMAT!r})", where)
     if _depth(doc) > MAX_DEPTH:
@@ -236,7 +151,7 @@ def dynamics_from_dict(doc: object, where: str | Path | None = None) -> ArmDynam
     stored = doc["checksum"]
     body = {k: v for k, v in doc.items() if k != "checksum"}
     try:
-        expected = _checksum(body)
+        expected = dynamics_checksum(body)
     except ValueError as err:  # NaN or infinity in the document
         raise InputError("dynamics file holds a value that is not finite", where) from err
     if stored != expected:
@@ -280,8 +195,8 @@ def dynamics_from_dict(doc: object, where: str | Path | None = None) -> ArmDynam
         raise InputError("payload must hold mass_kg, com_m and inertia_kgm2", where)
     mass = _numbers([payload["mass_kg"]], 1, "payload mass_kg", where)[0]
     detector = doc.get("detector")
-    if detector is not None:
-        detector = DetectorConfig.from_dict(detector, where)
+    if detector is not None and not isinstance(detector, dict):
+        raise InputError("detector must be an object or null", where)
     if not isinstance(doc["provenance"], dict):
         raise InputError("provenance must be an object", where)
     return ArmDynamics(
@@ -289,7 +204,7 @@ def dynamics_from_dict(doc: object, where: str | Path | None = None) -> ArmDynam
         friction=terms,
         payload=Payload(mass, _numbers(payload["com_m"], 3, "payload com_m", where),
                         _numbers(payload["inertia_kgm2"], 6, "payload inertia_kgm2", where)),
-        detector=detector,
+        detector=None if detector is None else json.dumps(detector, sort_keys=True),
         provenance=json.dumps(doc["provenance"], sort_keys=True))
 
 
@@ -325,3 +240,35 @@ def load_dynamics(path: str | Path, setup: RobotSetup | None = None) -> ArmDynam
     if setup is not None:
         check_arm(dynamics, setup, path)
     return dynamics
+
+
+@dataclass(frozen=True)
+class ArmOverride:
+    """The arm's model a command uses instead of each session's own: ``robot`` the
+    registry name (``--robot``; None: the session's) and its identified ``dynamics``
+    (``--dynamics``; None: the nominal model). Accepted wherever a ``robot`` override
+    name is (:data:`RobotChoice`)."""
+
+    robot: str | None = None
+    dynamics: ArmDynamics | None = None
+
+
+RobotChoice = str | ArmOverride | None
+"""A command's arm override: a robot name, an :class:`ArmOverride`, or None (the
+session's own arm and model)."""
+
+
+def arm_override(robot: str | None, dynamics: ArmDynamics | None) -> RobotChoice:
+    """Return the override of ``--robot`` and ``--dynamics``: the name alone when no
+    dynamics are given (as before), else an :class:`ArmOverride`."""
+    return robot if dynamics is None else ArmOverride(robot, dynamics)
+
+
+def override_robot(choice: RobotChoice) -> str | None:
+    """Return the robot name of an override (None: the session's)."""
+    return choice.robot if isinstance(choice, ArmOverride) else choice
+
+
+def override_dynamics(choice: RobotChoice) -> ArmDynamics | None:
+    """Return the identified dynamics of an override (None: the nominal model)."""
+    return choice.dynamics if isinstance(choice, ArmOverride) else None

@@ -15,19 +15,23 @@ lengths [m].
 from __future__ import annotations
 
 import hashlib
+import json
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from contactkit.robots.dynamics import ArmDynamics
-
 N_JOINTS = 7
+
+FORMAT = "contactkit-dynamics/1"
+PARAMETER_NAMES = ("m", "mc_x", "mc_y", "mc_z", "I_xx", "I_xy", "I_yy", "I_xz", "I_yz", "I_zz")
+"""The 10 inertial parameters of a link, pinocchio's ``Inertia.toDynamicParameters``
+order: mass [kg], first moment m c [kg m] and inertia about the joint frame's origin
+[kg m^2], in the link's joint frame."""
+FRICTION_TERMS = ("phi1", "phi2", "phi3", "viscous", "offset")
 
 
 @dataclass(frozen=True)
@@ -225,6 +229,96 @@ def urdf_joint_limits(text: str, joint_names: tuple[str, ...]
     if np.isnan(values).any() or not np.isfinite(values[:, 2:]).all():
         raise ValueError("a joint limit of the URDF is missing or not a number")
     return values[:, 0], values[:, 1], values[:, 2], values[:, 3]
+
+
+@dataclass(frozen=True)
+class Payload:
+    """What the identification put on the flange beyond the nominal link 7: ``mass_kg``
+    [kg] at ``com_m`` [m] with inertia ``inertia_kgm2`` [kg m^2] about that centre of
+    mass (Ixx, Ixy, Iyy, Ixz, Iyz, Izz), all in the flange frame. It is the difference
+    between the identified and the nominal link 7 (hand included where mounted): negative
+    when the arm's end is lighter than its model. Reported, not applied on top: link 7's
+    identified parameters already hold it."""
+
+    mass_kg: float = 0.0
+    com_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    inertia_kgm2: tuple[float, ...] = (0.0,) * 6
+
+
+@dataclass(frozen=True)
+class ArmDynamics:
+    """One arm's identified dynamics (see the module's docstring).
+
+    ``robot`` the registry's name, ``with_hand`` whether the hand was mounted;
+    ``inertias`` 7 tuples of the 10 :data:`PARAMETER_NAMES`; ``armature_kgm2`` 7 values;
+    ``friction`` 5 tuples of 7 values, :data:`FRICTION_TERMS` in order; ``payload``;
+    ``detector`` the contact detector's settings calibrated with this model, as their
+    JSON document's text (None when none was; read and checked by
+    :func:`contactkit.features.detector.dynamics_detector`);
+    ``provenance`` a JSON text (sessions and their SHA-256, samples, the excitation
+    report, the tool's version, when it was made); ``source`` the file they were read
+    from (not part of their identity).
+    """
+
+    robot: str
+    with_hand: bool
+    inertias: tuple[tuple[float, ...], ...]
+    armature_kgm2: tuple[float, ...] = (0.0,) * N_JOINTS
+    friction: tuple[tuple[float, ...], ...] = ((0.0,) * N_JOINTS, (1.0,) * N_JOINTS,
+                                              (0.0,) * N_JOINTS, (0.0,) * N_JOINTS,
+                                              (0.0,) * N_JOINTS)
+    payload: Payload = field(default_factory=Payload)
+    detector: str | None = None
+    provenance: str = "{}"
+    source: str = field(default="", compare=False)
+
+    @cached_property
+    def friction_model(self) -> FrictionModel:
+        """Return the joint friction as the observer's :class:`FrictionModel`."""
+        return FrictionModel(*(np.array(values, dtype=float) for values in self.friction))
+
+    @cached_property
+    def parameters(self) -> np.ndarray:
+        """Return the links' inertial parameters, (7, 10)."""
+        return np.array(self.inertias, dtype=float)
+
+    @property
+    def provenance_doc(self) -> dict:
+        """Return the provenance as a dictionary."""
+        return json.loads(self.provenance)
+
+    def to_dict(self) -> dict:
+        """Return the JSON document of these dynamics, with its ``checksum``."""
+        doc = {
+            "format": FORMAT,
+            "robot": self.robot,
+            "with_hand": self.with_hand,
+            "parameter_order": list(PARAMETER_NAMES),
+            "links": [list(link) for link in self.inertias],
+            "armature_kgm2": list(self.armature_kgm2),
+            "friction": {name: list(values) for name, values in
+                         zip(FRICTION_TERMS, self.friction, strict=True)},
+            "payload": {"mass_kg": self.payload.mass_kg, "com_m": list(self.payload.com_m),
+                        "inertia_kgm2": list(self.payload.inertia_kgm2)},
+            "detector": None if self.detector is None else json.loads(self.detector),
+            "provenance": self.provenance_doc,
+        }
+        return doc | {"checksum": dynamics_checksum(doc)}
+
+    @cached_property
+    def checksum(self) -> str:
+        """The file's checksum (``sha256:`` and 64 hex digits) over the canonical content:
+        it shows the content is whole, nothing more."""
+        return self.to_dict()["checksum"]
+
+
+def dynamics_checksum(doc: dict) -> str:
+    """Return the checksum (``sha256:`` and 64 hex digits) of a dynamics document without
+    its ``checksum``: SHA-256 over its canonical JSON (sorted keys, no spaces)."""
+    text = json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return "sha256:" + hashlib.sha256(text.encode()).hexdigest()
+
+
 
 
 @dataclass(frozen=True)
