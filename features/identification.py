@@ -9,9 +9,11 @@ Method:
 
 1. Each session is cut at gaps, and its last :data:`HOLDOUT` (25 %) is kept back for
    the detector. dq and tau are low-passed without phase (4th-order Butterworth at
-   :data:`CUTOFF_HZ`, forward and backward, ``scipy.signal.sosfiltfilt``), ddq is the
-   filtered dq differenced on the actual time stamps, the filters' ends are cut, and
-   the samples are thinned to about :data:`IDENT_RATE_HZ`.
+   :data:`CUTOFF_HZ`, forward and backward, ``scipy.signal.sosfiltfilt``) after linear
+   interpolation onto a uniform grid at the median time step (a host's time stamps
+   jitter, and dropped samples leave holes), ddq is the filtered dq differenced on that
+   grid, the filters' ends are cut, and the samples are thinned to about
+   :data:`IDENT_RATE_HZ`.
 2. The model is linear in its parameters: tau = Y(q, dq, ddq) theta + F(dq, ddq) phi,
    Y pinocchio's joint-torque regressor (10 parameters per link, their full values),
    F per joint a friction sigmoid of fixed shape (Gaz et al.'s phi2 and phi3 for a
@@ -20,7 +22,7 @@ Method:
    sensor's offset moves between sessions; the simulator draws one per session too):
    each session's samples are centred on their means. The normal equations are summed
    chunk by chunk per joint, so memory does not grow with the data. The offset stored
-   is the one the sessions share (:meth:`_Normal.offset`), 0 where they disagree.
+   is the sessions' mean where they agree (:meth:`_Normal.offset`).
 3. The fit is regularised toward the nominal model (a Gaussian prior on every
    parameter, centred on the nominal value with a per-parameter scale
    :func:`prior_scales`), with each joint's residual weighted by its own noise level
@@ -28,10 +30,11 @@ Method:
    parameter counts as *determined* when the data shrink its prior's variance at
    least four-fold (:data:`DETERMINED`). The condition number of the whitened
    regressor over the determined directions is reported.
-4. Each link's 4x4 pseudo-inertia is projected onto the positive semi-definite cone
-   (eigenvalues clipped at a small positive floor) where the fit left it outside; the
-   projected links are then held and the rest solved again, so the result is
-   physically consistent.
+4. Where the fit leaves a link physically inconsistent (its 4x4 pseudo-inertia not
+   positive semi-definite), the fit is solved again under the constraint: the nearest
+   consistent parameters in the fit's own quadratic cost, those links parameterised by
+   the log-Cholesky factors of their pseudo-inertia (:func:`_consistent_fit`), so the
+   result is physically consistent.
 5. The detector is calibrated (:func:`contactkit.features.detector.calibrate`) on the
    held-out parts, with the identified model's residual.
 
@@ -163,10 +166,16 @@ def _stretches(t: np.ndarray) -> list[slice]:
     return [slice(a, b) for a, b in itertools.pairwise(bounds)]
 
 
+def _resample(grid: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Return ``values`` (n, 7) sampled at times ``t`` interpolated linearly at ``grid``."""
+    return np.column_stack([np.interp(grid, t, column) for column in values.T])
+
+
 def prepare(motion: Motion) -> tuple[np.ndarray, ...]:
-    """Return the fit's samples of one motion: (q, dq, ddq, tau), each (n, 7), low-passed
-    without phase, differenced on the time stamps, ends cut and thinned (see the
-    module's docstring); empty arrays when the motion is too short."""
+    """Return the fit's samples of one motion: (q, dq, ddq, tau), each (n, 7), resampled
+    on a uniform grid at the median step (a host's time stamps jitter), low-passed
+    without phase, differenced, ends cut and thinned (see the module's docstring); empty
+    arrays when the motion is too short."""
     from scipy.signal import butter, sosfiltfilt
 
     parts: list[tuple[np.ndarray, ...]] = []
@@ -179,12 +188,12 @@ def prepare(motion: Motion) -> tuple[np.ndarray, ...]:
         edge = int(EDGE_S * rate)
         if len(t) <= 2 * edge + 20 or 0.45 * rate <= CUTOFF_HZ:
             continue
+        grid = t[0] + step * np.arange(int((t[-1] - t[0]) / step) + 1)
         sos = butter(4, CUTOFF_HZ, fs=rate, output="sos")
-        q = sosfiltfilt(sos, motion.q[piece], axis=0)
-        dq = sosfiltfilt(sos, motion.dq[piece], axis=0)
-        tau = sosfiltfilt(sos, motion.tau[piece], axis=0)
-        ddq = np.gradient(dq, t, axis=0)
-        keep = slice(edge, len(t) - edge, max(1, round(rate / IDENT_RATE_HZ)))
+        q, dq, tau = (sosfiltfilt(sos, _resample(grid, t, x[piece]), axis=0)
+                      for x in (motion.q, motion.dq, motion.tau))
+        ddq = np.gradient(dq, step, axis=0)
+        keep = slice(edge, len(grid) - edge, max(1, round(rate / IDENT_RATE_HZ)))
         parts.append(tuple(x[keep] for x in (q, dq, ddq, tau)))
     if not parts:
         return tuple(np.zeros((0, N_JOINTS)) for _ in range(4))
@@ -268,14 +277,16 @@ class _Normal:
         return np.sqrt(np.maximum(sq, 0.0) / max(self.n, 1))
 
     def offset(self, theta: np.ndarray) -> np.ndarray:
-        """Return the torque offset per joint [Nm] that all sessions share: the mean of
-        the sessions' own offsets where it differs from zero by more than twice its
-        standard error, else 0 (offsets that come and go with each session, as a torque
-        sensor's bias after a restart, are no property of the arm)."""
-        if len(self.means) < 2:
-            return np.zeros(N_JOINTS)
+        """Return the torque offset per joint [Nm] the model keeps: the mean of the
+        sessions' own offsets (each session's mean residual). The model's constant part
+        cannot be told from a session's offset, so it is kept; but with three sessions
+        or more, a joint whose offsets scatter more than their mean (twice its standard
+        error) gets 0: offsets that come and go with the sessions, as a torque sensor's
+        bias after a restart, are no property of the arm."""
         each = np.array([tau - rows @ theta for rows, tau in self.means])
         mean = each.mean(axis=0)
+        if len(each) < 3:
+            return mean
         error = each.std(axis=0, ddof=1) / np.sqrt(len(each))
         return np.where(np.abs(mean) > 2.0 * error, mean, 0.0)
 
@@ -297,28 +308,96 @@ def _rows(model: pin.Model, data: pin.Data, q: np.ndarray, dq: np.ndarray,
     return rows
 
 
-def _solve(normal: _Normal, weights: np.ndarray, prior: np.ndarray, scales: np.ndarray,
-           held: dict[int, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Return the regularised estimate and the whitened information matrix S A S, with
-    the links in ``held`` (index -> 10 parameters) fixed."""
+def _solve(normal: _Normal, weights: np.ndarray, prior: np.ndarray, scales: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return the regularised estimate, the matrix of its quadratic cost (information
+    plus prior) and the whitened information matrix S A S."""
     a = np.einsum("j,jpq->pq", weights, normal.a) / CORRELATION
     b = np.einsum("j,jp->p", weights, normal.b) / CORRELATION
-    information = scales[:, None] * a * scales[None, :]
-    free = np.ones(len(prior), bool)
-    fixed = prior.copy()
-    for link, values in held.items():
-        free[link * N_LINK:(link + 1) * N_LINK] = False
-        fixed[link * N_LINK:(link + 1) * N_LINK] = values
-    rhs = b - a[:, ~free] @ fixed[~free] + prior / scales ** 2
     lhs = a + np.diag(1.0 / scales ** 2)
-    theta = fixed.copy()
-    theta[free] = np.linalg.solve(lhs[np.ix_(free, free)], rhs[free])
-    return theta, information
+    theta = np.linalg.solve(lhs, b + prior / scales ** 2)
+    return theta, lhs, scales[:, None] * a * scales[None, :]
+
+
+def _cholesky_factors(link: np.ndarray) -> np.ndarray:
+    """Return the 10 log-Cholesky coordinates of a consistent link (its pseudo-inertia,
+    nudged to be positive definite, = L L^T: log of L's diagonal, then its lower part)."""
+    pseudo = pseudo_inertia(link)
+    lower = np.linalg.cholesky(pseudo + 1e-9 * max(np.trace(pseudo), 1e-9) * np.eye(4))
+    return np.concatenate([np.log(np.diag(lower)), lower[np.tril_indices(4, -1)]])
+
+
+def _from_factors(factors: np.ndarray) -> np.ndarray:
+    """Return the 10 parameters of log-Cholesky coordinates (always consistent)."""
+    lower = np.diag(np.exp(factors[:4]))
+    lower[np.tril_indices(4, -1)] = factors[4:]
+    return from_pseudo_inertia(lower @ lower.T)
+
+
+def _consistent_fit(theta: np.ndarray, cost: np.ndarray, nominal: np.ndarray
+                    ) -> tuple[np.ndarray, list[int]]:
+    """Return the physically consistent parameters nearest (in the fit's own cost,
+    (x - theta)^T cost (x - theta)) to the unconstrained fit ``theta``, and the links
+    (0-based) that the constraint moved.
+
+    The links that the fit leaves inconsistent are parameterised by the log-Cholesky
+    factors of their pseudo-inertia (Rucker and Wensing 2022), so every iterate is
+    consistent; the other parameters, linear, are eliminated in closed form (the
+    Schur complement of the cost), and the rest is a small nonlinear least-squares
+    problem, solved by Levenberg-Marquardt from those links' nominal values."""
+    bad = [i for i in range(N_JOINTS) if not consistent(theta[i * N_LINK:(i + 1) * N_LINK])]
+    if not bad:
+        return theta, []
+    held = np.zeros(len(theta), bool)
+    for i in bad:
+        held[i * N_LINK:(i + 1) * N_LINK] = True
+    free = ~held
+    coupling = np.linalg.solve(cost[np.ix_(free, free)], cost[np.ix_(free, held)])
+    schur = cost[np.ix_(held, held)] - cost[np.ix_(held, free)] @ coupling
+    root = np.linalg.cholesky(0.5 * (schur + schur.T)).T  # schur = root^T root
+    target = theta[held]
+
+    def params(factors: np.ndarray) -> np.ndarray:
+        return np.concatenate([_from_factors(f) for f in factors.reshape(-1, N_LINK)])
+
+    def jacobian(factors: np.ndarray) -> np.ndarray:
+        jac = np.zeros((len(factors), len(factors)))
+        for k, f in enumerate(factors.reshape(-1, N_LINK)):
+            base, step = _from_factors(f), 1e-7
+            jac[k * N_LINK:(k + 1) * N_LINK, k * N_LINK:(k + 1) * N_LINK] = np.column_stack(
+                [(_from_factors(f + step * e) - base) / step for e in np.eye(N_LINK)])
+        return root @ jac
+
+    starts = [nominal[i] if consistent(nominal[i])
+              else _project(theta[i * N_LINK:(i + 1) * N_LINK]) for i in bad]
+    factors = np.concatenate([_cholesky_factors(x) for x in starts])
+    residual = root @ (params(factors) - target)
+    damping = 1e-3
+    for _ in range(200):
+        jac = jacobian(factors)
+        normal = jac.T @ jac
+        step = np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12),
+                               -jac.T @ residual)
+        trial = root @ (params(factors + step) - target)
+        if trial @ trial < residual @ residual:
+            gain = residual @ residual - trial @ trial
+            factors, residual, damping = factors + step, trial, damping / 3
+            if gain < 1e-10 * (1.0 + residual @ residual):
+                break
+        else:
+            damping *= 4
+            if damping > 1e10:
+                break
+    out = theta.copy()
+    out[held] = params(factors)
+    out[free] = theta[free] - coupling @ (out[held] - target)
+    return out, bad
 
 
 def _project(link: np.ndarray) -> np.ndarray:
     """Return one link's parameters with the pseudo-inertia's eigenvalues clipped to be
-    positive (at 1e-6 of the largest)."""
+    positive (at 1e-6 of the largest): a start for a link whose nominal values are not
+    consistent either."""
     values, vectors = np.linalg.eigh(pseudo_inertia(link))
     floor = 1e-6 * max(values[-1], 1e-9)
     return from_pseudo_inertia((vectors * np.maximum(values, floor)) @ vectors.T)
@@ -395,21 +474,10 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
                          "needs free motion of the joints (record the arm moving)")
     rms_before = normal.rms(prior)
     weights = np.full(N_JOINTS, 1.0 / NOISE_NM ** 2)
-    theta, _ = _solve(normal, weights, prior, scales, {})
+    theta, _, _ = _solve(normal, weights, prior, scales)
     weights = 1.0 / np.maximum(normal.rms(theta), MIN_NOISE_NM) ** 2
-    held: dict[int, np.ndarray] = {}
-    for _ in range(3):  # project inconsistent links, hold them, solve the rest again
-        theta, information = _solve(normal, weights, prior, scales, held)
-        bad = [i for i in range(N_JOINTS) if i not in held
-               and not consistent(theta[i * N_LINK:(i + 1) * N_LINK])]
-        if not bad:
-            break
-        for i in bad:
-            held[i] = _project(theta[i * N_LINK:(i + 1) * N_LINK])
-    for i in range(N_JOINTS):  # what is still outside after the passes is projected
-        if not consistent(theta[i * N_LINK:(i + 1) * N_LINK]):
-            held[i] = theta[i * N_LINK:(i + 1) * N_LINK] = _project(
-                theta[i * N_LINK:(i + 1) * N_LINK])
+    theta, cost, information = _solve(normal, weights, prior, scales)
+    theta, projected = _consistent_fit(theta, cost, nominal_links)
     eig = np.linalg.eigvalsh(information)
     variance = np.diag(np.linalg.inv(information + np.eye(len(prior))))
     names = parameter_names()
@@ -430,7 +498,7 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
         determined=determined, undetermined=[n for n in names if n not in determined],
         directions=int(strong.size), condition=condition, samples=normal.n,
         moving=[int(j) + 1 for j in np.flatnonzero(moving)],
-        projected=sorted(int(i) + 1 for i in held),
+        projected=[i + 1 for i in projected],
         rms_before_nm=rms_before.tolist(),
         rms_after_nm=normal.rms(theta_used).tolist())
     doc = dict(provenance or {})
