@@ -378,8 +378,10 @@ def _consistent_fit(theta: np.ndarray, cost: np.ndarray, nominal: np.ndarray
         normal = jac.T @ jac
         step = np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12),
                                -jac.T @ residual)
-        trial = root @ (params(factors + step) - target)
-        if trial @ trial < residual @ residual:
+        with np.errstate(over="ignore", invalid="ignore"):  # a wild step: rejected below
+            trial = root @ (params(factors + step) - target)
+            better = bool(np.isfinite(trial).all() and trial @ trial < residual @ residual)
+        if better:
             gain = residual @ residual - trial @ trial
             factors, residual, damping = factors + step, trial, damping / 3
             if gain < 1e-10 * (1.0 + residual @ residual):
