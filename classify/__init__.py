@@ -59,5 +59,10 @@ class _MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
         """Nothing to run: the module ran when it was imported at its new place."""
 
 
+__all__ = ["data", "evaluate", "events", "experiments", "grids", "kinds", "modelfile",
+           "prediction", "schemes", "training"]
+"""The public modules and subpackages, for the API reference (names only: importing the
+package stays light)."""
+
 if not any(isinstance(finder, _MovedModules) for finder in sys.meta_path):
     sys.meta_path.append(_MovedModules())

@@ -30,7 +30,8 @@ from contactkit.replay.contacts import ContactTrackLogger, log_contact_links
 from contactkit.replay.engine import Block, OfflineAnswer, ReplayStream
 from contactkit.robots.model import RobotModel
 from contactkit.robots.surfaces import viewer_urdf_file
-from contactkit.util.atomic import Owned, owned_by_marker
+from contactkit.util.atomic import Owned
+from contactkit.util.owned import owned_by_marker
 from contactkit.util.paths import inside
 from contactkit.viewer import layout
 

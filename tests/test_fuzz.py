@@ -36,7 +36,8 @@ from contactkit.schemas import (
     read_session,
     validate_session,
 )
-from contactkit.schemas.session import COLUMN_ORDER, METADATA_KEY
+from contactkit.schemas.columns import COLUMN_ORDER
+from contactkit.schemas.session import METADATA_KEY
 from contactkit.util.paths import inside
 from tests.conftest import make_session
 from tests.fuzz_support import (

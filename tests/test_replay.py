@@ -420,7 +420,7 @@ def test_a_labelled_contact_column_is_shown_without_a_simulated_force(session, m
     applied force: the view still shows the labelled contact lane."""
     import pyarrow.parquet as pq
 
-    from contactkit.schemas.session import FORCE_COLUMNS
+    from contactkit.schemas.columns import FORCE_COLUMNS
 
     table = pq.read_table(session)
     imported = tmp_path / "imported.parquet"

@@ -25,7 +25,8 @@ from contactkit.features.timeseries import (
 from contactkit.replay import engine
 from contactkit.replay.session_replay import replay_session
 from contactkit.schemas import SessionMeta, read_session, write_session
-from contactkit.schemas.session import REQUIRED_COLUMNS, SampleBatch, iter_sample_batches
+from contactkit.schemas.columns import REQUIRED_COLUMNS
+from contactkit.schemas.session import SampleBatch, iter_sample_batches
 from contactkit.viewer import layout
 from tests.conftest import make_session, run_command, save_quick_model
 from tests.rrd_frames import assert_frames_ok

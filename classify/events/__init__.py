@@ -13,6 +13,8 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+__all__ = ["calibrate", "contact_events", "listener", "metrics", "training"]
+"""The public modules, for the API reference."""
 _MAIN = "contactkit.classify.events.contact_events"
 
 

@@ -11,6 +11,8 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+__all__ = ["augmentation", "gridsearch", "thesis"]
+"""The public modules, for the API reference."""
 _MAIN = "contactkit.classify.experiments.thesis"
 
 

@@ -37,13 +37,13 @@ from contactkit.classify.kinds.inputs import GRIDS
 from contactkit.classify.kinds.kind import ModelKind, ModelOptions
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.dataset import session_files
-from contactkit.util.atomic import (
+from contactkit.util.atomic import write_text
+from contactkit.util.owned import (
     check_results,
     owned_result,
     result_json,
     result_markdown,
     write_figure,
-    write_text,
 )
 
 FRACTIONS = (0.5, 0.75, 1.0)

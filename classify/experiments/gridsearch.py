@@ -33,7 +33,8 @@ from contactkit.classify.schemes import check_scheme, scheme_classes
 from contactkit.classify.training import TrainedModel, train, training_set
 from contactkit.errors import check_choice
 from contactkit.schemas import InputError
-from contactkit.util.atomic import owned_result, result_json, result_markdown, write_text
+from contactkit.util.atomic import write_text
+from contactkit.util.owned import owned_result, result_json, result_markdown
 from contactkit.util.parallel import map_ordered, resolve_scheduler
 from contactkit.util.progress import LabelledProgress
 
@@ -65,12 +66,6 @@ def _text(value: Any) -> str:
 def searched_params(kind: ModelKind) -> list[str]:
     """Return the names of the parameters of ``kind`` that declare a search grid."""
     return [p.name for p in kind.params if p.grid]
-
-
-def default_grid(kind: ModelKind) -> dict[str, tuple]:
-    """Return the declared grid of every searched parameter of ``kind`` (for the thesis's
-    networks: depth 1, 2, 4; width 0.5, 1, 2; dropout 0, 0.1, 0.25)."""
-    return {p.name: p.grid for p in kind.params if p.grid}
 
 
 def grid_trials(kind: ModelKind, grid: Mapping[str, Sequence], steps: Sequence[int],

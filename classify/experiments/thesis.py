@@ -45,13 +45,13 @@ from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import SCALARS
 from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS, columns_of
 from contactkit.schemas import InputError
-from contactkit.util.atomic import (
+from contactkit.util.atomic import write_text
+from contactkit.util.owned import (
     check_results,
     owned_result,
     result_json,
     result_markdown,
     write_figure,
-    write_text,
 )
 
 MVR = ("mean", "variance", "range")

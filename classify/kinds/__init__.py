@@ -7,3 +7,8 @@ online path a replay predicts with (:mod:`.fast`, stored as :mod:`.online_arrays
 
 Importing the package imports none of them.
 """
+
+# fast (the online predict path), online_arrays (that path in model files) and networks
+# sit behind the kinds.
+__all__ = ["devices", "inputs", "kind", "minirocket", "neural", "registry", "svm",
+           "svm_estimators"]

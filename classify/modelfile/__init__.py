@@ -12,6 +12,8 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+__all__ = ["model_file"]
+"""The public modules, for the API reference."""
 _MAIN = "contactkit.classify.modelfile.model_file"
 
 

@@ -49,7 +49,8 @@ from contactkit.features.names import ALL_TIMESERIES, GROUPS
 from contactkit.features.scalars import SCALARS
 from contactkit.features.windows import METHODS
 from contactkit.schemas import InputError, read_session
-from contactkit.util.atomic import check_results, check_target, write_text
+from contactkit.util.atomic import check_target, write_text
+from contactkit.util.owned import check_results
 from contactkit.util.parallel import available_cpus
 from contactkit.util.params import Param
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar

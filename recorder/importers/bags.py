@@ -41,7 +41,7 @@ from contactkit.recorder.importers.base import Importer
 from contactkit.recorder.importers.spill import RowSpill
 from contactkit.recorder.importers.writer import write_importer
 from contactkit.schemas import InputError, SessionMeta, joint_columns
-from contactkit.schemas.session import WRENCH_HAT_COLUMNS
+from contactkit.schemas.columns import WRENCH_HAT_COLUMNS
 
 FRANKA_STATE = "franka_msgs/msg/FrankaState"
 FRANKA_ROBOT_STATE = "franka_msgs/msg/FrankaRobotState"
@@ -81,11 +81,6 @@ def default_typestore(ros1: bool) -> Any:
             types.update(get_types_from_msg(item.read_text(), f"franka_msgs/msg/{item.name[:-4]}"))
     store.register(types)
     return store
-
-
-def bundled_msgdef(msgtype: str, ros1: bool) -> str:
-    """Return the bundled ``.msg`` text of a ``franka_msgs`` type (e.g. FrankaRobotState)."""
-    return (_msg_folder(ros1) / f"{msgtype.rsplit('/', 1)[-1]}.msg").read_text()
 
 
 CHUNK_MESSAGES = 8192
