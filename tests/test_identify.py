@@ -240,3 +240,18 @@ def test_write_dynamics_gives_the_simulated_instance(tmp_path) -> None:
     result = run_command("recorder", "simulate", str(tmp_path / "e"), "--preset", "smoke",
                          "--sessions", "1", "--robot-seed", "6", "--write-dynamics", str(out))
     assert result.returncode == 2 and "other parameters" in result.stderr
+
+
+def test_stats_deep_takes_the_dynamics(tmp_path, free_motion, identified) -> None:
+    path = save_dynamics(tmp_path / "arm.json", identified)
+    reports = []
+    for extra in ([], ["--dynamics", str(path)]):
+        out = tmp_path / f"report{len(extra)}.json"
+        result = run_command("recorder", "stats", str(free_motion[0].parent), "--deep",
+                             "--format", "json", "--out", str(out), "--workers", "1", *extra)
+        assert result.returncode == 0, result.stderr
+        reports.append(json.loads(out.read_text()))
+    assert reports[0]["deep"] != reports[1]["deep"]
+    result = run_command("recorder", "stats", str(free_motion[0].parent), "--dynamics",
+                         str(path), "--out", str(tmp_path / "r.json"), "--format", "json")
+    assert result.returncode == 2 and "needs --deep" in result.stderr

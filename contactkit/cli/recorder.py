@@ -19,9 +19,11 @@ from contactkit.cli.capture_protocol import (
 )
 from contactkit.cli.common import (
     CommandsBuilder,
+    DynamicsOpt,
     RobotOpt,
     deferred_commands,
     exit_if_failed,
+    load_dynamics_option,
     new_app,
     print_problems,
     run_app,
@@ -522,6 +524,7 @@ def stats_command(
     overwrite: Annotated[bool, typer.Option(
         help="Replace an existing --out report (the default report is replaced only "
              "when stats wrote it).")] = False,
+    dynamics: DynamicsOpt = None,
 ) -> None:
     """Summarise a dataset on the terminal and write a report of what it holds and of
     its problems (bad files, duplicates, sessions too short)."""
@@ -533,12 +536,15 @@ def stats_command(
     )
     from contactkit.recorder.stats.summary import build_report, write_noise_file
 
+    identified = load_dynamics_option(dynamics)
+    if identified is not None and not deep:
+        raise InputError("--dynamics needs --deep (only the deep report computes residuals)")
     default = out is None
     out = report_path(out or Path(f"report.{fmt}"), fmt)
     check_target(out, overwrite=overwrite, owned=OWNED_REPORT if default else None)
     with progress_bar("reading", disable=not deep) as bar:
         report = build_report(directory, deep, workers, bar_callback(bar, "sessions"),
-                              scheduler=scheduler_of(ctx))
+                              scheduler=scheduler_of(ctx), dynamics=identified)
     print_summary(report, err_console)
     noise = report["deep"] and report["deep"]["noise_baseline"]
     if noise:
