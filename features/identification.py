@@ -133,7 +133,8 @@ class Excitation:
     def to_dict(self) -> dict:
         """Return the report as a JSON-ready dictionary."""
         return {"determined": self.determined, "undetermined": self.undetermined,
-                "directions": self.directions, "condition": round(self.condition, 3),
+                "directions": self.directions,
+                "condition": round(self.condition, 3) if np.isfinite(self.condition) else None,
                 "samples": self.samples, "moving_joints": self.moving,
                 "projected_links": self.projected,
                 "rms_before_nm": [round(v, 4) for v in self.rms_before_nm],
