@@ -345,10 +345,24 @@ def _consistent_fit(theta: np.ndarray, cost: np.ndarray, nominal: np.ndarray
     factors of their pseudo-inertia (Rucker and Wensing 2022), so every iterate is
     consistent; the other parameters, linear, are eliminated in closed form (the
     Schur complement of the cost), and the rest is a small nonlinear least-squares
-    problem, solved by Levenberg-Marquardt from those links' nominal values."""
-    bad = [i for i in range(N_JOINTS) if not consistent(theta[i * N_LINK:(i + 1) * N_LINK])]
-    if not bad:
-        return theta, []
+    problem, solved by Levenberg-Marquardt from those links' nominal values. Moving
+    those links moves the others (the eliminated parameters follow them): a link that
+    this leaves inconsistent joins them and the fit is solved again."""
+    bad: list[int] = []
+    fitted = theta
+    while True:
+        more = [i for i in range(N_JOINTS)
+                if i not in bad and not consistent(fitted[i * N_LINK:(i + 1) * N_LINK])]
+        if not more:
+            return fitted, sorted(bad)
+        bad = sorted(bad + more)
+        fitted = _fit_links(theta, cost, nominal, bad)
+
+
+def _fit_links(theta: np.ndarray, cost: np.ndarray, nominal: np.ndarray, bad: list[int]
+               ) -> np.ndarray:
+    """Return :func:`_consistent_fit`'s solution with the links ``bad`` parameterised by
+    their log-Cholesky factors."""
     held = np.zeros(len(theta), bool)
     for i in bad:
         held[i * N_LINK:(i + 1) * N_LINK] = True
@@ -394,7 +408,7 @@ def _consistent_fit(theta: np.ndarray, cost: np.ndarray, nominal: np.ndarray
     out = theta.copy()
     out[held] = params(factors)
     out[free] = theta[free] - coupling @ (out[held] - target)
-    return out, bad
+    return out
 
 
 def _project(link: np.ndarray) -> np.ndarray:

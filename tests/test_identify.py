@@ -20,6 +20,7 @@ from contactkit.robots.dynamics import (
     MAX_BYTES,
     ArmDynamics,
     ArmOverride,
+    consistent,
     dynamics_checksum,
     load_dynamics,
     save_dynamics,
@@ -68,6 +69,7 @@ def test_identification_reaches_the_true_parameter_floor(free_motion, identified
     after = _rms(held_out, replace(setup, dynamics=identified))
     floor = _rms(held_out, replace(setup, dynamics=truth))
     assert (after < before).all()
+    assert all(consistent(np.array(link)) for link in identified.inertias)
     assert (after <= 1.5 * floor + 0.01).all(), (before, after, floor)
     # friction amplitudes within 15 % of the instance's (scaled +-40 % from nominal)
     phi1, true_phi1 = np.array(identified.friction[0]), np.array(truth.friction[0])

@@ -211,8 +211,12 @@ def dynamics_from_dict(doc: object, where: str | Path | None = None) -> ArmDynam
 def save_dynamics(path: str | Path, dynamics: ArmDynamics, *, overwrite: bool = False
                   ) -> Path:
     """Write ``dynamics`` as JSON to ``path`` atomically; return the path. An existing
-    file is replaced only with ``overwrite``."""
-    return write_text(path, json.dumps(dynamics.to_dict(), indent=1, allow_nan=False) + "\n",
+    file is replaced only with ``overwrite``. The document passes the checks of every
+    load first (InputError naming ``path`` otherwise): no file is written that cannot be
+    read back."""
+    doc = dynamics.to_dict()
+    dynamics_from_dict(doc, path)
+    return write_text(path, json.dumps(doc, indent=1, allow_nan=False) + "\n",
                       overwrite=overwrite)
 
 
