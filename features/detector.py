@@ -64,6 +64,7 @@ from contactkit.errors import InputError
 from contactkit.features.observer import reduce_rows, solve_recurrence
 from contactkit.features.timing import RESTART_STEP_S, restarts
 from contactkit.robots import RobotSpec
+from contactkit.robots.dynamics import ArmDynamics
 from contactkit.robots.spec import N_JOINTS
 from contactkit.util.atomic import write_text
 from contactkit.util.safe_open import read_json
@@ -182,6 +183,14 @@ def load_calibration(path: str | Path) -> DetectorConfig:
         raise InputError("no such calibration file", path)
     doc = read_json(path, "calibration")
     return DetectorConfig.from_dict(doc, path)
+
+
+def dynamics_detector(dynamics: ArmDynamics | None) -> DetectorConfig | None:
+    """Return the detector settings stored with identified ``dynamics`` (None without
+    dynamics or settings); InputError naming their file when the settings are invalid."""
+    if dynamics is None or dynamics.detector is None:
+        return None
+    return DetectorConfig.from_dict(json.loads(dynamics.detector), dynamics.source or None)
 
 
 class DetectorState:

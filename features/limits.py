@@ -10,6 +10,7 @@ import numpy as np
 
 from contactkit.errors import InputError
 from contactkit.robots import JointLimits, get_robot
+from contactkit.robots.dynamics import RobotChoice, override_robot
 from contactkit.schemas import Session, SessionMeta
 
 SPEED_MARGIN = 1.5
@@ -20,10 +21,10 @@ POSITION_SLACK_RAD = 0.5
 """... or when a joint leaves its range by more than this [rad]."""
 
 
-def robot_limits(meta: SessionMeta, robot: str | None = None) -> JointLimits:
+def robot_limits(meta: SessionMeta, robot: RobotChoice = None) -> JointLimits:
     """Return the joint limits of the robot a session with metadata ``meta`` names (or
-    of ``robot``, a model name used instead of the session's own)."""
-    return get_robot(robot or meta.robot).limits
+    of ``robot``, a model used instead of the session's own)."""
+    return get_robot(override_robot(robot) or meta.robot).limits
 
 
 def limit_violation(t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.ndarray,
@@ -60,7 +61,7 @@ def limit_violation(t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.ndarra
     return None if first is None else first[1]
 
 
-def session_limit_violation(session: Session, robot: str | None = None) -> str | None:
+def session_limit_violation(session: Session, robot: RobotChoice = None) -> str | None:
     """Return one line naming the column, value, time and row of the first sample of
     ``session`` beyond its robot's limits (``robot`` names the arm's model instead of
     the session's own), or None when every sample is within them or the robot's model is

@@ -56,6 +56,7 @@ from contactkit.features.isolation import (
     robot_isolator,
 )
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain
+from contactkit.robots.dynamics import RobotChoice
 from contactkit.schemas import Session
 
 PRE_S = 0.05  # s of samples before the onset in the decision window
@@ -434,11 +435,12 @@ def stream_events(t: np.ndarray, r: np.ndarray, dq: np.ndarray,
 
 
 def session_events(session: Session, detector: DetectorConfig, model: EventModel | None = None,
-                   decide_after_s: float | None = None, robot: str | None = None,
+                   decide_after_s: float | None = None, robot: RobotChoice = None,
                    isolate: bool = True) -> list[ContactEvent]:
     """Return the contact events of a whole session (observer, detector, pipeline, and
     with ``isolate`` contact isolation on the session's arm); ``robot`` names the arm's
-    model instead of the session's own. The detector is adapted to the arm
+    model instead of the session's own (or carries its identified dynamics, an
+    :class:`~contactkit.robots.dynamics.ArmOverride`). The detector is adapted to the arm
     (:meth:`DetectorConfig.for_robot`)."""
     session = session.complete()
     t, dq, q = session.t, session.dq, session.q

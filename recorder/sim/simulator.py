@@ -51,6 +51,7 @@ on its seed and the configuration, not on the batch it ran in.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 
@@ -69,6 +70,7 @@ from contactkit.recorder.sim.forces import Contact, Persona, sample_contact
 from contactkit.recorder.sim.motion import MotionPlan, free_motion_plan
 from contactkit.recorder.sim.noise import SensorNoise, default_noise
 from contactkit.robots import N_JOINTS, RobotSetup, canonical_robot_name, get_robot
+from contactkit.robots.dynamics import ArmDynamics
 from contactkit.robots.model import RobotModel
 from contactkit.robots.surfaces import link_surface
 from contactkit.schemas import InputError, joint_columns
@@ -342,6 +344,26 @@ class ArmSimulator:
         self.noise_scale = scale
         self.bias_scale = np.array(noise.tau_bias_nm) * scale
         self.kp, self.kd, self.ki = (np.array(g)[:, None] for g in (KP, KD, KI))
+
+    def true_dynamics(self, provenance: dict | None = None) -> ArmDynamics:
+        """Return this robot instance's own parameters in the identification's format:
+        the perturbed plant's link inertias and its scaled friction, with ``provenance``.
+        The armature is 0: the torque sensors sit between the motors and the links, so
+        the rotors' inertia is not in what they measure. The observer given these has
+        the plant's true model (the floor an identification can reach)."""
+        friction = self.friction
+        terms = ((np.zeros(N_JOINTS), np.ones(N_JOINTS), np.zeros(N_JOINTS),
+                  np.zeros(N_JOINTS), np.zeros(N_JOINTS)) if friction is None else
+                 (friction.phi1, friction.phi2, friction.phi3, friction.viscous,
+                  friction.offset))
+        model = self.plant.model
+        return ArmDynamics(
+            robot=self.config.robot, with_hand=self.plant.with_hand,
+            inertias=tuple(tuple(float(v) for v in model.inertias[j].toDynamicParameters())
+                           for j in range(1, N_JOINTS + 1)),
+            friction=tuple(tuple(float(v) for v in values) for values in terms),
+            provenance=json.dumps(dict(provenance or {}, simulator=self.config.to_dict()),
+                                  sort_keys=True, default=str))
 
     def _gravity(self, pool: pin.ModelPool, q: np.ndarray) -> np.ndarray:
         zeros = np.zeros_like(q, order="F")
