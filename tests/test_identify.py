@@ -118,7 +118,7 @@ def test_non_finite_huge_and_deep_files_are_refused(tmp_path, identified) -> Non
         str(identified.to_dict()["links"][3][0]), "NaN", 1)
     cases = {"nan.json": (text, "not finite"),
              "huge.json": (" " * (MAX_BYTES + 1), "larger than"),
-             "deep.json": ("[" * 100_000 + "]" * 100_000, "deeper|not a dynamics"),
+             "deep.json": ("[" * 100_000 + "]" * 100_000, "nested too deeply"),
              "other.json": ("{}", "not a dynamics file")}
     for name, (content, message) in cases.items():
         path = tmp_path / name
