@@ -34,7 +34,7 @@ os.environ["CONTACTKIT_CHAIN_CACHE"] = "0"
 import numpy as np
 from sklearn.model_selection import StratifiedKFold
 
-from contactkit.classify.registry import make_estimator
+from contactkit.classify.kinds.registry import make_estimator
 from contactkit.features.extract import SessionFeatures, _session_feature_row
 from contactkit.recorder.sim.dataset import PRESETS, preset_specs, simulate_specs
 from contactkit.recorder.sim.simulator import SimConfig
@@ -49,7 +49,7 @@ def _fit_predict(task: tuple) -> np.ndarray:
 
 def _warm(_: int) -> int:
     """Import on a worker what the timed jobs need (the local pool forks with them)."""
-    import contactkit.classify.registry
+    import contactkit.classify.kinds.registry
     import contactkit.features.extract
     import contactkit.recorder.sim.dataset  # noqa: F401
 

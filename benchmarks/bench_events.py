@@ -34,14 +34,14 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-from contactkit.classify.events import (
+from contactkit.classify.events.contact_events import (
     EVENT_FEATURES,
     EventModel,
     EventPipeline,
     event_features,
 )
-from contactkit.classify.fast import fast_predictor
-from contactkit.classify.models import svm_pipeline
+from contactkit.classify.kinds.fast import fast_predictor
+from contactkit.classify.kinds.svm_estimators import svm_pipeline
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.recorder.importers.arrays import load_joint_arrays

@@ -1,7 +1,7 @@
 """The thesis's networks on the CPU and on a CUDA GPU: time per epoch, repeatability,
 and how far the GPU's predictions are from the CPU's.
 
-Imports only :mod:`contactkit.classify.networks` (numpy, scikit-learn, PyTorch), so it
+Imports only :mod:`contactkit.classify.kinds.networks` (numpy, scikit-learn, PyTorch), so it
 runs on a GPU machine without the feature chain's dependencies:
 
     PYTHONPATH=<dir holding the contactkit package> python3 benchmarks/bench_gpu.py
@@ -38,7 +38,7 @@ os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")  # before CUDA start
 
 import numpy as np
 
-from contactkit.classify.networks import CNNClassifier, LSTMClassifier, require_torch
+from contactkit.classify.kinds.networks import CNNClassifier, LSTMClassifier, require_torch
 
 NETWORKS = {"lstm": LSTMClassifier, "cnn": CNNClassifier}
 CLASSES = np.array(["none", "bump", "adjust", "shove"])

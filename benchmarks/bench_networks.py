@@ -23,8 +23,8 @@ import numpy as np
 import onnxruntime as ort
 import torch
 
-from contactkit.classify.fast import fast_predictor
-from contactkit.classify.registry import make_estimator
+from contactkit.classify.kinds.fast import fast_predictor
+from contactkit.classify.kinds.registry import make_estimator
 from contactkit.features.scalars import scalar_features
 
 torch.set_num_threads(1)

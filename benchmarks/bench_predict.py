@@ -6,7 +6,7 @@ features and class probabilities. This measures that step for a 0.5 s window at
 1 kHz (500 samples x 21 channels) with each model kind trained on a small simulated
 dataset, against a baseline measured in the same run: numpy's own max-min over the
 same window. Prints median and p99 [us] for scikit-learn's predict_proba and for
-the online path replay uses (:mod:`contactkit.classify.fast`, the same numbers without
+the online path replay uses (:mod:`contactkit.classify.kinds.fast`, the same numbers without
 scikit-learn's per-call input checks).
 
     .venv/bin/python benchmarks/bench_predict.py
@@ -24,8 +24,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from contactkit.classify.data import load_features
-from contactkit.classify.fast import fast_predictor
-from contactkit.classify.registry import make_estimator
+from contactkit.classify.kinds.fast import fast_predictor
+from contactkit.classify.kinds.registry import make_estimator
 from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import scalar_features
 from contactkit.features.timeseries import columns_of

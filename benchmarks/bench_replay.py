@@ -32,8 +32,8 @@ import numpy as np
 import rerun as rr
 
 from contactkit.classify.data import load_features
-from contactkit.classify.modelfile import load_model, save_model
-from contactkit.classify.registry import get_kind, make_estimator
+from contactkit.classify.kinds.registry import get_kind, make_estimator
+from contactkit.classify.modelfile.model_file import load_model, save_model
 from contactkit.cli.default_model import RECIPE
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.extract import SessionFeatures

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from contactkit.classify.kind import ModelKind, ModelOptions
+from contactkit.classify.kinds.kind import ModelKind, ModelOptions
 from contactkit.classify.names import GROUP_KEYS
 from contactkit.classify.schemes import limited_mask, relabel
 from contactkit.features.extract import SessionFeatures, feature_rows

@@ -31,8 +31,8 @@ import numpy as np
 from sklearn.base import BaseEstimator, TransformerMixin
 
 from contactkit.classify.data import FeatureSet
-from contactkit.classify.inputs import CNN_INPUT
-from contactkit.classify.kind import ModelKind, ModelOptions
+from contactkit.classify.kinds.inputs import CNN_INPUT
+from contactkit.classify.kinds.kind import ModelKind, ModelOptions
 from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.chain_cache import chain_series
 from contactkit.features.observer import DEFAULT_GAIN, ObserverConfig

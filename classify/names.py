@@ -8,4 +8,4 @@ PROTOCOLS = ("thesis", "group")
 GROUP_KEYS = ("pose", "session", "operator", "condition")
 """Metadata keys the group protocol can group sessions by."""
 EXPERIMENTS = ("features", "rfe", "speed", "window")
-"""The thesis experiments of :mod:`contactkit.classify.experiments`."""
+"""The thesis experiments of :mod:`contactkit.classify.experiments.thesis`."""

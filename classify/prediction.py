@@ -13,7 +13,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from contactkit.classify.data import load_features
-from contactkit.classify.modelfile import ModelFile
+from contactkit.classify.modelfile.model_file import ModelFile
 from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.dataset import session_files

@@ -1,7 +1,7 @@
 """Training and evaluating any registered model kind on datasets: the library behind
 ``classify train`` and ``classify evaluate``, callable from a notebook.
 
-Nothing here knows a kind by name: the kind (:mod:`contactkit.classify.registry`)
+Nothing here knows a kind by name: the kind (:mod:`contactkit.classify.kinds.registry`)
 says which input it takes, how to build the estimator and how to save it.
 """
 
@@ -13,10 +13,10 @@ from pathlib import Path
 
 from contactkit.classify.data import GROUP_KEYS, FeatureSet
 from contactkit.classify.evaluate import Report, evaluate
-from contactkit.classify.kind import ModelKind, ModelOptions
-from contactkit.classify.modelfile import save_model
+from contactkit.classify.kinds.kind import ModelKind, ModelOptions
+from contactkit.classify.kinds.registry import get_kind
+from contactkit.classify.modelfile.model_file import save_model
 from contactkit.classify.names import PROTOCOLS
-from contactkit.classify.registry import get_kind
 from contactkit.classify.schemes import check_scheme, check_two_classes, scheme_classes
 from contactkit.errors import check_choice
 from contactkit.robots.registry import canonical_robot_name
@@ -96,7 +96,7 @@ def train(datasets: Sequence[Path], out: Path, options: ModelOptions, *, scheme:
     """Train a model of ``options.kind`` on every session of ``datasets`` and save it to
     ``out`` in the kind's file format; return what was written. ``detector`` and
     ``events`` (a contact detector's settings, an event classifier with its settings)
-    travel in the model file (see :func:`contactkit.classify.modelfile.save_model`). The
+    travel in the model file (see :func:`contactkit.classify.modelfile.model_file.save_model`). The
     input is computed in ``workers`` processes or on the Dask ``scheduler``."""
     check_scheme(scheme)
     out = Path(out)

@@ -29,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
-from contactkit.classify.calibrate import calibrate_sessions
-from contactkit.classify.events import session_events
-from contactkit.classify.modelfile import load_model
+from contactkit.classify.events.calibrate import calibrate_sessions
+from contactkit.classify.events.contact_events import session_events
+from contactkit.classify.modelfile.model_file import load_model
 from contactkit.cli.default_model import build_default_model
 from contactkit.features.agreement import session_residual_agreement
 from contactkit.features.timeseries import ChainConfig

@@ -133,28 +133,29 @@ def _field_docs(cls: type) -> dict[str, str]:
 
 
 def session_format() -> str:
-    """Return the Markdown page of the session format, from ``contactkit.schemas.session``."""
-    from contactkit.schemas import session
+    """Return the Markdown page of the session format, from ``contactkit.schemas``'
+    ``columns``, ``metadata`` and ``session`` modules."""
+    from contactkit.schemas import columns, metadata, session
 
     out = ["# Session format", "",
-           "Generated at build time from `contactkit.schemas.session` (`COLUMN_ORDER`, "
-           "`column_type`, `SessionMeta`). A session is one Parquet file; the "
-           f"schema version is **{session.SCHEMA_VERSION}**.", "",
+           "Generated at build time from `contactkit.schemas` (`columns.COLUMN_ORDER`, "
+           "`columns.column_type`, `metadata.SessionMeta`). A session is one Parquet file; "
+           f"the schema version is **{metadata.SCHEMA_VERSION}**.", "",
            "## The schema's own description", "",
-           "```text", inspect.cleandoc(session.__doc__ or ""), "```", "",
+           "```text", inspect.cleandoc(columns.__doc__ or ""), "```", "",
            "## Columns, in file order", "",
            "| column | Arrow type | required |", "|---|---|---|"]
-    required = set(session.REQUIRED_COLUMNS)
-    for name in session.COLUMN_ORDER:
-        out.append(f"| `{name}` | {session.column_type(name)} | "
+    required = set(columns.REQUIRED_COLUMNS)
+    for name in columns.COLUMN_ORDER:
+        out.append(f"| `{name}` | {columns.column_type(name)} | "
                    f"{'yes' if name in required else 'optional'} |")
     out += ["", "## Metadata", "",
             f"The key-value metadata key `{session.METADATA_KEY.decode()}` holds one JSON "
             "document with these fields (`SessionMeta`; "
-            f"{inspect.cleandoc(session.SessionMeta.__doc__ or '')})", "",
+            f"{inspect.cleandoc(metadata.SessionMeta.__doc__ or '')})", "",
             "| field | type | default | meaning |", "|---|---|---|---|"]
-    docs = _field_docs(session.SessionMeta)
-    for f in dataclasses.fields(session.SessionMeta):
+    docs = _field_docs(metadata.SessionMeta)
+    for f in dataclasses.fields(metadata.SessionMeta):
         if f.default is not dataclasses.MISSING:
             default = f"`{f.default!r}`"
         elif f.default_factory is not dataclasses.MISSING:
@@ -164,8 +165,8 @@ def session_format() -> str:
         meaning = docs.get(f.name, "").replace("|", "\\|").replace("``", "`")
         meaning = meaning.replace(":mod:", "").replace(":class:", "")
         out.append(f"| `{f.name}` | `{_type_name(f.type)}` | {default} | {meaning} |")
-    out += ["", f"Actions: {', '.join(f'`{a}`' for a in session.ACTIONS)}; conditions: "
-            f"{', '.join(f'`{c}`' for c in session.CONDITIONS)}.", ""]
+    out += ["", f"Actions: {', '.join(f'`{a}`' for a in metadata.ACTIONS)}; conditions: "
+            f"{', '.join(f'`{c}`' for c in metadata.CONDITIONS)}.", ""]
     return "\n".join(out)
 
 

@@ -36,9 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
-from contactkit.classify.event_training import SessionEvents
-from contactkit.classify.events import batch_events
-from contactkit.classify.modelfile import load_model
+from contactkit.classify.events.contact_events import batch_events
+from contactkit.classify.events.training import SessionEvents
+from contactkit.classify.modelfile.model_file import load_model
 from contactkit.cli.default_model import build_default_model
 from contactkit.features.detector import REST_SPEED, detect
 from contactkit.features.isolation import robot_isolator
@@ -224,7 +224,7 @@ def intent_events(path: str) -> list:
 def detected_intent_events(path: str) -> tuple[list, dict | None]:
     """Return a session's events as the default model's detector finds them, decided
     150 ms after the detected onset (the events of docs/real.py's 90.8 %-style figure:
-    :func:`contactkit.classify.event_training.session_events`), twice: as they are, and
+    :func:`contactkit.classify.events.training.session_events`), twice: as they are, and
     with the isolation features of the pipeline's own estimate at the decision
     (``contact_at_decision``, the online one) appended. With them, for a missed
     contact: the true link, whether the arm moved, the applied force's peak [N] and

@@ -26,8 +26,8 @@ import numpy as np
 from contactkit.classify.data import FeatureSet, load_features
 from contactkit.classify.evaluate import Report, evaluate
 from contactkit.classify.grids import GridSpec, load_grids
-from contactkit.classify.inputs import CNN_INPUT, LSTM_INPUT
-from contactkit.classify.registry import make_estimator
+from contactkit.classify.kinds.inputs import CNN_INPUT, LSTM_INPUT
+from contactkit.classify.kinds.registry import make_estimator
 from contactkit.classify.schemes import scheme_classes
 from contactkit.features.extract import SessionFeatures
 from contactkit.util.atomic import write_text

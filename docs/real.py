@@ -26,17 +26,17 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from contactkit.classify.calibrate import calibrate_sessions, session_calibration_data
 from contactkit.classify.evaluate import metrics_from_confusion
-from contactkit.classify.event_metrics import EventScore, score_events
-from contactkit.classify.event_training import (
+from contactkit.classify.events.calibrate import calibrate_sessions, session_calibration_data
+from contactkit.classify.events.contact_events import batch_events, stream_events
+from contactkit.classify.events.metrics import EventScore, score_events
+from contactkit.classify.events.training import (
     SessionEvents,
     fit_event_model,
     load_session_events,
     session_outcome,
 )
-from contactkit.classify.events import batch_events, stream_events
-from contactkit.classify.modelfile import load_model
+from contactkit.classify.modelfile.model_file import load_model
 from contactkit.cli.default_model import RECIPE, build_default_model, recipe_dir
 from contactkit.features.detector import MIN_NOISE, REST_SPEED, Detection, detect
 from contactkit.features.timeseries import TimeseriesChain

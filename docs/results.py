@@ -29,7 +29,7 @@ from real import SECTION as REAL_SECTION
 
 from contactkit.classify.data import FeatureSet, load_features
 from contactkit.classify.evaluate import Report, evaluate
-from contactkit.classify.registry import make_estimator
+from contactkit.classify.kinds.registry import make_estimator
 from contactkit.classify.schemes import scheme_classes
 from contactkit.features.extract import SessionFeatures
 from contactkit.util.atomic import write_text

@@ -33,12 +33,9 @@ from contactkit.features.chain_cache import BATCH_ROWS
 from contactkit.features.observer import solve_recurrence
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain
 from contactkit.robots import RobotSetup
-from contactkit.schemas.session import (
-    SampleBatch,
-    SessionMeta,
-    iter_session_batches,
-    joint_columns,
-)
+from contactkit.schemas.columns import joint_columns
+from contactkit.schemas.metadata import SessionMeta
+from contactkit.schemas.session import SampleBatch, iter_session_batches
 
 DEFAULT_SMOOTH_S = 1.0 / (2.0 * math.pi * 10.0)
 DEFAULT_WARMUP_S = 0.5

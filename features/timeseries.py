@@ -74,7 +74,8 @@ from contactkit.features.observer import (
 from contactkit.features.timing import RESTART_STEP_S, restarts
 from contactkit.robots import FrictionModel, RobotSetup
 from contactkit.robots.model import RobotModel
-from contactkit.schemas.session import SampleBatch, SessionMeta
+from contactkit.schemas.metadata import SessionMeta
+from contactkit.schemas.session import SampleBatch
 
 UNITS = {"q": "rad", "dq": "rad/s", "tau": "Nm", "ddq": "rad/s^2", "p_int": "W", "r": "Nm",
          "g": "Nm", "tau_inv": "Nm", "p_ext": "W", "f": "N", "m": "Nm", "fm_norm": "N, Nm"}

@@ -11,7 +11,7 @@ network the resampled window grid, go through the model: each prediction is stam
 with the time of the last sample it used, so it never looks ahead; the engine keeps
 only the last seconds of features that such a window needs. Where the model carries
 a contact detector (or one is given), every sample also goes through the event
-pipeline (:mod:`contactkit.classify.events`: detect, decide once, hold until
+pipeline (:mod:`contactkit.classify.events.contact_events`: detect, decide once, hold until
 release), which needs no planned interaction time, and gates the per-hop output:
 without a detected contact a hop's label is ``none`` (probability 1), whatever the
 window classifier says (its own probabilities stay in ``pred_window_proba``), because
@@ -45,8 +45,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from contactkit.classify.events import NONE, ContactEvent, EventPipeline
-from contactkit.classify.modelfile import ModelFile
+from contactkit.classify.events.contact_events import NONE, ContactEvent, EventPipeline
+from contactkit.classify.modelfile.model_file import ModelFile
 from contactkit.errors import input_error_about
 from contactkit.features.agreement import ResidualAgreement
 from contactkit.features.detector import DetectorConfig

@@ -24,13 +24,14 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from contactkit.classify.events import ContactEvent
+from contactkit.classify.events.contact_events import ContactEvent
 from contactkit.errors import InputError
 from contactkit.replay.contacts import ContactTrackLogger, log_contact_links
 from contactkit.replay.engine import Block, OfflineAnswer, ReplayStream
 from contactkit.robots.model import RobotModel
 from contactkit.robots.surfaces import viewer_urdf_file
-from contactkit.util.atomic import Owned, owned_by_marker
+from contactkit.util.atomic import Owned
+from contactkit.util.owned import owned_by_marker
 from contactkit.util.paths import inside
 from contactkit.viewer import layout
 

@@ -16,8 +16,8 @@ from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
-from contactkit.classify.events import ContactEvent
-from contactkit.classify.modelfile import ModelFile
+from contactkit.classify.events.contact_events import ContactEvent
+from contactkit.classify.modelfile.model_file import ModelFile
 from contactkit.features.detector import DetectorConfig
 from contactkit.replay.engine import DEFAULT_HOP_S, OfflineAnswer, ReplayStream
 from contactkit.replay.recording import (

@@ -175,9 +175,9 @@ def save_quick_model(path: Path, *, events: bool = False) -> Path:
     """Save an SVM on random rows of the default features (fast to build, predicts
     anything) at ``path``; with ``events``, also the default contact detector and an
     event classifier on random event features. Return the path."""
-    from contactkit.classify.events import EVENT_FEATURES, EventModel
-    from contactkit.classify.modelfile import save_model
-    from contactkit.classify.registry import get_kind, make_estimator
+    from contactkit.classify.events.contact_events import EVENT_FEATURES, EventModel
+    from contactkit.classify.kinds.registry import get_kind, make_estimator
+    from contactkit.classify.modelfile.model_file import save_model
     from contactkit.features.detector import DetectorConfig
     from contactkit.features.extract import SessionFeatures
 

@@ -20,7 +20,7 @@ def _rss_mb() -> float:
 
 def main() -> None:
     case, session, model_path, out, rows = sys.argv[1:6]
-    from contactkit.classify.modelfile import load_model
+    from contactkit.classify.modelfile.model_file import load_model
     from contactkit.features import chain_cache
     from contactkit.features.per_sample import write_per_sample_table
     from contactkit.replay import engine

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from contactkit.classify.events import EventPipeline
+from contactkit.classify.events.contact_events import EventPipeline
 from contactkit.features.detector import Detector, DetectorConfig
 from contactkit.features.isolation import robot_isolator
 from contactkit.features.timeseries import TimeseriesChain

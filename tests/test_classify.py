@@ -13,11 +13,11 @@ from sklearn.metrics import balanced_accuracy_score, f1_score, recall_score
 
 from contactkit.classify.data import load_features
 from contactkit.classify.evaluate import confusion, evaluate, metrics_from_confusion, splits
-from contactkit.classify.modelfile import load_model, save_model
-from contactkit.classify.models import JointEnsemble, feature_joint
-from contactkit.classify.registry import get_kind, make_estimator
+from contactkit.classify.kinds.registry import get_kind, make_estimator
+from contactkit.classify.kinds.svm_estimators import JointEnsemble, feature_joint
+from contactkit.classify.modelfile.model_file import load_model, save_model
+from contactkit.classify.modelfile.skops_format import META_MEMBER
 from contactkit.classify.schemes import limited_mask, relabel, scheme_classes
-from contactkit.classify.skops_format import META_MEMBER
 from contactkit.features.extract import SessionFeatures
 from contactkit.schemas import InputError
 from tests.conftest import make_dataset
@@ -181,7 +181,7 @@ def test_model_file_round_trip_and_refusals(features, tmp_path: Path) -> None:
 
 def test_model_file_as_untrusted_input(features, tmp_path: Path) -> None:
     """A relabelled contactkit.json, a zip bomb and flipped bytes: each one line."""
-    from contactkit.classify import skops_format
+    from contactkit.classify.modelfile import skops_format
 
     model = make_estimator("svm", features.names).fit(features.X, features.labels())
     path = save_model(tmp_path / "m.skops", model, transformer=SessionFeatures(),
@@ -219,8 +219,8 @@ def test_model_file_refuses_untrusted_types(features, tmp_path: Path) -> None:
     import skops.io as sio
     from sklearn.base import BaseEstimator
 
-    from contactkit.classify.skops_format import FORMAT
-    from contactkit.classify.skops_format import members_digest as _members_digest
+    from contactkit.classify.modelfile.skops_format import FORMAT
+    from contactkit.classify.modelfile.skops_format import members_digest as _members_digest
 
     class Smuggled(BaseEstimator):
         pass
@@ -242,7 +242,7 @@ def test_model_file_refuses_untrusted_types(features, tmp_path: Path) -> None:
 @pytest.mark.parametrize("kind", ["svm", "per-joint", "three-joint"])
 @pytest.mark.parametrize("scheme", ["full", "contact", "reaction"])
 def test_fast_online_predictor_equals_scikit_learn(features, kind, scheme) -> None:
-    from contactkit.classify.fast import fast_predictor
+    from contactkit.classify.kinds.fast import fast_predictor
 
     y = features.labels(scheme)
     model = make_estimator(kind, features.names, c=10.0).fit(features.X, y)

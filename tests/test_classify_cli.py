@@ -9,7 +9,7 @@ import pytest
 
 from contactkit.classify.data import load_features
 from contactkit.classify.evaluate import evaluate
-from contactkit.classify.models import svm_pipeline
+from contactkit.classify.kinds.svm_estimators import svm_pipeline
 from contactkit.classify.schemes import scheme_classes
 from contactkit.features.extract import SessionFeatures
 from tests.conftest import make_dataset, make_session, run_command
@@ -59,7 +59,7 @@ def test_a_model_says_when_a_session_comes_from_an_arm_it_was_not_trained_on(
     """A model file lists the arms of its training sessions; predicting or replaying a
     session of another arm warns once, naming the session and both arms, and goes on
     (its features come from that arm's own model)."""
-    from contactkit.classify.modelfile import load_model
+    from contactkit.classify.modelfile.model_file import load_model
 
     model = tmp_path / "model.skops"
     trained = run_command("classify", "train", str(static), "--out", str(model), "--model",

@@ -156,9 +156,9 @@ def test_gridsearch_and_lstm_evaluate_identical(cluster, tmp_path, monkeypatch):
     """A 4-trial grid search and a small LSTM evaluation give the same reports on the
     cluster as on the local path."""
     pytest.importorskip("torch")
-    from contactkit.classify.gridsearch import Protocol, grid_trials, run_trials
-    from contactkit.classify.kind import ModelOptions
-    from contactkit.classify.registry import get_kind
+    from contactkit.classify.experiments.gridsearch import Protocol, grid_trials, run_trials
+    from contactkit.classify.kinds.kind import ModelOptions
+    from contactkit.classify.kinds.registry import get_kind
     from contactkit.classify.training import evaluate_kind
     from tests.conftest import make_dataset
 

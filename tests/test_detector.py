@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contactkit.classify.event_metrics import EventScore, score_events
+from contactkit.classify.events.metrics import EventScore, score_events
 from contactkit.features.detector import (
     CalibrationData,
     Detector,

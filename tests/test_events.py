@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contactkit.classify.events import (
+from contactkit.classify.events.contact_events import (
     EVENT_FEATURES,
     NONE,
     UNDECIDED,
@@ -17,7 +17,7 @@ from contactkit.classify.events import (
     batch_events,
     stream_events,
 )
-from contactkit.classify.models import svm_pipeline
+from contactkit.classify.kinds.svm_estimators import svm_pipeline
 from contactkit.features.detector import DetectorConfig, detect
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.schemas import InputError, read_session

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import rerun.chunk as rc
 
-from contactkit.classify.events import EVENT_FEATURES, EventModel
-from contactkit.classify.kind import ModelOptions
-from contactkit.classify.modelfile import load_model
-from contactkit.classify.models import svm_pipeline
+from contactkit.classify.events.contact_events import EVENT_FEATURES, EventModel
+from contactkit.classify.kinds.kind import ModelOptions
+from contactkit.classify.kinds.svm_estimators import svm_pipeline
+from contactkit.classify.modelfile.model_file import load_model
 from contactkit.classify.training import train
 from contactkit.features.detector import DetectorConfig, load_calibration
 from contactkit.schemas import read_session, write_session

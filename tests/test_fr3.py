@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contactkit.classify.events import session_events
-from contactkit.classify.modelfile import load_model
+from contactkit.classify.events.contact_events import session_events
+from contactkit.classify.modelfile.model_file import load_model
 from contactkit.cli.default_model import build_default_model
 from contactkit.recorder.importers.csv_import import import_csv
 from contactkit.recorder.importers.csv_map import load_csv_map

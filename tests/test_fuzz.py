@@ -22,7 +22,7 @@ import pytest
 from hypothesis import assume, event, given
 from hypothesis import strategies as st
 
-from contactkit.classify.modelfile import load_model
+from contactkit.classify.modelfile.model_file import load_model
 from contactkit.recorder.capture.journal import SessionWriter, journal_path, recover_directory
 from contactkit.recorder.importers.arrays import load_joint_arrays
 from contactkit.recorder.importers.can_map import default_map_path, load_map
@@ -36,7 +36,8 @@ from contactkit.schemas import (
     read_session,
     validate_session,
 )
-from contactkit.schemas.session import COLUMN_ORDER, METADATA_KEY
+from contactkit.schemas.columns import COLUMN_ORDER
+from contactkit.schemas.session import METADATA_KEY
 from contactkit.util.paths import inside
 from tests.conftest import make_session
 from tests.fuzz_support import (

@@ -15,8 +15,9 @@ from hypothesis import strategies as st
 
 from contactkit.errors import InputError
 from contactkit.recorder.importers.writer import parse_meta
-from contactkit.schemas.session import MAX_ABS_T_S, MAX_STEP_S, check_times
+from contactkit.schemas.columns import MAX_ABS_T_S, MAX_STEP_S, check_times
 from contactkit.util import atomic
+from contactkit.util.owned import owned_by_marker
 from contactkit.util.text import printable
 from tests.fuzz_support import FLOATS, refused_or
 
@@ -74,7 +75,7 @@ def test_fuzz_overwrite_policy(writer_dir, existing, overwrite, owned, data) -> 
         target.symlink_to(victim)
     elif existing == "dir":
         target.mkdir()
-    policy = atomic.owned_by_marker(b"MINE") if owned else None
+    policy = owned_by_marker(b"MINE") if owned else None
     written = refused_or(atomic.write_bytes, target, b"MINE" + data, overwrite=overwrite,
                          owned=policy)
     assert victim.read_bytes() == b"victim"

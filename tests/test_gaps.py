@@ -11,8 +11,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from contactkit.classify.events import EventPipeline, batch_events, stream_events
-from contactkit.classify.modelfile import load_model
+from contactkit.classify.events.contact_events import EventPipeline, batch_events, stream_events
+from contactkit.classify.modelfile.model_file import load_model
 from contactkit.features.detector import Detector, DetectorConfig, detect
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.features.timing import RESTART_STEP_S, restarts, sampling_stats

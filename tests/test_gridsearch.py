@@ -10,15 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contactkit.classify.gridsearch import (
+from contactkit.classify.experiments.gridsearch import (
     Protocol,
     best_trial,
     grid_trials,
     run_trials,
     write_results,
 )
-from contactkit.classify.networks import CNNClassifier, LSTMClassifier, resolve_device
-from contactkit.classify.registry import get_kind
+from contactkit.classify.kinds.networks import CNNClassifier, LSTMClassifier, resolve_device
+from contactkit.classify.kinds.registry import get_kind
 from contactkit.classify.training import training_set
 from contactkit.schemas import InputError
 from tests.conftest import make_dataset, run_command

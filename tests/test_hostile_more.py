@@ -250,7 +250,7 @@ def test_dataset_with_a_dangling_or_looping_link_lists_it(good, tmp_path, capsys
 def test_augmentation_noise_file_of_the_wrong_shape_is_one_line(tmp_path, text) -> None:
     """``classify experiment augmentation --noise-file``: the baseline it reads is 7
     finite non-negative torques [Nm], or the file is refused naming itself."""
-    from contactkit.classify.augmentation import noise_baseline
+    from contactkit.classify.experiments.augmentation import noise_baseline
 
     path = tmp_path / "noise.json"
     path.write_bytes(text.encode(errors="surrogateescape"))
@@ -274,7 +274,7 @@ def test_onnx_model_with_metadata_of_the_wrong_shape_is_one_line(tmp_path, good,
     onnx = pytest.importorskip("onnx")
     from onnx import TensorProto, helper
 
-    from contactkit.classify.onnx_model import _graph_digest
+    from contactkit.classify.modelfile.onnx_model import _graph_digest
 
     x = helper.make_tensor_value_info("grid", TensorProto.FLOAT, [1, 3])
     y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3])

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from contactkit.classify.events import batch_events, stream_events
+from contactkit.classify.events.contact_events import batch_events, stream_events
 from contactkit.features.detector import DetectorConfig, detect
 from contactkit.features.isolation import NO_SURFACE, OK, TOO_SMALL, ContactIsolator, robot_isolator
 from contactkit.features.timeseries import TimeseriesChain

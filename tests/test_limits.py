@@ -88,7 +88,7 @@ def test_recorder_info_flags_a_sample_beyond_the_robots_limits(tmp_path: Path) -
 def test_calibration_leaves_out_a_session_beyond_the_robots_limits(tmp_path: Path) -> None:
     """A mis-scaled session (torques scaled 100x) would set thresholds of hundreds of
     Nm: calibrate names it, leaves it out, calibrates on the rest and exits 2."""
-    from contactkit.classify.calibrate import calibrate_sessions
+    from contactkit.classify.events.calibrate import calibrate_sessions
 
     good = make_session(tmp_path, action="none", duration_s=2.0)
     table = pq.read_table(good)

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contactkit.classify.event_listener import LiveEvents
-from contactkit.classify.modelfile import load_model
+from contactkit.classify.events.listener import LiveEvents
+from contactkit.classify.modelfile.model_file import load_model
 from contactkit.cli.default_model import build_default_model
 from contactkit.features.isolation import robot_isolator
 from contactkit.recorder.capture.record import record_session

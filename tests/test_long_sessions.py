@@ -11,12 +11,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from contactkit.schemas import InputError, SessionMeta, read_session, write_session
-from contactkit.schemas.session import (
-    REQUIRED_COLUMNS,
-    iter_session_batches,
-    session_schema,
-    write_session_batches,
-)
+from contactkit.schemas.columns import REQUIRED_COLUMNS
+from contactkit.schemas.session import iter_session_batches, session_schema, write_session_batches
 
 
 def _meta() -> SessionMeta:

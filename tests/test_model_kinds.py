@@ -13,12 +13,12 @@ from pathlib import Path
 
 import pytest
 
-from contactkit.classify import registry
-from contactkit.classify.inputs import FEATURES
-from contactkit.classify.kind import ModelKind, ModelOptions
-from contactkit.classify.modelfile import load_model
+from contactkit.classify.kinds import registry
+from contactkit.classify.kinds.inputs import FEATURES
+from contactkit.classify.kinds.kind import ModelKind, ModelOptions
+from contactkit.classify.modelfile.model_file import load_model
+from contactkit.classify.modelfile.skops_format import SKOPS
 from contactkit.classify.prediction import predict_sources
-from contactkit.classify.skops_format import SKOPS
 from contactkit.classify.training import evaluate_kind, train
 from contactkit.replay.session_replay import replay_session
 from contactkit.schemas import InputError
@@ -114,7 +114,7 @@ def test_parameters_are_checked_where_they_are_declared(tiny_kind) -> None:
 def test_declarations_load_without_sklearn_or_torch() -> None:
     code = textwrap.dedent("""
         import sys
-        from contactkit.classify import registry
+        from contactkit.classify.kinds import registry
         for name in registry.kind_names():
             registry.get_kind(name).params
         heavy = [m for m in ("sklearn", "torch", "skops", "aeon") if m in sys.modules]

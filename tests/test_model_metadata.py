@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from contactkit.classify.modelfile import load_model
+from contactkit.classify.modelfile.model_file import load_model
 from contactkit.schemas import InputError
 from tests.conftest import make_session, run_command, save_quick_model
 
@@ -196,7 +196,7 @@ def _onnx_model(tmp_path: Path, meta: dict, name: str = "net.onnx", opset: int =
     onnx = pytest.importorskip("onnx", reason="ONNX cases need onnx")
     from onnx import TensorProto, helper
 
-    from contactkit.classify.onnx_model import _graph_digest
+    from contactkit.classify.modelfile.onnx_model import _graph_digest
 
     x = helper.make_tensor_value_info("grid", TensorProto.FLOAT, [1, 21, 30])
     y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 30])

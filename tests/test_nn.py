@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from contactkit.classify.grids import GridSpec, load_grids, resample_window, window_grid
-from contactkit.classify.modelfile import load_model
-from contactkit.classify.networks import CNNClassifier, LSTMClassifier
+from contactkit.classify.kinds.networks import CNNClassifier, LSTMClassifier
+from contactkit.classify.modelfile.model_file import load_model
 from contactkit.features.observer import ObserverConfig
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain
 from contactkit.schemas import read_session

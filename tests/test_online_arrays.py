@@ -20,12 +20,12 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from contactkit.classify.events import EVENT_FEATURES, EventModel
-from contactkit.classify.modelfile import load_model, save_model
-from contactkit.classify.online_arrays import npy_bytes, read_npy
-from contactkit.classify.registry import get_kind, make_estimator
+from contactkit.classify.events.contact_events import EVENT_FEATURES, EventModel
+from contactkit.classify.kinds.online_arrays import npy_bytes, read_npy
+from contactkit.classify.kinds.registry import get_kind, make_estimator
+from contactkit.classify.modelfile.model_file import load_model, save_model
+from contactkit.classify.modelfile.skops_format import META_MEMBER, digest_of
 from contactkit.classify.schemes import relabel
-from contactkit.classify.skops_format import META_MEMBER, digest_of
 from contactkit.features.extract import SessionFeatures
 from contactkit.features.window_features import WindowFeatures
 from contactkit.schemas import InputError
@@ -143,7 +143,7 @@ def test_online_transformer_without_scikit_learn(tmp_path: Path) -> None:
 
     probe = ("import sys\n"
              "from contactkit.features.window_features import window_features_from_config\n"
-             "from contactkit.classify.modelfile import load_model\n"
+             "from contactkit.classify.modelfile.model_file import load_model\n"
              "print(sorted({m.split('.')[0] for m in sys.modules} & {'sklearn', 'skops', "
              "'scipy', 'pandas'}))")
     proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contactkit.classify.event_metrics import EventScore, score_events
-from contactkit.classify.events import batch_events
-from contactkit.classify.modelfile import load_model
+from contactkit.classify.events.contact_events import batch_events
+from contactkit.classify.events.metrics import EventScore, score_events
+from contactkit.classify.modelfile.model_file import load_model
 from contactkit.cli.default_model import build_default_model
 from contactkit.features.detector import detect
 from contactkit.features.timeseries import TimeseriesChain

@@ -15,9 +15,9 @@ import rerun as rr
 import rerun.chunk as rc
 
 from contactkit.classify.data import load_features
-from contactkit.classify.events import ContactEvent
-from contactkit.classify.modelfile import load_model, save_model
-from contactkit.classify.registry import get_kind, make_estimator
+from contactkit.classify.events.contact_events import ContactEvent
+from contactkit.classify.kinds.registry import get_kind, make_estimator
+from contactkit.classify.modelfile.model_file import load_model, save_model
 from contactkit.cli import replay as replay_cli
 from contactkit.cli.common import run_app
 from contactkit.errors import InputError
@@ -420,7 +420,7 @@ def test_a_labelled_contact_column_is_shown_without_a_simulated_force(session, m
     applied force: the view still shows the labelled contact lane."""
     import pyarrow.parquet as pq
 
-    from contactkit.schemas.session import FORCE_COLUMNS
+    from contactkit.schemas.columns import FORCE_COLUMNS
 
     table = pq.read_table(session)
     imported = tmp_path / "imported.parquet"

@@ -15,8 +15,8 @@ import pyarrow.parquet as pq
 import pytest
 import rerun.chunk as rc
 
-from contactkit.classify.events import EventPipeline
-from contactkit.classify.modelfile import load_model
+from contactkit.classify.events.contact_events import EventPipeline
+from contactkit.classify.modelfile.model_file import load_model
 from contactkit.errors import InputError
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.isolation import ContactEstimate

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from contactkit.classify import registry
+from contactkit.classify.kinds import registry
 from contactkit.errors import InputError
 from tests.conftest import make_session, save_quick_model
 
@@ -152,7 +152,7 @@ def test_skops_is_imported_without_torch_or_dask() -> None:
     """skops' trusted-type table is built without the array-API shims that import torch
     and dask, and still trusts scikit-learn's estimators."""
     probe = ("import json, sys\n"
-             "from contactkit.classify.skops_import import WALK_SKIPS, skops_io\n"
+             "from contactkit.classify.modelfile.skops_import import WALK_SKIPS, skops_io\n"
              "skops_io()\n"
              "from skops.io._trusted_types import SKLEARN_ESTIMATOR_TYPE_NAMES as names\n"
              "print(json.dumps({'torch': 'torch' in sys.modules, 'dask': 'dask' in "

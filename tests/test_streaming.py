@@ -13,7 +13,7 @@ import pyarrow.parquet as pq
 import pytest
 import rerun.chunk as rc
 
-from contactkit.classify.modelfile import load_model
+from contactkit.classify.modelfile.model_file import load_model
 from contactkit.features import chain_cache
 from contactkit.features.extract import timeseries_columns
 from contactkit.features.per_sample import write_per_sample_table
@@ -25,7 +25,8 @@ from contactkit.features.timeseries import (
 from contactkit.replay import engine
 from contactkit.replay.session_replay import replay_session
 from contactkit.schemas import SessionMeta, read_session, write_session
-from contactkit.schemas.session import REQUIRED_COLUMNS, SampleBatch, iter_sample_batches
+from contactkit.schemas.columns import REQUIRED_COLUMNS
+from contactkit.schemas.session import SampleBatch, iter_sample_batches
 from contactkit.viewer import layout
 from tests.conftest import make_session, run_command, save_quick_model
 from tests.rrd_frames import assert_frames_ok

@@ -18,7 +18,7 @@ from contactkit.cli.classify import app as classify_app
 from contactkit.cli.common import run_app
 from contactkit.cli.recorder import app as recorder_app
 from contactkit.errors import InputError
-from contactkit.util import atomic
+from contactkit.util import atomic, owned
 from tests.conftest import make_session, run_command
 
 VICTIM_TEXT = b"precious, outside the output directory\n"
@@ -78,14 +78,14 @@ def test_a_planted_link_is_never_followed(tmp_path: Path) -> None:
 
 
 def test_owned_outputs_are_replaced_and_foreign_ones_kept(tmp_path: Path) -> None:
-    owned = atomic.owned_by_marker(b"MINE")
+    mine = owned.owned_by_marker(b"MINE")
     target = tmp_path / "report.html"
-    atomic.write_text(target, "MINE 1", owned=owned)
-    atomic.write_text(target, "MINE 2", owned=owned)
+    atomic.write_text(target, "MINE 1", owned=mine)
+    atomic.write_text(target, "MINE 2", owned=mine)
     assert target.read_text() == "MINE 2"
     target.write_text("someone else's notes")
     with pytest.raises(InputError, match="not a file contactkit wrote"):
-        atomic.write_text(target, "MINE 3", owned=owned)
+        atomic.write_text(target, "MINE 3", owned=mine)
     assert target.read_text() == "someone else's notes"
 
 
@@ -106,22 +106,22 @@ def test_fixed_name_results_replace_only_their_own_files(tmp_path: Path) -> None
     fig.savefig(tmp_path / "notes.png")
     picture = (tmp_path / "notes.png").read_bytes()
     for name in ("notes.md", "notes.json", "notes.png"):
-        assert not atomic.owned_result(tmp_path / name), name
+        assert not owned.owned_result(tmp_path / name), name
     with pytest.raises(InputError, match="not a file contactkit wrote"):
-        atomic.write_text(tmp_path / "notes.md", atomic.result_markdown("# Results\n"),
-                          owned=atomic.owned_result)
+        atomic.write_text(tmp_path / "notes.md", owned.result_markdown("# Results\n"),
+                          owned=owned.owned_result)
     with pytest.raises(InputError, match="not a file contactkit wrote"):
-        atomic.write_figure(tmp_path / "notes.png", fig, owned=atomic.owned_result)
+        owned.write_figure(tmp_path / "notes.png", fig, owned=owned.owned_result)
     assert (tmp_path / "notes.md").read_text() == mine["notes.md"]
     assert (tmp_path / "notes.png").read_bytes() == picture
-    results = {"r.md": atomic.result_markdown("# Results\n"),
-               "r.json": json.dumps(atomic.result_json({"rows": []}), indent=1)}
+    results = {"r.md": owned.result_markdown("# Results\n"),
+               "r.json": json.dumps(owned.result_json({"rows": []}), indent=1)}
     for _ in range(2):  # a re-run replaces its own results
         for name, text in results.items():
-            atomic.write_text(tmp_path / name, text, owned=atomic.owned_result)
-        atomic.write_figure(tmp_path / "r.png", fig, owned=atomic.owned_result)
+            atomic.write_text(tmp_path / name, text, owned=owned.owned_result)
+        owned.write_figure(tmp_path / "r.png", fig, owned=owned.owned_result)
     plt.close(fig)
-    assert all(atomic.owned_result(tmp_path / n) for n in ("r.md", "r.json", "r.png"))
+    assert all(owned.owned_result(tmp_path / n) for n in ("r.md", "r.json", "r.png"))
 
 
 @pytest.mark.parametrize("umask", [0o022, 0o077, 0o002])
@@ -405,10 +405,10 @@ def test_fixed_name_results_are_checked_before_any_work(tmp_path: Path) -> None:
     """An experiment, the augmentation experiment and a grid search refuse a user's file
     at one of their result names before they start (they ran for hours and refused it
     at the end): here the refusal comes before the missing dataset is even looked at."""
-    from contactkit.classify.augmentation import run_augmentation
-    from contactkit.classify.experiments import Setting, run_experiment
-    from contactkit.classify.kind import ModelOptions
-    from contactkit.classify.registry import get_kind
+    from contactkit.classify.experiments.augmentation import run_augmentation
+    from contactkit.classify.experiments.thesis import Setting, run_experiment
+    from contactkit.classify.kinds.kind import ModelOptions
+    from contactkit.classify.kinds.registry import get_kind
 
     for name in ("window.png", "augmentation.json"):
         (tmp_path / name).write_text("mine\n")
@@ -420,7 +420,7 @@ def test_fixed_name_results_are_checked_before_any_work(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="not a file contactkit wrote") as found:
         run_augmentation(missing, missing, tmp_path, kind=lstm, options=ModelOptions("lstm"))
     assert found.value.path == str(tmp_path / "augmentation.json")
-    assert atomic.check_results(tmp_path / "new", ["window.md"]) == [tmp_path / "new/window.md"]
+    assert owned.check_results(tmp_path / "new", ["window.md"]) == [tmp_path / "new/window.md"]
     (tmp_path / "a file").write_text("")
     with pytest.raises(InputError, match="is not a directory"):
         run_experiment("window", [missing], tmp_path / "a file", Setting())

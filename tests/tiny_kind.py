@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 
-from contactkit.classify.inputs import FEATURES
-from contactkit.classify.kind import ModelKind, ModelOptions
-from contactkit.classify.skops_format import SKOPS
+from contactkit.classify.kinds.inputs import FEATURES
+from contactkit.classify.kinds.kind import ModelKind, ModelOptions
+from contactkit.classify.modelfile.skops_format import SKOPS
 from contactkit.util.params import Interval, Param
 
 SHRINK = Param("shrink", float, 0.0, "Nearest mean: pull each class mean this far towards "

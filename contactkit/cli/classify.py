@@ -1,7 +1,7 @@
 """The ``classify`` command: features, training, evaluation, prediction, experiments.
 
 A thin layer over the library (:mod:`contactkit.classify.training`,
-:mod:`contactkit.classify.prediction`, :mod:`contactkit.classify.experiments`): it parses
+:mod:`contactkit.classify.prediction`, :mod:`contactkit.classify.experiments.thesis`): it parses
 options, draws progress bars and prints results.
 """
 
@@ -16,16 +16,16 @@ from typing import Annotated
 
 import typer
 
-from contactkit.classify.devices import DEVICES
-from contactkit.classify.kind import SEED, ModelOptions
-from contactkit.classify.names import EXPERIMENTS, GROUP_KEYS, PROTOCOLS
-from contactkit.classify.registry import (
+from contactkit.classify.kinds.devices import DEVICES
+from contactkit.classify.kinds.kind import SEED, ModelOptions
+from contactkit.classify.kinds.registry import (
     DEFAULT_KIND,
     DEFAULT_SEARCHED,
     get_kind,
     kind_names,
     searchable_kinds,
 )
+from contactkit.classify.names import EXPERIMENTS, GROUP_KEYS, PROTOCOLS
 from contactkit.classify.schemes import SCHEMES
 from contactkit.cli.common import (
     RobotOpt,
@@ -42,7 +42,8 @@ from contactkit.features.names import ALL_TIMESERIES, GROUPS
 from contactkit.features.scalars import SCALARS
 from contactkit.features.windows import METHODS
 from contactkit.schemas import InputError, read_session
-from contactkit.util.atomic import check_results, check_target, write_text
+from contactkit.util.atomic import check_target, write_text
+from contactkit.util.owned import check_results
 from contactkit.util.parallel import available_cpus
 from contactkit.util.params import Param
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar
@@ -264,7 +265,7 @@ def predict_command(
 ) -> None:
     """Predict the contact class of sessions with a trained model, or (--events) the
     contact events the model's detector finds and the intent decided for each."""
-    from contactkit.classify.modelfile import load_model
+    from contactkit.classify.modelfile.model_file import load_model
     from contactkit.classify.prediction import predict_sources
 
     model = load_model(model_path, lazy=True)
@@ -301,8 +302,8 @@ def _print_events(model, source: Path, detector: DetectorConfig, decide_after: f
     """Print the contact events of each session of ``source``, with the arm's model
     ``robot`` instead of each session's own when given; return the sessions that failed
     as ``(path, problem)``."""
-    from contactkit.classify.event_listener import contact_text
-    from contactkit.classify.events import session_events
+    from contactkit.classify.events.contact_events import session_events
+    from contactkit.classify.events.listener import contact_text
     from contactkit.classify.prediction import session_paths
 
     events_model = model.event_model()
@@ -346,7 +347,7 @@ def calibrate_command(
     """Calibrate the contact detector on a robot's no-contact sessions: record a minute
     of free motion and holds, calibrate, then pass --calibration robot.json to replay
     and predict."""
-    from contactkit.classify.calibrate import calibrate_sessions
+    from contactkit.classify.events.calibrate import calibrate_sessions
     from contactkit.classify.prediction import session_paths
 
     check_target(out, overwrite=overwrite)
@@ -395,8 +396,8 @@ def experiment_command(
     """Regenerate a thesis table on any dataset: features (Appendix B), rfe, speed
     (Figure 6.5), window (accuracy against window length), or augmentation REAL SIM
     (Algorithm 3: less real data, added simulated data and noise augmentation)."""
-    from contactkit.classify.augmentation import run_augmentation
-    from contactkit.classify.experiments import Setting, run_experiment
+    from contactkit.classify.experiments.augmentation import run_augmentation
+    from contactkit.classify.experiments.thesis import Setting, run_experiment
 
     name = Experiment(name).value
     setting = Setting(protocol=Protocol(protocol).value, group_by=Group(group).value,
@@ -477,7 +478,7 @@ def gridsearch_command(
     stopping, a ranked table with 95 % intervals (gridsearch.md, .json), and the best
     network saved as a model file that predict and replay --model take. The network's
     parameters are the options after --overwrite."""
-    from contactkit.classify.gridsearch import (
+    from contactkit.classify.experiments.gridsearch import (
         RESULTS_JSON,
         RESULTS_MD,
         best_model_path,
@@ -487,7 +488,7 @@ def gridsearch_command(
         train_best,
         write_results,
     )
-    from contactkit.classify.gridsearch import Protocol as GridProtocol
+    from contactkit.classify.experiments.gridsearch import Protocol as GridProtocol
 
     kind = get_kind(Network(model).value)
     given = owner_values(GRID_FLAGS, ctx.meta["params"], kind.name, "model")

@@ -17,7 +17,7 @@ a progress bar, the first time replay needs the model):
    thresholds cover the model error of a moving arm; the growth with speed and
    acceleration gets margin 3: the simulator's model error in motion matches a real
    Panda's only within about +-50 % RMS per joint (tests/test_sim_calibration.py);
-4. the per-event intent classifier (:mod:`contactkit.classify.event_training`): SVM
+4. the per-event intent classifier (:mod:`contactkit.classify.events.training`): SVM
    (C = 10) on the events the detector finds in the free-motion presets, decided
    0.15 s after onset, from residual-only event features.
 
@@ -34,11 +34,11 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
-from contactkit.classify.events import DEFAULT_DECIDE_AFTER_S, EVENT_FEATURES
-from contactkit.classify.kind import ModelOptions
-from contactkit.classify.modelfile import FORMAT as MODEL_FORMAT
-from contactkit.classify.modelfile import ModelFile, load_model
-from contactkit.classify.registry import DEFAULT_KIND
+from contactkit.classify.events.contact_events import DEFAULT_DECIDE_AFTER_S, EVENT_FEATURES
+from contactkit.classify.kinds.kind import ModelOptions
+from contactkit.classify.kinds.registry import DEFAULT_KIND
+from contactkit.classify.modelfile.model_file import FORMAT as MODEL_FORMAT
+from contactkit.classify.modelfile.model_file import ModelFile, load_model
 from contactkit.features.detector import MIN_NOISE, DetectorConfig
 from contactkit.recorder.sim.simulator import SimConfig
 from contactkit.util.cache import cache_dir
@@ -100,8 +100,8 @@ def build_default_model(workers: int = 2, progress: Progress | None = None,
     path = default_model_path()
     if path.exists() and not rebuild:
         return path
-    from contactkit.classify.calibrate import calibrate_sessions
-    from contactkit.classify.event_training import fit_event_model, load_session_events
+    from contactkit.classify.events.calibrate import calibrate_sessions
+    from contactkit.classify.events.training import fit_event_model, load_session_events
     from contactkit.classify.training import train
     from contactkit.schemas.dataset import session_files
 

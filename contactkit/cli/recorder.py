@@ -62,7 +62,7 @@ def _start_events(values: dict[str, Any], meta: SessionMeta) -> Any:
         if given:
             raise InputError(f"{given[0]} needs --events")
         return None
-    from contactkit.classify.event_listener import LiveEvents, describe
+    from contactkit.classify.events.listener import LiveEvents, describe
     from contactkit.cli.default_model import default_model_missing, model_or_default
     from contactkit.features.detector import load_calibration
 

@@ -4,4 +4,5 @@ work, parameter declarations and plugin registries."""
 # The public modules, for the API reference (submodule names: importing the package
 # stays light). dask_executor and workers sit behind parallel; exact_median, moments and
 # pacing serve one caller each. params and plugins are what extensions declare with.
-__all__ = ["atomic", "cache", "parallel", "params", "paths", "plugins", "progress", "text"]
+__all__ = ["atomic", "cache", "owned", "parallel", "params", "paths", "plugins", "progress",
+           "text"]

@@ -41,7 +41,7 @@ from contactkit.recorder.importers.base import Importer
 from contactkit.recorder.importers.spill import RowSpill
 from contactkit.recorder.importers.writer import write_importer
 from contactkit.schemas import InputError, SessionMeta, joint_columns
-from contactkit.schemas.session import WRENCH_HAT_COLUMNS
+from contactkit.schemas.columns import WRENCH_HAT_COLUMNS
 
 FRANKA_STATE = "franka_msgs/msg/FrankaState"
 FRANKA_ROBOT_STATE = "franka_msgs/msg/FrankaRobotState"

@@ -30,7 +30,7 @@ from contactkit.recorder.importers.bags import (
 )
 from contactkit.robots import get_robot
 from contactkit.schemas import InputError, Session, joint_columns, read_session
-from contactkit.schemas.session import FORCE_COLUMNS, WRENCH_HAT_COLUMNS
+from contactkit.schemas.columns import FORCE_COLUMNS, WRENCH_HAT_COLUMNS
 from contactkit.util.atomic import atomic_directory, atomic_write, scratch_directory
 
 

@@ -21,8 +21,9 @@ from contactkit.features.timing import chunked_steps
 from contactkit.recorder.importers.base import Importer
 from contactkit.recorder.metadata import session_filename
 from contactkit.schemas import InputError, SessionMeta
+from contactkit.schemas.columns import check_times
 from contactkit.schemas.dataset import INDEX_NAME
-from contactkit.schemas.session import check_times, table_from_columns, write_session_batches
+from contactkit.schemas.session import table_from_columns, write_session_batches
 from contactkit.util.exact_median import exact_medians
 from contactkit.util.paths import inside, safe_name
 from contactkit.util.text import quote

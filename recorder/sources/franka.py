@@ -28,7 +28,7 @@ from contactkit.recorder.sources.franka_backends import (
 )
 from contactkit.robots import DEFAULT_ROBOT
 from contactkit.schemas import joint_columns
-from contactkit.schemas.session import WRENCH_HAT_COLUMNS
+from contactkit.schemas.columns import WRENCH_HAT_COLUMNS
 
 log = logging.getLogger(__name__)
 FRANKA_COLUMNS = ["t", *joint_columns("q"), *joint_columns("dq"), *joint_columns("tau"),

@@ -38,8 +38,8 @@ from contactkit.features.timing import streamed_sampling_stats
 from contactkit.features.windows import WindowSearch, WindowSpec
 from contactkit.recorder.importers.spill import RowSpill
 from contactkit.schemas import InputError, SessionMeta
+from contactkit.schemas.columns import REQUIRED_COLUMNS
 from contactkit.schemas.session import (
-    REQUIRED_COLUMNS,
     ROW_GROUP_ROWS,
     SampleBatch,
     iter_sample_batches,

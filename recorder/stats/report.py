@@ -26,13 +26,8 @@ from rich.table import Table
 
 from contactkit.recorder.stats.deep import PROFILE_T
 from contactkit.schemas import ACTIONS
-from contactkit.util.atomic import (
-    Owned,
-    check_target,
-    owned_by_marker,
-    write_bytes,
-    write_text,
-)
+from contactkit.util.atomic import Owned, check_target, write_bytes, write_text
+from contactkit.util.owned import owned_by_marker
 from contactkit.util.text import console_text
 from contactkit.viewer.palette import CLASS_COLORS, JOINT_COLORS
 

@@ -37,7 +37,8 @@ from contactkit.recorder.sim.noise import SensorNoise
 from contactkit.recorder.stats.deep import session_summary
 from contactkit.schemas import ACTIONS, InputError
 from contactkit.schemas.dataset import INDEX_NAME, INDEX_SCHEMA, rebuild_index, session_files
-from contactkit.util.atomic import owned_by_marker, write_text
+from contactkit.util.atomic import write_text
+from contactkit.util.owned import owned_by_marker
 from contactkit.util.parallel import map_ordered
 
 SCHEMA_ID = "contactkit.schemas/stats_report/1"

@@ -19,8 +19,8 @@ import zipfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from contactkit.classify.kind import ModelFormat
-from contactkit.classify.skops_import import skops_io
+from contactkit.classify.kinds.kind import ModelFormat
+from contactkit.classify.modelfile.skops_import import skops_io
 from contactkit.errors import ContactkitError, InputError
 from contactkit.util.atomic import atomic_write
 
@@ -28,7 +28,7 @@ META_MEMBER = "contactkit.json"
 EVENTS_MEMBER = "events.skops"
 FORMAT = "contactkit-model/3"
 """Version 3: a model of an SVM kind also carries its compiled arrays
-(:mod:`contactkit.classify.online_arrays`). Version 2 files, without them, still load.
+(:mod:`contactkit.classify.kinds.online_arrays`). Version 2 files, without them, still load.
 Since version 2 the digest covers every member, contactkit.json included (version 1
 left it out, so its classes could be swapped unnoticed); version 1 files are refused."""
 READABLE_FORMATS = ("contactkit-model/2", FORMAT)

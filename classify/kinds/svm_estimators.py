@@ -5,7 +5,7 @@
   on that joint's features, class probabilities summed over the 7 SVMs, argmax.
 * ``three-joint``: thesis eq. 4.2: 5 SVMs on joints (j-1, j, j+1), j = 2..6, summed.
 
-Each is a registered kind (:mod:`contactkit.classify.svm_kinds`).
+Each is a registered kind (:mod:`contactkit.classify.kinds.svm`).
 Features that belong to no joint (for example ``range(f_x)``) are used by the
 whole-arm SVM only. The ensembles' ``predict_proba`` returns the summed
 probabilities divided by the number of members, so rows sum to 1 and the argmax is

@@ -33,17 +33,17 @@ from sklearn.model_selection import train_test_split
 from contactkit.classify.data import FeatureSet
 from contactkit.classify.evaluate import confusion, fit_predict_many, metrics_from_confusion
 from contactkit.classify.grids import Augmentation, GridSpec, load_grids
-from contactkit.classify.inputs import GRIDS
-from contactkit.classify.kind import ModelKind, ModelOptions
+from contactkit.classify.kinds.inputs import GRIDS
+from contactkit.classify.kinds.kind import ModelKind, ModelOptions
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.dataset import session_files
-from contactkit.util.atomic import (
+from contactkit.util.atomic import write_text
+from contactkit.util.owned import (
     check_results,
     owned_result,
     result_json,
     result_markdown,
     write_figure,
-    write_text,
 )
 
 FRACTIONS = (0.5, 0.75, 1.0)

@@ -1,6 +1,6 @@
 """The SVM kinds (``svm``, ``per-joint``, ``three-joint``): the estimators of
-:mod:`contactkit.classify.models` declared with their parameter, file format and fast
-online predictor (:mod:`contactkit.classify.fast`).
+:mod:`contactkit.classify.kinds.svm_estimators` declared with their parameter, file format and fast
+online predictor (:mod:`contactkit.classify.kinds.fast`).
 
 This module imports neither scikit-learn nor the feature chain: the estimators are
 built, and the online predictor compiled, by functions that import them when called.
@@ -10,30 +10,34 @@ from __future__ import annotations
 
 from typing import Any
 
-from contactkit.classify.inputs import FEATURES
-from contactkit.classify.kind import ModelKind, ModelOptions, lazy
-from contactkit.classify.skops_format import SKOPS
+from contactkit.classify.kinds.inputs import FEATURES
+from contactkit.classify.kinds.kind import ModelKind, ModelOptions, lazy
+from contactkit.classify.modelfile.skops_format import SKOPS
 from contactkit.util.params import Interval, Param
 
 C = Param("c", float, 1.0, "SVM regularisation C.", constraints=(Interval(0, None, "neither"),),
           flag="C")
 """The regularisation every SVM kind takes (``--C``)."""
-SVM_TRUSTED_TYPES = ("contactkit.classify.models.CalibratedSVC",)
+SVM_TRUSTED_TYPES = ("contactkit.classify.kinds.svm_estimators.CalibratedSVC",
+                     # its name in model files written before classify/ had subpackages
+                     "contactkit.classify.models.CalibratedSVC")
 """The estimator types an SVM's skops file may build beyond scikit-learn's."""
-ENSEMBLE_TRUSTED_TYPES = (*SVM_TRUSTED_TYPES, "contactkit.classify.models.JointEnsemble")
+ENSEMBLE_TRUSTED_TYPES = (*SVM_TRUSTED_TYPES,
+                          "contactkit.classify.kinds.svm_estimators.JointEnsemble",
+                          "contactkit.classify.models.JointEnsemble")
 """The estimator types an ensemble's skops file may build beyond scikit-learn's."""
 
 
 def _svm(options: ModelOptions, feature_names: list[str]) -> Any:
     """Return StandardScaler + calibrated RBF SVC (a scikit-learn Pipeline)."""
-    from contactkit.classify.models import svm_pipeline
+    from contactkit.classify.kinds.svm_estimators import svm_pipeline
 
     return svm_pipeline(options.params["c"], seed=options.seed)
 
 
 def _ensemble(span: int, options: ModelOptions, feature_names: list[str]) -> Any:
     """Return the joint ensemble of SVMs on ``span`` consecutive joints each."""
-    from contactkit.classify.models import JointEnsemble
+    from contactkit.classify.kinds.svm_estimators import JointEnsemble
 
     return JointEnsemble(list(feature_names), span=span, c=options.params["c"],
                          seed=options.seed)
@@ -49,7 +53,7 @@ def _three_joint(options: ModelOptions, feature_names: list[str]) -> Any:
     return _ensemble(3, options, feature_names)
 
 
-_FAST = lazy("contactkit.classify.fast:fast_predictor")
+_FAST = lazy("contactkit.classify.kinds.fast:fast_predictor")
 SVM = ModelKind("svm", "whole-arm SVM on scalar features", FEATURES, _svm, SKOPS, params=(C,),
                 online=_FAST, trusted_types=SVM_TRUSTED_TYPES)
 PER_JOINT = ModelKind("per-joint", "one SVM per joint, probabilities summed (eq. 4.1)",

@@ -1,13 +1,13 @@
 """Model files: what a fitted model is saved as and loaded from, above the kind registry.
 
 A model file carries the fitted estimator in its kind's file format (skops by default,
-:mod:`contactkit.classify.skops_format`; ONNX for exported networks) and a metadata
+:mod:`contactkit.classify.modelfile.skops_format`; ONNX for exported networks) and a metadata
 document: the feature configuration and feature names, the class names and scheme, the
 model kind, a SHA-256 fingerprint of the training data and package versions. A model
 that also decides per contact event carries the contact detector's settings and the
 event classifier's settings there, and the event classifier itself as a nested skops
 archive ``events.skops`` (checked the same way). A model of an SVM kind also carries
-both classifiers compiled to arrays (:mod:`contactkit.classify.online_arrays`): loaded
+both classifiers compiled to arrays (:mod:`contactkit.classify.kinds.online_arrays`): loaded
 with ``lazy=True``, a model classifies online (a replay, ``recorder capture
 --events``) from those, and builds its estimator through skops only when something asks for it.
 
@@ -30,12 +30,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from contactkit.classify.fast import Compiled, compile_estimator
-from contactkit.classify.kind import ModelKind
-from contactkit.classify.online_arrays import online_members, read_online
-from contactkit.classify.registry import get_kind, kind_names
-from contactkit.classify.schemes import check_scheme
-from contactkit.classify.skops_format import (
+from contactkit.classify.kinds.fast import Compiled, compile_estimator
+from contactkit.classify.kinds.kind import ModelKind
+from contactkit.classify.kinds.online_arrays import online_members, read_online
+from contactkit.classify.kinds.registry import get_kind, kind_names
+from contactkit.classify.kinds.svm import SVM_TRUSTED_TYPES as EVENT_TRUSTED_TYPES
+from contactkit.classify.modelfile.skops_format import (
     EVENTS_MEMBER,
     FORMAT,
     SKOPS,
@@ -46,8 +46,8 @@ from contactkit.classify.skops_format import (
     versions,
     write_skops,
 )
-from contactkit.classify.skops_import import skops_io
-from contactkit.classify.svm_kinds import SVM_TRUSTED_TYPES as EVENT_TRUSTED_TYPES
+from contactkit.classify.modelfile.skops_import import skops_io
+from contactkit.classify.schemes import check_scheme
 from contactkit.errors import ContactkitError
 from contactkit.schemas import InputError
 from contactkit.util.atomic import check_target
@@ -125,7 +125,7 @@ class ModelFile:
 
     def event_model(self):
         """Return the per-event intent classifier the model carries, or None."""
-        from contactkit.classify.events import EventModel
+        from contactkit.classify.events.contact_events import EventModel
 
         if self.event_estimator is None:
             return None
@@ -270,7 +270,7 @@ def _load_event_estimator(path: Path, meta: dict) -> object | None:
 
 
 def _kind_of(meta: dict, path: Path) -> ModelKind:
-    from contactkit.classify.registry import get_kind
+    from contactkit.classify.kinds.registry import get_kind
 
     try:
         return get_kind(str(meta.get("kind")))
@@ -386,8 +386,8 @@ def _check_labels(labels: object, what: str, path: Path) -> None:
 
 def _check_event_meta(doc: object, path: Path) -> None:
     """Raise InputError naming ``path`` unless ``doc`` has the shape of
-    :meth:`contactkit.classify.events.EventModel.meta`'s document."""
-    from contactkit.classify.events import EVENT_FEATURES
+    :meth:`contactkit.classify.events.contact_events.EventModel.meta`'s document."""
+    from contactkit.classify.events.contact_events import EVENT_FEATURES
 
     if not isinstance(doc, dict):
         raise InputError("model file's event settings are not an object", path)

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from contactkit.classify.fast import fast_predictor
+from contactkit.classify.kinds.fast import fast_predictor
 from contactkit.errors import InputError
 from contactkit.features.detector import (
     N_JOINTS,

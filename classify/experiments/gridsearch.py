@@ -26,14 +26,15 @@ from typing import Any
 from contactkit.classify.data import FeatureSet
 from contactkit.classify.evaluate import Report, evaluate
 from contactkit.classify.grids import session_paths
-from contactkit.classify.kind import ModelKind, ModelOptions
+from contactkit.classify.kinds.kind import ModelKind, ModelOptions
+from contactkit.classify.kinds.registry import DEFAULT_SEARCHED, get_kind, searchable_kinds
 from contactkit.classify.names import PROTOCOLS
-from contactkit.classify.registry import DEFAULT_SEARCHED, get_kind, searchable_kinds
 from contactkit.classify.schemes import check_scheme, scheme_classes
 from contactkit.classify.training import TrainedModel, train, training_set
 from contactkit.errors import check_choice
 from contactkit.schemas import InputError
-from contactkit.util.atomic import owned_result, result_json, result_markdown, write_text
+from contactkit.util.atomic import write_text
+from contactkit.util.owned import owned_result, result_json, result_markdown
 from contactkit.util.parallel import map_ordered, resolve_scheduler
 from contactkit.util.progress import LabelledProgress
 

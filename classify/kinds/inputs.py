@@ -9,7 +9,7 @@ and the feature chain when called, so declaring a kind stays light.
 
 from __future__ import annotations
 
-from contactkit.classify.kind import InputKind, lazy
+from contactkit.classify.kinds.kind import InputKind, lazy
 
 CNN_INPUT = ("q", "dq", "tau")
 """Default timeseries of a grid (and of the CNN): joint positions, velocities, torques."""

@@ -1,9 +1,9 @@
 """The classifier kinds train, evaluate, predict and replay know, by name.
 
 One line per built-in kind below; the kinds are declared, with their parameters, in
-:mod:`contactkit.classify.svm_kinds` and :mod:`contactkit.classify.nn_kinds`, which (like
+:mod:`contactkit.classify.kinds.svm` and :mod:`contactkit.classify.kinds.neural`, which (like
 this module) import neither scikit-learn nor PyTorch. A lab's own kind is a module with
-a :class:`contactkit.classify.kind.ModelKind` and one entry point in its package::
+a :class:`contactkit.classify.kinds.kind.ModelKind` and one entry point in its package::
 
     [project.entry-points."contactkit.models"]
     my-kind = "mylab.kinds:MY_KIND"
@@ -19,9 +19,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from contactkit.classify.kind import ModelKind, ModelOptions
-from contactkit.classify.nn_kinds import CNN, LSTM, MINIROCKET
-from contactkit.classify.svm_kinds import PER_JOINT, SVM, THREE_JOINT
+from contactkit.classify.kinds.kind import ModelKind, ModelOptions
+from contactkit.classify.kinds.neural import CNN, LSTM, MINIROCKET
+from contactkit.classify.kinds.svm import PER_JOINT, SVM, THREE_JOINT
 from contactkit.errors import InputError
 
 if TYPE_CHECKING:

@@ -4,7 +4,7 @@
 sources yield them) and runs each chunk through the feature chain's observer
 (:meth:`contactkit.features.timeseries.TimeseriesChain.feed`, state carried) and each
 sample, in arrival order, through the event
-pipeline (:class:`contactkit.classify.events.EventPipeline`): the same code, on the
+pipeline (:class:`contactkit.classify.events.contact_events.EventPipeline`): the same code, on the
 same samples, as ``replay`` runs on the written session, so both find the same
 events. Samples that lack a joint value (NaN gaps of a CAN source) are skipped, as
 the replay of the session skips them. Each onset, decision and release is handed to
@@ -18,7 +18,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from contactkit.classify.events import ContactEvent, EventModel, EventPipeline
+from contactkit.classify.events.contact_events import ContactEvent, EventModel, EventPipeline
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.isolation import OK, ContactEstimate, ContactIsolator
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain

@@ -1,7 +1,7 @@
 """Training and evaluating the event classifier on simulated sessions.
 
 Each session goes through the observer, the detector and the event pipeline
-without a classifier (:func:`contactkit.classify.events.batch_events`, which gives
+without a classifier (:func:`contactkit.classify.events.contact_events.batch_events`, which gives
 the streaming pipeline's events), so the classifier learns from exactly what it sees online: windows
 aligned to the detector's onset. An event that overlaps the session's ground-truth
 contact is labelled with the session's action; every other event (in a ``none``
@@ -22,15 +22,15 @@ from pathlib import Path
 
 import numpy as np
 
-from contactkit.classify.events import (
+from contactkit.classify.events.contact_events import (
     NONE,
     ContactEvent,
     EventModel,
     batch_events,
 )
-from contactkit.classify.kind import ModelOptions
+from contactkit.classify.kinds.kind import ModelOptions
+from contactkit.classify.kinds.svm import SVM
 from contactkit.classify.schemes import check_two_classes
-from contactkit.classify.svm_kinds import SVM
 from contactkit.features.detector import DetectorConfig, detect
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.schemas import read_session

@@ -1,5 +1,5 @@
 """Where a network trains: the device names and their checks, without importing PyTorch
-until a check runs (see :mod:`contactkit.classify.networks` for what is repeatable where).
+until a check runs (see :mod:`contactkit.classify.kinds.networks` for what is repeatable where).
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
-"""A compiled classifier (:mod:`contactkit.classify.fast`) as members of a model file.
+"""A compiled classifier (:mod:`contactkit.classify.kinds.fast`) as members of a model file.
 
 A model file of an SVM kind carries, beside its skops estimator, the arrays of the
-same model compiled (:class:`contactkit.classify.fast.CompiledSVM`, or a
-:class:`~contactkit.classify.fast.CompiledEnsemble` of them): one ``.npy`` member per
+same model compiled (:class:`contactkit.classify.kinds.fast.CompiledSVM`, or a
+:class:`~contactkit.classify.kinds.fast.CompiledEnsemble` of them): one ``.npy`` member per
 array (little-endian float64, no pickle) under a prefix such as ``online/0/``, and a
 document in ``contactkit.json`` that lists the parts and their feature columns. The
 file's digest covers them like every other member. A replay, ``recorder events`` and
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from contactkit.classify.fast import SVM_ARRAYS, Compiled, CompiledEnsemble, CompiledSVM
+from contactkit.classify.kinds.fast import SVM_ARRAYS, Compiled, CompiledEnsemble, CompiledSVM
 from contactkit.errors import InputError
 
 FORM = "svm-mean/1"

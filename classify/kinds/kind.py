@@ -6,7 +6,7 @@ own parameters (declarations with constraints, :class:`contactkit.util.params.Pa
 its file format, the types its files may build, and its online predictor. The kinds
 are declared beside their estimators (``svm_kinds.py`` for ``models.py``,
 ``nn_kinds.py`` for ``networks.py`` and ``nn.py``), without importing scikit-learn or
-PyTorch, and listed in :mod:`contactkit.classify.registry`; a lab adds one from its own
+PyTorch, and listed in :mod:`contactkit.classify.kinds.registry`; a lab adds one from its own
 package through the ``contactkit.models`` entry-point group.
 """
 

@@ -4,11 +4,31 @@ they train: ``fit(X, y)``, ``predict``, ``predict_proba`` with X of shape
 
 This module needs only numpy, scikit-learn and PyTorch (not the feature chain), so a
 GPU machine can train and time the networks without the rest of contactkit's
-dependencies (``benchmarks/bench_gpu.py``). The architectures, the training recipe and
-the kinds are described in :mod:`contactkit.classify.nn` and declared in
-:mod:`contactkit.classify.nn_kinds`.
+dependencies (``benchmarks/bench_gpu.py``). The kinds are declared in
+:mod:`contactkit.classify.kinds.neural`.
 
-Devices (:mod:`contactkit.classify.devices`): ``device="auto"`` trains on CUDA when
+* :class:`CNNClassifier`: 2-D convolutions over the channels x time grid, max pooling
+  in time, batch normalisation, leaky ReLU and dropout after each pooling and dense
+  layer. Base network: convolutions of 32 and 64 kernels, one dense layer of 32.
+  What is left of the time axis after pooling is averaged, so one network takes
+  windows of any length (and exports to ONNX for any length).
+  ``depth`` multiplies the number of layers, ``width`` the kernels and neurons (the
+  thesis's grid: depth 1/2/4, width 0.5/1/2, dropout 0/0.1/0.25). Default: its
+  choice, depth 4, width 2, dropout 0.02.
+* :class:`LSTMClassifier`: LSTM layers of 32 and 16 units and a dense layer of 16,
+  with the same multipliers; default depth 2, width 2, dropout 0.02.
+
+Training (section 5.2.1, improved): the given data are split 70/15 into training
+and validation (stratified; the remaining 15 % is the caller's test set, or the
+held-out groups of the group protocol), Adam at 3e-3 halved when the validation
+loss stalls for a quarter of the patience, early stopping on the validation loss
+(patience 20 epochs), the best checkpoint restored. (The thesis's 1e-3 with
+patience 10 stopped before the networks had fitted their training data.) Channels
+are standardised with training statistics. Seeds fix initialisation, shuffling and
+splits: same seed, same model on CPU. PyTorch is the ``nn``
+extra: ``pip install 'contactkit[nn]'``.
+
+Devices (:mod:`contactkit.classify.kinds.devices`): ``device="auto"`` trains on CUDA when
 PyTorch sees a GPU, else on the CPU; ``"cuda"`` insists on a GPU (a one-line InputError
 without one), ``"cpu"`` (the default) never uses one. On a machine with several GPUs, a
 Dask worker of rank k trains on GPU k modulo their number
@@ -37,7 +57,7 @@ import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 from sklearn.model_selection import train_test_split
 
-from contactkit.classify.devices import require_torch, resolve_device
+from contactkit.classify.kinds.devices import require_torch, resolve_device
 
 
 def _cnn_module(torch, channels: int, steps: int, classes: int, depth: int, width: float,
@@ -223,7 +243,7 @@ class _TorchClassifier(ClassifierMixin, BaseEstimator):
 
 
 class CNNClassifier(_TorchClassifier):
-    """The thesis's CNN (see :mod:`contactkit.classify.nn`); ``depth`` None is its choice, 4."""
+    """The thesis's CNN (see the module's docstring); ``depth`` None is its choice, 4."""
 
     default_depth = 4
 
@@ -233,8 +253,7 @@ class CNNClassifier(_TorchClassifier):
 
 
 class LSTMClassifier(_TorchClassifier):
-    """The thesis's LSTM (see :mod:`contactkit.classify.nn`); ``depth`` None is its choice,
-    2."""
+    """The thesis's LSTM (see the module's docstring); ``depth`` None is its choice, 2."""
 
     default_depth = 2
 

@@ -21,7 +21,7 @@ scikit-learn to the versions tested. A test holds the output equal to scikit-lea
 know (networks, ONNX) keep their own ``predict_proba``.
 
 A compiled model is plain arrays (:meth:`CompiledSVM.arrays`), which model files carry
-beside the estimator (:mod:`contactkit.classify.online_arrays`), so a replay classifies
+beside the estimator (:mod:`contactkit.classify.kinds.online_arrays`), so a replay classifies
 without importing scikit-learn. This module imports scikit-learn only to compile a
 fitted estimator.
 """
@@ -174,7 +174,7 @@ def compile_estimator(estimator) -> Compiled | None:
         return estimator
     from sklearn.pipeline import Pipeline
 
-    from contactkit.classify.models import CalibratedSVC, JointEnsemble
+    from contactkit.classify.kinds.svm_estimators import CalibratedSVC, JointEnsemble
 
     def ours(model) -> bool:
         return isinstance(model, Pipeline) and isinstance(model.named_steps.get("svc"),

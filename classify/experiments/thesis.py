@@ -36,22 +36,22 @@ from sklearn.svm import SVC, LinearSVC
 
 from contactkit.classify.data import FeatureSet, load_features
 from contactkit.classify.evaluate import Report, evaluate
-from contactkit.classify.models import svm_pipeline
+from contactkit.classify.kinds.svm import SVM
+from contactkit.classify.kinds.svm_estimators import svm_pipeline
 from contactkit.classify.names import EXPERIMENTS
 from contactkit.classify.schemes import scheme_classes
-from contactkit.classify.svm_kinds import SVM
 from contactkit.errors import check_choice
 from contactkit.features.extract import SessionFeatures
 from contactkit.features.scalars import SCALARS
 from contactkit.features.timeseries import ALL_TIMESERIES, GROUPS, columns_of
 from contactkit.schemas import InputError
-from contactkit.util.atomic import (
+from contactkit.util.atomic import write_text
+from contactkit.util.owned import (
     check_results,
     owned_result,
     result_json,
     result_markdown,
     write_figure,
-    write_text,
 )
 
 MVR = ("mean", "variance", "range")

@@ -1,9 +1,10 @@
 """The network kinds (``cnn``, ``lstm``, ``minirocket``): the estimators of
-:mod:`contactkit.classify.networks` and :mod:`contactkit.classify.nn` declared with
+:mod:`contactkit.classify.kinds.networks` and :mod:`contactkit.classify.kinds.minirocket`
+declared with
 their parameters, input grids and file formats.
 
 The CNN and LSTM share their parameters: ``epochs``, ``depth``, ``width``, ``dropout``,
-``patience`` and ``device`` (see :mod:`contactkit.classify.nn` for what they size);
+``patience`` and ``device`` (see :mod:`contactkit.classify.kinds.minirocket` for what they size);
 depth, width and dropout carry the thesis's grid, which ``classify gridsearch``
 searches. MiniRocket takes its number of kernels. This module imports neither
 scikit-learn nor PyTorch: estimators, the ONNX format and the device check import them
@@ -14,10 +15,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from contactkit.classify.devices import DEVICES, check_device, require_torch
-from contactkit.classify.inputs import CNN_INPUT, GRIDS, LSTM_INPUT
-from contactkit.classify.kind import ModelFormat, ModelKind, ModelOptions, lazy
-from contactkit.classify.skops_format import SKOPS
+from contactkit.classify.kinds.devices import DEVICES, check_device, require_torch
+from contactkit.classify.kinds.inputs import CNN_INPUT, GRIDS, LSTM_INPUT
+from contactkit.classify.kinds.kind import ModelFormat, ModelKind, ModelOptions, lazy
+from contactkit.classify.modelfile.skops_format import SKOPS
 from contactkit.util.params import Choice, Interval, Param
 
 NETWORK_PARAMS = (
@@ -36,9 +37,10 @@ NETWORK_PARAMS = (
           constraints=(Choice(DEVICES),)),
 )
 """The parameters of the CNN and the LSTM (the keywords of their estimators)."""
-ONNX = ModelFormat("onnx", ".onnx", lazy("contactkit.classify.onnx_model:save_onnx_model"),
-                   lazy("contactkit.classify.onnx_model:load_onnx_model"))
-"""Networks exported as ONNX graphs (:mod:`contactkit.classify.onnx_model`)."""
+ONNX = ModelFormat("onnx", ".onnx",
+                   lazy("contactkit.classify.modelfile.onnx_model:save_onnx_model"),
+                   lazy("contactkit.classify.modelfile.onnx_model:load_onnx_model"))
+"""Networks exported as ONNX graphs (:mod:`contactkit.classify.modelfile.onnx_model`)."""
 
 
 def _require_torch() -> None:
@@ -48,7 +50,7 @@ def _require_torch() -> None:
 
 def _require_aeon() -> None:
     """Raise InputError when aeon (the nn extra) is missing."""
-    from contactkit.classify.nn import require_aeon
+    from contactkit.classify.kinds.minirocket import require_aeon
 
     require_aeon()
 
@@ -61,21 +63,21 @@ def _check_device(params: dict[str, Any]) -> None:
 
 def _cnn(options: ModelOptions, channels: list[str]) -> Any:
     """Return the thesis's CNN classifier."""
-    from contactkit.classify.networks import CNNClassifier
+    from contactkit.classify.kinds.networks import CNNClassifier
 
     return CNNClassifier(seed=options.seed, **options.params)
 
 
 def _lstm(options: ModelOptions, channels: list[str]) -> Any:
     """Return the thesis's LSTM classifier."""
-    from contactkit.classify.networks import LSTMClassifier
+    from contactkit.classify.kinds.networks import LSTMClassifier
 
     return LSTMClassifier(seed=options.seed, **options.params)
 
 
 def _minirocket(options: ModelOptions, channels: list[str]) -> Any:
     """Return aeon's MiniRocket behind contactkit's estimator interface."""
-    from contactkit.classify.nn import MiniRocketClassifier
+    from contactkit.classify.kinds.minirocket import MiniRocketClassifier
 
     return MiniRocketClassifier(seed=options.seed, **options.params)
 
@@ -96,4 +98,6 @@ MINIROCKET = ModelKind(
     parallel_fits=True,
     trusted_types=("aeon.classification.convolution_based._minirocket.MiniRocketClassifier",
                    "aeon.transformations.collection.convolution_based._minirocket.MiniRocket",
+                   "contactkit.classify.kinds.minirocket.MiniRocketClassifier",
+                   # its name in model files written before classify/ had subpackages
                    "contactkit.classify.nn.MiniRocketClassifier"))
