@@ -122,3 +122,57 @@ def test_class_ranges_travel_in_the_model_file_and_old_files_refuse_as_before(
         _check_event_meta({**doc, "class_high": {"shove": [1.0]}}, tmp_path)
     with pytest.raises(InputError, match="come together"):
         _check_event_meta({**old, "class_low": doc["class_low"]}, tmp_path)
+
+
+@pytest.fixture(scope="module")
+def default_events() -> tuple:
+    """The default model's detector and event classifier (built on first use)."""
+    from contactkit.classify.modelfile.model_file import load_model
+    from contactkit.cli.default_model import build_default_model
+
+    model = load_model(build_default_model(), lazy=True)
+    return model.detector_config(), model.event_model()
+
+
+def test_the_default_model_keeps_a_shove_harder_than_any_it_saw_and_refuses_hostile_ones(
+        default_events, tmp_path: Path) -> None:
+    """A 200 N shove on the hand at pose B (its strongest training shove: 167 N), which
+    also drives joint 6 past its speed limit: the arm's reflex stops it. Its event
+    stays a shove; the same event ten times larger, reversed, or as a sensor stepping to
+    a constant is unknown."""
+    from dataclasses import replace
+
+    from contactkit.classify.events.contact_events import PRE_S, session_events
+    from contactkit.features.detector import detect
+    from contactkit.features.timeseries import TimeseriesChain
+    from contactkit.recorder.sim.dataset import simulate_specs
+    from contactkit.recorder.sim.simulator import SimConfig, plan_session
+    from contactkit.schemas import read_session
+
+    detector, events_model = default_events
+    spec = plan_session(seed=2, condition="static", action="shove", pose="B", link=7,
+                        duration_s=2.5, planned_at_s=1.0)
+    spec = replace(spec, contact=replace(spec.contact, onset_s=1.0, peak_n=200.0,
+                                         rise_s=0.06, hold_s=0.1, fall_s=0.15))
+    (path,) = simulate_specs([spec], SimConfig(rate_hz=500.0), tmp_path)
+    session = read_session(path)
+    assert "reflex" in session.meta.simulator
+    (event,) = session_events(session, detector, events_model, isolate=False)
+    assert event.label == "shove" and not event.out_of_range
+    assert event.beyond_range == "above" and event.beyond_features
+    # The event's own decision window, made hostile.
+    session = session.complete()
+    chain = TimeseriesChain.for_session(session.meta)
+    t = session.t
+    r = chain.compute(t, session.q, session.dq, session.tau, ["r"])["r"]
+    found = detect(t, r, session.dq, detector.for_robot(chain.model.spec))
+    onset = found.intervals[0][0]
+    keep = (t >= t[onset] - PRE_S) & (t <= event.decision_s)
+    e = r[keep] - found.baseline[onset]
+    flat = np.zeros_like(e)
+    flat[t[keep] >= t[onset], 1] = np.abs(e[:, 1]).max()
+    for hostile in (10.0 * e, e[::-1], flat):
+        x = event_features(t[keep], hostile, t[onset])
+        label = events_model.classes[int(np.argmax(
+            events_model.estimator.predict_proba(x[None, :])[0]))]
+        assert events_model.range_check(x, label).refused
