@@ -15,7 +15,8 @@ contact it reports the touched link, the peak force, the largest moment arm of t
 force about a joint (|J_j^T f| / |f|, nominal model, at the peak), and the peak
 detector score in the contact against its threshold of 1 (``--misses`` prints them
 all). About 4 minutes on 2 cores for 96 sessions per preset, once the default
-model exists. ``--model`` scores another model file instead.
+model exists. ``--model`` scores another model file instead; ``--seeds`` and
+``--robot-seeds`` other datasets (give each its own ``--data``).
 """
 
 from __future__ import annotations
@@ -110,10 +111,11 @@ def score_session(path: str, model_path: str) -> dict:
     return out
 
 
-def simulate(directory: Path, preset: str, sessions: int, workers: int) -> list[str]:
-    """Simulate a preset's sessions on its unseen seed and robot instance (existing
-    sessions are kept); return the session paths. Every session must be written."""
-    seed, robot_seed = DATASETS[preset]
+def simulate(directory: Path, preset: str, sessions: int, workers: int, seed: int,
+             robot_seed: int) -> list[str]:
+    """Simulate a preset's sessions on dataset seed ``seed`` and robot instance
+    ``robot_seed`` (existing sessions are kept); return the session paths. Every session
+    must be written."""
     from contactkit.recorder.sim.presets import PRESETS
     from contactkit.recorder.sim.simulator import SimConfig
 
@@ -178,10 +180,12 @@ NAMES = (("detected", "contacts detected"),
          ("event_level", "event-level intent, balanced (none/bump/adjust/shove per session)"))
 
 
-def report(per_preset: dict[str, list[dict]], model_name: str) -> str:
-    """Return the section's Markdown."""
+def report(per_preset: dict[str, list[dict]], model_name: str,
+           datasets: dict[str, tuple[int, int]]) -> str:
+    """Return the section's Markdown (``datasets``: each preset's dataset seed and robot
+    instance)."""
     rng = np.random.default_rng(0)
-    header = " | ".join(f"`{p}` (seed {DATASETS[p][0]}, robot {DATASETS[p][1]})"
+    header = " | ".join(f"`{p}` (seed {datasets[p][0]}, robot {datasets[p][1]})"
                         for p in per_preset)
     lines = [BEGIN, "## Thesis presets, event level", "",
              f"`docs/thesis_events.py`: {model_name} on `thesis-static` and "
@@ -266,11 +270,20 @@ def main() -> None:
                         help="also write every session's record here (JSON lines)")
     parser.add_argument("--misses", action="store_true", help="print every missed contact")
     parser.add_argument("--no-write", action="store_true", help="print, leave the page")
+    parser.add_argument("--seeds", type=int, nargs=2, metavar=("STATIC", "DYNAMIC"),
+                        help="dataset seeds (default: %s)" % [s for s, _ in DATASETS.values()])
+    parser.add_argument("--robot-seeds", type=int, nargs=2, metavar=("STATIC", "DYNAMIC"),
+                        help="robot instances (default: %s)"
+                        % [r for _, r in DATASETS.values()])
     args = parser.parse_args()
+    datasets = {preset: (args.seeds[i] if args.seeds else s,
+                         args.robot_seeds[i] if args.robot_seeds else r)
+                for i, (preset, (s, r)) in enumerate(DATASETS.items())}
     model_path = args.model or build_default_model(args.workers)
     per_preset = {}
-    for preset in DATASETS:
-        paths = simulate(args.data / preset, preset, args.sessions, args.workers)
+    for preset, (seed, robot_seed) in datasets.items():
+        paths = simulate(args.data / preset, preset, args.sessions, args.workers, seed,
+                         robot_seed)
         per_preset[preset] = list(map_ordered(
             functools.partial(score_session, model_path=str(model_path)), paths,
             workers=args.workers))
@@ -279,7 +292,7 @@ def main() -> None:
                                          for p, rs in per_preset.items() for r in rs),
                    overwrite=True)
     text = report(per_preset, "the default model" if args.model is None
-                  else f"`{args.model.name}`")
+                  else f"`{args.model.name}`", datasets)
     print(text)
     if args.misses:
         for preset, records in per_preset.items():
