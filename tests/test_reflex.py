@@ -13,6 +13,8 @@ from contactkit.features.limits import ROBOT_MODE_REFLEX, session_limit_violatio
 from contactkit.recorder.sim.dataset import simulate_dataset, simulate_specs
 from contactkit.recorder.sim.presets import PRESETS
 from contactkit.recorder.sim.simulator import ROBOT_MODE_MOVE, SimConfig, plan_session
+from contactkit.recorder.stats.deep import session_summary
+from contactkit.recorder.stats.summary import beyond_limits
 from contactkit.robots import get_robot
 from contactkit.schemas import read_session
 
@@ -53,6 +55,7 @@ def test_a_shove_past_a_joints_speed_limit_stops_the_arm_and_is_recorded(
     pushed = session.column("contact") & (mode == ROBOT_MODE_REFLEX)
     assert np.abs(session.tau[pushed, 5]).max() > limits.tau_max[5]
     assert session_limit_violation(session) is None
+    assert beyond_limits(session_summary(str(path))) is None  # stats --deep agrees
     assert (session.joints("dq_d")[mode == ROBOT_MODE_REFLEX] == 0.0).all()
 
 
