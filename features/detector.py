@@ -63,9 +63,9 @@ from contactkit.errors import InputError
 from contactkit.features.observer import reduce_rows, solve_recurrence
 from contactkit.features.timing import RESTART_STEP_S, restarts
 from contactkit.robots import RobotSpec
+from contactkit.robots.spec import N_JOINTS
 from contactkit.util.atomic import write_text
 
-N_JOINTS = 7
 FORMAT = "contactkit-detector/1"
 FILTER_GAIN = 50.0  # 1/s, the observer's default K_O: a 20 ms low-pass on ddq
 MIN_NOISE = 0.3  # Nm, floor of a calibrated at-rest threshold

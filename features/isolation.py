@@ -56,9 +56,9 @@ Units: q [rad], r [Nm], points [m], forces [N], reported errors [Nm].
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import cache
 from typing import NamedTuple, Protocol
 
 import numpy as np
@@ -67,9 +67,9 @@ import pinocchio as pin
 from contactkit.features.detector import MIN_NOISE
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
+from contactkit.robots.spec import N_JOINTS
 from contactkit.robots.surfaces import LinkSurface, link_surface
 
-N_JOINTS = 7
 REFINE_LINKS = 3
 PRUNE_SHARE = 0.25
 MIN_DETERMINED = 5
@@ -767,13 +767,22 @@ class EventTrack:
         self.peak = self.at(*pending)
 
 
-@cache
+_ISOLATORS = threading.local()
+"""Each thread's isolators by arm and configuration (an isolator's pinocchio data is not
+shared between threads)."""
+
+
 def robot_isolator(robot: RobotSetup, config: IsolatorConfig | None = None) -> ContactIsolator:
     """Return the contact isolator of an arm as mounted (``robot``: the session's robot,
     hand and payload), on its collision surfaces (link 7's includes the hand when it is
-    mounted); built once per arm and configuration."""
-    def surface(link: int) -> LinkSurface | None:
-        found = link_surface(robot, link)
-        return None if found.empty else found
+    mounted); built once per arm, configuration and thread, so that threads never share
+    one (an isolator owns pinocchio data)."""
+    built: dict[tuple[RobotSetup, IsolatorConfig | None], ContactIsolator] = (
+        _ISOLATORS.__dict__.setdefault("by_arm", {}))
+    if (robot, config) not in built:
+        def surface(link: int) -> LinkSurface | None:
+            found = link_surface(robot, link)
+            return None if found.empty else found
 
-    return ContactIsolator(RobotModel(robot), surface, config)
+        built[robot, config] = ContactIsolator(RobotModel(robot), surface, config)
+    return built[robot, config]

@@ -184,3 +184,17 @@ def test_model_error_the_detector_expects_does_not_move_the_link(isolator, model
     for q, _, _, r in _contacts(model, 5, 6, seed=3):
         biased = r + np.eye(7)[5] * 0.3
         assert isolator.estimate(0.0, q, biased, threshold).link == 5
+
+
+def test_threads_never_share_an_isolator() -> None:
+    """An isolator owns pinocchio data, so each thread gets its own, built once."""
+    import threading
+
+    robot = RobotSetup(with_hand=True)
+    mine = robot_isolator(robot)
+    assert robot_isolator(robot) is mine
+    other: list[object] = []
+    worker = threading.Thread(target=lambda: other.append(robot_isolator(robot)))
+    worker.start()
+    worker.join()
+    assert other[0] is not mine and other[0].data is not mine.data

@@ -68,12 +68,6 @@ def searched_params(kind: ModelKind) -> list[str]:
     return [p.name for p in kind.params if p.grid]
 
 
-def default_grid(kind: ModelKind) -> dict[str, tuple]:
-    """Return the declared grid of every searched parameter of ``kind`` (for the thesis's
-    networks: depth 1, 2, 4; width 0.5, 1, 2; dropout 0, 0.1, 0.25)."""
-    return {p.name: p.grid for p in kind.params if p.grid}
-
-
 def grid_trials(kind: ModelKind, grid: Mapping[str, Sequence], steps: Sequence[int],
                 inputs: Sequence[Sequence[str]]) -> list[Trial]:
     """Return every combination of the given values as trials (inputs varying slowest,

@@ -83,11 +83,6 @@ def default_typestore(ros1: bool) -> Any:
     return store
 
 
-def bundled_msgdef(msgtype: str, ros1: bool) -> str:
-    """Return the bundled ``.msg`` text of a ``franka_msgs`` type (e.g. FrankaRobotState)."""
-    return (_msg_folder(ros1) / f"{msgtype.rsplit('/', 1)[-1]}.msg").read_text()
-
-
 CHUNK_MESSAGES = 8192
 """Messages gathered before they are stacked and spilled, and rows handled at a time
 while writing: the importer's memory, whatever the bag's length."""
