@@ -689,14 +689,16 @@ def _thin(y: np.ndarray, points: int) -> np.ndarray:
 
 def calibrate(parts: list[CalibrationData], template: DetectorConfig | None = None,
               margin: float = 1.5, source: dict | None = None,
-              motion_margin: float | None = None) -> DetectorConfig:
+              motion_margin: float | None = None,
+              floor: float | tuple[float, ...] = MIN_NOISE) -> DetectorConfig:
     """Fit the detector's per-joint threshold coefficients to no-contact data.
 
     Two steps per joint: ``noise`` is the largest |e| among samples at rest (speed
     below 0.05 rad/s; ``template``'s value when there are none), so that the final
-    threshold at rest is at least 0.3 Nm (the static-friction offsets a real wrist
-    joint keeps after being moved: up to 0.5 Nm on the MindLab Panda; the
-    free-motion log's joint 7 model error is 0.2 Nm);
+    threshold at rest is at least ``floor`` [Nm], one value or one per joint (default
+    :data:`MIN_NOISE`, 0.3 Nm: the static-friction offsets a real wrist joint keeps
+    after being moved: up to 0.5 Nm on the MindLab Panda; the free-motion log's joint 7
+    model error is 0.2 Nm);
     then ``speed`` and ``accel`` are the smallest (by mean) envelope
     speed s + accel a >= |e| - noise over every sample. ``noise`` is multiplied by
     ``margin``, speed and accel by ``motion_margin`` (default: ``margin``; wider when
@@ -718,7 +720,7 @@ def calibrate(parts: list[CalibrationData], template: DetectorConfig | None = No
     motion_margin = margin if motion_margin is None else motion_margin
     rest = x[:, 0] < REST_SPEED
     noise = abs_e[rest].max(axis=0) if rest.any() else np.array(template.noise) / margin
-    noise = np.maximum(noise, MIN_NOISE / margin)
+    noise = np.maximum(noise, np.asarray(floor, dtype=float) / margin)
     moving = np.zeros((N_JOINTS, 2))
     for j in range(N_JOINTS):
         excess = abs_e[:, j] - noise[j]

@@ -19,6 +19,7 @@ import numpy as np
 
 from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.detector import (
+    MIN_NOISE,
     CalibrationData,
     DetectorConfig,
     calibrate,
@@ -80,9 +81,11 @@ def calibrate_sessions(paths: Sequence[str | Path], template: DetectorConfig | N
                        motion_margin: float | None = None,
                        robot: RobotChoice = None,
                        problems: list[tuple[str, str]] | None = None,
-                       scheduler: str | None = None) -> DetectorConfig:
-    """Calibrate the detector on the no-contact samples of ``paths`` (``margin`` and
-    ``motion_margin`` as in :func:`~contactkit.features.detector.calibrate`; ``robot``
+                       scheduler: str | None = None,
+                       floor: float | tuple[float, ...] = MIN_NOISE) -> DetectorConfig:
+    """Calibrate the detector on the no-contact samples of ``paths`` (``margin``,
+    ``motion_margin`` and the at-rest ``floor`` [Nm] as in
+    :func:`~contactkit.features.detector.calibrate`; ``robot``
     the arm's model instead of each session's own); return its settings, with the
     session count in ``source`` and, when every session is of one arm, its name in
     ``robot`` (the settings then apply to that arm as they are). A session that cannot
@@ -106,7 +109,8 @@ def calibrate_sessions(paths: Sequence[str | Path], template: DetectorConfig | N
               for p in paths
               if str(p) not in failed}
     config = calibrate(parts, template, margin,
-                       source={"sessions": len(paths) - len(bad)}, motion_margin=motion_margin)
+                       source={"sessions": len(paths) - len(bad)}, motion_margin=motion_margin,
+                       floor=floor)
     return replace(config, robot=robots.pop() if len(robots) == 1 else None)
 
 

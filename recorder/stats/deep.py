@@ -32,7 +32,7 @@ import numpy as np
 from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features import chain_cache
 from contactkit.features.agreement import session_residual_agreement
-from contactkit.features.limits import robot_limits
+from contactkit.features.limits import ROBOT_MODE_REFLEX, robot_limits
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain
 from contactkit.features.timing import streamed_sampling_stats
 from contactkit.features.windows import WindowSearch, WindowSpec
@@ -177,7 +177,11 @@ def _summary(path: Path, meta: SessionMeta, rows: int, config: ChainConfig) -> d
             first_t = float(t[0])
         q_low, q_high = np.minimum(q_low, q.min(axis=0)), np.maximum(q_high, q.max(axis=0))
         dq_peak = np.maximum(dq_peak, np.abs(dq).max(axis=0))
-        tau_peak = np.maximum(tau_peak, np.abs(tau).max(axis=0))
+        # after a reflex stop the brakes, not the motors, hold the arm: not the motors'
+        # torque (features.limits)
+        motors = tau if batch.robot_mode is None else tau[batch.robot_mode != ROBOT_MODE_REFLEX]
+        if len(motors):
+            tau_peak = np.maximum(tau_peak, np.abs(motors).max(axis=0))
         tau_moments.add(tau)
         last_t = float(t[-1])
         if search is not None:
