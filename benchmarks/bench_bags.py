@@ -25,7 +25,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from bag_writers import ROS2_TOPIC, write_bag
 
-from contactkit.recorder.importers.bags import default_typestore, import_bag
+from contactkit.recorder.importers.bags import BagImporter, default_typestore
+from contactkit.recorder.importers.writer import write_importer
 from contactkit.recorder.metadata import session_meta
 from contactkit.schemas import joint_columns, read_session, write_session
 
@@ -76,7 +77,8 @@ def main(minutes: float, kind: str) -> None:
         out = tmp_path / "out"
         out.mkdir()
         start = time.perf_counter()
-        imported = read_session(import_bag(bag, _meta(), out))
+        with BagImporter.read(bag) as opened:
+            imported = read_session(write_importer(opened, _meta(), out))
         ours = time.perf_counter() - start
         assert imported.n_samples == n == session.n_samples
         assert np.array_equal(imported.q, session.q)

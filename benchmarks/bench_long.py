@@ -173,11 +173,13 @@ def run_case(case: str, minutes: float, directory: Path, model: Path | None = No
     elif case == "stats-deep":
         from contactkit.recorder.stats.deep import session_summary
     elif case == "import-bag":
-        from contactkit.recorder.importers.bags import import_bag
+        from contactkit.recorder.importers.bags import BagImporter
+        from contactkit.recorder.importers.writer import write_importer
         from contactkit.recorder.metadata import session_meta
     elif case == "import-csv":
-        from contactkit.recorder.importers.csv_import import import_csv
+        from contactkit.recorder.importers.csv_import import CsvImporter
         from contactkit.recorder.importers.csv_map import load_csv_map, mindlab_map_path
+        from contactkit.recorder.importers.writer import write_importer
         from contactkit.recorder.metadata import session_meta
     out_dir = directory / f"out_{case}_{minutes:g}"
     out_dir.mkdir(exist_ok=True)
@@ -207,12 +209,14 @@ def run_case(case: str, minutes: float, directory: Path, model: Path | None = No
         samples = summary["sampling"]["samples"]
     elif case == "import-bag":
         meta = session_meta(source="ros-bag", action="none", condition="static", pose="A")
-        written = import_bag(directory / f"long_{minutes:g}.rosbag2", meta, out_dir)
+        with BagImporter.read(directory / f"long_{minutes:g}.rosbag2") as bag:
+            written = write_importer(bag, meta, out_dir)
         samples = pq.ParquetFile(written).metadata.num_rows
     else:
         meta = session_meta(source="csv", action="none", condition="static", pose="A")
-        written = import_csv(directory / f"long_{minutes:g}.csv",
-                             load_csv_map(mindlab_map_path()), meta, out_dir)
+        with CsvImporter.read(directory / f"long_{minutes:g}.csv",
+                              load_csv_map(mindlab_map_path())) as csv:
+            written = write_importer(csv, meta, out_dir)
         samples = pq.ParquetFile(written).metadata.num_rows
     return {"case": case, "minutes": minutes, "samples": samples,
             "seconds": time.perf_counter() - start, "peak_mb": _rss_mb(),

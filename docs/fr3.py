@@ -36,9 +36,10 @@ from contactkit.cli.default_model import build_default_model
 from contactkit.features.agreement import session_residual_agreement
 from contactkit.features.timeseries import ChainConfig
 from contactkit.recorder.capture.record import record_session
-from contactkit.recorder.importers.csv_import import import_csv
+from contactkit.recorder.importers.csv_import import CsvImporter
 from contactkit.recorder.importers.csv_map import load_csv_map
-from contactkit.recorder.importers.jobs import import_arrays
+from contactkit.recorder.importers.jobs import ImportJob, import_file
+from contactkit.recorder.importers.writer import write_importer
 from contactkit.recorder.metadata import session_meta
 from contactkit.recorder.sim.forces import Contact, add_synthetic_touches
 from contactkit.recorder.sim.simulator import SimConfig, plan_session
@@ -89,8 +90,11 @@ def main() -> None:
     detector, events_model = model.detector_config(), model.event_model()
     work = Path(tempfile.mkdtemp())
     cmap = load_csv_map(FR3_MAP)
-    paths = [import_csv(p, cmap, session_meta(source="csv", action="none", robot="fr3"), work)
-             for p in sorted(FR3.glob("*.csv"))]
+    paths = []
+    for path in sorted(FR3.glob("*.csv")):
+        with CsvImporter.read(path, cmap) as csv:
+            paths.append(write_importer(csv, session_meta(source="csv", action="none",
+                                                          robot="fr3"), work))
     sessions = [read_session(p) for p in paths]
     minutes = sum(s.duration_s for s in sessions) / 60.0
     lines = [BEGIN, "## On a real FR3", "",
@@ -123,8 +127,9 @@ def main() -> None:
     held_minutes = minutes  # each recording is scored once, calibrated on the other
     lines.append(f"| calibrated on the other recording (margin 1.5) | `fr3` | {calibrated} | "
                  f"{calibrated / held_minutes:.1f} |")
-    gaz = import_arrays(*(GAZ / f for f in ("time.txt", "positions.txt", "velocity.txt",
-                                            "torques.txt")), work, ["with_hand=false"])
+    gaz = import_file(ImportJob(GAZ / "time.txt", work, {"with_hand": False}, "arrays",
+                                {"q": GAZ / "positions.txt", "dq": GAZ / "velocity.txt",
+                                 "tau": GAZ / "torques.txt"})).session
     lines += ["", "### Touches", "",
               f"Synthetic touches on real recordings ({VARIANTS} draws of "
               f"{len(TOUCH_TIMES_S)} touches per recording at {TOUCH_TIMES_S} s, on links 1-7, "

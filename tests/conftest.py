@@ -276,3 +276,24 @@ def _written_recordings_pass_rerun_verify(request):
 def _starts_with(path: Path, magic: bytes) -> bool:
     with open(path, "rb") as fh:
         return fh.read(len(magic)) == magic
+
+
+def write_imported(importer, meta, out_dir: Path, name: str | None = None) -> Path:
+    """Write the session an opened importer (``BagImporter.read(...)``,
+    ``CsvImporter.read(...)``, ...) streams, through the one writer every import takes
+    (:func:`contactkit.recorder.importers.writer.write_importer`), and close the importer;
+    return the session's path."""
+    from contactkit.recorder.importers.writer import write_importer
+
+    with importer:
+        return write_importer(importer, meta, out_dir, name)
+
+
+def import_array_files(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path,
+                       out_dir: Path, meta_pairs: list[str]) -> Path:
+    """Import joint arrays as ``recorder import --format arrays`` does (the one import path,
+    :func:`contactkit.recorder.importers.jobs.import_file`); return the session's path."""
+    from contactkit.recorder.importers.jobs import ImportJob, import_file, protocol_from
+
+    return import_file(ImportJob(Path(t_path), out_dir, protocol_from({}, meta_pairs), "arrays",
+                                 {"q": q_path, "dq": dq_path, "tau": tau_path})).session

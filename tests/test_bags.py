@@ -10,11 +10,12 @@ from bag_writers import ROS2_TOPIC, START_NS, write_bag
 from conftest import make_session, run_command
 
 from contactkit.features.timing import rate_warning
-from contactkit.recorder.importers.bags import import_bag
+from contactkit.recorder.importers.bags import BagImporter
 from contactkit.recorder.importers.jobs import import_files, import_jobs
 from contactkit.recorder.importers.mcap_export import export_mcap
 from contactkit.recorder.metadata import session_meta
 from contactkit.schemas import InputError, read_session, validate_session
+from tests.conftest import write_imported
 
 COMPARED = ["q", "dq", "tau", "q_d", "dq_d"]
 PROTOCOL = {"action": "shove", "condition": "static", "pose": "B", "target_pose": None,
@@ -42,7 +43,7 @@ def assert_same_joints(a, b) -> None:
 def test_franka_bags_import_bit_equal(source, tmp_path, kind):
     session = read_session(source)
     bag = write_bag(session, tmp_path / ("bag.bag" if kind == "ros1" else "bag"), kind)
-    out = import_bag(bag, meta(), tmp_path)
+    out = write_imported(BagImporter.read(bag), meta(), tmp_path)
     imported = validate_session(out)
     assert_same_joints(session, imported)
     assert (imported.column("robot_mode") == 2).all()
@@ -55,14 +56,14 @@ def test_franka_bags_import_bit_equal(source, tmp_path, kind):
 
 def test_bag_without_definitions_uses_bundled_ones(source, tmp_path):
     bag = write_bag(read_session(source), tmp_path / "bag", "sqlite3", strip_definitions=True)
-    imported = validate_session(import_bag(bag, meta(), tmp_path))
+    imported = validate_session(write_imported(BagImporter.read(bag), meta(), tmp_path))
     assert_same_joints(read_session(source), imported)
 
 
 def test_wrong_topic_lists_the_topics(source, tmp_path):
     bag = write_bag(read_session(source), tmp_path / "bag", "mcap")
     with pytest.raises(InputError) as err:
-        import_bag(bag, meta(), tmp_path, topic="/joint_states")
+        write_imported(BagImporter.read(bag, "/joint_states"), meta(), tmp_path)
     message = str(err.value)
     assert "\n" not in message and ROS2_TOPIC in message and "FrankaRobotState" in message
 
@@ -71,13 +72,14 @@ def test_label_topics_give_planned_time_and_contact(source, tmp_path):
     session = read_session(source)
     bag = write_bag(session, tmp_path / "s", "mcap", labels=[(1.5, "cue shove"),
                                                              (2.0, "done")])
-    imported = validate_session(import_bag(bag, meta(), tmp_path, label_topic="/labels"))
+    imported = validate_session(write_imported(BagImporter.read(bag, label_topic="/labels"),
+                                               meta(), tmp_path))
     assert imported.meta.planned_at_s == pytest.approx(1.5, abs=2e-3)
     assert [e["text"] for e in imported.meta.source_info["label_events"]] == ["cue shove",
                                                                                "done"]
     bag = write_bag(session, tmp_path / "b", "mcap", labels=[(1.0, True), (2.0, False)])
-    contact = validate_session(import_bag(bag, meta(), tmp_path / "b",
-                                          label_topic="/labels", name="b.parquet"))
+    contact = validate_session(write_imported(BagImporter.read(bag, label_topic="/labels"),
+                                              meta(), tmp_path / "b", "b.parquet"))
     touching = contact.t[contact.column("contact")]
     assert touching[0] == pytest.approx(1.0, abs=2e-3)
     assert touching[-1] == pytest.approx(2.0, abs=2e-3)
@@ -91,7 +93,7 @@ def test_truncated_bag_keeps_what_is_readable(source, tmp_path, kind):
     data = file.read_bytes()
     broken = tmp_path / f"broken{file.suffix}"
     broken.write_bytes(data[:len(data) // 2])
-    imported = validate_session(import_bag(broken, meta(), tmp_path))
+    imported = validate_session(write_imported(BagImporter.read(broken), meta(), tmp_path))
     info = imported.meta.source_info
     assert 0 < imported.n_samples < session.n_samples
     assert info["salvaged"] and "lost" in info["read_error"]
@@ -117,7 +119,7 @@ def test_directory_with_one_bad_bag(source, tmp_path):
 def test_export_mcap_round_trip(source, tmp_path):
     mcap = export_mcap(source, tmp_path / "exported")
     assert mcap.suffix == ".mcap"
-    back = validate_session(import_bag(mcap, meta(), tmp_path))
+    back = validate_session(write_imported(BagImporter.read(mcap), meta(), tmp_path))
     original = read_session(source)
     assert back.table.column_names == original.table.column_names
     np.testing.assert_allclose(back.t, original.t, rtol=0, atol=1e-9)
@@ -137,7 +139,8 @@ def test_export_mcap_out_is_a_file_with_mcap_suffix_else_a_bag_directory(source,
                                                                                "run.mcap")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.mcap"]  # no scratch left
     (tmp_path / "in").mkdir()
-    back = validate_session(import_bag(tmp_path / "run.mcap", meta(), tmp_path / "in"))
+    back = validate_session(write_imported(BagImporter.read(tmp_path / "run.mcap"), meta(),
+                                          tmp_path / "in"))
     assert np.array_equal(back.q, read_session(source).q)
     again = run_command("recorder", "export-mcap", str(source), "--out", str(tmp_path / "run.mcap"))
     assert again.returncode == 2 and "--overwrite" in again.stderr
@@ -181,8 +184,10 @@ def test_streamed_import_does_not_depend_on_the_chunk(source, tmp_path, kind, mo
         monkeypatch.setattr(bags, "CHUNK_MESSAGES", chunk)
         out = tmp_path / f"out{chunk}"
         out.mkdir()
-        written[chunk] = [validate_session(import_bag(bag, meta(), out, label_topic="/labels")),
-                          validate_session(import_bag(exported, meta(), out))]
+        written[chunk] = [validate_session(write_imported(
+                              BagImporter.read(bag, label_topic="/labels"), meta(), out)),
+                          validate_session(write_imported(BagImporter.read(exported), meta(),
+                                                          out))]
     for small, whole in zip(written[7], written[100_000], strict=True):
         assert small.table.equals(whole.table)
         assert {**small.meta.__dict__, "session_id": "", "created_utc": ""} == \
@@ -198,7 +203,7 @@ def test_a_clock_switch_in_a_bag_is_refused_not_read_as_years(source, tmp_path):
     stamps[:50] = np.round(session.t[:50] * 1e9).astype(np.int64) + 1
     bag = write_bag(session, tmp_path / "bag", "mcap", stamps_ns=stamps)
     with pytest.raises(InputError, match=r"time jumps by 1\.7e\+09 s at row 50"):
-        import_bag(bag, meta(), tmp_path)
+        write_imported(BagImporter.read(bag), meta(), tmp_path)
     assert not list(tmp_path.glob("*.parquet"))
 
 

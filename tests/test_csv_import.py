@@ -9,11 +9,11 @@ import polars as pl
 import pytest
 
 from contactkit.recorder.importers import csv_import
-from contactkit.recorder.importers.csv_import import import_csv, read_csv_columns
+from contactkit.recorder.importers.csv_import import CsvImporter, read_csv_columns
 from contactkit.recorder.importers.csv_map import load_csv_map, mindlab_map_path
 from contactkit.recorder.metadata import session_meta
 from contactkit.schemas import InputError, validate_session
-from tests.conftest import MINDLAB_FILES, run_command
+from tests.conftest import MINDLAB_FILES, run_command, write_imported
 
 MAP = mindlab_map_path()
 
@@ -143,9 +143,11 @@ def test_bad_input_exits_2_with_one_line(mindlab_dir: Path, tmp_path: Path) -> N
 
 def test_import_refuses_to_overwrite(mindlab_dir: Path, tmp_path: Path) -> None:
     meta = session_meta(source="csv", action="none")
-    path = import_csv(mindlab_dir / "d3.csv", load_csv_map(MAP), meta, tmp_path)
+    path = write_imported(CsvImporter.read(mindlab_dir / "d3.csv", load_csv_map(MAP)), meta,
+                          tmp_path)
     with pytest.raises(InputError, match="already exists"):
-        import_csv(mindlab_dir / "d3.csv", load_csv_map(MAP), meta, tmp_path)
+        write_imported(CsvImporter.read(mindlab_dir / "d3.csv", load_csv_map(MAP)), meta,
+                       tmp_path)
     assert path.name.startswith("d3_static_x_none_")
 
 
@@ -164,7 +166,8 @@ def test_streamed_import_does_not_depend_on_the_block(mindlab_dir: Path, tmp_pat
         meta = session_meta(source="csv", action="none", condition="static", pose="A")
         out = tmp_path / str(block_rows)
         out.mkdir()
-        written.append(validate_session(import_csv(csv, load_csv_map(MAP), meta, out)))
+        written.append(validate_session(write_imported(CsvImporter.read(csv, load_csv_map(MAP)),
+                                                       meta, out)))
     assert written[0].table.equals(written[1].table)
     assert written[0].meta.source_info == written[1].meta.source_info
     assert written[0].meta.nominal_rate_hz == written[1].meta.nominal_rate_hz

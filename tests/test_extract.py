@@ -14,10 +14,9 @@ from sklearn.svm import SVC
 
 from contactkit.features.extract import SessionFeatures, feature_rows
 from contactkit.recorder.importers import arrays
-from contactkit.recorder.importers.jobs import import_arrays
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.features import read_feature_table
-from tests.conftest import make_session, run_command
+from tests.conftest import import_array_files, make_session, run_command
 
 
 @pytest.fixture(scope="module")
@@ -133,7 +132,7 @@ def test_import_arrays_streamed_in_blocks(reference_dir: Path, tmp_path: Path,
         for kind, files in (("text", texts), ("npy", npys)):
             out = tmp_path / f"{kind}{block}"
             out.mkdir()
-            tables[kind, block] = read_session(import_arrays(
+            tables[kind, block] = read_session(import_array_files(
                 *files, out, ["with_hand=false"])).table
     for kind in ("text", "npy"):
         assert tables[kind, 5].equals(tables[kind, 1_000_000])

@@ -12,14 +12,14 @@ import pytest
 from contactkit.classify.events.contact_events import session_events
 from contactkit.classify.modelfile.model_file import load_model
 from contactkit.cli.default_model import build_default_model
-from contactkit.recorder.importers.csv_import import import_csv
+from contactkit.recorder.importers.csv_import import CsvImporter
 from contactkit.recorder.importers.csv_map import load_csv_map
 from contactkit.recorder.metadata import session_meta, set_session_robot
 from contactkit.recorder.sim.forces import add_synthetic_touches
 from contactkit.robots import RobotSetup
 from contactkit.robots.model import RobotModel
 from contactkit.schemas import read_session
-from tests.conftest import make_session, run_command
+from tests.conftest import make_session, run_command, write_imported
 
 FR3_MAP = Path(__file__).resolve().parents[1] / "recorder" / "data" / "fr3_teleop_csv_map.toml"
 TOUCH_TIMES_S = (1.5, 4.0, 6.5, 9.0)
@@ -40,8 +40,9 @@ def default_model(default_model_path):
 def fr3_sessions(fr3_dir: Path, tmp_path_factory) -> list[Path]:
     out = tmp_path_factory.mktemp("fr3")
     cmap = load_csv_map(FR3_MAP)
-    return [import_csv(path, cmap, session_meta(source="csv", action="none", robot=cmap.robot),
-                       out) for path in sorted(fr3_dir.glob("*.csv"))]
+    return [write_imported(CsvImporter.read(path, cmap),
+                           session_meta(source="csv", action="none", robot=cmap.robot), out)
+            for path in sorted(fr3_dir.glob("*.csv"))]
 
 
 def test_imported_fr3_sessions_name_their_robot_and_agree_with_its_estimate(

@@ -26,8 +26,7 @@ from contactkit.classify.modelfile.model_file import load_model
 from contactkit.recorder.capture.journal import SessionWriter, journal_path, recover_directory
 from contactkit.recorder.importers.arrays import load_joint_arrays
 from contactkit.recorder.importers.can_map import default_map_path, load_map
-from contactkit.recorder.importers.can_tools import bridge_session, import_can_log
-from contactkit.recorder.importers.jobs import import_arrays
+from contactkit.recorder.importers.can_tools import CanLogImporter, bridge_session
 from contactkit.recorder.info import session_info
 from contactkit.recorder.metadata import session_filename
 from contactkit.recorder.stats.summary import build_report
@@ -39,7 +38,7 @@ from contactkit.schemas import (
 from contactkit.schemas.columns import COLUMN_ORDER
 from contactkit.schemas.session import METADATA_KEY
 from contactkit.util.paths import inside
-from tests.conftest import make_session
+from tests.conftest import import_array_files, make_session, write_imported
 from tests.fuzz_support import (
     FLOATS,
     JSON_VALUES,
@@ -232,7 +231,8 @@ def test_fuzz_plain_arrays(work: Path, t: str, q: str, npy: bool, meta: list) ->
         q_path = directory / "q.npy"
         q_path.write_bytes(q.encode())
     refused_or(load_joint_arrays, directory / "t.txt", q_path, q_path, q_path)
-    written = refused_or(import_arrays, directory / "t.txt", q_path, q_path, q_path, out, meta)
+    written = refused_or(import_array_files, directory / "t.txt", q_path, q_path, q_path, out,
+                         meta)
     if written is not None:
         assert written.parent == out.resolve()
         validate_session(written).path.unlink()
@@ -269,7 +269,10 @@ def test_fuzz_can_logs(work: Path, can_logs: dict, suffix: str, cut: int, flips,
     log = directory / f"fuzzed{suffix}"
     log.write_bytes(bytes(data[:max(cut, len(data) // 2)]))
     meta = SessionMeta(session_id="fuzzcan", source="can-log", action="bump", pose="A")
-    written = refused_or(import_can_log, log, load_map(), meta, out, "fuzzed.parquet")
+    def decode_log() -> Path:
+        return write_imported(CanLogImporter.read(log, load_map()), meta, out, "fuzzed.parquet")
+
+    written = refused_or(decode_log)
     if written is not None:
         validate_session(written)
         written.unlink()

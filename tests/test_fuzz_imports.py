@@ -28,8 +28,8 @@ from contactkit.features.detector import (
     load_calibration,
     save_calibration,
 )
-from contactkit.recorder.importers.bags import default_typestore, import_bag
-from contactkit.recorder.importers.csv_import import import_csv
+from contactkit.recorder.importers.bags import BagImporter, default_typestore
+from contactkit.recorder.importers.csv_import import CsvImporter
 from contactkit.recorder.importers.csv_map import load_csv_map, mindlab_map_path
 from contactkit.recorder.metadata import session_meta
 from contactkit.recorder.sim.noise import SensorNoise, default_noise
@@ -41,7 +41,7 @@ from contactkit.schemas.features import (
     write_feature_table,
 )
 from tests.bag_writers import write_bag
-from tests.conftest import make_session
+from tests.conftest import make_session, write_imported
 from tests.fuzz_support import (
     FLOATS,
     JSON_VALUES,
@@ -79,7 +79,10 @@ def bag_meta():
 def check_bag_import(bag: Path, root: Path, **topics) -> None:
     """The property for one bag: a valid session inside ``root/out`` or an InputError."""
     out = fresh_directory(root / "out")
-    written = refused_or(import_bag, bag, bag_meta(), out, **topics)
+    def import_bag() -> Path:
+        return write_imported(BagImporter.read(bag, **topics), bag_meta(), out)
+
+    written = refused_or(import_bag)
     if written is not None:
         assert written.parent == out.resolve()
         validate_session(written)
@@ -294,7 +297,10 @@ def check_csv_import(csv: Path, map_path: Path, root: Path) -> None:
     cmap = refused_or(load_csv_map, map_path)
     if cmap is None:
         return
-    written = refused_or(import_csv, csv, cmap, csv_meta(), out)
+    def import_csv() -> Path:
+        return write_imported(CsvImporter.read(csv, cmap), csv_meta(), out)
+
+    written = refused_or(import_csv)
     if written is not None:
         assert written.parent == out.resolve()
         validate_session(written)
@@ -433,7 +439,7 @@ def test_bag_with_ragged_joint_values_is_refused(work: Path) -> None:
     content = {"msgtype": "sensor_msgs/msg/JointState", "messages": messages, "extras": []}
     bag = write_messages(root / "ragged", "mcap", content)
     with pytest.raises(InputError, match="q values on /joint_states are not 7 finite"):
-        import_bag(bag, bag_meta(), root)
+        write_imported(BagImporter.read(bag), bag_meta(), root)
 
 
 def test_bag_with_foreign_session_topic_is_refused(work: Path, short_session: Path) -> None:
@@ -447,7 +453,7 @@ def test_bag_with_foreign_session_topic_is_refused(work: Path, short_session: Pa
                    "extras": [("/contactkit/session", text)]}
         bag = write_messages(fresh_directory(root / "bag") / "b", "sqlite3", content)
         with pytest.raises(InputError, match=problem):
-            import_bag(bag, bag_meta(), root)
+            write_imported(BagImporter.read(bag), bag_meta(), root)
 
 
 @pytest.mark.parametrize("key, value, problem", [
@@ -490,4 +496,5 @@ def test_csv_with_a_repeated_mapped_column_is_refused(work: Path, valid_csv: Pat
     path = work / "repeated.csv"
     path.write_text("\n".join([lines[0].replace("q1,", "q0,", 1), *lines[1:]]) + "\n")
     with pytest.raises(InputError, match=r"column .q0. .* appears more than once"):
-        import_csv(path, load_csv_map(mindlab_map_path()), csv_meta(), work)
+        write_imported(CsvImporter.read(path, load_csv_map(mindlab_map_path())), csv_meta(),
+                       work)

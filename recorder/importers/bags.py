@@ -38,7 +38,6 @@ from contactkit.features.timing import streamed_sampling_stats
 from contactkit.recorder.importers.bag_salvage import SalvageReader
 from contactkit.recorder.importers.base import Importer
 from contactkit.recorder.importers.spill import RowSpill
-from contactkit.recorder.importers.writer import write_importer
 from contactkit.schemas import InputError, SessionMeta, joint_columns
 from contactkit.schemas.columns import WRENCH_HAT_COLUMNS
 from contactkit.util.safe_open import parse_json
@@ -49,6 +48,7 @@ JOINT_STATE = "sensor_msgs/msg/JointState"
 WRENCH_STAMPED = "geometry_msgs/msg/WrenchStamped"
 STRING = "std_msgs/msg/String"
 BOOL = "std_msgs/msg/Bool"
+INT8 = "std_msgs/msg/Int8"
 STATE_TYPES = (FRANKA_ROBOT_STATE, FRANKA_STATE, JOINT_STATE)
 DEFAULT_TOPICS = ("/franka_robot_state_broadcaster/robot_state",
                   "/franka_state_controller/franka_states",
@@ -57,7 +57,7 @@ DEFAULT_TOPICS = ("/franka_robot_state_broadcaster/robot_state",
 EXPORT_TOPICS = {"desired": "/joint_states_desired", "tau_ext_hat": "/tau_ext_hat_filtered",
                  "wrench_hat": "/franka_robot_state_broadcaster/external_wrench_in_base_frame",
                  "applied": "/contactkit/applied_force", "contact": "/contactkit/contact",
-                 "session": "/contactkit/session"}
+                 "robot_mode": "/contactkit/robot_mode", "session": "/contactkit/session"}
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 MEASURED = ("q", "dq", "tau")  # the joint values every message must carry
 
@@ -396,7 +396,7 @@ def _export_row(topic: str, msg: Any) -> Any:
         return (*msg.position, *msg.velocity)
     if topic == EXPORT_TOPICS["tau_ext_hat"]:
         return msg.effort
-    if topic == EXPORT_TOPICS["contact"]:
+    if topic in (EXPORT_TOPICS["contact"], EXPORT_TOPICS["robot_mode"]):
         return float(msg.data)
     w = msg.wrench
     return (w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z)
@@ -538,6 +538,9 @@ def _add_export_topics(columns: dict[str, np.ndarray], extras: dict[str, _Stacke
             columns.update({name: values[:, i] for i, name in enumerate(names)})
     if (contact := lined_up(EXPORT_TOPICS["contact"], ())) is not None:
         columns["contact"] = contact.astype(bool)
+    if "robot_mode" not in columns and (
+            mode := lined_up(EXPORT_TOPICS["robot_mode"], ())) is not None:
+        columns["robot_mode"] = mode.astype(np.int8)
 
 
 def exported_meta(bag: BagSpill, path: Path) -> dict | None:
@@ -648,24 +651,6 @@ class BagImporter(Importer):
     def find(cls, directory: Path) -> list[Path]:
         """Return the bags in ``directory`` (:func:`find_bags`)."""
         return find_bags(directory)
-
-
-def import_bag(path: Path, meta: SessionMeta, out_dir: Path, *, topic: str | None = None,
-               label_topic: str | None = None, name: str | None = None) -> Path:
-    """Write one bag's joint stream as a validated session in ``out_dir``; return its path.
-
-    ``meta`` holds the protocol choices; the bag's statistics go into
-    ``meta.source_info``. A session export-mcap wrote gets its stored metadata back
-    (session id, protocol, source), with the import recorded in ``source_info``. With a
-    label topic, the first label's time is the planned interaction time unless
-    ``meta`` has one (:meth:`BagImporter.metadata`).
-
-    The messages are read once and spilled to temporary files (:class:`BagSpill`), then
-    the session is written from them a row group at a time: memory stays bounded
-    however long the bag (the label messages excepted, which stay in memory).
-    """
-    with BagImporter.read(path, topic, label_topic) as bag:
-        return write_importer(bag, meta, out_dir, name)
 
 
 def find_bags(directory: Path) -> list[Path]:

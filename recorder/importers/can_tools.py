@@ -27,9 +27,8 @@ from contactkit.recorder.importers.can_codec import (
 )
 from contactkit.recorder.importers.can_map import FrameMap, load_map
 from contactkit.recorder.importers.spill import RowSpill
-from contactkit.recorder.importers.writer import write_importer
 from contactkit.recorder.sources.can import BusConfig
-from contactkit.schemas import InputError, Session, SessionMeta
+from contactkit.schemas import InputError, Session
 from contactkit.util.atomic import atomic_write
 from contactkit.util.pacing import paced
 
@@ -158,14 +157,6 @@ def _messages(path: Path) -> Iterator[can.Message]:
             raise InputError(f"cannot read this log ({type(err).__name__}: "
                              f"{str(err)[:80]})", path) from err
         yield msg
-
-
-def import_can_log(path: Path, fmap: FrameMap, meta: SessionMeta, out_dir: Path,
-                   name: str | None = None) -> Path:
-    """Write the session decoded from a CAN log, streamed (:class:`CanLogImporter`);
-    return its path."""
-    with CanLogImporter.read(path, fmap) as log:
-        return write_importer(log, meta, out_dir, name)
 
 
 def decoding_summary(stats: dict) -> str:

@@ -27,7 +27,6 @@ import polars as pl
 from contactkit.recorder.importers.base import Importer
 from contactkit.recorder.importers.csv_map import CsvMap, load_csv_map
 from contactkit.recorder.importers.spill import RowSpill, spilled_session_chunks, spilled_times
-from contactkit.recorder.importers.writer import write_importer
 from contactkit.recorder.metadata import session_filename
 from contactkit.schemas import InputError, SessionMeta
 from contactkit.util.safe_open import open_input
@@ -311,14 +310,3 @@ class CsvImporter(Importer):
     def close(self) -> None:
         """Remove the temporary files."""
         self.spill.__exit__()
-
-
-def import_csv(path: Path, cmap: CsvMap, meta: SessionMeta, out_dir: Path) -> Path:
-    """Write the session read from one CSV file; return its path.
-
-    The file is named after the CSV file and the session (``<stem>_<condition>_...``);
-    ``source_info`` records the CSV path, the map and the row counts. Memory stays
-    bounded however long the file (:func:`spill_csv`).
-    """
-    with CsvImporter.read(path, cmap) as csv:
-        return write_importer(csv, meta, out_dir)

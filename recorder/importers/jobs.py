@@ -97,17 +97,6 @@ def import_file(job: ImportJob) -> Imported:
         raise InputError(err.problem, job.path) from err
 
 
-def import_arrays(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path, out_dir: Path,
-                  meta_pairs: list[str], name: str | None = None,
-                  overwrite: bool = False) -> Path:
-    """Write a validated session from array files (time [s], q [rad], dq [rad/s], tau
-    [Nm]) and ``KEY=VALUE`` metadata pairs; return its path. Streamed in bounded memory
-    (:class:`~contactkit.recorder.importers.arrays.ArraysImporter`)."""
-    options = {"q": q_path, "dq": dq_path, "tau": tau_path}
-    return import_file(ImportJob(Path(t_path), out_dir, protocol_from({}, meta_pairs),
-                                 "arrays", options, name, overwrite)).session
-
-
 def checked_meta(protocol: Mapping[str, Any]) -> SessionMeta:
     """Return checked session metadata from ``protocol`` (keyword arguments of
     :func:`~contactkit.recorder.metadata.session_meta`, with ``source``); InputError

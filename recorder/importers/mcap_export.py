@@ -7,8 +7,9 @@ time. Optional columns go on their own topics, one message per sample:
 ``/joint_states_desired`` (q_d, dq_d), ``/tau_ext_hat_filtered`` (JointState effort),
 ``geometry_msgs/WrenchStamped`` on
 ``/franka_robot_state_broadcaster/external_wrench_in_base_frame`` (the robot's
-estimate) and ``/contactkit/applied_force`` (ground truth), and ``std_msgs/Bool`` on
-``/contactkit/contact``. The session metadata is one ``std_msgs/String`` (JSON) on
+estimate) and ``/contactkit/applied_force`` (ground truth), ``std_msgs/Bool`` on
+``/contactkit/contact`` and ``std_msgs/Int8`` on ``/contactkit/robot_mode`` (libfranka's
+robot mode: 2 move, 4 reflex). The session metadata is one ``std_msgs/String`` (JSON) on
 ``/contactkit/session``. ``recorder import-bag`` reads all of it back.
 """
 
@@ -24,6 +25,7 @@ import numpy as np
 from contactkit.recorder.importers.bags import (
     BOOL,
     EXPORT_TOPICS,
+    INT8,
     JOINT_STATE,
     STRING,
     WRENCH_STAMPED,
@@ -144,6 +146,10 @@ def _message_streams(session: Session, store: Any) -> dict[str, tuple[str, Any]]
         contact = session.column("contact")
         streams[EXPORT_TOPICS["contact"]] = (BOOL, lambda i, h: store.types[BOOL](
             data=bool(contact[i])))
+    if session.has("robot_mode"):
+        mode = session.column("robot_mode")
+        streams[EXPORT_TOPICS["robot_mode"]] = (INT8, lambda i, h: store.types[INT8](
+            data=int(mode[i])))
     return streams
 
 
