@@ -391,8 +391,10 @@ def _fit_links(theta: np.ndarray, cost: np.ndarray, nominal: np.ndarray, bad: li
     for _ in range(200):
         jac = jacobian(factors)
         normal = jac.T @ jac
-        step = np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12),
-                               -jac.T @ residual)
+        # least squares, not solve: a factor the cost no longer feels (a vanishing
+        # diagonal of the Cholesky factor) leaves the damped matrix singular
+        step = np.linalg.lstsq(normal + damping * np.diag(np.diag(normal) + 1e-12),
+                               -jac.T @ residual, rcond=None)[0]
         with np.errstate(over="ignore", invalid="ignore"):  # a wild step: rejected below
             trial = root @ (params(factors + step) - target)
             better = bool(np.isfinite(trial).all() and trial @ trial < residual @ residual)

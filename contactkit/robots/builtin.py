@@ -9,9 +9,10 @@
     turned into a plain URDF once by ``tools/make_fr3_urdf.py`` and shipped in
     ``contactkit/robots/data/fr3`` with its licence, notice and provenance. Its
     kinematics equal the Panda's; its link masses and inertias, joint limits and
-    velocity limits differ. No friction model has been identified for it: its
-    link-side torque sensors show none that a model removes (on the real FR3
-    recordings the residual matches the robot's own estimate without one).
+    velocity limits differ. No friction model has been identified for it: on the real
+    FR3 recordings the residual matches the robot's own estimate without one, and a
+    Coulomb and viscous friction fitted on one recording, though it lowers the other's
+    residual, takes it away from that estimate (docs/identification.md).
 
 Acceleration and jerk limits come from each arm's datasheet (Franka's "Robot and
 interface specifications" of the Panda and of the FR3; the Panda's are also libfranka's
