@@ -1,5 +1,5 @@
-"""The long fuzz run: every reader of tests/test_fuzz.py, tests/test_fuzz_imports.py and
-tests/test_fuzz_inputs.py
+"""The long fuzz run: every reader of tests/suites/test_fuzz.py,
+tests/suites/test_fuzz_imports.py and tests/suites/test_fuzz_inputs.py
 under the ``long`` Hypothesis profile (2000 examples each, random seeds, instead of 30
 fixed ones in ``make test``).
 
@@ -34,8 +34,8 @@ def main() -> int:
                CONTACTKIT_FUZZ_EXAMPLES=str(examples))
     started = time.monotonic()
     run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                          "tests/test_fuzz.py", "tests/test_fuzz_imports.py",
-                          "tests/test_fuzz_inputs.py", *readers,
+                          "tests/suites/test_fuzz.py", "tests/suites/test_fuzz_imports.py",
+                          "tests/suites/test_fuzz_inputs.py", *readers,
                           "--hypothesis-show-statistics"],
                          cwd=ROOT, env=env, capture_output=True, text=True)
     seconds = time.monotonic() - started

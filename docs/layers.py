@@ -1,5 +1,5 @@
 """Draw the layers of contactkit (docs/explanation/layers.png) from the one table that
-states them, ``LAYERS`` in tests/test_layering.py. Arrows point from a layer to the
+states them, ``LAYERS`` in tests/suites/test_layering.py. Arrows point from a layer to the
 layers it may import; arrows implied by others (a -> b -> c makes a -> c) are left out.
 
 Run from the repository root: ``.venv/bin/python docs/layers.py``.
@@ -17,7 +17,7 @@ import matplotlib.pyplot as plt
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from tests.test_layering import LAYERS  # noqa: E402
+from tests.suites.test_layering import LAYERS  # noqa: E402
 
 OUT = ROOT / "docs" / "explanation" / "layers.png"
 # Where each layer sits (x, y) and what it holds.
@@ -67,7 +67,7 @@ def draw(out: Path = OUT) -> Path:
     ax.set_xlim(-0.9, 4.7)
     ax.set_ylim(-0.7, 5.6)
     ax.axis("off")
-    ax.set_title("contactkit's layers: an arrow means 'may import' (tests/test_layering.py)",
+    ax.set_title("contactkit's layers: an arrow means 'may import' (tests/suites/test_layering.py)",
                  fontsize=10)
     fig.tight_layout()
     fig.savefig(out, dpi=110)

@@ -192,7 +192,7 @@ def real_figures(model, gaz, gaz_first, gaz_second, mindlab, workers: int) -> li
         f"{[round(v, 2) for v in d.noise]} Nm, growth per rad/s "
         f"{[round(v, 2) for v in d.speed]}, per rad/s^2 {[round(v, 3) for v in d.accel]}. "
         "The simulator's held-pose noise and free-motion model error are calibrated "
-        "against these real recordings (tests/test_sim_calibration.py: within +-50 % per "
+        "against these real recordings (tests/recorder/test_sim_calibration.py: within +-50 % per "
         "joint at rest); the 0.3 Nm floor on the thresholds at rest covers what it still "
         "misses (wrist stiction, joint 7's model error). The second row is what a lab "
         "gets by calibrating on its own robot.", ""]

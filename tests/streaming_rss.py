@@ -1,4 +1,4 @@
-"""Peak RSS of one streamed replay or per-sample feature run, for tests/test_streaming.py.
+"""Peak RSS of one streamed replay or per-sample feature run, for tests/features/test_streaming.py.
 
     python tests/streaming_rss.py replay|features SESSION MODEL OUT BATCH_ROWS
 

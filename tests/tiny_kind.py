@@ -1,6 +1,6 @@
 """A lab's own model kind, as one module: the estimator, its parameter and the kind.
 
-Registered in-process by ``tests/test_model_kinds.py`` (``registry.register``) and, for
+Registered in-process by ``tests/classify/test_model_kinds.py`` (``registry.register``) and, for
 the command line, through an entry point of the group ``contactkit.models``.
 """
 

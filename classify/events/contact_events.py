@@ -26,7 +26,7 @@ Nothing looks ahead: every output at sample k uses samples up to k only, and the
 batch entry points (:func:`stream_events`) feed the same streaming object sample by
 sample, so batch and streaming agree exactly. :meth:`EventPipeline.update_block`
 (replay) runs the detector vectorised over a chunk and steps only the samples of an
-event: the same labels and events (tests/test_block_paths.py).
+event: the same labels and events (tests/features/test_block_paths.py).
 
 Event features (all from e = r - baseline, Nm, and seconds; none from dq, tau or
 q, which grow with motion and do not transfer from the simulator to a real robot):

@@ -60,7 +60,7 @@ if TYPE_CHECKING:
     from contactkit.robots.dynamics import RobotChoice
 
 # The commands import the library (scikit-learn, skops, the chain, torch for networks)
-# inside their functions: `classify --help` loads none of it (tests/test_startup.py).
+# inside their functions: `classify --help` loads none of it (tests/cli/test_startup.py).
 
 app = new_app("classify", help="Turn sessions into features and contact predictions.",
               root_options=True)

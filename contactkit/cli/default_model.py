@@ -19,7 +19,7 @@ a progress bar, the first time replay needs the model):
    joints 1-4, where light touches near the base load the arm least (at 0.12 Nm the
    real MindLab recordings give a false event, at 0.15 Nm still none); the growth with speed and
    acceleration gets margin 3: the simulator's model error in motion matches a real
-   Panda's only within about +-50 % RMS per joint (tests/test_sim_calibration.py);
+   Panda's only within about +-50 % RMS per joint (tests/recorder/test_sim_calibration.py);
 4. the per-event intent classifier (:mod:`contactkit.classify.events.training`): SVM
    (C = 10) on the events the detector finds, decided 0.15 s after onset, from
    residual-only event features, in the free-motion presets, the thesis-protocol

@@ -51,7 +51,7 @@ if TYPE_CHECKING:
 
 # The commands import the libraries they run (simulator, importers, statistics, plots)
 # inside their functions, so that `recorder --help` and `recorder info` load none of them:
-# tests/test_startup.py checks which modules they import.
+# tests/cli/test_startup.py checks which modules they import.
 
 DEFAULT_WORKERS = available_cpus()
 Preset = Literal[tuple(PRESETS)]  # type: ignore[valid-type]

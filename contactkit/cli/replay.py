@@ -31,7 +31,7 @@ from contactkit.util.text import console_text, printable
 from contactkit.viewer.web import has_display, start_web_viewer
 
 # The command imports the classifier, the chain and rerun when it runs, not at start-up
-# (tests/test_startup.py checks what `replay --help` imports).
+# (tests/cli/test_startup.py checks what `replay --help` imports).
 
 DEFAULT_SAVE = Path("replay.rrd")
 

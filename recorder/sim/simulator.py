@@ -33,9 +33,9 @@ Physics (thesis section 5.3.1, extended):
   friction amplitudes +-40 %) were chosen so that the simulated robot shows
   free-motion observer residuals of the same size as the real robot: in the
   ``free-motion`` preset's motion, the residual's RMS while moving is 0.54-1.13 times
-  the real Gaz log's per joint (``tests/test_sim_calibration.py`` holds it within
+  the real Gaz log's per joint (``tests/recorder/test_sim_calibration.py`` holds it within
   +-50 %; with +-10 % joints 1-4 were at 0.48-0.55), and tracking the log's own
-  trajectory within a factor of 3 (``tests/test_features_real.py``). With the
+  trajectory within a factor of 3 (``tests/suites/test_features_real.py``). With the
   thesis-like +-5 % the simulated residuals were 2-2.5x too small on joints 1-4.
 * Sensors: white noise on q, dq and tau at the levels measured on the real Panda
   recordings (:mod:`contactkit.recorder.sim.noise`; the velocity noise grows with speed, from

@@ -1,6 +1,6 @@
 """Fuzzing the inputs issue 25 made strict: ``--meta`` pairs, the time rule, text shown
 on the terminal and the overwrite policy of the one writer. Hypothesis profile as in
-tests/test_fuzz.py (``ci`` in ``make test``, ``long`` in benchmarks/bench_fuzz.py)."""
+tests/suites/test_fuzz.py (``ci`` in ``make test``, ``long`` in benchmarks/bench_fuzz.py)."""
 
 from __future__ import annotations
 

@@ -25,7 +25,7 @@ from tests.conftest import make_dataset, run_command
 
 torch = pytest.importorskip("torch")
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 TINY = Protocol(model="lstm", params={"epochs": 2, "patience": 1})
 LSTM = get_kind("lstm")
 NO_CUDA = "no CUDA GPU visible to PyTorch (the nn extra installs the CPU build)"

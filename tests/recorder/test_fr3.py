@@ -21,7 +21,7 @@ from contactkit.robots.model import RobotModel
 from contactkit.schemas import read_session
 from tests.conftest import make_session, run_command, write_imported
 
-FR3_MAP = Path(__file__).resolve().parents[1] / "recorder" / "data" / "fr3_teleop_csv_map.toml"
+FR3_MAP = Path(__file__).resolve().parents[2] / "recorder" / "data" / "fr3_teleop_csv_map.toml"
 TOUCH_TIMES_S = (1.5, 4.0, 6.5, 9.0)
 SYNTHETIC_VARIANTS = 4
 

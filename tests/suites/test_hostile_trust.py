@@ -30,7 +30,7 @@ from contactkit.util.safe_open import (
 )
 from tests.conftest import make_session
 
-FR3_DATA = Path(__file__).resolve().parents[1] / "contactkit" / "robots" / "data" / "fr3"
+FR3_DATA = Path(__file__).resolve().parents[2] / "contactkit" / "robots" / "data" / "fr3"
 
 
 @pytest.fixture(scope="module")
@@ -421,8 +421,8 @@ def test_stats_of_a_read_only_dataset_without_an_index_writes_out_elsewhere(
 
 # -- strict map keys and metadata values ---------------------------------------------------
 
-_CSV_MAP = Path(__file__).resolve().parents[1] / "recorder" / "data" / "mindlab_csv_map.toml"
-_CAN_MAP = Path(__file__).resolve().parents[1] / "recorder" / "data" / "can_default_map.toml"
+_CSV_MAP = Path(__file__).resolve().parents[2] / "recorder" / "data" / "mindlab_csv_map.toml"
+_CAN_MAP = Path(__file__).resolve().parents[2] / "recorder" / "data" / "can_default_map.toml"
 
 
 @pytest.mark.parametrize("old, new, problem", [

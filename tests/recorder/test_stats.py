@@ -13,7 +13,7 @@ from contactkit.recorder.sim.noise import SensorNoise
 from contactkit.recorder.stats.summary import index_stats
 from tests.conftest import make_dataset, run_command
 
-SCHEMA = Path(__file__).resolve().parents[1] / "schemas" / "stats_report.schema.json"
+SCHEMA = Path(__file__).resolve().parents[2] / "schemas" / "stats_report.schema.json"
 
 
 @pytest.fixture(scope="module")

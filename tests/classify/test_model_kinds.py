@@ -25,7 +25,7 @@ from contactkit.schemas import InputError
 from tests.conftest import make_dataset, run_cli
 from tests.tiny_kind import TINY, _nearest_mean
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
@@ -162,7 +162,7 @@ def test_a_kind_from_an_entry_point_through_the_command_line(dataset, tiny_kind,
 def test_no_branch_on_a_kind_name_outside_its_module() -> None:
     """A kind's name appears, as a string, only in the module that declares it: nothing
     else in the library compares with it or picks it as a default."""
-    from tests.test_layering import all_modules, source_folders
+    from tests.suites.test_layering import all_modules, source_folders
 
     declared_in = {name: registry.get_kind(name).make.__module__
                    for name in registry.kind_names() if name != TINY.name}

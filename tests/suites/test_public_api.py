@@ -17,7 +17,7 @@ HEAVY = ("torch", "sklearn", "rerun", "pinocchio", "distributed", "polars", "mat
 
 def _packages() -> list[str]:
     """Return every package pyproject ships."""
-    pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+    pyproject = Path(__file__).resolve().parents[2] / "pyproject.toml"
     return tomllib.loads(pyproject.read_text())["tool"]["setuptools"]["packages"]
 
 

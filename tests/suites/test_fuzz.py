@@ -5,7 +5,7 @@ The property, for every file contactkit reads: a valid result or one
 nothing written outside the output directory. The example count comes from the
 Hypothesis profile (``ci`` in ``make test``, ``long`` in benchmarks/bench_fuzz.py).
 The importers of ROS bags and CSV exports, the CSV map and detector calibrations
-are fuzzed in tests/test_fuzz_imports.py.
+are fuzzed in tests/suites/test_fuzz_imports.py.
 """
 
 from __future__ import annotations

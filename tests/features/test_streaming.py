@@ -120,7 +120,7 @@ def _long_session(directory: Path, n: int, rate_hz: float = 1000.0) -> Path:
 
 
 def _peak_above_imports(case: str, session: Path, model: Path, out: Path, rows: int) -> float:
-    script = Path(__file__).with_name("streaming_rss.py")
+    script = Path(__file__).parents[1] / "streaming_rss.py"
     result = subprocess.run([sys.executable, str(script), case, str(session), str(model),
                              str(out), str(rows)], capture_output=True, text=True,
                             timeout=600, check=False)

@@ -7,7 +7,7 @@ import os
 import re
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("contactkit", "schemas", "features", "classify", "recorder", "replay")
 POOLS = re.compile(r"\b(ProcessPoolExecutor|ThreadPoolExecutor|multiprocessing|joblib|"
                    r"n_jobs\s*=|dask\.|distributed\.)")

@@ -187,7 +187,7 @@ def test_a_plugin_robot_is_one_module_and_one_entry_point(tmp_path: Path,
         return [*found, entry] if select.get("group") == "contactkit.robots" else found
 
     monkeypatch.setattr(importlib.metadata, "entry_points", entry_points)
-    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1]))
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2]))
     assert "tinyarm" in robot_names()
     model = RobotModel(RobotSetup("tinyarm", with_hand=False))
     assert model.model.nq == 7 and model.end_effector == "panda_link8"

@@ -12,9 +12,9 @@ import psutil
 import pytest
 
 from tests.conftest import make_session, run_cli
-from tests.test_replay import model_path  # noqa: F401  (the fixture)
+from tests.replay.test_replay import model_path  # noqa: F401  (the fixture)
 
-TOOL = Path(__file__).resolve().parents[1] / "tools" / "viewer_check.py"
+TOOL = Path(__file__).resolve().parents[2] / "tools" / "viewer_check.py"
 
 
 def _load_tool():

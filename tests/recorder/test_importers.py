@@ -25,7 +25,7 @@ from contactkit.schemas import InputError, validate_session
 from tests.conftest import make_session
 
 BIN = Path(sys.executable).parent
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 # One module: a toy text format (a line per sample: t [s], then q, dq, tau of joints 1-7).
 PLUGIN = '''

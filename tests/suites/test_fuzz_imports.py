@@ -2,7 +2,7 @@
 bags, CSV exports, CSV column maps, detector calibrations, simulator noise files and
 scalar feature tables.
 
-The same property as tests/test_fuzz.py: a valid result or one :class:`InputError`
+The same property as tests/suites/test_fuzz.py: a valid result or one :class:`InputError`
 (one line, naming the file; exit 2 through the CLI), never another exception, and
 nothing written outside the output directory. Bags are written by rosbags' own
 writers (ROS 1, ROS 2 sqlite3 and MCAP) and then broken: bytes cut or flipped, or

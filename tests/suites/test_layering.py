@@ -20,7 +20,7 @@ import functools
 import tomllib
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BASE = {"contactkit", "contactkit.errors", "contactkit.util", "contactkit.robots"}
 # Layer -> the layers its modules may import (besides BASE and itself).
 LAYERS = {

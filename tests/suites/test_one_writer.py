@@ -7,7 +7,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 LIBRARY = ("contactkit", "schemas", "features", "classify", "recorder", "replay")
 WRITER = ROOT / "contactkit" / "util" / "atomic.py"
 OWN_WRITES = re.compile(r"os\.replace\(|os\.rename\(|\.rename\((?!\s*$|\{)|shutil\.move\(|"

@@ -86,7 +86,7 @@ def test_simulated_contact_metadata_of_the_wrong_shape_is_one_line(good, tmp_pat
 
 # -- urdf:PATH robots --------------------------------------------------------------------
 
-FR3_DATA = Path(__file__).resolve().parents[1] / "contactkit" / "robots" / "data" / "fr3"
+FR3_DATA = Path(__file__).resolve().parents[2] / "contactkit" / "robots" / "data" / "fr3"
 
 
 @pytest.fixture
