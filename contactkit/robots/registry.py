@@ -27,7 +27,7 @@ import os
 import xml.etree.ElementTree as ET
 from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 from contactkit.errors import InputError
 from contactkit.robots.builtin import BUILTIN
@@ -119,7 +119,7 @@ def urdf_robot(path: str) -> RobotSpec:
         raise InputError(f"the robot's URDF is not UTF-8 text (byte {err.start})", file) from err
     except ET.ParseError as err:
         raise InputError(f"the robot's URDF is not XML: {err}", file) from err
-    children: dict[str, list[ET.Element]] = {}
+    children: dict[str | None, list[ET.Element]] = {}
     child_links = set()
     for joint in root.iter("joint"):
         parent, child = joint.find("parent"), joint.find("child")
@@ -140,10 +140,14 @@ def urdf_robot(path: str) -> RobotSpec:
                 return True
             if id(joint) not in visited:
                 visited.add(id(joint))
-                stack += children.get(joint.find("child").get("link"), [])
+                child = joint.find("child")
+                assert child is not None  # every joint's child was checked above
+                stack += children.get(child.get("link"), [])
         return False
 
-    joints, links, seen = [], [], set()
+    joints: list[str | None] = []
+    links: list[str | None] = []
+    seen: set[str] = set()
     link = roots[0] if len(roots) == 1 else None
     while link is not None:
         if link in seen:
@@ -158,7 +162,9 @@ def urdf_robot(path: str) -> RobotSpec:
         if not following:
             break
         joint = following[0]
-        link = joint.find("child").get("link")
+        child = joint.find("child")
+        assert child is not None  # every joint's child was checked above
+        link = child.get("link")
         if joint.get("type") in ("revolute", "continuous") and len(joints) < N_JOINTS:
             joints.append(joint.get("name"))
             links.append(link)
@@ -168,9 +174,11 @@ def urdf_robot(path: str) -> RobotSpec:
         raise InputError(f"the URDF has no serial chain of {N_JOINTS} revolute joints "
                          f"(found {len(joints)})", file)
     resolved = file.resolve()
+    # a joint or link without a name (None) fails the limits check below
     spec = RobotSpec(name=f"{URDF_PREFIX}{path}", description=f"7-joint arm from {resolved}",
-                     urdf_file=lambda: resolved, joint_names=tuple(joints),
-                     link_frames=tuple(links), flange=link, provenance=str(resolved))
+                     urdf_file=lambda: resolved, joint_names=cast("tuple[str, ...]", tuple(joints)),
+                     link_frames=cast("tuple[str, ...]", tuple(links)), flange=cast(str, link),
+                     provenance=str(resolved))
     try:
         spec.limits  # noqa: B018 - checks the joints' limits once, here
     except ValueError as err:

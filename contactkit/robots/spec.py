@@ -69,7 +69,8 @@ class FrictionModel:
         phi1, phi2, phi3, rest = self.phi1, self.phi2, self.phi3, self.at_rest
         if dq.ndim == 2 and dq.shape[0] == N_JOINTS and dq.shape[1] != N_JOINTS:
             phi1, phi2, phi3, rest = phi1[:, None], phi2[:, None], phi3[:, None], rest[:, None]
-        return phi1 * _sigmoid(phi2 * (dq + phi3)) - rest
+        friction: np.ndarray = phi1 * _sigmoid(phi2 * (dq + phi3)) - rest
+        return friction
 
     @cached_property
     def sample_coefficients(self) -> tuple[list[float], ...]:
@@ -84,7 +85,7 @@ class FrictionModel:
     @property
     def at_rest(self) -> np.ndarray:
         """The sigmoid's value at dq = 0, subtracted so that friction is zero at rest [Nm]."""
-        cached = self.__dict__.get("_at_rest")
+        cached: np.ndarray | None = self.__dict__.get("_at_rest")
         if cached is None:
             cached = self.phi1 * _sigmoid(self.phi2 * self.phi3)
             object.__setattr__(self, "_at_rest", cached)
@@ -196,7 +197,7 @@ def urdf_joint_limits(text: str, joint_names: tuple[str, ...]
     for name in joint_names:
         joint = joints.get(name)
         limit = None if joint is None else joint.find("limit")
-        if limit is None:
+        if joint is None or limit is None:
             raise ValueError(f"the URDF has no joint {name!r} with a <limit>")
         row = [float(limit.get(k, "nan")) for k in ("lower", "upper", "velocity", "effort")]
         if joint.get("type") == "continuous":
