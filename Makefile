@@ -41,12 +41,12 @@ typecheck: $(STAMP)
 # The fast loop: lint, types and the unit tests, without the docs, the browser, torch/onnx
 # (the nn marker) or slow tests; a few minutes on 2 cores.
 check: lint typecheck
-	$(PY) -m pytest -q -n 2 -p no:cacheprovider -m "not slow and not browser and not nn" \
+	$(PY) -m pytest -q -n 2 -p no:cacheprovider -m "not slow and not browser and not nn and not docs" \
 	  --durations=10
 
 # The site is built after the unit tests, which build and cache the default model the
 # demo replay (and so the docs' screenshots) needs, while the second worker runs tests.
-test: $(STAMP) lint chromium
+test: $(STAMP) lint typecheck chromium
 	$(PY) -m pytest -q -n 2 -m "not slow and not browser" --durations=25
 	@$(MAKE) --no-print-directory docs
 	$(PY) -m pytest -q -m "browser and not slow"

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field, fields
+from typing import Any
 
 import numpy as np
 
@@ -95,7 +96,7 @@ class EventModel:
     with ``predict_proba``), its classes, the decision delay [s] and the per-feature
     training range (``low``, ``high``) that flags out-of-range events."""
 
-    estimator: object
+    estimator: Any  # a fitted scikit-learn classifier
     classes: list[str]
     decide_after_s: float = DEFAULT_DECIDE_AFTER_S
     low: np.ndarray = field(default_factory=lambda: np.full(len(EVENT_FEATURES), -np.inf))
@@ -226,6 +227,7 @@ class EventPipeline:
 
     def _decide(self, t: float) -> ContactEvent:
         event = self.current
+        assert event is not None  # decided during an event
         times = np.array([s for s, _ in self._window])
         e = np.array([r for _, r in self._window]) - self._baseline
         event.decision_s = t
@@ -233,6 +235,7 @@ class EventPipeline:
         if self.model is None:
             event.label = "contact"
             return event
+        assert self._predict is not None  # made with the model
         proba = self._predict(x[None, :])[0]
         event.probabilities = {c: float(p) for c, p in zip(self.model.classes, proba,
                                                            strict=True)}
@@ -252,6 +255,7 @@ class EventPipeline:
         e = r - self._baseline
         made = self._track.update(t, q, e, threshold)
         event = self.current
+        assert event is not None  # a track is an event's
         if decided:
             event.contact_at_decision = self._track.at(t, q, e, threshold)
         event.contact_track = self._track.track
@@ -276,6 +280,7 @@ class EventPipeline:
         the samples of an event."""
         n = len(t)
         found = self.detector.run(t, r, dq)
+        assert found.onset is not None and found.release is not None  # run gives them
         out = BlockEvents(np.full(n, NONE, dtype=object), found.score, found.contact)
         onsets = np.flatnonzero(found.onset)
         restarted, cuts = set(found.restarts), set(found.cuts)
@@ -315,6 +320,7 @@ class EventPipeline:
         self._last_q = q
         if state.onset:
             self.current = out.started = ContactEvent(onset_s=t)
+            assert baseline is not None  # given at an onset
             self._baseline = baseline.copy()
             self._window = [s for s in self._recent if s[0] >= t - PRE_S]
             self._track = None if self.isolator is None else EventTrack(
@@ -344,6 +350,7 @@ class EventPipeline:
         """Release the current event at the last sample before a gap (deciding it there
         if it is undecided), as the detector's release at that sample would have."""
         event = self.current
+        assert event is not None  # a cut ends the current event
         t, r = self._recent[-1]
         decide_now = event.decision_s is None
         if decide_now:

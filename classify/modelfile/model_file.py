@@ -26,7 +26,7 @@ import math
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -85,9 +85,10 @@ class ModelFile:
         self.online = online
 
     @property
-    def estimator(self) -> object:
+    def estimator(self) -> Any:
         """The fitted estimator (built on first use where the file was loaded lazily)."""
         if self._estimator is None:
+            assert self._build_estimator is not None  # one of the two is given
             self._estimator = self._build_estimator()
         return self._estimator
 
@@ -394,7 +395,7 @@ def _check_event_meta(doc: object, path: Path) -> None:
     _check_labels(doc.get("classes"), "event classes", path)
     if doc.get("features") != EVENT_FEATURES:
         raise InputError("the event classifier was trained on other event features", path)
-    decide = doc.get("decide_after_s")
+    decide: Any = doc.get("decide_after_s")
     problem = Interval(0, None).problem(decide)
     if problem is None and not math.isfinite(decide):
         problem = f"must be finite, got {decide!r}"

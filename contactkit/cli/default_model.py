@@ -33,6 +33,7 @@ import hashlib
 import json
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from contactkit.classify.events.contact_events import DEFAULT_DECIDE_AFTER_S, EVENT_FEATURES
 from contactkit.classify.kinds.kind import ModelOptions
@@ -44,7 +45,7 @@ from contactkit.recorder.sim.simulator import SimConfig
 from contactkit.util.cache import cache_dir
 from contactkit.util.progress import LabelledProgress
 
-RECIPE = {
+RECIPE: dict[str, Any] = {
     "presets": ["default-static", "default-dynamic"],
     "event_presets": ["free-motion", "mixed-motion"],
     "seed": 0,

@@ -158,7 +158,7 @@ def replay_command(
     written = [s.saved for s in summaries if s.saved is not None]
     if len(written) == 1:
         err_console.print(f"saved {written[0]}; open it with `rerun {written[0]}`")
-    elif written:
+    elif written and save is not None:  # several recordings are saved with --save only
         err_console.print(f"saved {len(written)} recordings as {save.parent}/{save.stem}_"
                           f"<session>.rrd; open them together with "
                           f"`rerun {save.parent}/{save.stem}_*.rrd`")

@@ -25,6 +25,7 @@ import json
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import polars as pl
@@ -137,11 +138,11 @@ def index_stats(index: pl.LazyFrame) -> dict:
             "by_action": _records(by_action),
         },
         "class_balance_warnings": warnings,
-        "durations": {"total_s": float(durations.sum() or 0.0),
-                      "mean_s": float(durations.mean() or 0.0),
-                      "median_s": float(durations.median() or 0.0),
-                      "min_s": float(durations.min() or 0.0),
-                      "max_s": float(durations.max() or 0.0)},
+        "durations": {"total_s": float(cast(float, durations.sum()) or 0.0),
+                      "mean_s": float(cast(float, durations.mean()) or 0.0),
+                      "median_s": float(cast(float, durations.median()) or 0.0),
+                      "min_s": float(cast(float, durations.min()) or 0.0),
+                      "max_s": float(cast(float, durations.max()) or 0.0)},
         "sources": _records(frame.group_by("source").agg(pl.len().alias("sessions"))
                             .sort("source")),
         "operators": _records(frame.group_by("operator").agg(pl.len().alias("sessions"))
