@@ -32,6 +32,7 @@ from contactkit.schemas.features import read_feature_table
 from contactkit.schemas.session import atomic_write_parquet
 from contactkit.util.atomic import any_regular_file
 from contactkit.util.cache import cache_dir
+from contactkit.util.safe_open import parse_json
 
 
 @dataclass
@@ -111,6 +112,29 @@ def _from_table(table: pa.Table, doc: dict, problems: list, X: np.ndarray | None
     return FeatureSet(X, names, info, doc["config"], problems)
 
 
+PROBLEMS_KEY = b"contactkit.problems"
+"""Key of a cached feature table's metadata that lists the sessions whose features
+failed, ``[[file, problem], ...]``: a cache remembers failures as well as results, so a
+command served from it (``evaluate`` after ``train``) names every failed session and
+exits 2 as the first did."""
+
+
+def _cached_problems(table: pa.Table) -> list[tuple[str, str]] | None:
+    """Return the failed sessions a cached feature table remembers; None for a cache
+    without a readable list (written before failures were remembered), which is then
+    computed anew and replaced."""
+    raw = (table.schema.metadata or {}).get(PROBLEMS_KEY)
+    try:
+        doc = None if raw is None else parse_json(raw, "cached problem list")
+    except InputError:
+        return None
+    if not (isinstance(doc, list) and all(
+            isinstance(p, list) and len(p) == 2 and all(isinstance(x, str) for x in p)
+            for p in doc)):
+        return None
+    return [(name, problem) for name, problem in doc]
+
+
 def _cache_key(source: Path, files: list[Path], config: dict) -> str:
     digest = hashlib.sha256(json.dumps(config, sort_keys=True).encode())
     digest.update(f"{source.resolve()}\n".encode())
@@ -162,14 +186,18 @@ def _load_one(source: Path, extractor: SessionFeatures, workers: int,
         if cache else None
     if cache_path is not None and cache_path.is_file():
         table, doc = read_feature_table(cache_path)
-        return _from_table(table, doc, [])
+        problems = _cached_problems(table)
+        if problems is not None:
+            return _from_table(table, doc, problems)
     result = feature_rows(files, extractor, workers, progress, scheduler=scheduler)
     if not len(result):
         raise InputError("no session could be processed", source)
     table = result.table(config)
     if cache_path is not None:
         cache_path.parent.mkdir(exist_ok=True)
-        atomic_write_parquet(table, cache_path, overwrite=False, owned=any_regular_file)
+        remembered = table.replace_schema_metadata(table.schema.metadata | {
+            PROBLEMS_KEY: json.dumps([list(p) for p in result.problems]).encode()})
+        atomic_write_parquet(remembered, cache_path, overwrite=False, owned=any_regular_file)
     return _from_table(table, {"config": config, "features": result.names}, result.problems,
                        result.X)
 

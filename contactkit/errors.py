@@ -23,6 +23,10 @@ import errno
 from collections.abc import Collection
 from pathlib import Path
 
+MAX_PROBLEM_CHARS = 1000
+"""The longest problem [characters] an error line holds; a longer one (a value quoted from
+a file) is cut, with its length said."""
+
 NO_SPACE_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
 """``OSError`` numbers of a full device or an exhausted quota."""
 
@@ -32,11 +36,14 @@ class ContactkitError(Exception):
 
     ``problem`` is the one-line description, ``path`` the file it concerns (or None);
     ``str(err)`` is ``"<path>: <problem>"``, for example
-    ``sessions/x.parquet: NaN in column tau_3 at row 12``.
+    ``sessions/x.parquet: NaN in column tau_3 at row 12``. A problem is cut at
+    :data:`MAX_PROBLEM_CHARS` characters.
     """
 
     def __init__(self, problem: str, path: str | Path | None = None) -> None:
         one_line = problem.replace("\n", " ")
+        if len(one_line) > MAX_PROBLEM_CHARS:  # a 50 MB CSV cell quoted whole
+            one_line = f"{one_line[:MAX_PROBLEM_CHARS]}... ({len(one_line)} characters)"
         where = None if path is None else str(path)
         super().__init__(one_line if where is None else f"{where}: {one_line}")
         self.problem = one_line

@@ -26,9 +26,10 @@ PLACES = {
     "contactkit.recorder": (1.3, 4.0, "sim · sources · capture\nimporters · stats"),
     "contactkit.replay": (3.6, 4.0, "replay engine, Rerun recording"),
     "contactkit.viewer": (0.1, 2.9, "Rerun layout, palette,\nweb viewer"),
-    "contactkit.classify": (3.7, 2.9, "model kinds, training,\nevents, model files"),
+    "contactkit.classify": (3.7, 2.9, "kinds · modelfile · events\nexperiments · training,\n"
+                                      "evaluation, prediction"),
     "contactkit.features": (2.4, 1.9, "observer, chain, detector,\nisolation, windows"),
-    "contactkit.schemas": (2.0, 0.9, "session and dataset files\n(pyarrow only)"),
+    "contactkit.schemas": (2.0, 0.9, "columns · metadata · session\ndataset · feature tables"),
     "base": (2.0, -0.1, "contactkit.errors · contactkit.util · contactkit.robots\n"
                        "(everything may use these)"),
 }

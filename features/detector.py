@@ -53,6 +53,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import os
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -66,6 +67,7 @@ from contactkit.features.timing import RESTART_STEP_S, restarts
 from contactkit.robots import RobotSpec
 from contactkit.robots.spec import N_JOINTS
 from contactkit.util.atomic import write_text
+from contactkit.util.safe_open import read_json
 
 FORMAT = "contactkit-detector/1"
 FILTER_GAIN = 50.0  # 1/s, the observer's default K_O: a 20 ms low-pass on ddq
@@ -177,12 +179,9 @@ def load_calibration(path: str | Path) -> DetectorConfig:
     """Read a calibration written by :func:`save_calibration`; InputError naming the
     file and the problem when it is missing, not JSON or not a valid calibration."""
     path = Path(path)
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise InputError("no such calibration file", path)
-    try:
-        doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise InputError(f"calibration is not JSON ({err})", path) from err
+    doc = read_json(path, "calibration")
     return DetectorConfig.from_dict(doc, path)
 
 

@@ -208,10 +208,15 @@ def _setting(name: str, kind: type, *constraints: Interval | Choice, unit: str |
                  optional=_DEFAULTS[name] is None)
 
 
+MAX_WINDOW_S = 86400.0
+"""The longest window [s] (and the largest shift) a feature setting may give: a day, the
+longest session. A model file is untrusted input: a window of 1e300 s overflowed the
+replay's time arithmetic."""
+
 SETTINGS = (
     _setting("window", str, Choice(METHODS)),
-    _setting("window_s", float, Interval(0, None, "neither"), unit="s"),
-    _setting("shift_s", float, unit="s"),
+    _setting("window_s", float, Interval(0, MAX_WINDOW_S, "right"), unit="s"),
+    _setting("shift_s", float, Interval(-MAX_WINDOW_S, MAX_WINDOW_S), unit="s"),
     _setting("signal", str, Choice(tuple(ALL_TIMESERIES))),
     _setting("calibration", str, Choice(CALIBRATIONS)),
     _setting("fft_k", int, Interval(1, None)),

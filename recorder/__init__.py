@@ -12,11 +12,14 @@ Subpackages, one job each:
 * :mod:`~contactkit.recorder.stats`: dataset statistics and their report.
 
 Beside them, :mod:`~contactkit.recorder.protocol` (poses, actions, timing),
-:mod:`~contactkit.recorder.metadata` (building a session's metadata) and
-:mod:`~contactkit.recorder.info` (one session's summary).
+:mod:`~contactkit.recorder.metadata` (building a session's metadata),
+:mod:`~contactkit.recorder.info` (one session's summary),
+:mod:`~contactkit.recorder.trajectory` (joint trajectory files: written, read, checked)
+and :mod:`~contactkit.recorder.excitation` (exciting trajectories to identify an arm
+from).
 """
 
 # The public modules, for the API reference (submodule names: importing the package
 # stays light).
-__all__ = ["capture", "importers", "info", "metadata", "protocol", "sim", "sources",
-           "stats"]
+__all__ = ["capture", "excitation", "importers", "info", "metadata", "protocol", "sim",
+           "sources", "stats", "trajectory"]

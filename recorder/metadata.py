@@ -8,6 +8,8 @@ tool version, a fresh session id unless one is given) is added here.
 
 from __future__ import annotations
 
+import os
+import stat
 from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
@@ -111,9 +113,20 @@ def set_session_robot(path: str | Path, robot: str) -> SessionMeta:
     group into a temporary file that replaces it atomically, so a reader sees the old or
     the new session, never a mix; the samples are unchanged. This is how a session
     recorded before its arm was named (an FR3 captured as ``franka_panda``) is corrected.
+    A symbolic link is followed: its target is rewritten (the link stays a link) and
+    keeps its permissions; a read-only file is refused.
     """
     path = Path(path)
     meta, _ = read_session_meta(path)
+    target = path.resolve()  # a link's target is edited, the link stays
+    mode = stat.S_IMODE(target.stat().st_mode)
+    if not mode & stat.S_IWUSR:
+        raise InputError("is read-only: not changed (make it writable to correct it)", path)
     updated = meta.with_robot(robot)
-    write_session_batches(path, iter_session_batches(path), updated, overwrite=True)
+    write_session_batches(target, iter_session_batches(target), updated, overwrite=True)
+    try:
+        os.chmod(target, mode)  # the file keeps its permissions
+    except OSError as err:
+        raise InputError(f"corrected, but its permissions could not be restored "
+                         f"({err.strerror})", path) from err
     return updated

@@ -2,4 +2,4 @@
 
 # The public modules, for the API reference (submodule names: importing the package
 # stays light).
-__all__ = ["contacts", "engine", "recording", "session_replay"]
+__all__ = ["browse", "catalog", "contacts", "engine", "query", "recording", "session_replay"]

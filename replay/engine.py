@@ -58,6 +58,7 @@ from contactkit.features.windows import Window
 from contactkit.replay.hop import DEFAULT_HOP_S
 from contactkit.robots import get_robot
 from contactkit.schemas import InputError, Session
+from contactkit.schemas.columns import check_time_range
 from contactkit.schemas.session import SampleBatch, iter_sample_batches, read_session_meta
 
 BATCH_ROWS = 16_384
@@ -263,9 +264,11 @@ class ReplayStream:
             last = file.metadata.num_row_groups - 1
             first_t = file.read_row_group(0, columns=["t"]).column("t")
             last_t = file.read_row_group(last, columns=["t"]).column("t")
-            return float(first_t[0].as_py()), float(last_t[-1].as_py())
-        except (pa.ArrowInvalid, OSError, IndexError, KeyError) as err:
+            first, last = float(first_t[0].as_py()), float(last_t[-1].as_py())
+        except (pa.ArrowInvalid, OSError, IndexError, KeyError, TypeError, ValueError) as err:
             raise InputError(f"cannot read the sample times ({err})", self.path) from err
+        check_time_range(first, last, self.path)
+        return first, last
 
     def _batches(self) -> Iterator[SampleBatch]:
         source = self.session if self.session is not None else self.path

@@ -47,25 +47,29 @@ def new_recording(session_name: str, recording_id: str) -> rr.RecordingStream:
     return rec
 
 
-def log_session_properties(rec: rr.RecordingStream, stream: ReplayStream) -> None:
-    """Store the session metadata as the recording's ``session`` properties."""
+def log_session_properties(rec: rr.RecordingStream, stream: ReplayStream,
+                           file: str | None = None) -> None:
+    """Store the session metadata as the recording's ``session`` properties, the session
+    file named ``file`` (default: its path as given)."""
     meta = vars(stream.meta).copy()
     values: dict[str, Any] = {k: (json.dumps(v) if isinstance(v, (dict, list)) else v)
                               for k, v in meta.items() if v is not None}
-    values["file"] = str(stream.path or "")
+    values["file"] = file if file is not None else str(stream.path or "")
     values["model_kind"] = stream.model.meta.get("kind", "")
     rec.send_property("session", rr.AnyValues(**values))
 
 
-def log_static(rec: rr.RecordingStream, stream: ReplayStream) -> rr.urdf.UrdfTree:
-    """Log series styles, the robot model, the session properties and the ground-truth
-    action (at ``t0``, the first sample's time [s])."""
+def log_static(rec: rr.RecordingStream, stream: ReplayStream,
+               file: str | None = None) -> rr.urdf.UrdfTree:
+    """Log series styles, the robot model, the session properties (the session file
+    named ``file``, default its path) and the ground-truth action (at ``t0``, the first
+    sample's time [s])."""
     meta = stream.meta
     layout.log_series_styles(rec, stream.classes)
     tree = layout.log_robot_model(rec, viewer_urdf_file(meta.robot_setup()))
     layout.log_force_arrow_style(rec)
     layout.log_contact_styles(rec)
-    log_session_properties(rec, stream)
+    log_session_properties(rec, stream, file)
     t0, _ = stream.time_span()
     layout.text_event(rec, layout.TRUE_ACTION, t0, 0, f"recorded action: {meta.action}"
                       + (f" on link {meta.link}" if meta.link else ""))
@@ -160,6 +164,8 @@ class BlockLogger:
         self.robot = Thinning(None if log_rate_hz is None or log_rate_hz >= ROBOT_VIEW_HZ
                               else log_rate_hz)
         self._contact: bool | None = None
+        self.contact_span: tuple[float, float] | None = None
+        """The first and last time [s] of the recorded contact so far (None: none)."""
         self.truth = ZeroRuns(layout.TRUE_FORCE)
         self.contacts = ContactTrackLogger(rec, stream)
         self._stride: int | None = None
@@ -217,6 +223,10 @@ class BlockLogger:
             if contact is not None:  # a labelled contact column, simulated or imported
                 layout.log_contact_lane(rec, t, sample, contact, self._contact)
                 self._contact = bool(contact[-1])
+                touched = t[contact]
+                if len(touched):
+                    first = touched[0] if self.contact_span is None else self.contact_span[0]
+                    self.contact_span = (float(first), float(touched[-1]))
         rows = self._robot_rows(block)
         if len(rows):
             t, sample, q = block.t[rows], block.sample[rows], block.q[rows]

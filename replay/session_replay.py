@@ -11,13 +11,17 @@ completely.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
+
+import rerun as rr
 
 from contactkit.classify.events.contact_events import ContactEvent
 from contactkit.classify.modelfile.model_file import ModelFile
+from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.detector import DetectorConfig
 from contactkit.replay.engine import DEFAULT_HOP_S, OfflineAnswer, ReplayStream
 from contactkit.replay.recording import (
@@ -31,6 +35,7 @@ from contactkit.schemas import InputError
 from contactkit.schemas.dataset import session_files
 from contactkit.util.atomic import Owned, atomic_write
 from contactkit.util.pacing import paced
+from contactkit.util.rrd_file import check_space, finish_recording, start_recording
 from contactkit.viewer import layout
 
 
@@ -50,6 +55,9 @@ class ReplaySummary:
     agreement: dict | None = None
     """The residual's agreement with the robot's own estimate
     (:class:`~contactkit.features.agreement.ResidualAgreement`), where recorded."""
+    contact_span: tuple[float, float] | None = None
+    """The first and last time [s] of the recorded (labelled or simulated) contact, None
+    where the session records none."""
 
     def line(self) -> str:
         """Return a one-line summary for a terminal: the contact events first (the answer),
@@ -87,6 +95,11 @@ class ReplaySummary:
         return f"{count} contact event{'s' if count != 1 else ''}: {listed}{more}"
 
 
+ExtraProperties = Callable[[ReplayStream, ReplaySummary], Mapping[str, Mapping[str, Any]]]
+"""Returns more recording properties of a replayed session, group: {name: value}; a value
+may be a pyarrow array (a typed list, which may hold nulls)."""
+
+
 def session_inputs(inputs: Sequence[Path]) -> list[Path]:
     """Return the session files of files and directories, in order; raise InputError if
     there are none."""
@@ -103,7 +116,9 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
                    hop_s: float = DEFAULT_HOP_S, detector: DetectorConfig | None = None,
                    decide_after_s: float | None = None,
                    log_rate_hz: float | None = None, robot: str | None = None,
-                   overwrite: bool = False, owned: Owned | None = None) -> ReplaySummary:
+                   overwrite: bool = False, owned: Owned | None = None,
+                   session_file: str | None = None,
+                   properties: ExtraProperties | None = None) -> ReplaySummary:
     """Replay one session into its own recording; return its summary.
 
     The session is read, computed and logged batch by batch, so memory stays bounded
@@ -119,6 +134,10 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
     fails (also on a bad row found late in the file) leaves no file: the recording is
     written to a temporary file and renamed at the end. An existing ``save`` is replaced
     only with ``overwrite``, or when ``owned`` recognises it as contactkit's own.
+    ``session_file`` is the file as the recording's ``session`` properties name it
+    (default: ``path`` as given). ``properties`` is called once the session has streamed,
+    with its summary, and returns more recording properties (group: values), logged
+    before the recording is closed (see :mod:`contactkit.replay.catalog`).
     """
     if rate is not None and rate <= 0:
         raise InputError(f"the replay rate must be positive, got {rate}")
@@ -132,26 +151,36 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
         if save is not None:
             tmp = stack.enter_context(atomic_write(save, overwrite=overwrite, owned=owned,
                                                    suffix=".rrd"))
-            rec.save(tmp.path, default_blueprint=blueprint)
+            start_recording(rec, tmp.path, save, blueprint)
         try:
             if connect is not None:
                 rec.connect_grpc(connect, default_blueprint=blueprint)
             elif spawn:
                 rec.spawn(default_blueprint=blueprint)
-            logger = BlockLogger(rec, log_static(rec, stream), stream, log_rate_hz)
+            logger = BlockLogger(rec, log_static(rec, stream, session_file), stream,
+                                 log_rate_hz)
             for block in paced(stream.blocks(every_hop=rate is not None), lambda b: b.t[-1],
                                rate, origin_s=t0):
+                if save is not None:
+                    check_space(save)
                 logger.log(block)
             logger.finish()
             answer = stream.offline()
             log_results(rec, stream, answer)
-            rec.flush()
+            summary = ReplaySummary(Path(path), stream.meta.action, answer,
+                                    stream.pred_t.tolist(), stream.pred_label, save,
+                                    None if stream.pipeline is None else stream.events,
+                                    stream.agreement.result(), logger.contact_span)
+            if properties is not None:
+                for group, values in properties(stream, summary).items():
+                    rec.send_property(group, rr.AnyValues(**values))
+            if save is not None:
+                finish_recording(rec, tmp.path, save)
+            else:
+                rec.flush()
         finally:
             rec.disconnect()
-    return ReplaySummary(Path(path), stream.meta.action, answer, stream.pred_t.tolist(),
-                         stream.pred_label, save,
-                         None if stream.pipeline is None else stream.events,
-                         stream.agreement.result())
+    return summary
 
 
 def replay_sessions(paths: Sequence[Path], model: ModelFile, *, save: Path | None = None,
@@ -182,9 +211,10 @@ def replay_sessions(paths: Sequence[Path], model: ModelFile, *, save: Path | Non
                                     log_rate_hz=log_rate_hz, robot=robot,
                                     overwrite=overwrite, owned=owned)
             summaries.append(result)
-        except InputError as err:
-            result = err
-            problems.append(err)
+        except DATA_ERRORS as err:  # one bad session never stops the others
+            result = err if isinstance(err, InputError) else InputError(problem_text(err),
+                                                                        path)
+            problems.append(result)
         if on_done is not None:
             on_done(result)
     return summaries, problems

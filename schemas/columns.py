@@ -121,6 +121,10 @@ session of years. Steps above 3x the median but within this bound are gaps, coun
 by :func:`contactkit.features.timing.sampling_stats`; after a step longer than
 :data:`contactkit.features.timing.RESTART_STEP_S` (0.1 s) the feature chain and the
 contact detector restart."""
+MIN_STEP_S = 1e-6
+"""The shortest step between two samples [s] a session may hold (1 us; real recordings
+step 0.35 ms or more): shorter steps are corrupt stamps that no viewer or bag can tell
+apart (Rerun and MCAP count time in nanoseconds)."""
 MAX_ABS_T_S = 1e10
 """The largest time stamp [s] a session may hold (about 300 years; sessions start at
 0 s, epoch stamps are 1.7e9 s): larger values overflow time arithmetic."""
@@ -129,11 +133,12 @@ MAX_ABS_T_S = 1e10
 def check_times(t: np.ndarray, path: str | Path | None = None, offset: int = 0,
                 last_t: float | None = None) -> None:
     """Check the time rule on time stamps ``t`` [s]: finite, within
-    :data:`MAX_ABS_T_S`, strictly increasing, no step longer than :data:`MAX_STEP_S`.
+    :data:`MAX_ABS_T_S`, strictly increasing, no step shorter than :data:`MIN_STEP_S` or
+    longer than :data:`MAX_STEP_S`.
     ``last_t`` is the stamp before ``t[0]`` (chunked reading) and ``offset`` the row of
     ``t[0]`` in the file. Raises one :class:`InputError` line naming the row."""
     t = np.asarray(t, dtype=float)
-    big = np.abs(t) > MAX_ABS_T_S
+    big = ~(np.abs(t) <= MAX_ABS_T_S)
     if big.any():
         row = int(np.argmax(big))
         raise InputError(f"time stamp {t[row]:.6g} s at row {offset + row} is beyond "
@@ -146,11 +151,29 @@ def check_times(t: np.ndarray, path: str | Path | None = None, offset: int = 0,
         here = t[row] if last_t is None else t[row - 1]
         raise InputError(f"t is not strictly increasing at row {first + row} "
                          f"(t={here:.6f} s after {before:.6f} s)", path)
+    if (steps < MIN_STEP_S).any():
+        row = int(np.argmax(steps < MIN_STEP_S)) + 1
+        raise InputError(f"time steps by {steps[row - 1]:.6g} s at row {first + row} (less "
+                         f"than {MIN_STEP_S:g} s between samples: corrupt time stamps)", path)
     if (steps > MAX_STEP_S).any():
         row = int(np.argmax(steps > MAX_STEP_S)) + 1
         raise InputError(f"time jumps by {steps[row - 1]:.6g} s at row {first + row} (more "
                          f"than {MAX_STEP_S:g} s between samples: a clock switch or a "
                          "restarted log; split the recording there)", path)
+
+
+def check_time_range(first: float, last: float, path: str | Path | None = None) -> None:
+    """Check a session's first and last time stamps [s] (from its footer or its first
+    and last rows) against the time rule's bounds: finite, within :data:`MAX_ABS_T_S`,
+    the last after the first. Raises one :class:`InputError` line naming ``path``; a
+    reader that needs only the span (an index, a replay's timeline) checks it so."""
+    for which, value in (("first", first), ("last", last)):
+        if not abs(value) <= MAX_ABS_T_S:
+            raise InputError(f"the {which} time stamp {value:.6g} s is not finite or beyond "
+                             f"{MAX_ABS_T_S:.0e} s", path)
+    if not last >= first:
+        raise InputError(f"the last time stamp {last:.6g} s is before the first "
+                         f"{first:.6g} s", path)
 
 
 def check_joint_count(names: list[str], path: str | Path | None) -> None:

@@ -18,6 +18,7 @@ import pyarrow.parquet as pq
 
 from contactkit.errors import InputError
 from contactkit.robots import canonical_robot_name
+from contactkit.schemas.columns import check_time_range
 from contactkit.schemas.metadata import SessionMeta
 from contactkit.schemas.session import (
     METADATA_KEY,
@@ -86,6 +87,8 @@ def _time_range(footer: pq.FileMetaData) -> tuple[float, float]:
 def index_row(path: Path, meta: SessionMeta, footer: pq.FileMetaData) -> dict[str, Any]:
     """Return the index row of one session from its metadata and Parquet footer."""
     t0, t1 = _time_range(footer)
+    if t0 == t0 and t1 == t1:  # row groups without statistics leave NaN
+        check_time_range(t0, t1, path)
     return {
         "file": path.name,
         "session_id": meta.session_id,

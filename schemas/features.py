@@ -19,6 +19,7 @@ import pyarrow.parquet as pq
 
 from contactkit.errors import InputError
 from contactkit.schemas.session import atomic_write_parquet
+from contactkit.util.safe_open import parse_json
 
 FEATURES_KEY = b"contactkit.features"
 FEATURE_TABLE_VERSION = 1
@@ -81,7 +82,7 @@ def read_feature_table(path: str | Path) -> tuple[pa.Table, dict[str, Any]]:
     if FEATURES_KEY not in meta:
         raise InputError("not a contactkit feature table (no feature metadata)", path)
     try:
-        doc = json.loads(meta[FEATURES_KEY])
+        doc = parse_json(meta[FEATURES_KEY], "feature metadata", path)
         names = doc["features"]
     except (ValueError, KeyError, TypeError) as err:
         raise InputError(f"feature metadata is not a feature document ({err})", path) from err

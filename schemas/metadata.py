@@ -185,6 +185,12 @@ class SessionMeta:
         if not (_finite(incomplete) and float(incomplete).is_integer() and incomplete >= 0):
             raise InputError(f"metadata source_info.incomplete_samples {_short(incomplete)} "
                              "is not a count", path)
+        if self.urdf_sha256 and not SHA256_HEX.fullmatch(self.urdf_sha256):
+            raise InputError(f"metadata urdf_sha256 {_short(self.urdf_sha256)} is not a "
+                             "SHA-256 (64 hexadecimal digits)", path)
+        if self.events is not None and not all(isinstance(e, Mapping) for e in self.events):
+            raise InputError(f"metadata events {_short(self.events)} is not a list of event "
+                             "objects", path)
         _check_true_contact(self.simulator, path)
 
 
@@ -218,6 +224,7 @@ MAX_PAYLOAD_KG = 100.0
 """Heaviest payload [kg] the metadata may describe."""
 MAX_SESSION_S = 86_400.0
 """Longest session [s] the metadata may describe (one day): bounds planned times."""
+SHA256_HEX = re.compile(r"[0-9a-f]{64}")
 SESSION_ID = re.compile(r"[A-Za-z0-9_-]{1,64}")
 POSE_NAME = re.compile(r"[A-Za-z0-9_-]{1,32}")
 _NUMBER = (int, float)

@@ -9,7 +9,6 @@ JSON document under the Parquet key-value metadata key ``contactkit.session``, i
 
 from __future__ import annotations
 
-import json
 import math
 import uuid
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -37,6 +36,7 @@ from contactkit.schemas.columns import (
 )
 from contactkit.schemas.metadata import SessionMeta
 from contactkit.util.atomic import Owned, atomic_write, check_target
+from contactkit.util.safe_open import parse_json
 
 METADATA_KEY = b"contactkit.session"
 
@@ -175,7 +175,9 @@ def read_session_meta(path: str | Path) -> tuple[SessionMeta, pq.FileMetaData]:
     """Read only the metadata of a session file (its Parquet footer).
 
     Returns the session metadata and the Parquet file metadata (row count, column
-    statistics). Raises :class:`InputError` on a foreign or corrupt file.
+    statistics). Raises :class:`InputError` on a foreign or corrupt file: no or bad
+    metadata (parsed with :func:`~contactkit.util.safe_open.parse_json`'s bounds), no
+    time column ``t`` of doubles.
     """
     path = Path(path)
     if not path.is_file():
@@ -187,11 +189,13 @@ def read_session_meta(path: str | Path) -> tuple[SessionMeta, pq.FileMetaData]:
     kv = footer.metadata or {}
     if METADATA_KEY not in kv:
         raise InputError("no contactkit session metadata (not a contactkit session file)", path)
+    doc = parse_json(kv[METADATA_KEY], "session metadata", path)
     try:
-        doc = json.loads(kv[METADATA_KEY])
-    except (ValueError, RecursionError) as err:
-        raise InputError(f"session metadata is not valid JSON ({_first_line(err)})",
-                         path) from err
+        field = footer.schema.to_arrow_schema().field("t")
+    except (KeyError, pa.ArrowInvalid) as err:
+        raise InputError("no time column 't' (not a contactkit session file)", path) from err
+    if field.type != pa.float64():
+        raise InputError(f"column 't' has type {field.type}, expected double", path)
     return SessionMeta.from_dict(doc, path), footer
 
 

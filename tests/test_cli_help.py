@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 # with a single command): each must be a choice, so --help lists the values.
 CHOICE_OPTIONS = {
     "recorder": {"capture": {"pose", "action", "source", "condition", "target_pose", "viewer"},
-                 "stats": {"fmt"}, "simulate": {"preset"},
+                 "stats": {"fmt"}, "simulate": {"preset"}, "browse": {"viewer"},
                  "import-can": {"pose", "action", "condition", "target_pose"}},
     "classify": {"evaluate": {"protocol", "group"}, "train": {"model"}},
     "replay": {"": {"viewer"}},

@@ -15,9 +15,10 @@ from hypothesis import strategies as st
 
 from contactkit.errors import InputError
 from contactkit.recorder.importers.writer import parse_meta
-from contactkit.schemas.columns import MAX_ABS_T_S, MAX_STEP_S, check_times
+from contactkit.schemas.columns import MAX_ABS_T_S, MAX_STEP_S, MIN_STEP_S, check_times
 from contactkit.util import atomic
 from contactkit.util.owned import owned_by_marker
+from contactkit.util.safe_open import parse_json
 from contactkit.util.text import printable
 from tests.fuzz_support import FLOATS, refused_or
 
@@ -42,7 +43,24 @@ def test_fuzz_time_rule(t) -> None:
         return
     steps = np.diff(t)
     assert all(math.isfinite(v) and abs(v) <= MAX_ABS_T_S for v in t)
-    assert (steps > 0).all() and (steps <= MAX_STEP_S).all()
+    assert (steps >= MIN_STEP_S).all() and (steps <= MAX_STEP_S).all()
+
+
+@given(text=st.text(alphabet="[]{}\",:0123456789.eE-+ abtrunlfsNIa\\", max_size=300)
+       | st.builds(lambda n, inner: "[" * n + inner + "]" * n, st.integers(0, 3000),
+                   st.sampled_from(["", "1", "{}", "1" * 400])))
+def test_fuzz_bounded_json(text) -> None:
+    """Any text is a JSON value within the bounds or one short InputError line (never a
+    RecursionError or the int parser's ValueError)."""
+    value = refused_or(parse_json, text, "fuzzed JSON")
+    del value
+
+
+@given(name=st.text(min_size=1, max_size=300).filter(lambda n: "/" not in n and "\0" not in n))
+def test_fuzz_temporary_names_fit(name) -> None:
+    stem = atomic.temporary_stem(name)
+    assert len(stem.encode(errors="surrogateescape")) <= atomic.MAX_TEMPORARY_STEM_BYTES
+    assert stem == name or len(name.encode(errors="surrogateescape")) > 200
 
 
 @given(text=st.text(max_size=200))

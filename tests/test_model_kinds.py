@@ -168,8 +168,13 @@ def test_no_branch_on_a_kind_name_outside_its_module() -> None:
                    for name in registry.kind_names() if name != TINY.name}
     found = []
     for module, path in all_modules(source_folders()).items():
-        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        tree = ast.parse(path.read_text(), filename=str(path))
+        # a package's __all__ names its modules (classify.kinds has modules svm, minirocket)
+        module_names = {id(c) for node in ast.walk(tree) if isinstance(node, ast.Assign)
+                        and any(getattr(t, "id", None) == "__all__" for t in node.targets)
+                        for c in ast.walk(node.value)}
+        for node in ast.walk(tree):
             if isinstance(node, ast.Constant) and node.value in declared_in and \
-                    declared_in[node.value] != module:
+                    declared_in[node.value] != module and id(node) not in module_names:
                 found.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.value!r}")
     assert found == [], "\n".join(found)

@@ -72,6 +72,8 @@ FEATURE_CASES = {
     "window_s-inf": _set("features", "window_s", value=math.inf),
     "window_s-bool": _set("features", "window_s", value=True),
     "shift_s-string": _set("features", "shift_s", value="x"),
+    "window_s-huge": _set("features", "window_s", value=1e300),
+    "shift_s-huge": _set("features", "shift_s", value=-1e300),
     "unknown-scalar": _set("features", "scalars", value=["bogus"]),
     "scalars-string": _set("features", "scalars", value="range"),
     "scalars-empty": _set("features", "scalars", value=[]),
@@ -91,6 +93,8 @@ FEATURE_CASES = {
     "wrench-frame": _set("features", "wrench_frame", value=99),
     "robot-unknown": _set("features", "robot", value="bogus"),
     "robot-number": _set("features", "robot", value=3),
+    "robot-dev-zero": _set("features", "robot", value="urdf:/dev/zero"),
+    "robot-directory": _set("features", "robot", value="urdf:/"),
 }
 OTHER_CASES = {
     "classes-numbers": _set("classes", value=[1, 2, 3, 4]),
@@ -99,6 +103,7 @@ OTHER_CASES = {
     "classes-repeated": _set("classes", value=["none", "none", "bump", "shove"]),
     "classes-missing": _drop("classes"),
     "classes-too-few": _set("classes", value=["none", "bump"]),
+    "classes-reversed": lambda meta: meta["classes"].reverse(),
     "feature_names-string": _set("feature_names", value="range(dq_1)"),
     "feature_names-numbers": _set("feature_names", value=list(range(21))),
     "feature_names-other": lambda meta: meta["feature_names"].reverse(),
@@ -176,6 +181,36 @@ def test_malformed_metadata_is_one_line(made, tmp_path: Path, case: str) -> None
 def test_malformed_event_settings_are_one_line(made, tmp_path: Path, case: str) -> None:
     model = reseal(made["events"], tmp_path / f"hostile-{case}.skops", EVENT_CASES[case])
     _check_both(model, made["session"], tmp_path)
+
+
+def _zero_member(source: Path, target: Path, member: str) -> Path:
+    """Copy ``source`` with the .npy ``member`` zeroed, re-sealed."""
+    import io
+
+    import numpy as np
+
+    with zipfile.ZipFile(source) as archive:
+        members = {n: archive.read(n) for n in archive.namelist()}
+    array = np.load(io.BytesIO(members[member]))
+    out = io.BytesIO()
+    np.save(out, np.zeros_like(array))
+    members[member] = out.getvalue()
+    with zipfile.ZipFile(target, "w") as archive:
+        for name, data in members.items():
+            archive.writestr(name, data)
+    return reseal(target, target, lambda meta: None)
+
+
+def test_compiled_arrays_changed_apart_from_the_estimator_are_refused_by_both(
+        made, tmp_path: Path) -> None:
+    """Zeroed compiled support vectors: replay (compiled arrays) and predict (the
+    estimator) had classified two ways; both refuse the file now."""
+    model = _zero_member(made["plain"], tmp_path / "zeroed.skops",
+                         "online/0/support_vectors.npy")
+    _check_both(model, made["session"], tmp_path)
+    events = _zero_member(made["events"], tmp_path / "zeroed-events.skops",
+                          "events-online/0/support_vectors.npy")
+    _check_both(events, made["session"], tmp_path)
 
 
 def test_old_files_without_feature_names_still_load(made, tmp_path: Path) -> None:

@@ -38,3 +38,22 @@ def test_importing_the_packages_stays_light() -> None:
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           check=True)
     assert json.loads(done.stdout) == []
+
+
+def test_moved_modules_keep_their_earlier_names() -> None:
+    """classify/'s modules moved into subpackages; their earlier names (in plugins,
+    notebooks and model files written before) give the same module objects, and the
+    earlier modules that became packages hand out their main module's names."""
+    from contactkit.classify import MOVED
+
+    for old, new in MOVED.items():
+        earlier = importlib.import_module(f"contactkit.classify.{old}")
+        assert earlier is importlib.import_module(f"contactkit.classify.{new}"), old
+    from contactkit.classify.events import EventPipeline
+    from contactkit.classify.events.contact_events import EventPipeline as at_its_place
+    from contactkit.classify.modelfile import load_model
+    from contactkit.classify.modelfile.model_file import load_model as loader
+
+    assert EventPipeline is at_its_place and load_model is loader
+    with pytest.raises(ImportError):
+        from contactkit.classify.events import no_such_name  # noqa: F401

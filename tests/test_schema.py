@@ -130,7 +130,7 @@ def test_foreign_and_corrupt_files(session_path: Path, tmp_path: Path) -> None:
         validate_session(truncated)
     bad_json = tmp_path / "badjson.parquet"
     pq.write_table(table.replace_schema_metadata({METADATA_KEY: b"{nope"}), bad_json)
-    with pytest.raises(InputError, match="not valid JSON"):
+    with pytest.raises(InputError, match="metadata is not JSON"):
         validate_session(bad_json)
 
 

@@ -118,3 +118,61 @@ def test_a_stalled_check_kills_its_children_and_says_so(tmp_path) -> None:
 def test_a_timed_out_command_takes_its_children_with_it() -> None:
     with pytest.raises(subprocess.TimeoutExpired):
         run_cli("/bin/sh", "-c", "sleep 60 & sleep 60", timeout=2)
+
+
+@pytest.mark.browser
+def test_catalog_table_lists_every_session_and_a_session_opens(browser_ready, tmp_path,
+                                                               model_path) -> None:  # noqa: F811
+    data = tmp_path / "data"
+    data.mkdir()
+    for seed, action in ((4, "bump"), (5, "shove")):
+        make_session(data, seed=seed, action=action, link=5, duration_s=2.0, planned_at_s=1.0)
+    catalog = tmp_path / "catalog"
+    built = run_cli("recorder", "catalog", str(data), "--out", str(catalog), "--model",
+                    str(model_path), "--workers", "1")
+    assert built.returncode == 0, built.stderr
+    out = tmp_path / "check"
+    check = run_check("--catalog", str(catalog), "--out", str(out), "--timeout", "150",
+                      timeout=480)
+    assert check.returncode == 0, check.stdout + check.stderr
+    findings = json.loads((out / "viewer_check.json").read_text())
+    assert [f["ok"] for f in findings] == [True, True]
+    assert (out / "catalog_table.png").stat().st_size > 10_000
+
+
+def _literal_lz4(data: bytes) -> bytes:
+    """Return ``data`` as one LZ4 block of literals only (valid LZ4, no compression)."""
+    n = len(data)
+    head = bytes([min(n, 15) << 4])
+    if n >= 15:
+        rest = n - 15
+        head += b"\xff" * (rest // 255) + bytes([rest % 255])
+    return head + data
+
+
+def test_catalog_answers_are_decoded_as_the_viewer_reads_them() -> None:
+    import pyarrow as pa
+
+    table = pa.table({"rerun_segment_id": ["a1", "b2"], "property:session:action": ["x", "y"]})
+    sink = pa.BufferOutputStream()
+    with pa.ipc.new_stream(sink, table.schema) as writer:
+        writer.write_table(table)
+    payload = _literal_lz4(sink.getvalue().to_pybytes())
+    part = b"\x08\x01\x12" + _varint_bytes(len(payload)) + payload
+    message = b"\x0a" + _varint_bytes(len(part)) + part
+    trailer = b"grpc-status:0\r\n"
+    body = (b"\x00" + len(message).to_bytes(4, "big") + message
+            + b"\x80" + len(trailer).to_bytes(4, "big") + trailer)
+    segments, columns = viewer_check.table_contents([body])
+    assert segments == {"a1", "b2"}
+    assert "property:session:action" in columns
+    assert viewer_check.lz4_block(b"\x1fa\x01\x00\x00") == b"a" * 20  # a match copies back
+
+
+def _varint_bytes(value: int) -> bytes:
+    out = bytearray()
+    while True:
+        out.append((value & 0x7F) | (0x80 if value > 0x7F else 0))
+        value >>= 7
+        if not value:
+            return bytes(out)

@@ -2,6 +2,7 @@
 report what the viewer complains about.
 
     python tools/viewer_check.py demo.rrd real.rrd --report report.html --out viewer-check/
+    python tools/viewer_check.py --catalog smoke-catalog --out viewer-check/
 
 For each ``.rrd``: serve it with the SDK's own ``rerun --serve-web`` on 127.0.0.1,
 open the web viewer in Chromium at 1600x1000 (``&renderer=webgl``: software
@@ -15,7 +16,13 @@ changing), then collect
 - the error markers that views draw in their title bars (the viewer's error red);
   the tooltip of each is hovered and saved as a screenshot;
 
-and write ``<name>.png`` (the whole window). For each HTML report: open it, fail on
+and write ``<name>.png`` (the whole window). For a catalog (``recorder catalog``):
+start Rerun's catalog server on it (``recorder browse``'s, on 127.0.0.1), open the web
+viewer connected to it, check that the dataset's table the viewer received from the
+server lists every session of the catalog and the properties' columns (the gRPC
+answers the page read, which the canvas does not show as text), screenshot it
+(``<catalog>_table.png``), then open the first session and check it as a recording
+(``<catalog>_session.png``). For each HTML report: open it, fail on
 an image that does not load, and write a full-page screenshot. A summary goes to
 ``viewer_check.json``. Exit code 0: no problems; 1: problems found; 2: Chromium or
 Playwright missing, or bad arguments.
@@ -182,6 +189,179 @@ def check_recording(browser, rrd: Path, out: Path, timeout_s: float,
     return finding
 
 
+CATALOG_COLUMNS = ("property:session:action", "property:session:file",
+                   "property:catalog:model", "property:result:offline_label")
+"""Property columns the viewer must receive in a catalog's dataset table."""
+
+
+def _varint(data: bytes, i: int) -> tuple[int, int]:
+    value = shift = 0
+    while True:
+        byte = data[i]
+        i += 1
+        value |= (byte & 0x7F) << shift
+        shift += 7
+        if byte < 0x80:
+            return value, i
+
+
+def lz4_block(src: bytes) -> bytes:
+    """Return the bytes of one LZ4 block (the raw block format, no frame)."""
+    out = bytearray()
+    i = 0
+    while i < len(src):
+        token = src[i]
+        i += 1
+        literals = token >> 4
+        if literals == 15:
+            while True:
+                literals += src[i]
+                i += 1
+                if src[i - 1] != 255:
+                    break
+        out += src[i:i + literals]
+        i += literals
+        if i >= len(src):
+            break
+        offset = src[i] | src[i + 1] << 8
+        i += 2
+        length = token & 15
+        if length == 15:
+            while True:
+                length += src[i]
+                i += 1
+                if src[i - 1] != 255:
+                    break
+        start = len(out) - offset
+        for k in range(length + 4):
+            out.append(out[start + k])
+    return bytes(out)
+
+
+def received_tables(bodies: list[bytes]) -> list:
+    """Return the Arrow tables in the catalog server's gRPC-web answers ``bodies``: each
+    answer is a run of frames (flag byte, 4-byte length, message); a message carries
+    Rerun's ``DataframePart`` (field 1 encoder version 1, field 2 the payload: an Arrow
+    IPC stream compressed as one LZ4 block). What the page read, decoded as the viewer
+    decodes it: the canvas shows no text to read back."""
+    import pyarrow as pa
+
+    tables = []
+    for body in bodies:
+        i = 0
+        while i + 5 <= len(body):
+            flag, size = body[i], int.from_bytes(body[i + 1:i + 5], "big")
+            message = body[i + 5:i + 5 + size]
+            i += 5 + size
+            if flag & 0x80:  # the trailer (grpc-status)
+                continue
+            at = message.find(b"\x08\x01\x12")
+            while at >= 0:
+                with contextlib.suppress(Exception):
+                    length, start = _varint(message, at + 3)
+                    raw = lz4_block(message[start:start + length])
+                    tables.append(pa.ipc.open_stream(raw).read_all())
+                at = message.find(b"\x08\x01\x12", at + 1)
+    return tables
+
+
+def table_contents(bodies: list[bytes]) -> tuple[set[str], set[str]]:
+    """Return the segment ids and the column names of the dataset tables in
+    ``bodies`` (:func:`received_tables`)."""
+    segments: set[str] = set()
+    columns: set[str] = set()
+    for table in received_tables(bodies):
+        columns.update(table.column_names)
+        if "rerun_segment_id" in table.column_names:
+            segments.update(table.column("rerun_segment_id").to_pylist())
+    return segments, columns
+
+
+def _settle(page, cdp, console: list[tuple[str, str]], timeout_s: float,
+            ready=lambda: True) -> tuple[list[bytes], bool]:
+    """Screenshot ``page`` every :data:`POLL_S` until ``ready()`` and the screen stops
+    changing; return the screenshots and whether it settled within ``timeout_s`` [s]."""
+    started = time.monotonic()
+    shots: list[bytes] = []
+    while time.monotonic() - started < timeout_s:
+        time.sleep(POLL_S)
+        shots.append(_capture(cdp))
+        if ready() and len(shots) >= STABLE_SHOTS and len(set(shots[-STABLE_SHOTS:])) == 1:
+            return shots, True
+    return shots, False
+
+
+def check_catalog(browser, catalog: Path, out: Path, timeout_s: float) -> list[Finding]:
+    """Serve a catalog, open its dataset table and its first session in the web viewer;
+    return the findings of both (see the module docstring)."""
+    import pyarrow.parquet as pq
+
+    from contactkit.replay.browse import (
+        dataset_url,
+        open_viewer,
+        segment_url,
+        start_catalog_server,
+    )
+    from contactkit.replay.catalog import catalog_tables
+
+    table = pq.read_table(catalog_tables(catalog)["sessions"])
+    sessions = table.column("session_id").to_pylist()
+    planned = table.column("planned_at_s").to_pylist()[0]
+    server = start_catalog_server(catalog)
+    findings = []
+    try:
+        targets = [("table", dataset_url(server)),
+                   ("session", segment_url(server, sessions[0], planned))]
+        for kind, target in targets:
+            viewer, page_url = open_viewer(target, web=True)
+            shot = out / f"{catalog.name}_{kind}.png"
+            finding = Finding(f"{catalog} ({kind})", str(shot))
+            page = browser.new_page(viewport=VIEWPORT)
+            console: list[tuple[str, str]] = []
+            received: list[bytes] = []  # what the page read from the catalog server
+            server_http = server.url().replace("rerun+http", "http")
+
+            def keep(response, received=received, server_http=server_http) -> None:
+                if response.url.startswith(server_http):
+                    with contextlib.suppress(Exception):
+                        received.append(response.body())
+
+            def listed(received=received, kind=kind) -> bool:
+                return kind != "table" or set(sessions) <= table_contents(received)[0]
+
+            page.on("console", lambda m, console=console: console.append((m.type, m.text)))
+            page.on("pageerror", lambda e, console=console: console.append(("pageerror",
+                                                                            str(e))))
+            page.on("response", keep)
+            try:
+                cdp = page.context.new_cdp_session(page)
+                started = time.monotonic()
+                page.goto(page_url + "&renderer=webgl")
+                shots, settled = _settle(page, cdp, console, timeout_s, listed)
+                if not settled:
+                    finding.errors.append(f"the viewer did not settle within {timeout_s:.0f} s")
+                finding.load_s = round(time.monotonic() - started, 1)
+                if kind == "table":
+                    listed_ids, columns = table_contents(received)
+                    finding.errors += [f"the dataset table lacks session {s}" for s in sessions
+                                       if s not in listed_ids]
+                    finding.errors += [f"the dataset table lacks the column {c}"
+                                       for c in CATALOG_COLUMNS if c not in columns]
+                if shots:
+                    write_bytes(shot, shots[-1], overwrite=True)
+                errors, warnings = viewer_messages(console)
+                finding.errors += errors
+                finding.warnings += warnings
+            finally:
+                page.close()
+                viewer.terminate()
+                viewer.wait()
+            findings.append(finding)
+    finally:
+        server.shutdown()
+    return findings
+
+
 def check_report(browser, report: Path, out: Path) -> Finding:
     """Open an HTML report and return its broken images; write a full-page screenshot."""
     shot = out / f"{report.stem}.png"
@@ -201,8 +381,9 @@ def check_report(browser, report: Path, out: Path) -> Finding:
 
 
 def run(recordings: list[Path], reports: list[Path], out: Path, timeout_s: float,
-        chromium: str, cursor: float | None = None) -> list[Finding]:
-    """Check every recording and report in one browser; return the findings."""
+        chromium: str, cursor: float | None = None,
+        catalogs: list[Path] | None = None) -> list[Finding]:
+    """Check every recording, catalog and report in one browser; return the findings."""
     from playwright.sync_api import sync_playwright
 
     out.mkdir(parents=True, exist_ok=True)
@@ -213,6 +394,10 @@ def run(recordings: list[Path], reports: list[Path], out: Path, timeout_s: float
             for rrd in recordings:
                 findings.append(check_recording(browser, rrd, out, timeout_s, cursor))
                 print(_line(findings[-1]), flush=True)
+            for catalog in catalogs or []:
+                for finding in check_catalog(browser, catalog, out, timeout_s):
+                    findings.append(finding)
+                    print(_line(finding), flush=True)
             for report in reports:
                 findings.append(check_report(browser, report, out))
                 print(_line(findings[-1]), flush=True)
@@ -265,6 +450,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("recordings", nargs="*", type=Path, help=".rrd files to open")
     parser.add_argument("--report", action="append", default=[], type=Path,
                         help="an HTML report to open (repeatable)")
+    parser.add_argument("--catalog", action="append", default=[], type=Path,
+                        help="a catalog folder (recorder catalog) to serve and open "
+                             "(repeatable)")
     parser.add_argument("--out", type=Path, default=Path("viewer-check"),
                         help="directory for screenshots and viewer_check.json")
     parser.add_argument("--timeout", type=float, default=240.0,
@@ -274,7 +462,8 @@ def main(argv: list[str] | None = None) -> int:
                              "before the screenshot (default: the end)")
     args = parser.parse_args(argv)
     missing = [p for p in [*args.recordings, *args.report] if not p.is_file()]
-    if missing or not (args.recordings or args.report):
+    missing += [p for p in args.catalog if not p.is_dir()]
+    if missing or not (args.recordings or args.report or args.catalog):
         print(f"viewer_check: error: {missing[0] if missing else 'nothing'} to check"
               + (": no such file" if missing else ""), file=sys.stderr)
         return 2
@@ -289,11 +478,12 @@ def main(argv: list[str] | None = None) -> int:
         print("viewer_check: error: Playwright is not installed (pip install "
               "'contactkit[browser]')", file=sys.stderr)
         return 2
-    watchdog = start_watchdog(len(args.recordings) * (args.timeout + REPORT_BUDGET_S)
+    watchdog = start_watchdog((len(args.recordings) + 2 * len(args.catalog))
+                              * (args.timeout + REPORT_BUDGET_S)
                               + len(args.report) * REPORT_BUDGET_S + REPORT_BUDGET_S)
     try:
         findings = run(args.recordings, args.report, args.out, args.timeout, chromium,
-                       args.cursor)
+                       args.cursor, args.catalog)
     except InputError as err:
         print(f"viewer_check: error: {err}", file=sys.stderr)
         return 2

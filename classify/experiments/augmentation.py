@@ -46,6 +46,7 @@ from contactkit.util.owned import (
     result_markdown,
     write_figure,
 )
+from contactkit.util.safe_open import read_json
 
 FRACTIONS = (0.5, 0.75, 1.0)
 NOISE_LEVELS = (1, 5, 10)
@@ -56,8 +57,8 @@ Progress = Callable[[str, int, int], None]
 def noise_baseline(real_dir: Path, noise_file: Path | None = None) -> np.ndarray:
     """Return the per-joint torque-noise baseline [Nm] (see the module docstring)."""
     if noise_file is not None:
+        doc = read_json(noise_file, "noise file")
         try:
-            doc = json.loads(noise_file.read_text())
             values = doc.get("thesis_tau_std_nm") or doc["tau_sigma_nm"]
             baseline = np.asarray(values, dtype=float)
         except (OSError, KeyError, ValueError, TypeError, AttributeError) as err:

@@ -25,6 +25,7 @@ import logging
 import math
 import zipfile
 from collections.abc import Callable
+from contextlib import suppress
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -43,6 +44,7 @@ from contactkit.classify.modelfile.skops_format import (
     build_skops,
     check_archive_sizes,
     read_verified,
+    stored_classes,
     versions,
     write_skops,
 )
@@ -298,6 +300,8 @@ def load_model(path: str | Path, *, lazy: bool = False) -> ModelFile:
     else:
         estimator, meta = file_format.load(path, lambda meta: _kind_of(meta, path).trusted_types)
         check_meta(meta, path)
+        if file_format is SKOPS:
+            check_compiled(read_verified(path)[0], meta, path)
         model = ModelFile(_check_classes(estimator, meta["classes"], path), meta,
                           _check_classes(_load_event_estimator(path, meta),
                                          meta.get("events", {}).get("classes"), path,
@@ -348,6 +352,15 @@ def check_meta(meta: dict, path: Path) -> None:
         raise InputError(f"model file's {key} settings are not what a {kind.input.name} input "
                          f"takes ({type(err).__name__}: {' '.join(str(err).split())[:80]})",
                          path) from err
+    robot = meta[key].get("robot")
+    if isinstance(robot, str):  # read as predict reads it: a special file is refused here
+        from contactkit.robots import get_robot
+
+        try:
+            get_robot(robot)
+        except InputError as err:
+            raise InputError(f"model file's {key} settings name a robot that cannot be used "
+                             f"({err})", path) from err
     names = meta.get("feature_names", produced)
     if not (isinstance(names, list) and all(isinstance(name, str) for name in names)):
         raise InputError("model file's feature_names are not a list of names", path)
@@ -421,6 +434,64 @@ def _check_classes(estimator: object | None, classes: list[str] | None, path: Pa
     return estimator
 
 
+COPIED_ARRAYS = ("mean", "scale", "support_vectors")
+"""The compiled arrays that are copies of the estimator's own (the scaler's mean and
+scale, the SVM's support vectors): a loader that classifies with the compiled arrays
+checks them against the estimator's, so that it and a loader that builds the estimator
+classify alike, or both refuse the file."""
+
+
+def check_compiled(data: bytes, meta: dict, path: Path) -> None:
+    """Check a verified skops file's compiled classifier against its estimator without
+    building it: the classes the estimator was fitted on (:func:`stored_classes`) are
+    the file's, and the compiled arrays that copy the estimator's are its copies. Both
+    loaders run it (the compiled arrays' and the estimator's), so that a file changed
+    apart from its model is refused by both, never classified two ways."""
+    if "online" not in meta:
+        return
+    stored = stored_classes(data, path)
+    if stored and meta["classes"] not in stored:
+        raise InputError(f"the model was fitted on other classes than the file lists "
+                         f"({', '.join(stored[-1])[:80]})", path)
+    with zipfile.ZipFile(io.BytesIO(data)) as archive:
+        _check_copies(archive, meta["online"], archive, path)
+        events = meta.get("events")
+        if isinstance(events, dict) and "online" in events and EVENTS_MEMBER in \
+                archive.namelist():
+            with zipfile.ZipFile(io.BytesIO(archive.read(EVENTS_MEMBER))) as estimator:
+                _check_copies(archive, events["online"], estimator, path)
+
+
+def _check_copies(archive: zipfile.ZipFile, online: object, estimator: zipfile.ZipFile,
+                  path: Path) -> None:
+    """Raise InputError naming ``path`` when a compiled array of :data:`COPIED_ARRAYS`
+    (members of ``archive`` the ``online`` document names) is not one of the
+    estimator's arrays stored in the skops archive ``estimator`` (a compiled classifier
+    edited apart from its estimator and re-sealed)."""
+    prefixes = [part.get("prefix") for part in online.get("parts", [])
+                if isinstance(part, dict)] if isinstance(online, dict) else []
+    stored = {}
+    for name in estimator.namelist():
+        if name.endswith(".npy") and "/" not in name:
+            with suppress(ValueError, OSError, EOFError):
+                array = np.load(io.BytesIO(estimator.read(name)), allow_pickle=False)
+                stored.setdefault(array.shape, []).append(array)
+    for prefix in prefixes:
+        for name in COPIED_ARRAYS:
+            member = f"{prefix}{name}.npy"
+            if not isinstance(prefix, str) or member not in archive.namelist():
+                continue
+            try:
+                array = np.load(io.BytesIO(archive.read(member)), allow_pickle=False)
+            except (ValueError, OSError, EOFError) as err:
+                raise InputError(f"invalid compiled classifier in the model file ({member})",
+                                 path) from err
+            if not any(np.array_equal(array, other) for other in stored.get(array.shape, [])):
+                raise InputError(f"the compiled classifier's {name} ({member}) is not the "
+                                 "estimator's: the file was changed apart from its model",
+                                 path)
+
+
 def _load_lazily(path: Path) -> ModelFile:
     """Return the model of a skops file from its compiled arrays, its estimator left to
     be built on first use; a file that lacks arrays for one of its classifiers is
@@ -440,6 +511,7 @@ def _load_lazily(path: Path) -> ModelFile:
                          _check_classes(_load_event_estimator(path, meta),
                                         None if events is None else events["classes"], path,
                                         "event classifier"))
+    check_compiled(data, meta, path)
     with zipfile.ZipFile(io.BytesIO(data)) as archive:
         online = read_online(meta["online"], archive.read, len(names), len(classes), path)
         event_online = (None if events is None else

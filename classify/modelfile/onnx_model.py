@@ -19,6 +19,7 @@ from sklearn.base import BaseEstimator, ClassifierMixin
 from contactkit.errors import DependencyMissing
 from contactkit.schemas import InputError
 from contactkit.util.atomic import atomic_write
+from contactkit.util.safe_open import parse_json
 
 META_KEY = "contactkit"
 
@@ -96,10 +97,10 @@ def load_onnx_model(path: Path, trusted_types: object = None) -> tuple[OnnxClass
         raise InputError("not a contactkit model (no contactkit metadata in the ONNX file)",
                          path)
     try:
-        meta = json.loads(props[META_KEY])
-    except ValueError as err:
+        meta = parse_json(props[META_KEY], "model metadata", path)
+    except InputError as err:
         raise InputError(f"not a contactkit model (its ONNX metadata is not JSON: "
-                         f"{' '.join(str(err).split())[:80]})", path) from err
+                         f"{err.problem[:120]})", path) from err
     if not isinstance(meta, dict):
         raise InputError("not a contactkit model (its ONNX metadata is not an object)", path)
     if meta.get("graph_sha256") != _graph_digest(model):

@@ -17,12 +17,14 @@ import json
 import platform
 import zipfile
 from collections.abc import Callable, Sequence
+from contextlib import suppress
 from pathlib import Path
 
 from contactkit.classify.kinds.kind import ModelFormat
 from contactkit.classify.modelfile.skops_import import skops_io
 from contactkit.errors import ContactkitError, InputError
 from contactkit.util.atomic import atomic_write
+from contactkit.util.safe_open import check_regular, parse_json, read_input_bytes
 
 META_MEMBER = "contactkit.json"
 EVENTS_MEMBER = "events.skops"
@@ -116,15 +118,15 @@ def write_skops(path: Path, estimator: object, meta: dict, sample_shape: tuple[i
 def read_verified(path: Path) -> tuple[bytes, dict]:
     """Read a skops model file's bytes and metadata, checking its sizes, format and
     digest (see the module docstring) but building nothing; raise InputError if refused."""
-    if path.stat().st_size > MAX_MODEL_BYTES:
+    if check_regular(path, "model file", "model").st_size > MAX_MODEL_BYTES:
         raise InputError(f"model file is larger than {MAX_MODEL_BYTES} bytes", path)
-    data = path.read_bytes()
+    data = read_input_bytes(path, "model file", "model")
     try:
         with zipfile.ZipFile(io.BytesIO(data)) as archive:
             check_archive_sizes(archive, path)
             if META_MEMBER not in archive.namelist():
                 raise InputError("not a contactkit model file (no contactkit.json)", path)
-            meta = json.loads(archive.read(META_MEMBER))
+            meta = parse_json(archive.read(META_MEMBER), "model metadata", path)
             if not isinstance(meta, dict):
                 raise InputError("not a contactkit model file (contactkit.json is not an "
                                  "object)", path)
@@ -144,6 +146,43 @@ def read_verified(path: Path) -> tuple[bytes, dict]:
         raise InputError("model file was modified after it was written (digest mismatch); "
                          "refusing to load it", path)
     return data, meta
+
+
+def stored_classes(data: bytes, path: Path) -> list[list[str]]:
+    """Return the class lists (``classes_`` arrays of names) stored in a verified skops
+    archive's schema, read as JSON and plain ``.npy`` text arrays without building
+    anything: what a loader that uses the compiled arrays instead of the estimator
+    checks the file's classes against, as the loader that builds the estimator does (a
+    document whose classes were reordered and re-sealed is refused by both)."""
+    import numpy as np
+
+    found = []
+    with zipfile.ZipFile(io.BytesIO(data)) as archive:
+        schema = parse_json(archive.read("schema.json"), "model schema", path,
+                            limit=MAX_MODEL_BYTES, max_depth=400)
+        stack = [schema]
+        while stack:
+            node = stack.pop()
+            if isinstance(node, list):
+                stack += node
+                continue
+            if not isinstance(node, dict):
+                continue
+            stack += node.values()
+            classes = node.get("classes_")
+            if not isinstance(classes, dict):
+                continue
+            names = classes.get("content")
+            with suppress(InputError, ValueError, KeyError, OSError, TypeError):
+                if isinstance(names, list):  # an object array: JSON nodes
+                    found.append([str(parse_json(n["content"], "model schema", path))
+                                  for n in names if n.get("__class__") == "str"])
+                elif isinstance(classes.get("file"), str):  # a text array: .npy
+                    array = np.load(io.BytesIO(archive.read(classes["file"])),
+                                    allow_pickle=False)
+                    if array.dtype.kind == "U" and array.ndim == 1:
+                        found.append([str(name) for name in array])
+    return found
 
 
 def build_skops(data: bytes, trusted: Sequence[str], path: Path) -> object:

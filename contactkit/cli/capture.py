@@ -43,6 +43,7 @@ from contactkit.schemas import SessionMeta
 from contactkit.util.atomic import output_directory
 from contactkit.util.params import Param, check_params
 from contactkit.util.progress import err_console
+from contactkit.util.text import printable
 
 Viewer = Literal["rerun", "web", "none"]
 
@@ -169,4 +170,4 @@ def _record(source: Source, meta: SessionMeta, listeners: list[CaptureListener],
         raise
     if live is not None:
         live.close()
-    print(result.path)
+    print(printable(result.path))

@@ -135,7 +135,7 @@ def features_command(
             _, problems = write_per_sample_table(files, out, progress,
                                                  ChainConfig(robot=robot), overwrite=overwrite)
             print_problems(problems)
-            print(out)
+            print(printable(out))
             exit_if_failed(problems)
             return
         extractor = SessionFeatures(timeseries=list(_split(timeseries)), scalars=list(
@@ -148,7 +148,7 @@ def features_command(
         raise InputError("no session could be processed", source)
     write_feature_table(out, result.table(extractor.config()), overwrite=overwrite)
     err_console.print(f"{len(result)} sessions x {len(result.names)} features")
-    print(out)
+    print(printable(out))
     exit_if_failed(result.problems)
 
 
@@ -223,7 +223,7 @@ def train_command(
     print_problems(trained.problems)
     err_console.print(f"trained {trained.kind} on {trained.sessions} sessions, classes "
                       f"{', '.join(trained.classes)}")
-    print(trained.path)
+    print(printable(trained.path))
     exit_if_failed(trained.problems)
 
 
@@ -382,7 +382,7 @@ def calibrate_command(
                                     problems=problems, scheduler=scheduler_of(ctx))
     print_problems(problems)
     save_calibration(out, config, overwrite=overwrite)
-    print(f"{out}: thresholds at rest {[round(v, 2) for v in config.noise]} Nm, "
+    print(f"{printable(out)}: thresholds at rest {[round(v, 2) for v in config.noise]} Nm, "
           f"per rad/s {[round(v, 2) for v in config.speed]}, "
           f"per rad/s^2 {[round(v, 3) for v in config.accel]}")
     exit_if_failed(problems)
@@ -439,7 +439,7 @@ def experiment_command(
         else:
             paths = run_experiment(name, datasets, out, setting, progress)
     for path in paths:
-        print(path)
+        print(printable(path))
 
 
 def _numbers(option: str, text: str, kind: type) -> list:

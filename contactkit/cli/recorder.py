@@ -17,6 +17,7 @@ from contactkit.cli.capture_protocol import (
     Condition,
     Pose,
 )
+from contactkit.cli.catalog import register as register_catalog
 from contactkit.cli.common import (
     CommandsBuilder,
     deferred_commands,
@@ -33,12 +34,14 @@ from contactkit.schemas import InputError, SessionMeta, read_session
 from contactkit.util.atomic import check_target, output_directory
 from contactkit.util.parallel import available_cpus
 from contactkit.util.params import Param
+from contactkit.util.paths import catalog_beside
 from contactkit.util.progress import (
     bar_callback,
     err_console,
     labelled_progress,
     progress_bar,
 )
+from contactkit.util.text import console_text, printable
 
 if TYPE_CHECKING:
     from contactkit.recorder.importers.jobs import Imported
@@ -171,9 +174,95 @@ def simulate_command(
                       + f"; index has {result.index.table.num_rows} sessions")
     print_problems(result.failed, "failed")
     print_problems(result.index.problems)
-    print(out_dir / "index.parquet")
+    print(printable(out_dir / "index.parquet"))
     if result.failed:
         raise typer.Exit(2)
+
+
+register_catalog(app)
+
+
+@app.command("excite")
+def excite_command(
+    robot: Annotated[str, typer.Option(
+        help="The arm: panda, fr3, a plugin's name or urdf:PATH (`recorder robots` lists "
+             "them and their limits).")],
+    out: Annotated[Path, typer.Option(help="Trajectory file to write (CSV).")],
+    pose: Annotated[Pose | None, typer.Option(
+        help="Start and end pose (thesis Table 3.1; default A).")] = None,
+    q0: Annotated[str | None, typer.Option(
+        help="Start and end pose as 7 comma-separated joint angles [rad], instead of "
+             "--pose.")] = None,
+    duration: Annotated[float, typer.Option(
+        help="Length [s], rounded to a whole number of periods.")] = 20.0,
+    harmonics: Annotated[int, typer.Option(
+        help="Sine and cosine terms per joint (3-12).")] = 5,
+    base_frequency: Annotated[float, typer.Option(
+        help="Base frequency [Hz]: the motion repeats at this rate, its terms at 1..K "
+             "times it.")] = 0.1,
+    seed: Annotated[int, typer.Option(help="Seed of the optimisation's random start.")] = 0,
+    hand: Annotated[bool, typer.Option(
+        "--hand/--no-hand", help="The arm carries its hand (its surface is kept clear).")
+                    ] = True,
+    preview: Annotated[Path | None, typer.Option(
+        help="Also write a Rerun recording (.rrd): the arm's motion in 3-D and the joint "
+             "curves against their limits.")] = None,
+    overwrite: Annotated[bool, typer.Option(
+        help="Replace an existing --out (and --preview) file.")] = False,
+) -> None:
+    """Write an exciting trajectory to identify the arm's dynamics from (`recorder
+    identify`), and print the file's path.
+
+    Each joint follows a finite Fourier series (Swevers et al. 1997) that starts and ends
+    at rest (q, dq, ddq) at the pose. It stays within the arm's position, velocity,
+    acceleration and jerk limits with a margin (10 % of the rates, 0.1 rad from the
+    position limits, at every instant), 5 cm above the table and between links three
+    or more joints apart (the arm's collision surfaces, the hand's included). Its
+    coefficients minimise the condition number of the identification's base-parameter
+    regressor (pinocchio's joint-torque regressor with viscous, Coulomb and offset
+    friction columns), in a bounded time (about 10-20 s on one core).
+
+    The file is CSV at 1 kHz: t [s], q_1..q_7 [rad], dq_1..dq_7 [rad/s], ddq_1..ddq_7
+    [rad/s^2]. Run it with your own controller, which records the robot's states as it
+    plays it (FCI admits one client, so `recorder capture --source franka` cannot
+    connect meanwhile), then `recorder import` them (docs/howto/excite.md: franky and
+    pylibfranka); or in simulation: `recorder capture --source sim --trajectory FILE
+    --pose A --action none`. Hand-guided motion cannot replace it: the hand on the arm
+    is an external force, which the identification would take for the arm's own
+    dynamics.
+    """
+    from contactkit.recorder.excitation import (
+        ExcitationSettings,
+        excite,
+        pose_from,
+        write_preview,
+    )
+    from contactkit.recorder.trajectory import write_trajectory
+    from contactkit.robots import RobotSetup, canonical_robot_name
+
+    settings = ExcitationSettings(duration_s=duration, harmonics=harmonics,
+                                  base_hz=base_frequency, seed=seed)
+    start = pose_from(pose, q0)
+    setup = RobotSetup(canonical_robot_name(robot), hand)
+    check_target(out, overwrite=overwrite)
+    if preview is not None:
+        check_target(preview, overwrite=overwrite)
+    with progress_bar("optimising") as bar:
+        result = excite(setup, start, settings, bar_callback(bar, "iterations"))
+    sampled = result.trajectory.sampled(setup.robot)
+    err_console.print(
+        f"condition number {result.condition_start:.0f} at the random start, "
+        f"{result.condition:.0f} optimised ({result.base_parameters} base parameters, "
+        f"{result.iterations} iterations, {result.seconds:.1f} s); "
+        f"{settings.periods} periods of {settings.duration_s / settings.periods:.2f} s"
+        + (f"; shrunk to {result.shrunk:.2f} of its amplitude to keep clear"
+           if result.shrunk < 1.0 else ""),
+        highlight=False)
+    written = write_trajectory(out, sampled, overwrite=overwrite)
+    if preview is not None:
+        err_console.print(f"preview: {write_preview(preview, sampled, setup, overwrite=overwrite)}",
+                          highlight=False)
+    print(written)
 
 
 @app.command("robots")
@@ -195,6 +284,8 @@ def robots_command() -> None:
               f"{np.round(limits.q_max, 4).tolist()}")
         print(f"  dq max [rad/s] {np.round(limits.dq_max, 4).tolist()}; tau max [Nm] "
               f"{np.round(limits.tau_max, 1).tolist()}")
+        print(f"  ddq max [rad/s^2] {np.round(limits.ddq_max, 2).tolist()}; jerk max "
+              f"[rad/s^3] {np.round(limits.jerk_max, 0).tolist()}")
         print(f"  hand: {'yes' if spec.has_hand else 'no'}; friction model: "
               f"{'identified' if spec.friction else 'none'}; aliases: "
               f"{', '.join(spec.aliases) or '-'}")
@@ -213,7 +304,7 @@ def set_robot_command(
     is rewritten atomically; its samples are unchanged."""
     for path in sessions:
         meta = set_session_robot(path, robot)
-        err_console.print(f"{path}: robot {meta.robot}")
+        err_console.print(f"{console_text(path)}: robot {console_text(meta.robot)}")
 
 
 @app.command("index")
@@ -226,7 +317,7 @@ def index_command(
     result = rebuild_index(directory)
     err_console.print(f"{result.table.num_rows} sessions indexed")
     print_problems(result.problems)
-    print(directory / "index.parquet")
+    print(printable(directory / "index.parquet"))
 
 
 @app.command("recover")
@@ -244,7 +335,7 @@ def recover_command(
     if not recoveries:
         err_console.print("no journals to recover")
     for rec in recoveries:
-        print(f"{rec.session or rec.journal}: {rec.note}")
+        print(printable(f"{rec.session or rec.journal}: {rec.note}"))
     exit_if_failed([rec for rec in recoveries if rec.failed])
 
 
@@ -393,7 +484,7 @@ def import_command(
 
 def _report_import(result: Imported) -> None:
     err_console.print(f"{result.recording}: {result.summary}", markup=False, highlight=False)
-    print(result.session)
+    print(printable(result.session))
 
 
 app.command("import")(import_command)
@@ -440,6 +531,10 @@ def stats_command(
     overwrite: Annotated[bool, typer.Option(
         help="Replace an existing --out report (the default report is replaced only "
              "when stats wrote it).")] = False,
+    catalog: Annotated[Path | None, typer.Option(
+        help="The dataset's Rerun catalog (recorder catalog): the report links each "
+             "session to its recording there. Default: DATASET-catalog beside the "
+             "dataset, where it exists.")] = None,
 ) -> None:
     """Summarise a dataset on the terminal and write a report of what it holds and of
     its problems (bad files, duplicates, sessions too short)."""
@@ -464,7 +559,12 @@ def stats_command(
                                       directory, overwrite=overwrite, default=default)
         err_console.print(f"noise baseline for the simulator: {noise_path} "
                           "(recorder capture --noise-file)")
-    print(write_report(report, out, fmt, overwrite=overwrite, default=default))
+    if catalog is None and catalog_beside(directory).is_dir():
+        catalog = catalog_beside(directory)
+    elif catalog is not None and not catalog.is_dir():
+        raise InputError("catalog folder not found", catalog)
+    print(write_report(report, out, fmt, overwrite=overwrite, default=default,
+                       catalog=catalog))
 
 
 @app.command("export-mcap")
@@ -481,7 +581,8 @@ def export_mcap_command(
     the Rerun viewer; print the .mcap file's path. `recorder import` reads it back."""
     from contactkit.recorder.importers.mcap_export import export_mcap
 
-    print(export_mcap(session, out or session.with_suffix(""), overwrite=overwrite))
+    print(printable(export_mcap(session, out or session.with_suffix(""),
+                                overwrite=overwrite)))
 
 
 @app.command("can-bridge")

@@ -123,8 +123,8 @@ def replay_command(
     owned = None if save is not None else owned_recording
     if viewer is Viewer.rerun and connect is None and not has_display():
         save = save or DEFAULT_SAVE
-        err_console.print(f"no display: saving to {save} instead; open it with "
-                          f"`rerun {save}` where a display is available")
+        err_console.print(f"no display: saving to {console_text(save)} instead; open it with "
+                          f"`rerun {console_text(save)}` where a display is available")
         viewer = Viewer.none
     if viewer is Viewer.none and save is None and connect is None:
         save = DEFAULT_SAVE
@@ -157,11 +157,13 @@ def replay_command(
             on_done=report)
     written = [s.saved for s in summaries if s.saved is not None]
     if len(written) == 1:
-        err_console.print(f"saved {written[0]}; open it with `rerun {written[0]}`")
+        err_console.print(f"saved {console_text(written[0])}; open it with "
+                          f"`rerun {console_text(written[0])}`")
     elif written and save is not None:  # several recordings are saved with --save only
-        err_console.print(f"saved {len(written)} recordings as {save.parent}/{save.stem}_"
+        err_console.print(f"saved {len(written)} recordings as {console_text(save.parent)}/"
+                          f"{console_text(save.stem)}_"
                           f"<session>.rrd; open them together with "
-                          f"`rerun {save.parent}/{save.stem}_*.rrd`")
+                          f"`rerun {console_text(save.parent)}/{console_text(save.stem)}_*.rrd`")
     if web is not None:
         err_console.print("serving the web viewer; press Ctrl-C to stop")
         try:

@@ -13,8 +13,10 @@
     link-side torque sensors show none that a model removes (on the real FR3
     recordings the residual matches the robot's own estimate without one).
 
-Acceleration limits come from each arm's datasheet (the FR3's as libfranka's rate
-limiter has them); the torque-rate limit (1000 Nm/s) is both arms'.
+Acceleration and jerk limits come from each arm's datasheet (Franka's "Robot and
+interface specifications" of the Panda and of the FR3; the Panda's are also libfranka's
+rate limiter's ``kMaxJointAcceleration`` and ``kMaxJointJerk``); the torque-rate limit
+(1000 Nm/s) is both arms'.
 """
 
 from __future__ import annotations
@@ -31,6 +33,11 @@ _PANDA_URDF = ("cmeel.prefix/share/example-robot-data/robots/panda_description/u
 DATA = Path(__file__).resolve().parent / "data"
 PANDA_DDQ_MAX = (15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0)  # rad/s^2, Panda datasheet
 FR3_DDQ_MAX = (10.0,) * 7  # rad/s^2, FR3 (libfranka's rate limiter since 2022)
+# Joint jerk limits [rad/s^3]: the Panda's from its datasheet, as libfranka's
+# include/franka/rate_limiting.h has them (kMaxJointJerk); the FR3's from its datasheet
+# (Franka's FR3 "Robot and interface specifications", joint-space limits).
+PANDA_JERK_MAX = (7500.0, 3750.0, 5000.0, 6250.0, 7500.0, 10000.0, 10000.0)
+FR3_JERK_MAX = (5000.0,) * 7
 DTAU_MAX = (1000.0,) * 7  # Nm/s, both
 # The motors' rotor inertia reflected through the gears [kg m^2], which the simulator puts
 # on the plant side of the torque sensors (see contactkit.recorder.sim.simulator).
@@ -69,7 +76,8 @@ def fr3_urdf_path() -> Path:
     return DATA / "fr3" / "fr3_hand.urdf"
 
 
-def _franka(prefix: str, ddq_max: tuple[float, ...]) -> dict[str, Any]:
+def _franka(prefix: str, ddq_max: tuple[float, ...], jerk_max: tuple[float, ...]
+            ) -> dict[str, Any]:
     return {
         "joint_names": tuple(f"{prefix}_joint{i}" for i in range(1, 8)),
         "link_frames": tuple(f"{prefix}_link{i}" for i in range(1, 8)),
@@ -79,6 +87,7 @@ def _franka(prefix: str, ddq_max: tuple[float, ...]) -> dict[str, Any]:
         "hand_links": (f"{prefix}_hand", f"{prefix}_leftfinger", f"{prefix}_rightfinger",
                        f"{prefix}_hand_tcp"),
         "ddq_max": ddq_max,
+        "jerk_max": jerk_max,
         "dtau_max": DTAU_MAX,
         "armature_kgm2": ARMATURE_KGM2,
     }
@@ -91,7 +100,7 @@ PANDA = RobotSpec(
     friction=GAZ_FRICTION,
     provenance="example-robot-data (BSD-3-Clause): robots/panda_description/urdf/panda.urdf",
     aliases=("franka_panda",),
-    **_franka("panda", PANDA_DDQ_MAX),
+    **_franka("panda", PANDA_DDQ_MAX, PANDA_JERK_MAX),
 )
 
 FR3 = RobotSpec(
@@ -104,7 +113,7 @@ FR3 = RobotSpec(
     provenance="frankaemika/franka_description (Apache-2.0), see "
                "contactkit/robots/data/fr3/PROVENANCE.md",
     aliases=("franka_fr3", "franka_research_3"),
-    **_franka("fr3", FR3_DDQ_MAX),
+    **_franka("fr3", FR3_DDQ_MAX, FR3_JERK_MAX),
 )
 
 BUILTIN = (PANDA, FR3)

@@ -23,6 +23,7 @@ A session names its robot in its metadata (``robot``). The name is looked up her
 from __future__ import annotations
 
 import importlib
+import math
 import os
 import xml.etree.ElementTree as ET
 from functools import cache
@@ -32,6 +33,7 @@ from typing import TYPE_CHECKING, cast
 from contactkit.errors import InputError
 from contactkit.robots.builtin import BUILTIN
 from contactkit.robots.spec import N_JOINTS, RobotSpec
+from contactkit.util.safe_open import read_input_text
 
 if TYPE_CHECKING:
     import importlib.metadata
@@ -111,22 +113,11 @@ def urdf_robot(path: str) -> RobotSpec:
     that cannot be read or holds no such chain.
     """
     file = Path(path).expanduser()
-    try:
-        root = ET.fromstring(file.read_text())
-    except OSError as err:
-        raise InputError(f"cannot read the robot's URDF: {err.strerror or err}", file) from err
-    except UnicodeDecodeError as err:
-        raise InputError(f"the robot's URDF is not UTF-8 text (byte {err.start})", file) from err
-    except ET.ParseError as err:
-        raise InputError(f"the robot's URDF is not XML: {err}", file) from err
+    root = parse_urdf(read_input_text(file, "robot's URDF", "urdf"), file)
     children: dict[str | None, list[ET.Element]] = {}
-    child_links = set()
     for joint in root.iter("joint"):
-        parent, child = joint.find("parent"), joint.find("child")
-        if parent is None or child is None:
-            raise InputError(f"joint {joint.get('name')!r} lacks a parent or child", file)
-        children.setdefault(parent.get("link"), []).append(joint)
-        child_links.add(child.get("link"))
+        children.setdefault(joint.find("parent").get("link"), []).append(joint)
+    child_links = {joint.find("child").get("link") for joint in root.iter("joint")}
     roots = [link.get("name") for link in root.iter("link")
              if link.get("name") not in child_links]
 
@@ -184,3 +175,85 @@ def urdf_robot(path: str) -> RobotSpec:
     except ValueError as err:
         raise InputError(str(err), file) from err
     return spec
+
+
+MAX_LINK_MASS_KG = 1e4
+"""Largest mass [kg] of one link accepted in a URDF (an arm's links weigh 0.1-10 kg)."""
+MAX_LINK_INERTIA = 1e4
+"""Largest inertia tensor entry [kg m^2] of one link accepted in a URDF."""
+
+
+def parse_urdf(text: str, file: Path) -> ET.Element:
+    """Return the root of the URDF ``text`` of ``file`` after checking what pinocchio and
+    the viewer take for granted: XML whose links and joints have unique names, every
+    joint's parent and child a declared link, no link the child of two joints, one root
+    link from which every link is reached (no loop through the joints), and finite,
+    bounded inertial values (mass in [0, :data:`MAX_LINK_MASS_KG`] kg, inertia entries
+    at most :data:`MAX_LINK_INERTIA` kg m^2). Raises one InputError naming the file."""
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as err:
+        raise InputError(f"the robot's URDF is not XML: {err}", file) from err
+    links = [link.get("name") for link in root.iter("link")]
+    for kind, names in (("link", links), ("joint", [j.get("name") for j in root.iter("joint")])):
+        if len(set(names)) != len(names) or None in names:
+            raise InputError(f"the URDF has a {kind} without a name or two of one name", file)
+    parent_of: dict[str, str] = {}
+    below: dict[str, list[str]] = {}
+    for joint in root.iter("joint"):
+        parent, child = joint.find("parent"), joint.find("child")
+        if parent is None or child is None:
+            raise InputError(f"joint {joint.get('name')!r} lacks a parent or child", file)
+        up, down = parent.get("link"), child.get("link")
+        if up not in links or down not in links:
+            raise InputError(f"joint {joint.get('name')!r} names a link the URDF does not "
+                             "declare", file)
+        if down in parent_of:
+            raise InputError(f"the URDF's joints form a loop: link {down!r} is the child of "
+                             "two joints", file)
+        parent_of[down] = up
+        below.setdefault(up, []).append(down)
+    roots = [link for link in links if link not in parent_of]
+    if len(roots) != 1:
+        raise InputError(f"the URDF has {len(roots)} root links, not 1"
+                         + (" (its joints form a loop)" if not roots else ""), file)
+    reached, stack = set(), [roots[0]]
+    while stack:
+        link = stack.pop()
+        reached.add(link)
+        stack += below.get(link, [])
+    if len(reached) != len(links):
+        loop = next(link for link in links if link not in reached)
+        raise InputError(f"the URDF's joints form a loop at link {loop!r}", file)
+    for link in root.iter("link"):
+        _check_inertial(link, file)
+    return root
+
+
+def _check_inertial(link: ET.Element, file: Path) -> None:
+    """Raise InputError when ``link``'s inertial values are not finite or absurd."""
+    inertial = link.find("inertial")
+    if inertial is None:
+        return
+    where = f"link {link.get('name')!r}"
+    mass = inertial.find("mass")
+    values = {"mass": mass.get("value", "0") if mass is not None else "0"}
+    tensor = inertial.find("inertia")
+    if tensor is not None:
+        values |= {k: tensor.get(k, "0") for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
+    numbers = {}
+    for key, text in values.items():
+        try:
+            numbers[key] = float(text)
+        except ValueError:
+            raise InputError(f"{where}: inertial {key} {text[:40]!r} is not a number",
+                             file) from None
+        if not math.isfinite(numbers[key]):
+            raise InputError(f"{where}: inertial {key} is not finite", file)
+    if not 0 <= numbers["mass"] <= MAX_LINK_MASS_KG:
+        raise InputError(f"{where}: mass of {numbers['mass']:g} kg is outside [0, "
+                         f"{MAX_LINK_MASS_KG:g}] kg", file)
+    for key, number in numbers.items():
+        if key != "mass" and abs(number) > MAX_LINK_INERTIA:
+            raise InputError(f"{where}: inertia {key} = {number:g} kg m^2 exceeds "
+                             f"{MAX_LINK_INERTIA:g}", file)

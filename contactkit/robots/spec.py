@@ -8,8 +8,8 @@ Franka Hand, a payload, or nothing). Everything here loads with numpy and the
 standard library only, so readers can validate against names and limits without
 importing pinocchio (:mod:`contactkit.robots.model` builds the dynamics).
 
-Units: q [rad], dq [rad/s], ddq [rad/s^2], tau [Nm], dtau [Nm/s], masses [kg],
-lengths [m].
+Units: q [rad], dq [rad/s], ddq [rad/s^2], dddq (jerk) [rad/s^3], tau [Nm], dtau
+[Nm/s], masses [kg], lengths [m].
 """
 
 from __future__ import annotations
@@ -23,13 +23,19 @@ from pathlib import Path
 
 import numpy as np
 
+from contactkit.util.safe_open import read_input_text
+
 N_JOINTS = 7
+DEFAULT_JERK_MAX = (1000.0,) * N_JOINTS
+"""The joint jerk limit [rad/s^3] of an arm that states none (a ``urdf:`` robot): a
+conservative guess, under a quarter of the Franka arms' smallest (3750 rad/s^3, the Panda's
+joint 2), since an unknown arm's controller may filter less."""
 
 
 @dataclass(frozen=True)
 class JointLimits:
     """Joint limits: positions [rad], velocities [rad/s], accelerations [rad/s^2],
-    torques [Nm] and torque rates [Nm/s], each of shape (7,)."""
+    torques [Nm], torque rates [Nm/s] and jerks [rad/s^3], each of shape (7,)."""
 
     q_min: np.ndarray
     q_max: np.ndarray
@@ -37,6 +43,7 @@ class JointLimits:
     ddq_max: np.ndarray
     tau_max: np.ndarray
     dtau_max: np.ndarray
+    jerk_max: np.ndarray
 
 
 def _sigmoid(x: np.ndarray) -> np.ndarray:
@@ -104,11 +111,12 @@ class RobotSpec:
     one: ``hand_links`` are removed for a session without it); ``joint_names`` the 7
     arm joints, base first; ``link_frames`` the frames of links 1..7 (a contact's
     link, a Jacobian's frame); ``flange`` the frame a payload is fixed to; ``tcp`` the
-    end effector's frame with the hand (the flange without); ``ddq_max`` [rad/s^2]
-    and ``dtau_max`` [Nm/s] the limits a URDF does not hold (positions, velocities
-    and torques come from it); ``friction`` the identified joint friction (the
-    observer compensates it), or None; ``armature_kgm2`` the motors' reflected inertia
-    the simulator puts on the plant;
+    end effector's frame with the hand (the flange without); ``ddq_max`` [rad/s^2],
+    ``dtau_max`` [Nm/s] and ``jerk_max`` [rad/s^3] the limits a URDF does not hold
+    (positions, velocities and torques come from it; an arm that states no jerk limit,
+    a ``urdf:`` robot, gets :data:`DEFAULT_JERK_MAX`, below the Franka arms' own);
+    ``friction`` the identified joint friction (the observer compensates it), or None;
+    ``armature_kgm2`` the motors' reflected inertia the simulator puts on the plant;
     ``detector_floor_nm`` (7 values) and ``detector_motion_scale`` adapt a contact
     detector calibrated on another arm (the default model's, on a simulated Panda) to
     this one: its at-rest thresholds are raised to the floor [Nm] and its growth with
@@ -127,6 +135,7 @@ class RobotSpec:
     hand_frame: str | None = None
     ddq_max: tuple[float, ...] = (10.0,) * N_JOINTS
     dtau_max: tuple[float, ...] = (1000.0,) * N_JOINTS
+    jerk_max: tuple[float, ...] = DEFAULT_JERK_MAX
     friction: FrictionModel | None = None
     armature_kgm2: tuple[float, ...] = (0.0,) * N_JOINTS
     detector_floor_nm: tuple[float, ...] | None = None
@@ -149,12 +158,14 @@ class RobotSpec:
 
     @cached_property
     def limits(self) -> JointLimits:
-        """Return the joint limits: q, dq and tau from the URDF, ddq and dtau from the spec."""
+        """Return the joint limits: q, dq and tau from the URDF, ddq, dtau and jerk from the
+        spec."""
         q_min, q_max, dq_max, tau_max = urdf_joint_limits(self.urdf_text(False),
                                                           self.joint_names)
         return JointLimits(q_min=q_min, q_max=q_max, dq_max=dq_max,
                            ddq_max=np.array(self.ddq_max, dtype=float),
-                           tau_max=tau_max, dtau_max=np.array(self.dtau_max, dtype=float))
+                           tau_max=tau_max, dtau_max=np.array(self.dtau_max, dtype=float),
+                           jerk_max=np.array(self.jerk_max, dtype=float))
 
     def end_effector_frame(self, with_hand: bool) -> str:
         """Return the frame the workspace wrench is computed at: the TCP with the hand,
@@ -169,7 +180,7 @@ def _urdf_text(spec: RobotSpec, with_hand: bool) -> str:
     path = spec.urdf_file()
     key = (spec.name, path, with_hand)
     if key not in _TEXTS:
-        text = path.read_text()
+        text = read_input_text(path, "robot's URDF", "urdf")
         _TEXTS[key] = text if with_hand or not spec.hand_links else strip_links(
             text, spec.hand_links)
     return _TEXTS[key]

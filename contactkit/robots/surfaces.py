@@ -29,6 +29,7 @@ from contactkit.robots.registry import get_robot
 from contactkit.robots.spec import RobotSetup, RobotSpec
 from contactkit.util.atomic import any_regular_file, write_text
 from contactkit.util.cache import cache_dir
+from contactkit.util.safe_open import read_input_bytes
 
 log = logging.getLogger(__name__)
 _SKIPPED: set[str] = set()
@@ -54,8 +55,9 @@ class LinkSurface:
 
 def read_stl(path: Path) -> np.ndarray:
     """Return the triangles of an STL file (binary or ASCII) as an (n, 3, 3) array [file
-    units]. Raises ValueError for a file that is neither."""
-    raw = path.read_bytes()
+    units]. Raises ValueError (InputError for a special or too large file) for a file
+    that is neither."""
+    raw = read_input_bytes(path, "collision mesh", "mesh")
     count = int(np.frombuffer(raw, "<u4", 1, 80)[0]) if len(raw) >= 84 else -1
     binary = count >= 0 and len(raw) >= 84 + count * STL_TRIANGLE.itemsize
     if binary and len(raw) == 84 + count * STL_TRIANGLE.itemsize:
@@ -123,8 +125,9 @@ def _mesh_file(spec: RobotSpec, link_name: str | None, filename: str
     try:
         return path, read_stl(path)
     except (OSError, ValueError) as err:
-        _skip_mesh(f"{where}: the collision mesh {path}: "
-                   f"{getattr(err, 'strerror', None) or err}")
+        problem = err.problem if isinstance(err, InputError) else (
+            getattr(err, "strerror", None) or err)
+        _skip_mesh(f"{where}: the collision mesh {path}: {problem}")
         return None
 
 

@@ -4,7 +4,9 @@
 at the end, so a reader sees the old file or the whole new one, never a part, and a
 failure (full disk, read-only directory, kill) leaves no partial target.
 
-- The temporary file is named ``.<target name>.contactkit-<pid>-<random>.tmp[<suffix>]``:
+- The temporary file is named ``.<target name>.contactkit-<pid>-<random>.tmp[<suffix>]``
+  (a target name of over 200 bytes cut and given a digest, :func:`temporary_stem`, so
+  that the temporary's name fits the 255 bytes of any legal target name):
   unpredictable, created exclusively (``O_CREAT | O_EXCL | O_NOFOLLOW`` through
   :func:`tempfile.mkstemp`), so a symbolic link or file planted under any name is
   never followed or reused.
@@ -29,6 +31,7 @@ failure (full disk, read-only directory, kill) leaves no partial target.
 from __future__ import annotations
 
 import errno
+import hashlib
 import os
 import re
 import shutil
@@ -66,9 +69,28 @@ class Temporary:
     keep: bool = True
 
 
+MAX_TEMPORARY_STEM_BYTES = 200
+"""Longest part of a temporary's name taken from its target's [bytes]: with the mark,
+the pid, the random part and a suffix the name stays within the 255 bytes a file name
+may have, whatever the target's legal name."""
+
+
+def temporary_stem(name: str) -> str:
+    """Return the part of a temporary's name that stands for the target ``name``: the
+    name itself, or, when it is longer than :data:`MAX_TEMPORARY_STEM_BYTES` bytes, its
+    start cut at a character boundary followed by ``~`` and 8 hex digits of its SHA-1,
+    so that each target still has its own recognisable temporaries."""
+    raw = name.encode(errors="surrogateescape")
+    if len(raw) <= MAX_TEMPORARY_STEM_BYTES:
+        return name
+    digest = hashlib.sha1(raw).hexdigest()[:8]
+    start = raw[:MAX_TEMPORARY_STEM_BYTES - 10].decode(errors="ignore")
+    return f"{start}~{digest}"
+
+
 def temporary_prefix(target: Path) -> str:
     """Return the recognisable start of ``target``'s temporary names (this process)."""
-    return f".{target.name}.{MARK}-{os.getpid()}-"
+    return f".{temporary_stem(target.name)}.{MARK}-{os.getpid()}-"
 
 
 def _describe(err: OSError) -> str:
@@ -314,7 +336,7 @@ def remove_stale_temporaries(directory: str | Path, max_age_s: float = STALE_AGE
     now = time.time()
     for entry in entries:
         match = _TEMPORARY.fullmatch(entry.name)
-        if match is None or (target is not None and match.group("name") != target):
+        if match is None or (target is not None and match.group("name") != temporary_stem(target)):
             continue
         pid = int(match.group("pid") or match.group("oldpid"))
         try:

@@ -10,6 +10,7 @@ Writing itself goes through :mod:`contactkit.util.atomic`.
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
@@ -47,3 +48,11 @@ def inside(out_dir: str | Path, name: str | Path) -> Path:
         raise InputError(f"output name {str(name)!r} leads outside the output directory",
                          out_dir)
     return target
+
+
+def catalog_beside(dataset: str | Path) -> Path:
+    """Return the default Rerun catalog folder of a dataset: ``<dataset name>-catalog``
+    beside it (``recorder browse DATASET`` builds it there; ``recorder stats`` links each
+    session to its recording there)."""
+    dataset = Path(os.path.abspath(dataset))
+    return dataset.parent / f"{dataset.name}-catalog"

@@ -21,9 +21,10 @@ stops with an :class:`InputError` that says how many samples are safe in the jou
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
-import json
 import os
+import stat
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,6 +43,7 @@ from contactkit.schemas.session import (
 )
 from contactkit.util.atomic import check_target, remove_stale_temporaries
 from contactkit.util.paths import inside
+from contactkit.util.safe_open import parse_json
 
 JOURNAL_SUFFIX = ".journal"
 
@@ -206,7 +208,8 @@ def _open_journal(path: Path) -> tuple[pa.ipc.RecordBatchStreamReader, SessionMe
     except (pa.ArrowInvalid, OSError) as err:
         raise InputError(f"not a readable journal ({err})", path) from err
     try:
-        meta = SessionMeta.from_dict(json.loads(reader.schema.metadata[METADATA_KEY]), path)
+        meta = SessionMeta.from_dict(parse_json(reader.schema.metadata[METADATA_KEY],
+                                                "session metadata", path), path)
     except (KeyError, TypeError, ValueError, RecursionError) as err:
         raise InputError("journal has no session metadata", path) from err
     return reader, meta
@@ -280,9 +283,19 @@ def recover_journal(journal: Path) -> Recovery:
     """
     out_path = inside(journal.parent, journal.name[: -len(JOURNAL_SUFFIX)])
     try:
-        handle = open(journal, "rb")  # noqa: SIM115 (the lock lives as long as the handle)
+        fd = os.open(journal, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except FileNotFoundError:
         return Recovery(journal, None, 0, "journal already gone (recovered by another run)")
+    except OSError as err:
+        if err.errno != errno.ELOOP:
+            raise
+        return Recovery(journal, None, 0, "left in place: a symbolic link, not a journal "
+                                          "(a journal is never followed)", failed=True)
+    handle = os.fdopen(fd, "rb")
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        handle.close()
+        return Recovery(journal, None, 0, "left in place: not a regular file, not a journal",
+                        failed=True)
     with handle:
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)

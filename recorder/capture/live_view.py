@@ -19,6 +19,7 @@ from contactkit.robots.surfaces import viewer_urdf_file
 from contactkit.schemas import SessionMeta
 from contactkit.schemas.session import SampleBatch
 from contactkit.util.atomic import atomic_write
+from contactkit.util.rrd_file import check_space, finish_recording, start_recording
 from contactkit.viewer import layout
 from contactkit.viewer.layout import capture_blueprint
 from contactkit.viewer.web import has_display, start_web_viewer
@@ -34,6 +35,7 @@ class CaptureViewer:
                  rate_hz: float | None) -> None:
         self.rec = rec
         self.files = ExitStack()
+        self.saved: tuple[Path, Path] | None = None  # (temporary, target) of --save-rrd
         self.sample = 0
         self.stride = max(1, round((rate_hz or PANDA_RATE_HZ) / ROBOT_VIEW_HZ))
         layout.log_series_styles(rec)
@@ -52,6 +54,8 @@ class CaptureViewer:
 
     def on_chunk(self, chunk: dict[str, np.ndarray]) -> None:
         """Send one chunk of recorded rows."""
+        if self.saved is not None:
+            check_space(self.saved[1])
         t = chunk["t"]
         sample = self.sample + np.arange(len(t))
         self.sample += len(t)
@@ -66,12 +70,19 @@ class CaptureViewer:
 
     def close(self) -> None:
         """Flush the recording, disconnect from the viewer and move a saved .rrd into
-        place."""
+        place, only when it was written whole (:func:`finish_recording`); a failed one is
+        dropped and its one-line error raised."""
         try:
-            self.rec.flush()
-        finally:
+            if self.saved is not None:
+                finish_recording(self.rec, *self.saved)
+            else:
+                self.rec.flush()
+        except BaseException as err:
             self.rec.disconnect()
-            self.files.close()
+            self.files.__exit__(type(err), err, err.__traceback__)
+            raise
+        self.rec.disconnect()
+        self.files.close()
 
     def abort(self) -> None:
         """Disconnect and drop a saved .rrd (the capture failed); nothing is left."""
@@ -96,7 +107,7 @@ def open_live_view(viewer: str, save_rrd: Path | None, meta: SessionMeta,
     files = ExitStack()
     if save_rrd is not None:
         tmp = files.enter_context(atomic_write(save_rrd, overwrite=overwrite, suffix=".rrd"))
-        rec.save(tmp.path, default_blueprint=blueprint)
+        start_recording(rec, tmp.path, save_rrd, blueprint)
     try:
         if viewer == "rerun":
             if has_display():
@@ -109,6 +120,8 @@ def open_live_view(viewer: str, save_rrd: Path | None, meta: SessionMeta,
             say(f"web viewer: {page}")
             rec.connect_grpc(url, default_blueprint=blueprint)
         live = CaptureViewer(rec, meta, rate_hz)
+        if save_rrd is not None:
+            live.saved = (tmp.path, Path(save_rrd))
     except BaseException as err:
         rec.disconnect()
         files.__exit__(type(err), err, err.__traceback__)

@@ -26,7 +26,6 @@ Only the label topic's messages stay in memory.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterator, Mapping
 from functools import cache
 from importlib import resources
@@ -42,6 +41,7 @@ from contactkit.recorder.importers.spill import RowSpill
 from contactkit.recorder.importers.writer import write_importer
 from contactkit.schemas import InputError, SessionMeta, joint_columns
 from contactkit.schemas.columns import WRENCH_HAT_COLUMNS
+from contactkit.util.safe_open import parse_json
 
 FRANKA_STATE = "franka_msgs/msg/FrankaState"
 FRANKA_ROBOT_STATE = "franka_msgs/msg/FrankaRobotState"
@@ -547,10 +547,10 @@ def exported_meta(bag: BagSpill, path: Path) -> dict | None:
     if bag.session_text is None:
         return None
     try:
-        doc = json.loads(bag.session_text)
-    except (json.JSONDecodeError, TypeError) as err:
-        raise InputError(f"{EXPORT_TOPICS['session']} holds no JSON session metadata ({err})",
-                         path) from err
+        doc = parse_json(bag.session_text, "session metadata", path)
+    except (InputError, TypeError) as err:
+        raise InputError(f"{EXPORT_TOPICS['session']} holds no JSON session metadata "
+                         f"({getattr(err, 'problem', err)})", path) from err
     if not isinstance(doc, dict) or not isinstance(doc.get("source_info", {}), dict):
         raise InputError(f"{EXPORT_TOPICS['session']} holds no session metadata object", path)
     return doc

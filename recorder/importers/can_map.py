@@ -17,7 +17,14 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from contactkit.recorder.importers.map_file import known_keys, load_map_file, one_of
+from contactkit.recorder.importers.map_file import (
+    boolean,
+    integer,
+    known_keys,
+    load_map_file,
+    number,
+    one_of,
+)
 from contactkit.robots import canonical_robot_name
 from contactkit.schemas import N_JOINTS
 
@@ -79,22 +86,26 @@ def load_map(path: str | Path | None = None) -> FrameMap:
                          _parse)
 
 
+MAX_CAN_ID = 0x1FFFFFFF
+"""The largest CAN identifier (29 bits, extended frames)."""
 SIGNAL_KEYS = ("quantity", "type", "start", "byte_order", "factor", "multiply_by", "divide_by")
 
 
 def _parse(doc: dict, source: str) -> FrameMap:
     known_keys(doc, ("name", "fd", "sync_id", "joint", "pdo"), "the map")
-    joints = {int(j["node"]): (i + 1, j) for i, j in enumerate(doc["joint"])}
+    joints = {integer(j["node"], "joint node", 0, 127): (i + 1, j)
+              for i, j in enumerate(doc["joint"])}
     if len(joints) != N_JOINTS:
         raise ValueError(f"needs {N_JOINTS} joints, found {len(joints)}")
-    fd = bool(doc.get("fd", False))
+    fd = boolean(doc.get("fd", False), "fd")
+    sync_id = integer(doc["sync_id"], "sync_id", 0, MAX_CAN_ID)
     max_length = 64 if fd else 8
     frames: dict[int, FrameLayout] = {}
     covered = set()
     used = {"node"}
     for pdo in doc["pdo"]:
         known_keys(pdo, ("name", "base_id", "length", "signals"), "[[pdo]]")
-        length = int(pdo["length"])
+        length = integer(pdo["length"], "PDO length")
         if not 0 < length <= max_length:
             raise ValueError(f"PDO {pdo.get('name')} length {length} exceeds {max_length}")
         for node, (joint, params) in joints.items():
@@ -106,21 +117,23 @@ def _parse(doc: dict, source: str) -> FrameMap:
                 order = one_of(sig.get("byte_order", "little"), BYTE_ORDERS, "byte_order")
                 codec = struct.Struct(BYTE_ORDERS[order] + TYPES[one_of(sig["type"], TYPES,
                                                                         "type")])
-                start = int(sig["start"])
+                start = integer(sig["start"], "signal start")
                 if start < 0 or start + codec.size > length:
                     raise ValueError(f"signal {quantity} does not fit in {length} bytes")
-                scale = float(sig.get("factor", 1.0))
+                scale = number(sig.get("factor", 1.0), "signal factor")
                 if "multiply_by" in sig:
-                    scale *= float(params[sig["multiply_by"]])
+                    scale *= number(params[sig["multiply_by"]], sig["multiply_by"])
                 if "divide_by" in sig:
-                    scale /= float(params[sig["divide_by"]])
+                    scale /= number(params[sig["divide_by"]], sig["divide_by"])
                 if not (math.isfinite(scale) and scale != 0):
                     raise ValueError(f"signal {quantity} of joint {joint} has scale {scale}")
                 signals.append(Signal(quantity, joint, codec, start, scale,
                                       sig["type"] != "float32"))
                 covered.add((quantity, joint))
-            can_id = int(pdo["base_id"]) + node
-            if can_id in frames or can_id == int(doc["sync_id"]):
+            can_id = integer(pdo["base_id"], "PDO base_id", 0, MAX_CAN_ID) + node
+            if can_id > MAX_CAN_ID:
+                raise ValueError(f"frame id {can_id:#x} is beyond {MAX_CAN_ID:#x}")
+            if can_id in frames or can_id == sync_id:
                 raise ValueError(f"frame id {can_id:#x} used twice")
             frames[can_id] = FrameLayout(can_id, length, tuple(signals))
     for _, params in joints.values():
@@ -129,5 +142,5 @@ def _parse(doc: dict, source: str) -> FrameMap:
     if missing:
         raise ValueError(f"no signal carries {sorted(missing)[0]}")
     robot = doc.get("robot")
-    return FrameMap(doc.get("name", Path(source).stem), int(doc["sync_id"]), fd, frames, source,
+    return FrameMap(doc.get("name", Path(source).stem), sync_id, fd, frames, source,
                     None if robot is None else canonical_robot_name(str(robot)))

@@ -30,6 +30,7 @@ from contactkit.recorder.importers.spill import RowSpill, spilled_session_chunks
 from contactkit.recorder.importers.writer import write_importer
 from contactkit.recorder.metadata import session_filename
 from contactkit.schemas import InputError, SessionMeta
+from contactkit.util.safe_open import open_input
 
 BLOCK_ROWS = 16_384
 """CSV rows parsed (and session rows written) at a time."""
@@ -96,7 +97,7 @@ def _blocks(path: Path, separator: str) -> Iterator[pl.DataFrame]:
     :data:`BLOCK_ROWS` rows, every value a string, parsed by Polars as ``pl.read_csv``
     parses the whole file (lines are gathered until their double quotes pair up, so a
     quoted field may span lines)."""
-    with open(path, "rb") as fh:
+    with open_input(path, "CSV file", "csv") as fh:
         header = _record(fh, fh.readline())
         yield _frame(header, [], separator)
         lines: list[bytes] = []

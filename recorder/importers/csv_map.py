@@ -101,9 +101,11 @@ def _parse(doc: dict, source: str) -> CsvMap:
     contact = doc.get("contact")
     if contact is not None:
         contact = str(known_keys(contact, ("column",), "[contact]", ("column",))["column"])
-    delimiter = str(doc.get("delimiter", ","))
-    if len(delimiter) != 1:
-        raise ValueError(f"delimiter must be one character, got {delimiter!r}")
+    delimiter = doc.get("delimiter", ",")
+    if not (isinstance(delimiter, str) and len(delimiter.encode()) == 1
+            and delimiter not in "\"\r\n"):
+        raise ValueError(f"delimiter must be one single-byte character other than a quote "
+                         f"or a line break, got {str(delimiter)[:20]!r}")
     repeated = one_of(doc.get("repeated_rows", "drop"), ("drop", "keep"), "repeated_rows")
     robot = doc.get("robot")
     return CsvMap(str(doc.get("name", Path(source).stem)), delimiter, str(time["column"]),
@@ -119,9 +121,14 @@ def _joint_columns(prefix: str, spec: dict, base: int) -> JointColumns:
             raise ValueError(f"{prefix} columns template {columns!r} lacks {{j}}")
         names = tuple(columns.replace("{j}", str(j + base)) for j in range(N_JOINTS))
     else:
-        names = tuple(str(c) for c in columns)
+        if not (isinstance(columns, list) and all(isinstance(c, str) for c in columns)):
+            raise ValueError(f"{prefix} columns must be a template or a list of names")
+        names = tuple(columns)
         if len(names) != N_JOINTS:
             raise ValueError(f"{prefix} needs {N_JOINTS} columns, found {len(names)}")
+    if len(set(names)) != len(names):
+        twice = next(n for n in names if names.count(n) > 1)
+        raise ValueError(f"{prefix} columns name {twice[:80]!r} more than once")
     units = JOINT_UNITS[prefix]
     unit = one_of(spec.get("unit", next(iter(units))), units, f"{prefix} unit")
     sign = one_of(spec.get("sign", 1), (1, -1) if prefix == "tau_ext_hat" else (1,),

@@ -5,12 +5,15 @@ against the allowed ones."""
 from __future__ import annotations
 
 import difflib
+import math
 import tomllib
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TypeVar, cast
 
 from contactkit.schemas import InputError
+from contactkit.util.safe_open import read_input_text
+from contactkit.util.text import printable
 
 Parsed = TypeVar("Parsed")
 A = TypeVar("A")
@@ -19,20 +22,19 @@ A = TypeVar("A")
 def load_map_file(path: Path, what: str, parse: Callable[[dict, str], Parsed]) -> Parsed:
     """Read the TOML file ``path`` and return ``parse(document, str(path))``.
 
-    ``what`` names the kind of file in messages ("frame map", "column map"). A missing
-    or unreadable file, invalid TOML, and any KeyError, TypeError, ValueError,
-    AttributeError or ArithmeticError of ``parse`` (a missing key, a value of the wrong
-    type or out of range) become one :class:`InputError` naming the file.
+    ``what`` names the kind of file in messages ("frame map", "column map"). The file
+    is read through :func:`~contactkit.util.safe_open.read_input_text` (a regular file
+    of at most 1 MiB). A missing, special or unreadable file, invalid TOML, and any
+    KeyError, TypeError, ValueError, AttributeError or ArithmeticError of ``parse`` (a
+    missing key, a value of the wrong type or out of range) become one
+    :class:`InputError` naming the file.
     """
+    text = read_input_text(path, what, "map")
     try:
-        doc = tomllib.loads(path.read_text())
-    except FileNotFoundError as err:
-        raise InputError(f"no such {what}", path) from err
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as err:
+        doc = tomllib.loads(text)
+    except (tomllib.TOMLDecodeError, RecursionError) as err:
         raise InputError(f"not a valid TOML {what} ({type(err).__name__}: "
-                         f"{str(err)[:200]})", path) from err
-    except OSError as err:
-        raise InputError(f"cannot read the {what} ({err.strerror or err})", path) from err
+                         f"{printable(str(err)[:200])})", path) from err
     try:
         return parse(doc, str(path))
     except KeyError as err:
@@ -78,3 +80,32 @@ def one_of(value: object, allowed: Iterable[A], what: str) -> A:
         choices = names[0] if len(names) == 1 else f"{', '.join(names[:-1])} or {names[-1]}"
         raise ValueError(f"{what} must be {choices}, got {value!r}")
     return cast(A, value)  # equal in value and type to one of allowed
+
+
+def integer(value: object, what: str, low: int | None = None, high: int | None = None) -> int:
+    """Return ``value`` when it is a TOML integer (not a boolean, not a string of digits,
+    not a float) within [``low``, ``high``]; else raise ValueError naming ``what``
+    (:func:`load_map_file` turns it into an InputError)."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"{what} must be an integer, got {str(value)[:40]!r}")
+    if (low is not None and value < low) or (high is not None and value > high):
+        raise ValueError(f"{what} must be in [{low}, {high}], got {value}")
+    return value
+
+
+def number(value: object, what: str) -> float:
+    """Return ``value`` as a float when it is a finite TOML number (integer or float, not
+    a boolean or a string); else raise ValueError naming ``what``."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"{what} must be a number, got {str(value)[:40]!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{what} must be finite, got {value}")
+    return float(value)
+
+
+def boolean(value: object, what: str) -> bool:
+    """Return ``value`` when it is a TOML boolean (``true``/``false``, not the string
+    ``"false"``, which Python reads as true); else raise ValueError naming ``what``."""
+    if not isinstance(value, bool):
+        raise ValueError(f"{what} must be true or false, got {str(value)[:40]!r}")
+    return value

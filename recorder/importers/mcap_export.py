@@ -58,6 +58,10 @@ def export_mcap(session_path: Path, out: Path, *, start_ns: int = 0,
     session = read_session(session_path)
     store = get_typestore(Stores.ROS2_HUMBLE)
     stamps = _stamps_ns(session.t, start_ns)
+    if stamps[0] < 0:
+        raise InputError(f"the session starts at {session.t[0]:.6g} s: MCAP time stamps "
+                         "cannot be negative (shift the session's time to start at 0 s or "
+                         "later)", session_path)
     if out.suffix.lower() == ".mcap":
         with atomic_write(out, overwrite=overwrite) as target, \
                 scratch_directory(out) as scratch:

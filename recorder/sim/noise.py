@@ -38,6 +38,7 @@ import numpy as np
 
 from contactkit.robots import GAZ_FRICTION, RobotSetup
 from contactkit.schemas import InputError
+from contactkit.util.safe_open import read_json
 
 
 @dataclass(frozen=True)
@@ -67,8 +68,8 @@ class SensorNoise:
     def from_file(cls, path: str | Path) -> SensorNoise:
         """Read a noise file written by :meth:`to_json` (or by ``recorder stats``)."""
         path = Path(path)
+        doc = read_json(path, "noise file")
         try:
-            doc = json.loads(path.read_text())
             noise = cls(**{k: doc[k] for k in ("tau_sigma_nm", "dq_sigma_rad_s",
                                                  "q_sigma_rad", "tau_bias_nm")},
                         source=doc.get("source", str(path)),

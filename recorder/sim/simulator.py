@@ -439,6 +439,11 @@ class ArmSimulator:
         rate = 30.0 * s**2 * (1.0 - s) ** 2 / batch.t_len
         return batch.q0 + batch.dq01 * blend, batch.dq01 * rate
 
+    def feedforward(self, q_d: np.ndarray, dq_d: np.ndarray, t: float) -> np.ndarray | float:
+        """Return the torque [Nm] (7, B) the controller adds to gravity compensation and
+        the PID at time ``t`` [s] for the commanded (q_d, dq_d): none here."""
+        return 0.0
+
     def _tick(self, batch: _Batch, active: list[tuple[int, Contact]], noise: np.ndarray,
               t: float, dt: float, h: float, record: dict[str, np.ndarray] | None) -> None:
         """One control period: measure, control, apply contacts, integrate sub-steps.
@@ -452,6 +457,7 @@ class ArmSimulator:
         error = q_d - q_m
         batch.ei[:] = batch.ei + error * dt
         tau_c = (self._gravity(self._nominal_pool, np.asfortranarray(q_m))
+                 + self.feedforward(q_d, dq_d, t)
                  + self.kp * error + self.kd * (dq_d - dq_m) + self.ki * batch.ei)
         step_max = self.nominal.limits.dtau_max[:, None] * dt
         tau_c = np.clip(tau_c, batch.tau_prev - step_max, batch.tau_prev + step_max)
@@ -507,20 +513,35 @@ class ArmSimulator:
 
 
 class TrackingSimulator(ArmSimulator):
-    """A simulator whose robot tracks a recorded trajectory instead of the protocol's.
+    """A simulator whose robot tracks a given trajectory instead of the protocol's.
 
-    ``t_ref`` (M,) [s], ``q_ref`` and ``dq_ref`` (M, 7) are interpolated linearly.
-    Used to compare simulated and real free-motion residuals on the same motion.
-    """
+    ``t_ref`` (M,) [s], ``q_ref`` and ``dq_ref`` (M, 7) are interpolated linearly. Used to
+    compare simulated and real free-motion residuals on the same motion, and to follow
+    an exciting trajectory (``recorder capture --source sim --trajectory``): with
+    ``ddq_ref`` (M, 7) [rad/s^2], the controller adds the nominal model's inertial and
+    Coriolis torque of the commanded motion, as a computed-torque feedforward."""
 
     def __init__(self, config: SimConfig, t_ref: np.ndarray, q_ref: np.ndarray,
-                 dq_ref: np.ndarray) -> None:
+                 dq_ref: np.ndarray, ddq_ref: np.ndarray | None = None) -> None:
         super().__init__(config)
-        self.t_ref, self.q_ref, self.dq_ref = t_ref, q_ref, dq_ref
+        self.t_ref, self.q_ref, self.dq_ref, self.ddq_ref = t_ref, q_ref, dq_ref, ddq_ref
+
+    def _at(self, values: np.ndarray, t: float) -> np.ndarray:
+        return np.array([np.interp(t, self.t_ref, values[:, j]) for j in range(N_JOINTS)])
 
     def reference(self, batch: _Batch, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """Return the recorded (q, dq) at ``t``, the same for every session of the batch."""
-        q_d = np.array([np.interp(t, self.t_ref, self.q_ref[:, j]) for j in range(N_JOINTS)])
-        dq_d = np.array([np.interp(t, self.t_ref, self.dq_ref[:, j]) for j in range(N_JOINTS)])
+        """Return the given (q, dq) at ``t``, the same for every session of the batch."""
         width = batch.index.size
-        return np.tile(q_d[:, None], (1, width)), np.tile(dq_d[:, None], (1, width))
+        return (np.tile(self._at(self.q_ref, t)[:, None], (1, width)),
+                np.tile(self._at(self.dq_ref, t)[:, None], (1, width)))
+
+    def feedforward(self, q_d: np.ndarray, dq_d: np.ndarray, t: float) -> np.ndarray | float:
+        """Return M(q_d) ddq_d + C(q_d, dq_d) dq_d of the nominal model [Nm] (7, B), or
+        none without ``ddq_ref``."""
+        if self.ddq_ref is None:
+            return 0.0
+        ddq_d = np.tile(self._at(self.ddq_ref, t)[:, None], (1, q_d.shape[1]))
+        out = np.zeros_like(q_d, order="F")
+        pin.rneaInParallel(1, self._nominal_pool, np.asfortranarray(q_d),
+                           np.asfortranarray(dq_d), np.asfortranarray(ddq_d), out)
+        return out - self._gravity(self._nominal_pool, np.asfortranarray(q_d))

@@ -6,7 +6,7 @@ import hashlib
 import json
 import secrets
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -18,6 +18,7 @@ from contactkit.schemas import InputError, SessionMeta, joint_columns
 
 if TYPE_CHECKING:
     from contactkit.recorder.sim.simulator import SessionSpec, SimConfig
+    from contactkit.recorder.trajectory import Trajectory
 
 # The simulator (pinocchio, scipy) is imported where a session is planned or run: the
 # command line imports every source to list its options.
@@ -27,9 +28,13 @@ SIM_COLUMNS = ["t", *joint_columns("q"), *joint_columns("dq"), *joint_columns("t
                "contact"]
 
 
-def sim_session_id(spec: SessionSpec, config: SimConfig) -> str:
-    """Return a session id determined by the spec and configuration (same seed, same id)."""
-    doc = json.dumps({"spec": spec.as_dict(), "config": config.to_dict()}, sort_keys=True)
+def sim_session_id(spec: SessionSpec, config: SimConfig, trajectory: str | None = None
+                   ) -> str:
+    """Return a session id determined by the spec and configuration (same seed, same id),
+    and by the followed trajectory's SHA-256 when there is one."""
+    doc = json.dumps({"spec": spec.as_dict(), "config": config.to_dict(),
+                      **({} if trajectory is None else {"trajectory": trajectory})},
+                     sort_keys=True)
     return hashlib.sha256(doc.encode()).hexdigest()[:16]
 
 
@@ -64,10 +69,15 @@ class SimSource(Source):
             "help": "Time-stamp jitter, uniform +-.", "unit": "ms"})
         drop_prob: float = field(default=0.0, metadata={
             "help": "Probability of losing a sample."})
+        trajectory: Path | None = field(default=None, metadata={
+            "help": "Follow this joint trajectory (CSV from recorder excite) with no "
+                    "contact (--action none): it sets the motion and the duration."})
 
     def __init__(self, spec: SessionSpec, config: SimConfig, chunk: int = 10,
-                 choices: ProtocolChoices | None = None) -> None:
+                 choices: ProtocolChoices | None = None,
+                 trajectory: Trajectory | None = None) -> None:
         self.spec = spec
+        self.trajectory = trajectory
         self.config = config
         self.chunk = chunk
         self.choices = choices or ProtocolChoices(
@@ -95,6 +105,8 @@ class SimSource(Source):
                                noise_scale=config.noise_scale,
                                jitter_s=config.jitter_ms / 1000.0, drop_prob=config.drop_prob)
         seed = secrets.randbits(63) if config.seed is None else config.seed
+        if config.trajectory is not None:
+            return cls._following(config.trajectory, sim_config, seed, choices)
         spec = plan_session(seed=seed, condition=choices.condition, action=choices.action,
                             pose=choices.pose, target_pose=choices.target_pose,
                             speed_rad_s=choices.speed_rad_s, link=choices.link,
@@ -102,18 +114,57 @@ class SimSource(Source):
                             operator=choices.operator or "sim", robot=sim_config.setup)
         return cls(spec, sim_config, choices=choices)
 
+    @classmethod
+    def _following(cls, path: Path, config: SimConfig, seed: int,
+                   choices: ProtocolChoices) -> SimSource:
+        """Return the session that follows the trajectory in file ``path`` (checked for
+        the simulated arm) from its first sample, with no contact: the dynamic
+        condition, action none, as long as the trajectory."""
+        from contactkit.recorder.sim.simulator import plan_session
+        from contactkit.recorder.trajectory import read_trajectory
+
+        if choices.action != "none":
+            raise InputError(f"a trajectory is recorded without contact: give --action none, "
+                             f"not {choices.action}")
+        given = [flag for flag, value in (
+            ("--target-pose", choices.target_pose), ("--speed", choices.speed_rad_s),
+            ("--duration", choices.duration_s), ("--planned-at", choices.planned_at_s),
+            ("--link", choices.link)) if value is not None]
+        if given:
+            raise InputError(f"{given[0]} does not go with --trajectory, which sets the "
+                             "motion and the duration")
+        trajectory = read_trajectory(path, config.robot)
+        duration = trajectory.duration_s
+        spec = plan_session(seed=seed, condition="static", action="none", pose=choices.pose,
+                            planned_at_s=duration / 2.0, duration_s=duration,
+                            operator=choices.operator or "sim", robot=config.setup)
+        spec = replace(spec, condition="dynamic", q_start=tuple(trajectory.q[0].tolist()),
+                       motion_start_s=0.0, motion_duration_s=duration)
+        return cls(spec, config, choices=replace(choices, condition="dynamic"),
+                   trajectory=trajectory)
+
     def stream(self) -> Iterator[dict[str, np.ndarray]]:
         """Yield the session's rows, ``chunk`` samples at a time."""
-        from contactkit.recorder.sim.simulator import ArmSimulator
+        from contactkit.recorder.sim.simulator import ArmSimulator, TrackingSimulator
 
-        for _, columns, _ in ArmSimulator(self.config).run([self.spec], chunk=self.chunk):
+        if self.trajectory is None:
+            simulator = ArmSimulator(self.config)
+        else:
+            path = self.trajectory
+            simulator = TrackingSimulator(self.config, path.t, path.q, path.dq, path.ddq)
+        for _, columns, _ in simulator.run([self.spec], chunk=self.chunk):
             yield columns
 
     def metadata(self) -> dict[str, Any]:
-        """Return source, simulator parameters and seed for the session metadata."""
-        return {"source": self.name, "robot": self.config.robot,
-                "simulator": {"seed": self.spec.seed, "config": self.config.to_dict(),
-                              "session": self.spec.as_dict()}}
+        """Return source, simulator parameters and seed for the session metadata (and
+        the followed trajectory's length and samples' SHA-256)."""
+        simulator = {"seed": self.spec.seed, "config": self.config.to_dict(),
+                     "session": self.spec.as_dict()}
+        if self.trajectory is not None:
+            path = self.trajectory
+            simulator["trajectory"] = {"samples": len(path.t), "duration_s": path.duration_s,
+                                       "robot": path.robot, "sha256": path.sha256()}
+        return {"source": self.name, "robot": self.config.robot, "simulator": simulator}
 
     def session_meta(self) -> SessionMeta:
         """Return the metadata of the simulated session: the spec's resolved choices (the
@@ -121,7 +172,8 @@ class SimSource(Source):
         configuration, and the simulator's parameters."""
         spec = self.spec
         return session_meta(
-            session_id=sim_session_id(spec, self.config), action=spec.action,
+            session_id=sim_session_id(spec, self.config, None if self.trajectory is None
+                                      else self.trajectory.sha256()), action=spec.action,
             condition=spec.condition, pose=spec.pose, pose_q_rad=spec.q_start,
             target_pose=spec.target_pose, target_q_rad=spec.q_target,
             speed_rad_s=spec.speed_rad_s, link=spec.link, planned_at_s=spec.planned_at_s,

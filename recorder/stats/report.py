@@ -12,6 +12,7 @@ from __future__ import annotations
 import base64
 import html
 import json
+import os
 from io import BytesIO
 from pathlib import Path
 
@@ -241,10 +242,11 @@ def _tables(report: dict) -> list[tuple[str, pl.DataFrame]]:
                                "correlation": agreement["correlation"],
                                "RMS difference [Nm]": agreement["rms_difference_nm"]})))
         limits = deep["joint_limits"]
-        tables.append(("Joint-limit proximity", pl.DataFrame({
-            "joint": list(range(1, 8)), "min margin [rad]": limits["min_margin_rad"],
-            "max |dq| / limit [%]": limits["max_speed_fraction"],
-            "max |tau| / limit [%]": limits["max_torque_fraction"]})))
+        if limits is not None:  # None when no session could be read
+            tables.append(("Joint-limit proximity", pl.DataFrame({
+                "joint": list(range(1, 8)), "min margin [rad]": limits["min_margin_rad"],
+                "max |dq| / limit [%]": limits["max_speed_fraction"],
+                "max |tau| / limit [%]": limits["max_torque_fraction"]})))
     return [(title, table) for title, table in tables if table.height]
 
 
@@ -311,10 +313,42 @@ def _html_table(frame: pl.DataFrame) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
 
 
+def session_recordings(report: dict, catalog: Path, out: Path) -> pl.DataFrame:
+    """Return the dataset's sessions (id, file, action) with the path of each one's
+    recording in the Rerun catalog folder ``catalog`` (``<session id>.rrd``, see
+    ``recorder catalog``) relative to the report file ``out``'s folder, null where the
+    catalog has none; and the command that opens the session in the catalog's viewer."""
+    frame = report["_private"]["frame"].select("session_id", "file", "action")
+    base = os.path.dirname(os.path.abspath(out))
+    links = []
+    for sid in frame["session_id"].to_list():
+        path = Path(catalog) / f"{sid}.rrd"
+        links.append(Path(os.path.relpath(os.path.abspath(path), base)).as_posix()
+                     if path.is_file() else None)
+    return frame.with_columns(pl.Series("recording", links, dtype=pl.String),
+                              pl.Series("open", [f"recorder browse {catalog} --session {sid}"
+                                                 for sid in frame["session_id"].to_list()]))
+
+
+def _html_sessions(frame: pl.DataFrame) -> str:
+    rows = []
+    for sid, file, action, link, command in frame.iter_rows():
+        cell = (f'<a href="{html.escape(link, quote=True)}">{html.escape(sid)}</a>'
+                if link else html.escape(sid))
+        rows.append(f"<tr><td>{cell}</td><td>{html.escape(file)}</td>"
+                    f"<td>{html.escape(action)}</td><td><code>{html.escape(command)}</code>"
+                    "</td></tr>")
+    return ("<table><thead><tr><th>session (its recording)</th><th>file</th><th>action</th>"
+            f"<th>open in the catalog's viewer</th></tr></thead><tbody>{''.join(rows)}"
+            "</tbody></table>")
+
+
 def write_report(report: dict, out: Path, fmt: str, *, overwrite: bool = False,
-                 default: bool = False) -> Path:
+                 default: bool = False, catalog: Path | None = None) -> Path:
     """Write the report in ``fmt`` (html, md or json) to ``out`` (the format's extension
-    added when it has none); return the path written.
+    added when it has none); return the path written. With a Rerun ``catalog`` folder
+    (``recorder catalog``), the HTML and Markdown reports list every session linked to
+    its recording there (:func:`session_recordings`).
 
     An existing file (the report or, for md, its plots) is replaced only with
     ``overwrite``, or, for the ``default`` output, when it is a report ``stats`` wrote.
@@ -344,6 +378,12 @@ def write_report(report: dict, out: Path, fmt: str, *, overwrite: bool = False,
                                                                     "problem": "none"}]]
         for title, table in _tables(report):
             parts += ["", f"## {title}", "", _markdown_table(table)]
+        if catalog is not None:
+            parts += ["", f"## Sessions in the Rerun catalog {catalog}", ""]
+            parts += [f"- [{sid}]({link}) `{file}` ({action}): `{command}`" if link else
+                      f"- {sid} `{file}` ({action}): not in the catalog"
+                      for sid, file, action, link, command
+                      in session_recordings(report, catalog, out).iter_rows()]
         for name, (title, caption, png) in zip(names, plots, strict=True):
             write_bytes(out.parent / name, png, overwrite=overwrite, owned=owned)
             parts += ["", f"## {title}", "", caption, "", f"![{title}]({name})"]
@@ -357,6 +397,9 @@ def write_report(report: dict, out: Path, fmt: str, *, overwrite: bool = False,
     body.append("</ul>")
     for title, table in _tables(report):
         body += [f"<h2>{html.escape(title)}</h2>", _html_table(table)]
+    if catalog is not None:
+        body += [f"<h2>Sessions in the Rerun catalog {html.escape(str(catalog))}</h2>",
+                 _html_sessions(session_recordings(report, catalog, out))]
     for title, caption, png in plots:
         data = base64.b64encode(png).decode()
         body += [f"<h2>{html.escape(title)}</h2>", f"<p>{html.escape(caption)}</p>",

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
@@ -32,15 +33,25 @@ import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from contactkit.errors import ContactkitError
 from contactkit.features.limits import POSITION_SLACK_RAD, SPEED_MARGIN, TORQUE_MARGIN
 from contactkit.features.timing import rate_warning
 from contactkit.recorder.sim.noise import SensorNoise
 from contactkit.recorder.stats.deep import session_summary
 from contactkit.schemas import ACTIONS, InputError
-from contactkit.schemas.dataset import INDEX_NAME, INDEX_SCHEMA, rebuild_index, session_files
+from contactkit.schemas.dataset import (
+    INDEX_NAME,
+    INDEX_SCHEMA,
+    build_index,
+    session_files,
+    write_index,
+)
 from contactkit.util.atomic import write_text
 from contactkit.util.owned import owned_by_marker
 from contactkit.util.parallel import map_ordered
+from contactkit.util.text import printable
+
+log = logging.getLogger(__name__)
 
 SCHEMA_ID = "contactkit.schemas/stats_report/1"
 WINDOW_S = 0.5
@@ -49,16 +60,23 @@ NOISE_FILE = "noise_baseline.json"
 
 
 def load_index(directory: Path) -> tuple[pl.LazyFrame, list[dict]]:
-    """Return the dataset index (rebuilt when missing or out of date) and the files
-    that could not be indexed, as problems."""
+    """Return the dataset index (rebuilt when missing or out of date, and saved where the
+    directory can be written: a read-only dataset is summarised all the same) and the
+    files that could not be indexed, as problems."""
     if not directory.is_dir():
         raise InputError("not a directory", directory)
     index_path = directory / INDEX_NAME
     files = {p.name for p in session_files(directory)}
     if _indexed_files(index_path) == files:
         return pl.scan_parquet(index_path), []
-    result = rebuild_index(directory)
+    result = build_index(directory)
     problems = [{"file": name, "problem": problem} for name, problem in result.problems]
+    try:
+        write_index(directory, result.table)
+    except ContactkitError as err:  # a read-only dataset: the index is used unwritten
+        log.warning("the index is not saved (%s); the statistics use it unsaved",
+                    printable(err))
+        return pl.from_arrow(result.table).lazy(), problems
     return pl.scan_parquet(index_path), problems
 
 
