@@ -470,7 +470,7 @@ def _check_copies(archive: zipfile.ZipFile, online: object, estimator: zipfile.Z
     edited apart from its estimator and re-sealed)."""
     prefixes = [part.get("prefix") for part in online.get("parts", [])
                 if isinstance(part, dict)] if isinstance(online, dict) else []
-    stored = {}
+    stored: dict[str, Any] = {}
     for name in estimator.namelist():
         if name.endswith(".npy") and "/" not in name:
             with suppress(ValueError, OSError, EOFError):

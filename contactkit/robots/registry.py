@@ -116,8 +116,11 @@ def urdf_robot(path: str) -> RobotSpec:
     root = parse_urdf(read_input_text(file, "robot's URDF", "urdf"), file)
     children: dict[str | None, list[ET.Element]] = {}
     for joint in root.iter("joint"):
-        children.setdefault(joint.find("parent").get("link"), []).append(joint)
-    child_links = {joint.find("child").get("link") for joint in root.iter("joint")}
+        parent = joint.find("parent")
+        assert parent is not None  # parse_urdf checked every joint's parent and child
+        children.setdefault(parent.get("link"), []).append(joint)
+    child_links = {cast(ET.Element, joint.find("child")).get("link")
+                   for joint in root.iter("joint")}
     roots = [link.get("name") for link in root.iter("link")
              if link.get("name") not in child_links]
 
@@ -198,8 +201,8 @@ def parse_urdf(text: str, file: Path) -> ET.Element:
     for kind, names in (("link", links), ("joint", [j.get("name") for j in root.iter("joint")])):
         if len(set(names)) != len(names) or None in names:
             raise InputError(f"the URDF has a {kind} without a name or two of one name", file)
-    parent_of: dict[str, str] = {}
-    below: dict[str, list[str]] = {}
+    parent_of: dict[str | None, str | None] = {}
+    below: dict[str | None, list[str | None]] = {}
     for joint in root.iter("joint"):
         parent, child = joint.find("parent"), joint.find("child")
         if parent is None or child is None:
@@ -225,8 +228,8 @@ def parse_urdf(text: str, file: Path) -> ET.Element:
     if len(reached) != len(links):
         loop = next(link for link in links if link not in reached)
         raise InputError(f"the URDF's joints form a loop at link {loop!r}", file)
-    for link in root.iter("link"):
-        _check_inertial(link, file)
+    for element in root.iter("link"):
+        _check_inertial(element, file)
     return root
 
 

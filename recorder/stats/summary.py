@@ -76,7 +76,7 @@ def load_index(directory: Path) -> tuple[pl.LazyFrame, list[dict]]:
     except ContactkitError as err:  # a read-only dataset: the index is used unwritten
         log.warning("the index is not saved (%s); the statistics use it unsaved",
                     printable(err))
-        return pl.from_arrow(result.table).lazy(), problems
+        return cast(pl.DataFrame, pl.from_arrow(result.table)).lazy(), problems  # a table's
     return pl.scan_parquet(index_path), problems
 
 
