@@ -182,7 +182,9 @@ def _load_one(source: Path, extractor: SessionFeatures, workers: int,
         raise InputError("no session files (*.parquet) in this directory", source)
     extractor.fit(None)
     config = extractor.config()
-    cache_path = cache_dir() / "features" / f"{_cache_key(source, files, config)}.parquet" \
+    keyed = config if extractor.dynamics is None else config | {  # identified: another key
+        "dynamics": extractor.dynamics.checksum}
+    cache_path = cache_dir() / "features" / f"{_cache_key(source, files, keyed)}.parquet" \
         if cache else None
     if cache_path is not None and cache_path.is_file():
         table, doc = read_feature_table(cache_path)

@@ -15,6 +15,7 @@ import pyarrow.parquet as pq
 from contactkit.classify.data import load_features
 from contactkit.classify.modelfile.model_file import ModelFile
 from contactkit.errors import DATA_ERRORS, problem_text
+from contactkit.robots.dynamics import RobotChoice, override_dynamics, override_robot
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.dataset import session_files
 from contactkit.schemas.features import FEATURES_KEY
@@ -73,13 +74,15 @@ def predict_table(model: ModelFile, table: Path) -> list[Prediction]:
     return _rows(model, proba, data.info["file"], data.info["action"])
 
 
-def predict_sources(model: ModelFile, sources: Sequence[Path], robot: str | None = None
+def predict_sources(model: ModelFile, sources: Sequence[Path], robot: RobotChoice = None
                     ) -> tuple[list[Prediction], list[InputError]]:
     """Predict every session of the sources (session files, dataset directories or
     feature tables), with the arm's model ``robot`` instead of each session's own when
-    given. Return the predictions in order and the sessions that could not be used
+    given (a name, or an :class:`~contactkit.robots.dynamics.ArmOverride` with the arm's
+    identified dynamics). Return the predictions in order and the sessions that could not be used
     (unreadable, window too short), which do not stop the others."""
     pipeline = model.pipeline()
+    pipeline.named_steps["input"].dynamics = override_dynamics(robot)
     chain = pipeline.named_steps["input"].chain_config()  # the arm whose model gives the features
     predictions: list[Prediction] = []
     problems: list[InputError] = []
@@ -90,7 +93,7 @@ def predict_sources(model: ModelFile, sources: Sequence[Path], robot: str | None
         for path in session_paths(source):
             try:
                 session = read_session(path)
-                session.meta = session.meta.with_robot(robot)
+                session.meta = session.meta.with_robot(override_robot(robot))
                 proba = pipeline.predict_proba([session])
                 model.check_robot(chain.robot_setup(session.meta, path).robot, path)
             except DATA_ERRORS as err:

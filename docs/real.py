@@ -38,7 +38,7 @@ from contactkit.classify.events.training import (
 )
 from contactkit.classify.modelfile.model_file import load_model
 from contactkit.cli.default_model import RECIPE, build_default_model, recipe_dir
-from contactkit.features.detector import MIN_NOISE, REST_SPEED, Detection, detect
+from contactkit.features.detector import REST_SPEED, Detection, detect
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.recorder.importers.arrays import load_joint_arrays
 from contactkit.replay.engine import ReplayStream
@@ -301,7 +301,8 @@ def simulated_figures(detector, workers: int) -> list[str]:
         f"{still[-1] if still else 0:.2f} Nm of deviation, "
         f"{sum(peak < 0.1 for peak in still)} of them below 0.1 Nm, within the noise, "
         "against thresholds at rest that sit on "
-        f"the {MIN_NOISE} Nm floor. The noise is below the floor: the held poses' "
+        f"the {RECIPE['detector']['min_noise'][0]} Nm floor of joints 1-4. The noise is "
+        "below the floor: the held poses' "
         "residual standard deviation on joints 1 / 3 is at most "
         f"{max(v[0] for v in held.values()):.2f} / {max(v[1] for v in held.values()):.2f}"
         f" Nm over the poses (pose E {held['E'][0]:.2f} / {held['E'][1]:.2f}; real "

@@ -2,6 +2,6 @@
 
 # The public modules, for the API reference (submodule names: importing the package
 # stays light).
-__all__ = ["agreement", "chain_cache", "detector", "extract", "isolation", "kinematics",
-           "limits", "observer", "per_sample", "scalars", "sliding", "timeseries", "timing",
-           "window_features", "window_stream", "windows"]
+__all__ = ["agreement", "chain_cache", "detector", "extract", "identification", "isolation",
+           "kinematics", "limits", "observer", "per_sample", "scalars", "sliding", "timeseries",
+           "timing", "window_features", "window_stream", "windows"]

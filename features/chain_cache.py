@@ -23,7 +23,7 @@ import json
 import os
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import ExitStack
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import cast
 
@@ -53,6 +53,14 @@ BATCH_ROWS = 16_384
 """Samples computed (and cached in one row group) at a time (about 16 s at 1 kHz)."""
 
 
+def _identity(settings: ChainConfig | RobotSetup) -> dict:
+    """Return ``settings`` as a dictionary for a cache key, identified dynamics as their
+    file's checksum."""
+    dynamics = settings.dynamics
+    return asdict(replace(settings, dynamics=None)) | {
+        "dynamics": None if dynamics is None else dynamics.checksum}
+
+
 def _key(session: Session, config: ChainConfig) -> str | None:
     if session.path is None or os.environ.get(CACHE_ENV) == "0":
         return None
@@ -63,9 +71,9 @@ def _key(session: Session, config: ChainConfig) -> str | None:
         return None
     doc = {"file": str(path), "size": stat.st_size, "mtime_ns": stat.st_mtime_ns,
            "samples": session.n_samples,
-           "robot": asdict(config.robot_setup(session.meta, session.path)),
+           "robot": _identity(config.robot_setup(session.meta, session.path)),
            "urdf_sha256": session.meta.urdf_sha256,
-           "config": asdict(config), "restart_step_s": RESTART_STEP_S}
+           "config": _identity(config), "restart_step_s": RESTART_STEP_S}
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
 
 

@@ -65,6 +65,7 @@ from contactkit.errors import InputError
 from contactkit.features.observer import reduce_rows, solve_recurrence
 from contactkit.features.timing import RESTART_STEP_S, restarts
 from contactkit.robots import RobotSpec
+from contactkit.robots.dynamics import ArmDynamics
 from contactkit.robots.spec import N_JOINTS
 from contactkit.util.atomic import write_text
 from contactkit.util.safe_open import read_json
@@ -183,6 +184,14 @@ def load_calibration(path: str | Path) -> DetectorConfig:
         raise InputError("no such calibration file", path)
     doc = read_json(path, "calibration")
     return DetectorConfig.from_dict(doc, path)
+
+
+def dynamics_detector(dynamics: ArmDynamics | None) -> DetectorConfig | None:
+    """Return the detector settings stored with identified ``dynamics`` (None without
+    dynamics or settings); InputError naming their file when the settings are invalid."""
+    if dynamics is None or dynamics.detector is None:
+        return None
+    return DetectorConfig.from_dict(json.loads(dynamics.detector), dynamics.source or None)
 
 
 class DetectorState:
@@ -689,14 +698,16 @@ def _thin(y: np.ndarray, points: int) -> np.ndarray:
 
 def calibrate(parts: list[CalibrationData], template: DetectorConfig | None = None,
               margin: float = 1.5, source: dict | None = None,
-              motion_margin: float | None = None) -> DetectorConfig:
+              motion_margin: float | None = None,
+              floor: float | tuple[float, ...] = MIN_NOISE) -> DetectorConfig:
     """Fit the detector's per-joint threshold coefficients to no-contact data.
 
     Two steps per joint: ``noise`` is the largest |e| among samples at rest (speed
     below 0.05 rad/s; ``template``'s value when there are none), so that the final
-    threshold at rest is at least 0.3 Nm (the static-friction offsets a real wrist
-    joint keeps after being moved: up to 0.5 Nm on the MindLab Panda; the
-    free-motion log's joint 7 model error is 0.2 Nm);
+    threshold at rest is at least ``floor`` [Nm], one value or one per joint (default
+    :data:`MIN_NOISE`, 0.3 Nm: the static-friction offsets a real wrist joint keeps
+    after being moved: up to 0.5 Nm on the MindLab Panda; the free-motion log's joint 7
+    model error is 0.2 Nm);
     then ``speed`` and ``accel`` are the smallest (by mean) envelope
     speed s + accel a >= |e| - noise over every sample. ``noise`` is multiplied by
     ``margin``, speed and accel by ``motion_margin`` (default: ``margin``; wider when
@@ -718,7 +729,7 @@ def calibrate(parts: list[CalibrationData], template: DetectorConfig | None = No
     motion_margin = margin if motion_margin is None else motion_margin
     rest = x[:, 0] < REST_SPEED
     noise = abs_e[rest].max(axis=0) if rest.any() else np.array(template.noise) / margin
-    noise = np.maximum(noise, MIN_NOISE / margin)
+    noise = np.maximum(noise, np.asarray(floor, dtype=float) / margin)
     moving = np.zeros((N_JOINTS, 2))
     for j in range(N_JOINTS):
         excess = abs_e[:, j] - noise[j]

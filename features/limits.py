@@ -10,6 +10,7 @@ import numpy as np
 
 from contactkit.errors import InputError
 from contactkit.robots import JointLimits, get_robot
+from contactkit.robots.dynamics import RobotChoice, override_robot
 from contactkit.schemas import Session, SessionMeta
 
 SPEED_MARGIN = 1.5
@@ -20,25 +21,34 @@ POSITION_SLACK_RAD = 0.5
 """... or when a joint leaves its range by more than this [rad]."""
 
 
-def robot_limits(meta: SessionMeta, robot: str | None = None) -> JointLimits:
+def robot_limits(meta: SessionMeta, robot: RobotChoice = None) -> JointLimits:
     """Return the joint limits of the robot a session with metadata ``meta`` names (or
-    of ``robot``, a model name used instead of the session's own)."""
-    return get_robot(robot or meta.robot).limits
+    of ``robot``, a model used instead of the session's own)."""
+    return get_robot(override_robot(robot) or meta.robot).limits
+
+
+ROBOT_MODE_REFLEX = 4
+"""libfranka's ``RobotMode::kReflex`` in a session's ``robot_mode`` column: the arm
+stopped itself and its brakes hold it."""
 
 
 def limit_violation(t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.ndarray,
-                    limits: JointLimits) -> str | None:
+                    limits: JointLimits, mode: np.ndarray | None = None) -> str | None:
     """Return one line on the first sample beyond the robot's limits with their margins
     (:data:`SPEED_MARGIN`, :data:`TORQUE_MARGIN`, :data:`POSITION_SLACK_RAD`), or None.
 
-    ``t`` [s] is (N,), ``q`` [rad], ``dq`` [rad/s] and ``tau`` [Nm] are (N, 7). Such a
-    session is physically impossible for the arm: a simulation that blew up, or a
-    corrupt or mis-scaled recording.
+    ``t`` [s] is (N,), ``q`` [rad], ``dq`` [rad/s] and ``tau`` [Nm] are (N, 7); ``mode``
+    (N,) the ``robot_mode`` column where the session has one. Such a session is
+    physically impossible for the arm: a simulation that blew up, or a corrupt or
+    mis-scaled recording. The torque limit is the motors': samples after a reflex stop
+    (``mode`` :data:`ROBOT_MODE_REFLEX`) are not held to it, as the brakes hold the arm
+    and its torque sensors measure whatever a person still pushes with.
     """
+    motors = np.ones(len(t), dtype=bool) if mode is None else mode != ROBOT_MODE_REFLEX
     checks = (
         ("dq", np.abs(dq) / (SPEED_MARGIN * limits.dq_max), "rad/s",
          SPEED_MARGIN * limits.dq_max),
-        ("tau", np.abs(tau) / (TORQUE_MARGIN * limits.tau_max), "Nm",
+        ("tau", np.abs(tau) / (TORQUE_MARGIN * limits.tau_max) * motors[:, None], "Nm",
          TORQUE_MARGIN * limits.tau_max),
         ("q", np.maximum(limits.q_min - POSITION_SLACK_RAD - q,
                          q - limits.q_max - POSITION_SLACK_RAD) + 1.0, "rad", None),
@@ -60,7 +70,7 @@ def limit_violation(t: np.ndarray, q: np.ndarray, dq: np.ndarray, tau: np.ndarra
     return None if first is None else first[1]
 
 
-def session_limit_violation(session: Session, robot: str | None = None) -> str | None:
+def session_limit_violation(session: Session, robot: RobotChoice = None) -> str | None:
     """Return one line naming the column, value, time and row of the first sample of
     ``session`` beyond its robot's limits (``robot`` names the arm's model instead of
     the session's own), or None when every sample is within them or the robot's model is
@@ -71,4 +81,5 @@ def session_limit_violation(session: Session, robot: str | None = None) -> str |
         limits = robot_limits(session.meta, robot)
     except InputError:
         return None
-    return limit_violation(session.t, session.q, session.dq, session.tau, limits)
+    mode = session.column("robot_mode") if session.has("robot_mode") else None
+    return limit_violation(session.t, session.q, session.dq, session.tau, limits, mode)

@@ -29,10 +29,14 @@ from __future__ import annotations
 import functools
 import itertools
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from contactkit.robots import FrictionModel, RobotSpec
+from contactkit.robots import FrictionModel
+
+if TYPE_CHECKING:
+    from contactkit.robots.model import RobotModel
 
 DEFAULT_GAIN = 50.0
 BLOCK_DECAY = np.log(1e-3)
@@ -50,9 +54,10 @@ class ObserverConfig:
         """Return K_O as a (7,) array [1/s]."""
         return np.broadcast_to(np.asarray(self.gain, dtype=float), (7,)).copy()
 
-    def friction_model(self, robot: RobotSpec) -> FrictionModel | None:
+    def friction_model(self, robot: RobotModel) -> FrictionModel | None:
         """Return the friction model used for compensation on ``robot``: its identified
-        model when compensation is on and it has one, else None."""
+        model (the setup's dynamics', else the robot's) when compensation is on and it
+        has one, else None."""
         return robot.friction if self.friction else None
 
 

@@ -73,6 +73,7 @@ from contactkit.features.observer import (
 )
 from contactkit.features.timing import RESTART_STEP_S, restarts
 from contactkit.robots import FrictionModel, RobotSetup
+from contactkit.robots.dynamics import ArmDynamics, ArmOverride, with_dynamics
 from contactkit.robots.model import RobotModel
 from contactkit.schemas.metadata import SessionMeta
 from contactkit.schemas.session import SampleBatch
@@ -121,18 +122,30 @@ class ChainConfig:
     effector, or a link 1..7). Which arm, and whether it carries its hand, comes from
     each session's metadata (:meth:`SessionMeta.robot_setup`), unless ``robot`` names
     the model to use instead (``--robot``: a session recorded before its arm was
-    named, or a comparison of models)."""
+    named, or a comparison of models), and ``dynamics`` the arm's identified dynamics
+    (``--dynamics``, :mod:`contactkit.robots.dynamics`). An
+    :class:`~contactkit.robots.dynamics.ArmOverride` given as ``robot`` sets both."""
 
     observer: ObserverConfig = field(default_factory=ObserverConfig)
     wrench_frame: str | int = "ee"
-    robot: str | None = None
+    robot: str | ArmOverride | None = None
+    dynamics: ArmDynamics | None = None
+
+    def __post_init__(self) -> None:
+        if isinstance(self.robot, ArmOverride):  # --robot and --dynamics as one value
+            object.__setattr__(self, "dynamics", self.robot.dynamics or self.dynamics)
+            object.__setattr__(self, "robot", self.robot.robot)
 
     def robot_setup(self, meta: SessionMeta, path: str | Path | None = None) -> RobotSetup:
         """Return the arm the chain models for a session with metadata ``meta``: the
-        session's own, or :attr:`robot` in its place. Raises InputError naming ``path``
-        for an unknown robot or a URDF that is not the session's."""
+        session's own, or :attr:`robot` in its place, with the identified
+        :attr:`dynamics` (``--dynamics``) when given. Raises InputError naming ``path``
+        for an unknown robot, a URDF that is not the session's, or dynamics of another
+        arm."""
         try:
-            return meta.with_robot(self.robot).robot_setup(path)
+            assert not isinstance(self.robot, ArmOverride)  # unpacked in __post_init__
+            setup = meta.with_robot(self.robot).robot_setup(path)
+            return setup if self.dynamics is None else with_dynamics(setup, self.dynamics)
         except InputError as err:
             raise input_error_about(err, path) from err
 
@@ -175,12 +188,12 @@ def _without_gravity(model: pin.Model) -> pin.Model:
 
 
 def _joint_constants(gain: np.ndarray, friction: FrictionModel | None
-                     ) -> list[tuple[float, float, float, float, float]]:
+                     ) -> list[tuple[float, float, float, float, float, float]]:
     """Return per joint the observer gain K_O [1/s] and the friction coefficients
-    (a, b, c, d) of :attr:`FrictionModel.sample_coefficients` (all 0 without friction
-    compensation: then a tanh(b (dq + c)) + d is exactly 0), as floats for the
+    (a, b, c, d, e) of :attr:`FrictionModel.sample_coefficients` (all 0 without friction
+    compensation: then a tanh(b (dq + c)) + d + e dq is exactly 0), as floats for the
     per-sample observer step."""
-    zeros = [[0.0] * 7] * 4
+    zeros = [[0.0] * 7] * 5
     return list(zip(gain.tolist(), *(zeros if friction is None
                                      else friction.sample_coefficients), strict=True))
 
@@ -222,7 +235,7 @@ class TimeseriesChain:
         self._inertial_pool = pin.ModelPool(self._inertial, 1)
         self._gain = self.config.observer.gain_vector()
         self._need = _Needs.of(self.names)
-        self._friction = self.config.observer.friction_model(self.model.spec)
+        self._friction = self.config.observer.friction_model(self.model)
         self._joint_constants = _joint_constants(self._gain, self._friction)
         self._fid = _frame_id(self.model, self.config.wrench_frame)
         self._kinematics = FrameKinematics.of(self.model.model, self._fid)
@@ -320,9 +333,10 @@ class TimeseriesChain:
         it replaces."""
         tanh = math.tanh
         assert before.p is not None and before.r is not None  # kept while r is computed
-        return [(r0 + k * (p1 - p0 - h * (tq + c - gq - (fa * tanh(fb * (v + fc)) + fd))))
+        return [(r0 + k * (p1 - p0 - h * (tq + c - gq
+                                          - (fa * tanh(fb * (v + fc)) + fd + fe * v))))
                 / (1.0 + k * h)
-                for r0, p0, p1, tq, gq, c, v, (k, fa, fb, fc, fd) in zip(
+                for r0, p0, p1, tq, gq, c, v, (k, fa, fb, fc, fd, fe) in zip(
                     before.r, before.p, p, tau.tolist(), g.tolist(), coriolis.tolist(), dq,
                     self._joint_constants, strict=True)]
 

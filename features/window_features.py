@@ -23,6 +23,7 @@ from contactkit.features.sliding import SLIDING_SCALARS, window_scalar_blocks
 from contactkit.features.timeseries import ChainConfig, columns_of, expand
 from contactkit.features.window_stream import streamed_window_values
 from contactkit.features.windows import CALIBRATIONS, METHODS, Window, WindowSpec, find_window
+from contactkit.robots.dynamics import ArmDynamics
 from contactkit.schemas import InputError, Session, read_session
 from contactkit.schemas.session import ROW_GROUP_ROWS, read_session_meta
 from contactkit.util.params import Choice, Interval, Param, check_names, check_settings
@@ -51,7 +52,13 @@ class WindowFeatures:
     session's own (None: the session's, see :mod:`contactkit.robots`). Defaults are the
     thesis's best SVM input: the range of joint velocity, torque and residual in a 0.5 s
     window.
+
+    ``dynamics`` (an attribute, not a parameter: no stored setting, a model file does not
+    carry it) is the arm's identified dynamics the chain uses (``--dynamics``), None for
+    the nominal model.
     """
+
+    dynamics: ArmDynamics | None = None
 
     def __init__(self, timeseries: Sequence[str] = DEFAULT_TIMESERIES,
                  window: str = "difference", window_s: float = 0.5, shift_s: float = 0.0,
@@ -91,7 +98,7 @@ class WindowFeatures:
     def chain_config(self) -> ChainConfig:
         """The feature-chain settings."""
         return ChainConfig(ObserverConfig(gain=self.gain, friction=self.friction),
-                           self.wrench_frame, self.robot)
+                           self.wrench_frame, self.robot, self.dynamics)
 
     def config(self) -> dict:
         """Return the parameters as JSON-ready values (stored with tables and models)."""

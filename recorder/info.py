@@ -108,7 +108,9 @@ def event_line(event: dict) -> str:
     return (f"{label}" + ("" if not isinstance(p, int | float) else f" (p = {p:.2f})")
             + f", onset {at('onset_s')}, decided {at('decision_s')}, "
               f"released {at('release_s')}"
-            + (", outside the training range" if event.get("out_of_range") else "")
+            + (", outside the training range" if event.get("out_of_range") else
+               f", beyond the training range ({event['beyond_range']})"
+               if isinstance(event.get("beyond_range"), str) else "")
             + "".join(f"; {when} {contact_line(event[key])}"
                       for when, key in (("at the decision", "contact_at_decision"),
                                         ("at the peak", "contact_at_peak"))

@@ -49,6 +49,7 @@ from contactkit.errors import DATA_ERRORS, InputError, problem_text
 from contactkit.replay.engine import ReplayStream
 from contactkit.replay.recording import RRD_MAGIC
 from contactkit.replay.session_replay import ReplaySummary, replay_session
+from contactkit.robots.dynamics import RobotChoice
 from contactkit.schemas import read_session_meta
 from contactkit.schemas.dataset import session_files
 from contactkit.util.atomic import atomic_write, output_directory, write_text
@@ -71,9 +72,9 @@ _HASH_CHUNK = 1 << 20
 @dataclass(frozen=True)
 class CatalogIdentity:
     """What a catalog's recordings were computed with: the model (``name``, ``sha256`` of
-    its file) and the robot dynamics (None: each session's own; issue 37's
-    ``--dynamics FILE`` passes its name and SHA-256 here). A catalog built with another
-    identity is rebuilt only with overwrite."""
+    its file) and the robot dynamics (None: each session's own; ``--dynamics FILE``: the
+    file's name and checksum). A catalog built with another identity is rebuilt only
+    with overwrite."""
 
     model: dict
     dynamics: dict | None = None
@@ -112,7 +113,7 @@ class CatalogJob:
     target: Path
     model_path: Path
     identity: dict
-    robot: str | None = None
+    robot: RobotChoice = None
 
 
 @dataclass
@@ -386,7 +387,7 @@ def check_inputs(dataset: Path, out: Path, identity: CatalogIdentity, *,
 
 
 def build_catalog(dataset: Path, out: Path, model_path: Path, identity: CatalogIdentity, *,
-                  workers: int = 1, overwrite: bool = False, robot: str | None = None,
+                  workers: int = 1, overwrite: bool = False, robot: RobotChoice = None,
                   scheduler: str | None = None, progress: ProgressCallback | None = None,
                   on_done: Callable[[str, str | None], None] | None = None
                   ) -> CatalogResult:

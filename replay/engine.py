@@ -49,7 +49,7 @@ from contactkit.classify.events.contact_events import NONE, ContactEvent, EventP
 from contactkit.classify.modelfile.model_file import ModelFile
 from contactkit.errors import input_error_about
 from contactkit.features.agreement import ResidualAgreement
-from contactkit.features.detector import DetectorConfig
+from contactkit.features.detector import DetectorConfig, dynamics_detector
 from contactkit.features.isolation import ContactEstimate, robot_isolator
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
 from contactkit.features.timing import restarts
@@ -57,6 +57,7 @@ from contactkit.features.window_stream import WindowCollector
 from contactkit.features.windows import Window
 from contactkit.replay.hop import DEFAULT_HOP_S
 from contactkit.robots import get_robot
+from contactkit.robots.dynamics import RobotChoice, override_dynamics, override_robot
 from contactkit.schemas import InputError, Session
 from contactkit.schemas.columns import check_time_range
 from contactkit.schemas.session import SampleBatch, iter_sample_batches, read_session_meta
@@ -182,13 +183,16 @@ class ReplayStream:
     decision delay [s]; ``detector`` holds the settings in use (None without one).
     ``batch_rows`` is the number of samples read and computed at a time (default
     ``BATCH_ROWS``); ``robot`` names the arm's model instead of the session's own
-    (:mod:`contactkit.robots`).
+    (:mod:`contactkit.robots`), or is an
+    :class:`~contactkit.robots.dynamics.ArmOverride` with the arm's identified dynamics:
+    the chain, the detector (the file's thresholds, unless ``detector`` is given) and
+    isolation then use them.
     """
 
     def __init__(self, session: Session | str | Path, model: ModelFile,
                  hop_s: float = DEFAULT_HOP_S, detector: DetectorConfig | None = None,
                  decide_after_s: float | None = None, batch_rows: int | None = None,
-                 robot: str | None = None) -> None:
+                 robot: RobotChoice = None) -> None:
         if hop_s <= 0:
             raise InputError(f"the prediction hop must be positive, got {hop_s} s")
         if isinstance(session, Session):
@@ -199,7 +203,7 @@ class ReplayStream:
             self.path = Path(session)
             self.meta, _ = read_session_meta(self.path)
         try:
-            self.meta = self.meta.with_robot(robot)
+            self.meta = self.meta.with_robot(override_robot(robot))
         except InputError as err:
             raise input_error_about(err, self.path) from err
         self.model = model
@@ -215,16 +219,18 @@ class ReplayStream:
         model.check_features(list(self.transformer.get_feature_names_out()))
         timeseries, self.window_s = self.transformer.timeseries, float(self.transformer.window_s)
         chain = self.transformer.chain_config()
-        self.chain_config = ChainConfig(chain.observer, chain.wrench_frame)
+        dynamics = override_dynamics(robot)
+        self.chain_config = ChainConfig(chain.observer, chain.wrench_frame, dynamics=dynamics)
+        setup = self.chain_config.robot_setup(self.meta, self.path)
         self.names = expand(list(timeseries))
         self.channels = [c for name in self.names for c in columns_of(name)]
         self._hops = _HopLog(len(self.classes))
-        detector = detector or model.detector_config()
+        detector = detector or dynamics_detector(dynamics) or model.detector_config()
         self.detector = detector = None if detector is None else detector.for_robot(
-            get_robot(self.meta.robot_setup(self.path).robot))
+            get_robot(setup.robot))
         self.pipeline = None if detector is None else EventPipeline(
-            detector, model.event_model(), decide_after_s,
-            robot_isolator(self.meta.robot_setup(self.path)), keep_track=False)
+            detector, model.event_model(), decide_after_s, robot_isolator(setup),
+            keep_track=False)
         self.event_samples: dict[float, int] = {}
         """Session time [s] -> sample index of every sample where an event began, was
         decided or ended, and of the first and (once the stream has ended) the last

@@ -31,6 +31,7 @@ from contactkit.replay.recording import (
     new_recording,
     save_paths_for,
 )
+from contactkit.robots.dynamics import RobotChoice
 from contactkit.schemas import InputError
 from contactkit.schemas.dataset import session_files
 from contactkit.util.atomic import Owned, atomic_write
@@ -115,7 +116,7 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
                    connect: str | None = None, spawn: bool = False, rate: float | None = None,
                    hop_s: float = DEFAULT_HOP_S, detector: DetectorConfig | None = None,
                    decide_after_s: float | None = None,
-                   log_rate_hz: float | None = None, robot: str | None = None,
+                   log_rate_hz: float | None = None, robot: RobotChoice = None,
                    overwrite: bool = False, owned: Owned | None = None,
                    session_file: str | None = None,
                    properties: ExtraProperties | None = None) -> ReplaySummary:
@@ -129,7 +130,8 @@ def replay_session(path: Path, model: ModelFile, *, save: Path | None = None,
     the series sent to Rerun (None: every sample; the chain, the events and the
     predictions still see every sample). ``detector`` overrides the model's contact
     detector settings and ``decide_after_s`` [s] its decision delay; ``robot`` names the
-    arm's model instead of the session's own. The session's
+    arm's model instead of the session's own, or carries its identified dynamics
+    (:class:`~contactkit.robots.dynamics.ArmOverride`). The session's
     metadata and the model are checked before any file is created, and a replay that
     fails (also on a bad row found late in the file) leaves no file: the recording is
     written to a temporary file and renamed at the end. An existing ``save`` is replaced
@@ -188,7 +190,7 @@ def replay_sessions(paths: Sequence[Path], model: ModelFile, *, save: Path | Non
                     rate: float | None = None, hop_s: float = DEFAULT_HOP_S,
                     detector: DetectorConfig | None = None,
                     decide_after_s: float | None = None, log_rate_hz: float | None = None,
-                    robot: str | None = None, overwrite: bool = False,
+                    robot: RobotChoice = None, overwrite: bool = False,
                     owned: Owned | None = None,
                     on_done: Callable[[ReplaySummary | InputError], None] | None = None
                     ) -> tuple[list[ReplaySummary], list[InputError]]:

@@ -39,11 +39,11 @@ def test_a_blown_up_simulation_is_named_and_not_written(tmp_path, monkeypatch) -
     real = dataset._simulated
 
     def blown_up(specs, cfg):
-        for index, data in real(specs, cfg):
+        for index, data, reflex in real(specs, cfg):
             data = dict(data)
             data["dq_3"] = data["dq_3"].copy()
             data["dq_3"][60:] = 240.0  # the arm spinning away after the shove
-            yield index, data
+            yield index, data, reflex
 
     monkeypatch.setattr(dataset, "_simulated", blown_up)
     paths, problems = dataset.simulate_batch([spec], config, tmp_path)

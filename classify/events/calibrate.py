@@ -19,6 +19,7 @@ import numpy as np
 
 from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.detector import (
+    MIN_NOISE,
     CalibrationData,
     DetectorConfig,
     calibrate,
@@ -27,6 +28,7 @@ from contactkit.features.detector import (
 from contactkit.features.limits import session_limit_violation
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain
 from contactkit.robots import canonical_robot_name
+from contactkit.robots.dynamics import RobotChoice, override_robot
 from contactkit.schemas import InputError, Session, read_session
 from contactkit.schemas.session import read_session_meta
 from contactkit.util.parallel import map_ordered
@@ -56,7 +58,7 @@ def no_contact_stretches(session: Session) -> list[np.ndarray]:
 
 
 def session_calibration_data(path: str | Path, template: DetectorConfig | None = None,
-                             robot: str | None = None) -> list[CalibrationData]:
+                             robot: RobotChoice = None) -> list[CalibrationData]:
     """Read one session and return the detector's calibration samples of each of its
     no-contact stretches (the observer restarts on each stretch); ``robot`` names the
     arm's model instead of the session's own. A session with a sample beyond the robot's
@@ -77,11 +79,13 @@ def calibrate_sessions(paths: Sequence[str | Path], template: DetectorConfig | N
                        margin: float = 1.5, workers: int = 1,
                        progress: ProgressCallback | None = None,
                        motion_margin: float | None = None,
-                       robot: str | None = None,
+                       robot: RobotChoice = None,
                        problems: list[tuple[str, str]] | None = None,
-                       scheduler: str | None = None) -> DetectorConfig:
-    """Calibrate the detector on the no-contact samples of ``paths`` (``margin`` and
-    ``motion_margin`` as in :func:`~contactkit.features.detector.calibrate`; ``robot``
+                       scheduler: str | None = None,
+                       floor: float | tuple[float, ...] = MIN_NOISE) -> DetectorConfig:
+    """Calibrate the detector on the no-contact samples of ``paths`` (``margin``,
+    ``motion_margin`` and the at-rest ``floor`` [Nm] as in
+    :func:`~contactkit.features.detector.calibrate`; ``robot``
     the arm's model instead of each session's own); return its settings, with the
     session count in ``source`` and, when every session is of one arm, its name in
     ``robot`` (the settings then apply to that arm as they are). A session that cannot
@@ -101,10 +105,12 @@ def calibrate_sessions(paths: Sequence[str | Path], template: DetectorConfig | N
         raise InputError("no no-contact stretch of at least "
                          f"{MIN_STRETCH_S} s in the given sessions")
     failed = {name for name, _ in bad}
-    robots = {canonical_robot_name(robot or read_session_meta(p)[0].robot) for p in paths
+    robots = {canonical_robot_name(override_robot(robot) or read_session_meta(p)[0].robot)
+              for p in paths
               if str(p) not in failed}
     config = calibrate(parts, template, margin,
-                       source={"sessions": len(paths) - len(bad)}, motion_margin=motion_margin)
+                       source={"sessions": len(paths) - len(bad)}, motion_margin=motion_margin,
+                       floor=floor)
     return replace(config, robot=robots.pop() if len(robots) == 1 else None)
 
 

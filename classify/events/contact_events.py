@@ -8,10 +8,18 @@ r taken relative to the detector's baseline frozen at onset. That label is held
 until the detector reports the release; then the event is complete. Without a
 detected contact the output is ``none``; between onset and decision it is
 ``undecided``; without an intent classifier a decided event is ``contact``. Event
-features far outside the classifier's training range give the label ``unknown``
-and set ``out_of_range``, instead of a confident class. A gap in the stream (a step
-over :data:`contactkit.features.timing.RESTART_STEP_S`) restarts the detector; an
-event still open then is released (and, if undecided, decided) at the last sample
+features far outside the classifier's training range (by more than
+:data:`RANGE_SLACK` of it) give the label ``unknown`` and set ``out_of_range``,
+instead of a confident class, unless one class explains them (the range rule,
+:meth:`EventModel.range_check`): every feature beyond the range measures strength
+(a torque or its rate: a harder push, not another shape), lies on the side where
+the decided class reaches furthest among the training examples (a shove stronger
+than any training shove), and the event's overall strength stays within
+:data:`BEYOND_FACTOR` of that class's extreme (not another arm's scale). Such an
+event keeps its class, and says so in ``beyond_range`` (``above`` or ``below``) and
+``beyond_features``; a refused one names its features there too. A gap in the stream
+(a step over :data:`contactkit.features.timing.RESTART_STEP_S`) restarts the detector;
+an event still open then is released (and, if undecided, decided) at the last sample
 before the gap, and no sample before a gap enters an event after it.
 
 Nothing looks ahead: every output at sample k uses samples up to k only, and the
@@ -57,11 +65,18 @@ from contactkit.features.isolation import (
     robot_isolator,
 )
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain
+from contactkit.robots.dynamics import RobotChoice
 from contactkit.schemas import Session
 
 PRE_S = 0.05  # s of samples before the onset in the decision window
 DEFAULT_DECIDE_AFTER_S = 0.15
 RANGE_SLACK = 0.5  # a feature beyond its training range by this share of the range is out
+BEYOND_FACTOR = 2.5
+"""A strength feature beyond the training range keeps the class that reaches furthest on
+its side while the overall strength features (:data:`SCALE`) stay within this multiple
+of that class's extreme (its largest value above, its smallest divided by this below):
+a person pushes harder than any simulated shove (at most about 170 N), not 2.5 times
+harder; a 10 times larger event is another arm's scale or a unit error."""
 NONE, UNDECIDED, UNKNOWN = "none", "undecided", "unknown"
 RISE_S = np.arange(-1, 7) * 0.025  # s after onset at which the rise is sampled
 EVENT_FEATURES = ([f"peak_abs_e_{j}" for j in range(1, N_JOINTS + 1)]
@@ -70,6 +85,27 @@ EVENT_FEATURES = ([f"peak_abs_e_{j}" for j in range(1, N_JOINTS + 1)]
                      "time_to_peak", "mean_abs_rate", "window_s"]
                   + [f"norm_at_{1000 * s:+.0f}ms" for s in RISE_S]
                   + [f"relative_norm_at_{1000 * s:+.0f}ms" for s in RISE_S])
+SCALE = np.array([name.startswith("norm_at_")
+                  or name in ("peak_norm", "mean_norm", "final_norm", "mean_abs_rate")
+                  for name in EVENT_FEATURES])
+"""Which event features measure the event's overall strength (the norm |e| in Nm, its
+rate in Nm/s)."""
+STRENGTH = SCALE | np.array([name.startswith(("peak_abs_e_", "final_abs_e_"))
+                             for name in EVENT_FEATURES])
+"""Which event features measure strength: the overall ones (:data:`SCALE`) and each
+joint's |e| [Nm]. They grow with how hard a person pushes, while the others (ratios,
+times, the rise's shape) do not."""
+
+
+@dataclass(frozen=True)
+class RangeCheck:
+    """The range rule's verdict on one event (:meth:`EventModel.range_check`):
+    ``refused`` (label ``unknown``), ``side`` the features lie beyond the training range
+    on (``above``, ``below`` or ``both``; None within it) and their names."""
+
+    refused: bool = False
+    side: str | None = None
+    features: tuple[str, ...] = ()
 
 
 def event_features(t: np.ndarray, e: np.ndarray, onset_s: float) -> np.ndarray:
@@ -93,40 +129,84 @@ def event_features(t: np.ndarray, e: np.ndarray, onset_s: float) -> np.ndarray:
 @dataclass
 class EventModel:
     """What the pipeline needs besides the detector: the intent classifier (anything
-    with ``predict_proba``), its classes, the decision delay [s] and the per-feature
-    training range (``low``, ``high``) that flags out-of-range events."""
+    with ``predict_proba``), its classes, the decision delay [s], the per-feature
+    training range (``low``, ``high``) that flags out-of-range events and each class's
+    own (``class_low``, ``class_high``: class name to its per-feature extremes; None in
+    model files written before them, whose events beyond the range are all
+    ``unknown``)."""
 
     estimator: Any  # a fitted scikit-learn classifier
     classes: list[str]
     decide_after_s: float = DEFAULT_DECIDE_AFTER_S
     low: np.ndarray = field(default_factory=lambda: np.full(len(EVENT_FEATURES), -np.inf))
     high: np.ndarray = field(default_factory=lambda: np.full(len(EVENT_FEATURES), np.inf))
+    class_low: dict[str, np.ndarray] | None = None
+    class_high: dict[str, np.ndarray] | None = None
 
     def meta(self) -> dict:
         """Return the JSON-ready settings (everything but the estimator)."""
-        return {"classes": list(self.classes), "decide_after_s": self.decide_after_s,
-                "features": EVENT_FEATURES, "low": self.low.tolist(),
-                "high": self.high.tolist()}
+        doc = {"classes": list(self.classes), "decide_after_s": self.decide_after_s,
+               "features": EVENT_FEATURES, "low": self.low.tolist(),
+               "high": self.high.tolist()}
+        if self.class_low is not None and self.class_high is not None:
+            doc["class_low"] = {c: v.tolist() for c, v in self.class_low.items()}
+            doc["class_high"] = {c: v.tolist() for c, v in self.class_high.items()}
+        return doc
 
     @classmethod
     def from_meta(cls, estimator: object, doc: dict) -> EventModel:
         """Rebuild from :meth:`meta`'s document and the estimator."""
         if list(doc.get("features", [])) != EVENT_FEATURES:
             raise InputError("the event classifier was trained on other event features")
+        per_class = {key: {c: np.asarray(v, float) for c, v in doc[key].items()}
+                     for key in ("class_low", "class_high") if key in doc}
         return cls(estimator, list(doc["classes"]), float(doc["decide_after_s"]),
-                   np.asarray(doc["low"], float), np.asarray(doc["high"], float))
+                   np.asarray(doc["low"], float), np.asarray(doc["high"], float),
+                   per_class.get("class_low"), per_class.get("class_high"))
 
     def out_of_range(self, x: np.ndarray) -> bool:
-        """Return whether a feature vector lies far outside the training range."""
+        """Return whether a feature vector lies far outside the training range (by more
+        than :data:`RANGE_SLACK` of it), whatever the range rule then decides."""
         slack = RANGE_SLACK * (self.high - self.low)
         return bool(((x < self.low - slack) | (x > self.high + slack)).any())
+
+    def range_check(self, x: np.ndarray, label: str) -> RangeCheck:
+        """Return the range rule's verdict (see the module docstring) on feature vector
+        ``x`` that the classifier gives class ``label``."""
+        slack = RANGE_SLACK * (self.high - self.low)
+        above, below = x > self.high + slack, x < self.low - slack
+        beyond = np.flatnonzero(above | below)
+        if not beyond.size:
+            return RangeCheck()
+        names = tuple(EVENT_FEATURES[i] for i in beyond)
+        if above.any() and below.any():
+            return RangeCheck(True, "both", names)
+        side = "above" if above.any() else "below"
+        if (self.class_low is None or self.class_high is None or label not in self.classes
+                or not STRENGTH[beyond].all()):
+            return RangeCheck(True, side, names)
+        extremes = np.array([(self.class_high if side == "above" else self.class_low)[c]
+                             for c in self.classes])[:, beyond]
+        furthest = extremes.argmax(axis=0) if side == "above" else extremes.argmin(axis=0)
+        # How far is judged on the overall strength: how a push shares out over the
+        # joints depends on where it lands, and a push on the hand a little stronger than
+        # any training shove loads one wrist joint several times more than any did.
+        own = extremes[self.classes.index(label)]
+        within = x[beyond] <= BEYOND_FACTOR * own if side == "above" else \
+            x[beyond] >= own / BEYOND_FACTOR
+        explained = bool((furthest == self.classes.index(label)).all()
+                         and within[SCALE[beyond]].all())
+        return RangeCheck(not explained, side, names)
 
 
 @dataclass
 class ContactEvent:
     """One detected contact: onset, decision and release times [s] (release None while
     it lasts), the held label, the class probabilities at the decision, whether its
-    features were out of the training range, and its peak detector score. With contact
+    features were out of the training range so that its label is ``unknown``
+    (``out_of_range``), the side they lie beyond it on and their names, refused or
+    kept (``beyond_range``: ``above``, ``below`` or ``both``, None within it;
+    ``beyond_features``; :meth:`EventModel.range_check`), and its peak detector score. With contact
     isolation (:mod:`contactkit.features.isolation`): the touched link, point and force
     at the decision (``contact_at_decision``) and at the peak of the residual
     (``contact_at_peak``, so far while the event lasts), and the estimates during the
@@ -145,6 +225,8 @@ class ContactEvent:
     contact_at_peak: ContactEstimate | None = None
     features: np.ndarray | None = field(default=None, repr=False)
     contact_track: list[ContactEstimate] = field(default_factory=list, repr=False)
+    beyond_range: str | None = None
+    beyond_features: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         """Return the event as a JSON-ready dict (without its feature vector and its
@@ -152,6 +234,7 @@ class ContactEvent:
         out = {f.name: getattr(self, f.name) for f in fields(self)
                if f.name not in ("features", "contact_track")}
         out["probabilities"] = dict(self.probabilities)
+        out["beyond_features"] = list(self.beyond_features)
         for name in ("contact_at_decision", "contact_at_peak"):
             out[name] = None if out[name] is None else out[name].to_dict()
         return out
@@ -239,8 +322,11 @@ class EventPipeline:
         proba = self._predict(x[None, :])[0]
         event.probabilities = {c: float(p) for c, p in zip(self.model.classes, proba,
                                                            strict=True)}
-        event.out_of_range = self.model.out_of_range(x)
-        event.label = UNKNOWN if event.out_of_range else self.model.classes[int(np.argmax(proba))]
+        label = self.model.classes[int(np.argmax(proba))]
+        check = self.model.range_check(x, label)
+        event.out_of_range = check.refused
+        event.beyond_range, event.beyond_features = check.side, list(check.features)
+        event.label = UNKNOWN if check.refused else label
         return event
 
     def _isolate(self, t: float, q: np.ndarray | None, r: np.ndarray, decided: bool,
@@ -441,11 +527,12 @@ def stream_events(t: np.ndarray, r: np.ndarray, dq: np.ndarray,
 
 
 def session_events(session: Session, detector: DetectorConfig, model: EventModel | None = None,
-                   decide_after_s: float | None = None, robot: str | None = None,
+                   decide_after_s: float | None = None, robot: RobotChoice = None,
                    isolate: bool = True) -> list[ContactEvent]:
     """Return the contact events of a whole session (observer, detector, pipeline, and
     with ``isolate`` contact isolation on the session's arm); ``robot`` names the arm's
-    model instead of the session's own. The detector is adapted to the arm
+    model instead of the session's own (or carries its identified dynamics, an
+    :class:`~contactkit.robots.dynamics.ArmOverride`). The detector is adapted to the arm
     (:meth:`DetectorConfig.for_robot`)."""
     session = session.complete()
     t, dq, q = session.t, session.dq, session.q

@@ -53,7 +53,9 @@ def describe(kind: str, event: ContactEvent) -> str:
         p = event.probabilities.get(event.label)
         return (f"contact decided at {event.decision_s:.3f} s: {event.label}"
                 + ("" if p is None else f" (p = {p:.2f})")
-                + (" (outside the training range)" if event.out_of_range else "")
+                + (" (outside the training range)" if event.out_of_range else
+                   f" (beyond the training range, {event.beyond_range}: "
+                   f"{', '.join(event.beyond_features)})" if event.beyond_range else "")
                 + ("" if event.contact_at_decision is None
                    else f"; {contact_text(event.contact_at_decision)}"))
     assert event.release_s is not None  # a release

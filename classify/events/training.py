@@ -24,6 +24,7 @@ import numpy as np
 
 from contactkit.classify.events.contact_events import (
     NONE,
+    UNKNOWN,
     ContactEvent,
     EventModel,
     batch_events,
@@ -115,7 +116,7 @@ def fit_event_model(sessions: Sequence[SessionEvents], decide_after_s: float,
                     c: float = 10.0, seed: int = 0) -> EventModel:
     """Fit the intent classifier (scaled RBF SVM, Platt probabilities) on the
     sessions' event rows (a class with a single row is left out); return the
-    :class:`EventModel` with its training range."""
+    :class:`EventModel` with its training range, overall and per class."""
     xs, ys = [], []
     for session in sessions:
         rows, labels = session.rows()
@@ -128,8 +129,10 @@ def fit_event_model(sessions: Sequence[SessionEvents], decide_after_s: float,
     check_two_classes(y, "the event model's training (a class needs at least two events)")
     options = ModelOptions(kind=SVM.name, seed=seed, params={"c": c})
     estimator = SVM.estimator(options, []).fit(X, y)
-    return EventModel(estimator, [str(c) for c in estimator.classes_], decide_after_s,
-                      X.min(axis=0), X.max(axis=0))
+    classes = [str(name) for name in estimator.classes_]
+    return EventModel(estimator, classes, decide_after_s, X.min(axis=0), X.max(axis=0),
+                      {name: X[y == name].min(axis=0) for name in classes},
+                      {name: X[y == name].max(axis=0) for name in classes})
 
 
 def session_outcome(session: SessionEvents, model: EventModel) -> tuple[str, int]:
@@ -139,10 +142,9 @@ def session_outcome(session: SessionEvents, model: EventModel) -> tuple[str, int
     def label(event: ContactEvent) -> str:
         if event.features is None:
             return NONE
-        if model.out_of_range(event.features):
-            return "unknown"
         proba = model.estimator.predict_proba(event.features[None, :])[0]
-        return model.classes[int(np.argmax(proba))]
+        label = model.classes[int(np.argmax(proba))]
+        return UNKNOWN if model.range_check(event.features, label).refused else label
 
     match = session.matched()
     false_events = sum(1 for e in session.events if e is not match)

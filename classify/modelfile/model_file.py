@@ -414,13 +414,23 @@ def _check_event_meta(doc: object, path: Path) -> None:
         problem = f"must be finite, got {decide!r}"
     if problem is not None:
         raise InputError(f"model file's event decide_after_s {problem}", path)
-    for key in ("low", "high"):
-        values = doc.get(key)
-        if not (isinstance(values, list) and len(values) == len(EVENT_FEATURES)
+    def numbers(values: object) -> bool:
+        return (isinstance(values, list) and len(values) == len(EVENT_FEATURES)
                 and all(isinstance(v, int | float) and not isinstance(v, bool)
-                        and not math.isnan(v) for v in values)):
+                        and not math.isnan(v) for v in values))
+
+    for key in ("low", "high"):
+        if not numbers(doc.get(key)):
             raise InputError(f"model file's event {key} must be {len(EVENT_FEATURES)} "
                              "numbers", path)
+    for key in ("class_low", "class_high"):  # absent in files written before them
+        per_class = doc.get(key, {})
+        if not (isinstance(per_class, dict) and set(per_class) <= set(doc["classes"])
+                and all(numbers(v) for v in per_class.values())):
+            raise InputError(f"model file's event {key} must give each of its classes "
+                             f"{len(EVENT_FEATURES)} numbers", path)
+    if ("class_low" in doc) != ("class_high" in doc):
+        raise InputError("model file's event class_low and class_high come together", path)
 
 
 def _check_classes(estimator: object | None, classes: list[str] | None, path: Path,

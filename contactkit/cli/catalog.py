@@ -13,11 +13,17 @@ import json
 import signal
 import threading
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Literal, cast
 
 import typer
 
-from contactkit.cli.common import RobotOpt, print_problems, scheduler_of
+from contactkit.cli.common import (
+    DynamicsOpt,
+    RobotOpt,
+    load_dynamics_option,
+    print_problems,
+    scheduler_of,
+)
 from contactkit.errors import InputError
 from contactkit.util.parallel import available_cpus
 from contactkit.util.paths import catalog_beside
@@ -29,7 +35,7 @@ ViewerChoice = Literal["auto", "native", "web", "none"]
 
 
 def build(dataset: Path, out: Path, model: Path | None, workers: int, overwrite: bool,
-          robot: str | None, scheduler: str | None):
+          robot: str | None, scheduler: str | None, dynamics: Path | None = None):
     """Build or update the catalog of ``dataset`` in ``out`` with a progress bar and a line
     per failed session; return the :class:`~contactkit.replay.catalog.CatalogResult`."""
     from contactkit.cli.default_model import build_default_model, default_model_missing
@@ -40,6 +46,7 @@ def build(dataset: Path, out: Path, model: Path | None, workers: int, overwrite:
         check_inputs,
         model_identity,
     )
+    from contactkit.robots.dynamics import arm_override
 
     pyarrow_without_pandas()  # as the replay command: a catalog converts nothing to pandas
     if not Path(dataset).is_dir():
@@ -55,13 +62,16 @@ def build(dataset: Path, out: Path, model: Path | None, workers: int, overwrite:
         if not model.is_file():
             raise InputError("model file not found", model)
         model_path, identity = model, model_identity(model)
-    # Issue 37's --dynamics FILE: pass its identity (name, SHA-256) as `dynamics=` here, so
-    # that a catalog built with other dynamics is refused without --overwrite.
-    catalog = CatalogIdentity(identity)
+    identified = load_dynamics_option(dynamics)
+    arm = arm_override(robot, identified)
+    # a catalog built with other dynamics is refused without --overwrite
+    catalog = CatalogIdentity(identity, None if identified is None else
+                              {"name": Path(cast(Path, dynamics)).name,  # given with identified
+                               "checksum": identified.checksum})
     check_inputs(dataset, out, catalog, overwrite=overwrite)  # before the progress bar
     with progress_bar("replaying") as bar:
         result = build_catalog(dataset, out, model_path, catalog,
-                               workers=workers, overwrite=overwrite, robot=robot,
+                               workers=workers, overwrite=overwrite, robot=arm,
                                scheduler=scheduler, progress=bar_callback(bar, "sessions"))
     err_console.print(f"{len(result.replayed)} replayed, {len(result.kept)} unchanged, "
                       f"{len(result.removed)} removed"
@@ -81,6 +91,7 @@ def catalog_command(
         help="Model file from `classify train` (default: the built-in model).")] = None,
     workers: Annotated[int, typer.Option(help="Parallel processes.")] = DEFAULT_WORKERS,
     robot: RobotOpt = None,
+    dynamics: DynamicsOpt = None,
     overwrite: Annotated[bool, typer.Option(
         help="Rebuild a catalog built with another model or dynamics.")] = False,
 ) -> None:
@@ -91,7 +102,8 @@ def catalog_command(
 
     Serve it with `recorder browse DIR` or `rerun server -d DIR`. A session that fails is
     listed and the others are written (exit code 2)."""
-    result = build(dataset, out, model, workers, overwrite, robot, scheduler_of(ctx))
+    result = build(dataset, out, model, workers, overwrite, robot, scheduler_of(ctx),
+                   dynamics)
     print(out)
     if result.failed:
         raise typer.Exit(2)

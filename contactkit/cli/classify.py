@@ -28,8 +28,10 @@ from contactkit.classify.kinds.registry import (
 from contactkit.classify.names import EXPERIMENTS, GROUP_KEYS, PROTOCOLS
 from contactkit.classify.schemes import SCHEMES
 from contactkit.cli.common import (
+    DynamicsOpt,
     RobotOpt,
     exit_if_failed,
+    load_dynamics_option,
     new_app,
     print_problems,
     run_app,
@@ -37,7 +39,12 @@ from contactkit.cli.common import (
 )
 from contactkit.cli.flags import command_with_flags, owner_values, shared_flags
 from contactkit.errors import DATA_ERRORS, problem_text
-from contactkit.features.detector import DetectorConfig, load_calibration, save_calibration
+from contactkit.features.detector import (
+    DetectorConfig,
+    dynamics_detector,
+    load_calibration,
+    save_calibration,
+)
 from contactkit.features.names import ALL_TIMESERIES, GROUPS
 from contactkit.features.scalars import SCALARS
 from contactkit.features.windows import METHODS
@@ -48,6 +55,9 @@ from contactkit.util.parallel import available_cpus
 from contactkit.util.params import Param
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar
 from contactkit.util.text import printable
+
+if TYPE_CHECKING:
+    from contactkit.robots.dynamics import RobotChoice
 
 # The commands import the library (scikit-learn, skops, the chain, torch for networks)
 # inside their functions: `classify --help` loads none of it (tests/test_startup.py).
@@ -118,6 +128,7 @@ def features_command(
     workers: Annotated[int, typer.Option(help="Parallel processes.")] = DEFAULT_WORKERS,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output file.")] = False,
     robot: RobotOpt = None,
+    dynamics: DynamicsOpt = None,
 ) -> None:
     """Compute features of a session or dataset: one row per session (scalar features
     of the interaction window), or with --per-sample one row per sample."""
@@ -129,11 +140,13 @@ def features_command(
 
     files = session_paths(source)
     _refuse_existing(out, overwrite)
+    identified = load_dynamics_option(dynamics)
     with progress_bar("per-sample features" if per_sample else "features") as bar:
         progress = bar_callback(bar, "sessions")
         if per_sample:
             _, problems = write_per_sample_table(files, out, progress,
-                                                 ChainConfig(robot=robot), overwrite=overwrite)
+                                                 ChainConfig(robot=robot, dynamics=identified),
+                                                 overwrite=overwrite)
             print_problems(problems)
             print(printable(out))
             exit_if_failed(problems)
@@ -141,6 +154,7 @@ def features_command(
         extractor = SessionFeatures(timeseries=list(_split(timeseries)), scalars=list(
             _split(scalars)), window=Method(window).value, window_s=window_s,
             robot=robot).fit(None)
+        extractor.dynamics = identified
         result = feature_rows(files, extractor, workers, progress,
                               scheduler=scheduler_of(ctx))
     print_problems(result.problems)
@@ -280,27 +294,34 @@ def predict_command(
     decide_after: Annotated[float | None, typer.Option(
         help="Time after onset at which an event's intent is decided [s].")] = None,
     robot: RobotOpt = None,
+    dynamics: DynamicsOpt = None,
 ) -> None:
     """Predict the contact class of sessions with a trained model, or (--events) the
-    contact events the model's detector finds and the intent decided for each."""
+    contact events the model's detector finds and the intent decided for each. With
+    --dynamics, the detector thresholds stored in the dynamics file are used unless
+    --calibration is given."""
     from contactkit.classify.modelfile.model_file import load_model
     from contactkit.classify.prediction import predict_sources
 
     model = load_model(model_path, lazy=True)
+    from contactkit.robots.dynamics import arm_override
+
+    identified = load_dynamics_option(dynamics)
+    arm = arm_override(robot, identified)
     if events or calibration is not None:
         detector = (load_calibration(calibration) if calibration is not None
-                    else model.detector_config())
+                    else dynamics_detector(identified) or model.detector_config())
         if detector is None:
             raise InputError("model carries no contact detector; give --calibration",
                              model_path)
         event_problems = []
         for source in sessions:
             event_problems += _print_events(model, source, detector, decide_after, as_json,
-                                            robot)
+                                            arm)
         print_problems(event_problems)
         exit_if_failed(event_problems)
         return
-    predictions, problems = predict_sources(model, sessions, robot)
+    predictions, problems = predict_sources(model, sessions, arm)
     print_problems(problems)
     if not predictions:
         raise InputError("nothing to predict")
@@ -317,7 +338,7 @@ def predict_command(
 
 
 def _print_events(model, source: Path, detector: DetectorConfig, decide_after: float | None,
-                  as_json: bool, robot: str | None) -> list[tuple[str, str]]:
+                  as_json: bool, robot: RobotChoice) -> list[tuple[str, str]]:
     """Print the contact events of each session of ``source``, with the arm's model
     ``robot`` instead of each session's own when given; return the sessions that failed
     as ``(path, problem)``."""
@@ -361,6 +382,7 @@ def calibrate_command(
              "such as a simulated one.")] = None,
     workers: Annotated[int, typer.Option(help="Parallel worker processes.")] = 1,
     robot: RobotOpt = None,
+    dynamics: DynamicsOpt = None,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing --out file.")] = False,
 ) -> None:
     """Calibrate the contact detector on a robot's no-contact sessions: record a minute
@@ -368,8 +390,10 @@ def calibrate_command(
     and predict."""
     from contactkit.classify.events.calibrate import calibrate_sessions
     from contactkit.classify.prediction import session_paths
+    from contactkit.robots.dynamics import arm_override
 
     check_target(out, overwrite=overwrite)
+    identified = load_dynamics_option(dynamics)
     for flag, value in (("--margin", margin), ("--motion-margin", motion_margin)):
         if value is not None and not 1.0 <= value < math.inf:  # NaN fails too
             raise InputError(f"{flag} must be a finite number of at least 1, got {value}")
@@ -378,7 +402,8 @@ def calibrate_command(
     with progress_bar("calibrating") as bar:
         config = calibrate_sessions(paths, margin=margin, workers=workers,
                                     progress=bar_callback(bar, "sessions"),
-                                    motion_margin=motion_margin, robot=robot,
+                                    motion_margin=motion_margin,
+                                    robot=arm_override(robot, identified),
                                     problems=problems, scheduler=scheduler_of(ctx))
     print_problems(problems)
     save_calibration(out, config, overwrite=overwrite)

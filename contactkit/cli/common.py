@@ -6,7 +6,8 @@ from __future__ import annotations
 import logging
 import sys
 from collections.abc import Callable, Sequence
-from typing import Annotated, Any, ClassVar
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar
 
 import typer
 from typer.core import TyperCommand, TyperGroup
@@ -14,6 +15,9 @@ from typer.core import TyperCommand, TyperGroup
 from contactkit.errors import ContactkitError
 from contactkit.util.parallel import SCHEDULER_ENV, resolve_scheduler
 from contactkit.util.text import console_text, printable
+
+if TYPE_CHECKING:
+    from contactkit.robots.dynamics import ArmDynamics
 
 SchedulerOpt = Annotated[str | None, typer.Option(
     "--scheduler", envvar=SCHEDULER_ENV, show_envvar=True,
@@ -36,6 +40,27 @@ RobotOpt = Annotated[str | None, typer.Option(
          "recorded before sessions named their arm; `recorder set-robot` corrects a file "
          "for good.")]
 """The ``--robot`` override of the commands that run the feature chain on sessions."""
+
+DynamicsOpt = Annotated[Path | None, typer.Option(
+    "--dynamics", metavar="FILE",
+    help="The arm's identified dynamics (`recorder identify`): link inertias, friction and "
+         "the detector's thresholds calibrated with them, used instead of the robot's "
+         "nominal model. Refused for another arm or hand (and with a failing check).")]
+"""The ``--dynamics`` option, beside ``--robot``: read with :func:`load_dynamics_option`."""
+
+
+def load_dynamics_option(path: Path | None) -> ArmDynamics | None:
+    """Return the dynamics of a ``--dynamics`` file, or None: every check of
+    :func:`~contactkit.robots.dynamics.load_dynamics`, and of the detector settings
+    stored in it. InputError (one line, naming the file) for a file that fails one."""
+    if path is None:
+        return None
+    from contactkit.features.detector import dynamics_detector
+    from contactkit.robots.dynamics import load_dynamics
+
+    dynamics = load_dynamics(path)
+    dynamics_detector(dynamics)
+    return dynamics
 
 
 VerboseOpt = Annotated[int, typer.Option(

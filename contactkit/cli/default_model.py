@@ -13,13 +13,21 @@ a progress bar, the first time replay needs the model):
    complexity of joint velocity, torque and observer residual in a 0.5 s window at the
    planned time, seed 0;
 3. the contact detector: ``classify calibrate`` on the no-contact stretches of the
-   free-motion presets (margin 1.5 at rest, at-rest floor ``MIN_NOISE``), so that its
-   thresholds cover the model error of a moving arm; the growth with speed and
+   free-motion presets (margin 1.5 at rest), so that its thresholds cover the model
+   error of a moving arm; its at-rest floor is ``MIN_NOISE`` (0.3 Nm) on the wrist
+   joints 5-7, whose static friction keeps offsets on a real Panda, and 0.2 Nm on
+   joints 1-4, where light touches near the base load the arm least (at 0.12 Nm the
+   real MindLab recordings give a false event, at 0.15 Nm still none); the growth with speed and
    acceleration gets margin 3: the simulator's model error in motion matches a real
    Panda's only within about +-50 % RMS per joint (tests/test_sim_calibration.py);
 4. the per-event intent classifier (:mod:`contactkit.classify.events.training`): SVM
-   (C = 10) on the events the detector finds in the free-motion presets, decided
-   0.15 s after onset, from residual-only event features.
+   (C = 10) on the events the detector finds, decided 0.15 s after onset, from
+   residual-only event features, in the free-motion presets, the thesis-protocol
+   presets of step 1 and the first sessions of ``thesis-static``, ``thesis-dynamic``
+   and ``aug-real`` (``range_presets``): so its training range spans every preset's
+   forces (people 1.5 times as variable in ``aug-real``), speeds (0.1-0.5 rad/s and
+   free motion), links, poses, rates (500 and 600 Hz) and two robot instances
+   (``docs/reference/default-model.md``, the model card).
 
 Simulated data only. Everything is seeded, so the same package version always builds
 the same model. It is cached under the contactkit cache directory
@@ -45,16 +53,20 @@ from contactkit.recorder.sim.simulator import SimConfig
 from contactkit.util.cache import cache_dir
 from contactkit.util.progress import LabelledProgress
 
+SHOULDER_FLOOR_NM = 0.2
+"""The default detector's at-rest threshold floor on joints 1-4 [Nm] (recipe step 3)."""
 RECIPE: dict[str, Any] = {
     "presets": ["default-static", "default-dynamic"],
     "event_presets": ["free-motion", "mixed-motion"],
+    "range_presets": {"thesis-static": 64, "thesis-dynamic": 64, "aug-real": 32},
     "seed": 0,
     "model": DEFAULT_KIND,
     "C": 100.0,
     "features": {"timeseries": ["dq", "tau", "r"],
                  "scalars": ["range", "hjorth_mob", "hjorth_comp"],
                  "window": "planned", "window_s": 0.5},
-    "detector": {"margin": 1.5, "motion_margin": 3.0, "min_noise": MIN_NOISE,
+    "detector": {"margin": 1.5, "motion_margin": 3.0,
+                 "min_noise": [*[SHOULDER_FLOOR_NM] * 4, *[MIN_NOISE] * 3],
                  "smooth_s": DetectorConfig().smooth_s,
                  "baseline_moving_s": DetectorConfig().baseline_moving_s},
     "events": {"decide_after_s": DEFAULT_DECIDE_AFTER_S, "C": 10.0},
@@ -68,7 +80,8 @@ def recipe_dir() -> Path:
     # recalibrated simulator or new event features build anew; so is what the training
     # document records (since the arms of its sessions, which a replay checks).
     recipe = {**RECIPE, "simulator": SimConfig().to_dict(), "event_features": EVENT_FEATURES,
-              "model_format": MODEL_FORMAT, "training_records": ["robots"]}
+              "model_format": MODEL_FORMAT,
+              "training_records": ["robots", "event class ranges"]}
     key = hashlib.sha256(json.dumps(recipe, sort_keys=True).encode()).hexdigest()[:12]
     return cache_dir() / "default-model" / key
 
@@ -82,13 +95,17 @@ def _labelled(progress: Progress | None, label: str) -> Callable[[int, int], Non
     return None if progress is None else (lambda done, total: progress(label, done, total))
 
 
-def _simulated(presets: list[str], workers: int, progress: Progress | None) -> list[Path]:
+def _simulated(presets: list[str] | dict[str, int], workers: int,
+               progress: Progress | None) -> list[Path]:
+    """Simulate each preset (a dict gives the number of its first sessions to simulate,
+    a list all of them) into the recipe's directory; return the directories."""
     from contactkit.recorder.sim.dataset import simulate_dataset
 
+    sizes = presets if isinstance(presets, dict) else dict.fromkeys(presets)
     directories = []
-    for preset in presets:
+    for preset, sessions in sizes.items():
         directory = recipe_dir() / preset
-        simulate_dataset(directory, preset, None, RECIPE["seed"], workers,
+        simulate_dataset(directory, preset, sessions, RECIPE["seed"], workers,
                          progress=_labelled(progress, f"simulating {preset}"))
         directories.append(directory)
     return directories
@@ -111,9 +128,12 @@ def build_default_model(workers: int = 2, progress: Progress | None = None,
               for p in session_files(d)]
     detector = calibrate_sessions(moving, margin=RECIPE["detector"]["margin"],
                                   motion_margin=RECIPE["detector"]["motion_margin"],
-                                  workers=workers, progress=_labelled(progress, "detector"))
+                                  workers=workers, progress=_labelled(progress, "detector"),
+                                  floor=tuple(RECIPE["detector"]["min_noise"]))
     delay = RECIPE["events"]["decide_after_s"]
-    events = load_session_events(moving, detector, [delay], workers,
+    contacts = [p for d in [*sources, *_simulated(RECIPE["range_presets"], workers, progress)]
+                for p in session_files(d)]
+    events = load_session_events(moving + contacts, detector, [delay], workers,
                                  _labelled(progress, "events"))[delay]
     event_model = fit_event_model(events, delay, RECIPE["events"]["C"], RECIPE["seed"])
     features = RECIPE["features"]

@@ -20,8 +20,11 @@ from contactkit.cli.capture_protocol import (
 from contactkit.cli.catalog import register as register_catalog
 from contactkit.cli.common import (
     CommandsBuilder,
+    DynamicsOpt,
+    RobotOpt,
     deferred_commands,
     exit_if_failed,
+    load_dynamics_option,
     new_app,
     print_problems,
     run_app,
@@ -133,7 +136,6 @@ app = new_app("recorder", help="Record Panda joint streams while a person touche
               cls=deferred_commands(deferred_capture((EVENTS,))))
 
 
-
 @app.command("simulate")
 def simulate_command(
     ctx: typer.Context,
@@ -154,17 +156,27 @@ def simulate_command(
     robot: Annotated[str, typer.Option(
         help="The simulated arm: panda, fr3 or another registered robot (`recorder "
              "robots`). Not --robot-seed, which picks an instance of it.")] = "panda",
+    write_dynamics: Annotated[Path | None, typer.Option(
+        metavar="FILE",
+        help="Also write the simulated robot instance's true parameters (its perturbed "
+             "link inertias and friction) as a dynamics file, the format of `recorder "
+             "identify`: `--dynamics FILE` then gives the observer the plant's own model, "
+             "the floor an identification can reach. An existing file is kept when it "
+             "holds the same parameters, else refused.")] = None,
 ) -> None:
     """Write many simulated sessions in parallel (existing ones are skipped) and index them.
 
     A session that fails is reported and the others are still written (exit code 2).
     """
     from contactkit.recorder.sim.dataset import simulate_dataset
-    from contactkit.recorder.sim.simulator import SimConfig
+    from contactkit.recorder.sim.simulator import ArmSimulator, SimConfig
 
     chosen = PRESETS[preset]
     config = SimConfig(rate_hz=rate or chosen.rate_hz, noise_scale=noise_scale, robot=robot,
                        robot_seed=chosen.robot_seed if robot_seed is None else robot_seed)
+    if write_dynamics is not None:
+        _write_true_dynamics(write_dynamics, ArmSimulator(config).true_dynamics(
+            {"preset": preset}))
     with progress_bar("simulating") as bar:
         result = simulate_dataset(output_directory(out_dir), preset, sessions, seed, workers,
                                   config, bar_callback(bar, "sessions"), variability,
@@ -180,6 +192,80 @@ def simulate_command(
 
 
 register_catalog(app)
+
+
+def _write_true_dynamics(path: Path, dynamics: Any) -> None:
+    """Write a simulated instance's true dynamics to ``path``; an existing file with the
+    same checksum is left as it is, another is refused."""
+    from contactkit.robots.dynamics import load_dynamics, save_dynamics
+
+    if path.exists():
+        if load_dynamics(path).checksum != dynamics.checksum:
+            raise InputError("exists and holds other parameters (another robot instance): "
+                             "remove it or write elsewhere", path)
+        return
+    save_dynamics(path, dynamics)
+
+
+@app.command("identify")
+def identify_command(
+    sessions: Annotated[list[Path], typer.Argument(
+        help="Free-motion sessions (action none, or a contact column that is all false), "
+             "files or directories.")],
+    out: Annotated[Path, typer.Option(help="Dynamics file to write (JSON).")],
+    robot: RobotOpt = None,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing --out file.")] = False,
+) -> None:
+    """Identify the arm's own dynamics from free motion with nobody touching it: each
+    link's mass, centre of mass and inertia, the payload at the flange, the joints'
+    friction (Gaz et al.'s sigmoid, viscous and constant) and armature; then calibrate
+    the contact detector with that model on the sessions' last quarter, held out.
+
+    Only t, q, dq, tau and the arm's name are read. What the motion does not determine
+    stays at the robot's nominal model; the output lists which parameters the data
+    determine (exit 0). Exit 2, nothing written, when the motion determines nothing
+    (too short, no joint moving), no session is free motion, or the sessions are of
+    different arms. Sessions with contact, index.parquet and files that are not
+    sessions are skipped, each with a line. Pass the file with --dynamics to replay,
+    classify and recorder commands.
+    """
+    from contactkit.features.detector import dynamics_detector
+    from contactkit.features.identification import identify_sessions, session_inputs
+    from contactkit.robots.dynamics import save_dynamics
+
+    check_target(out, overwrite=overwrite)
+    paths = session_inputs(sessions)
+    problems: list[tuple[str, str]] = []
+    with progress_bar("identifying") as bar:
+        result = identify_sessions(paths, robot, problems=problems,
+                                   progress=bar_callback(bar, "sessions"))
+    print_problems(problems)
+    save_dynamics(out, result.dynamics, overwrite=overwrite)
+    report, dynamics = result.excitation, result.dynamics
+    print(f"{out}: {dynamics.robot} {'with' if dynamics.with_hand else 'without'} hand, "
+          f"{report.samples} samples fitted (joints moving: {report.moving})")
+    print(f"  determined: {len(report.determined)} of "
+          f"{len(report.determined) + len(report.undetermined)} parameters, "
+          f"{report.directions} directions, condition number {report.condition:.3g}")
+    print(f"  left at the nominal model: {_short_list(report.undetermined)}")
+    if report.projected:
+        print(f"  links projected to be physically consistent: {report.projected}")
+    print(f"  residual RMS [Nm] nominal {[round(v, 3) for v in report.rms_before_nm]}, "
+          f"identified {[round(v, 3) for v in report.rms_after_nm]}")
+    print(f"  payload at the flange: {dynamics.payload.mass_kg:.3f} kg")
+    detector = dynamics_detector(dynamics)
+    if detector is not None:
+        print(f"  detector: at rest {[round(v, 2) for v in detector.noise]} Nm, per rad/s "
+              f"{[round(v, 2) for v in detector.speed]}")
+    exit_if_failed(problems)
+
+
+def _short_list(names: list[str], most: int = 12) -> str:
+    """Return ``names`` joined, the first ``most`` and a count of the rest."""
+    if not names:
+        return "none"
+    shown = ", ".join(names[:most])
+    return shown if len(names) <= most else f"{shown} and {len(names) - most} more"
 
 
 @app.command("excite")
@@ -535,6 +621,7 @@ def stats_command(
         help="The dataset's Rerun catalog (recorder catalog): the report links each "
              "session to its recording there. Default: DATASET-catalog beside the "
              "dataset, where it exists.")] = None,
+    dynamics: DynamicsOpt = None,
 ) -> None:
     """Summarise a dataset on the terminal and write a report of what it holds and of
     its problems (bad files, duplicates, sessions too short)."""
@@ -546,12 +633,15 @@ def stats_command(
     )
     from contactkit.recorder.stats.summary import build_report, write_noise_file
 
+    identified = load_dynamics_option(dynamics)
+    if identified is not None and not deep:
+        raise InputError("--dynamics needs --deep (only the deep report computes residuals)")
     default = out is None
     out = report_path(out or Path(f"report.{fmt}"), fmt)
     check_target(out, overwrite=overwrite, owned=OWNED_REPORT if default else None)
     with progress_bar("reading", disable=not deep) as bar:
         report = build_report(directory, deep, workers, bar_callback(bar, "sessions"),
-                              scheduler=scheduler_of(ctx))
+                              scheduler=scheduler_of(ctx), dynamics=identified)
     print_summary(report, err_console)
     noise = report["deep"] and report["deep"]["noise_baseline"]
     if noise:

@@ -13,7 +13,16 @@ from typing import Annotated
 
 import typer
 
-from contactkit.cli.common import QuietOpt, RobotOpt, VerboseOpt, new_app, run_app, set_verbosity
+from contactkit.cli.common import (
+    DynamicsOpt,
+    QuietOpt,
+    RobotOpt,
+    VerboseOpt,
+    load_dynamics_option,
+    new_app,
+    run_app,
+    set_verbosity,
+)
 from contactkit.replay.hop import DEFAULT_HOP_S
 from contactkit.schemas import InputError
 from contactkit.util.atomic import check_target
@@ -81,6 +90,7 @@ def replay_command(
         help="Time after a contact's onset at which its intent is decided [s] (default: "
              "the model's).")] = None,
     robot: RobotOpt = None,
+    dynamics: DynamicsOpt = None,
     overwrite: Annotated[bool, typer.Option(
         help="Replace existing --save files (the default replay.rrd is replaced only "
              "when it is a recording).")] = False,
@@ -105,6 +115,7 @@ def replay_command(
     from contactkit.features.detector import load_calibration
     from contactkit.replay.recording import owned_recording, save_paths_for
     from contactkit.replay.session_replay import ReplaySummary, replay_sessions, session_inputs
+    from contactkit.robots.dynamics import arm_override
 
     if build_default_model_:
         with progress_bar() as bar:
@@ -119,6 +130,7 @@ def replay_command(
         raise InputError(f"--hop must be positive, got {hop} s")
     paths = session_inputs(sessions)
     detector = None if calibration is None else load_calibration(calibration)
+    arm = arm_override(robot, load_dynamics_option(dynamics))
     viewer = Viewer(viewer)
     owned = None if save is not None else owned_recording
     if viewer is Viewer.rerun and connect is None and not has_display():
@@ -153,7 +165,7 @@ def replay_command(
         summaries, problems = replay_sessions(
             paths, classifier, save=save, connect=connect, spawn=viewer is Viewer.rerun,
             rate=speed, hop_s=hop, detector=detector, decide_after_s=decide_after,
-            log_rate_hz=log_rate, robot=robot, overwrite=overwrite, owned=owned,
+            log_rate_hz=log_rate, robot=arm, overwrite=overwrite, owned=owned,
             on_done=report)
     written = [s.saved for s in summaries if s.saved is not None]
     if len(written) == 1:

@@ -21,6 +21,7 @@ from contactkit.robots.registry import (
 )
 from contactkit.robots.spec import (
     N_JOINTS,
+    ArmDynamics,
     FrictionModel,
     JointLimits,
     RobotSetup,
@@ -35,6 +36,7 @@ __all__ = [
     "N_JOINTS",
     "PANDA",
     "URDF_PREFIX",
+    "ArmDynamics",
     "FrictionModel",
     "JointLimits",
     "RobotSetup",

@@ -4,7 +4,9 @@ Jacobians, inverse and forward dynamics.
 The model has the 7 arm joints: any other joint of the URDF (a hand's fingers) is
 locked with ``pin.buildReducedModel`` (its inertia merges into link 7). A session without
 the hand has its links stripped from the URDF before parsing; a payload is added
-to link 7's inertia at its centre of mass (flange frame).
+to link 7's inertia at its centre of mass (flange frame). A setup with identified
+dynamics (:mod:`contactkit.robots.dynamics`) has its links' inertias and armature
+replaced by them.
 
 Units: q [rad], dq [rad/s], ddq [rad/s^2], torques [Nm], forces [N], lengths [m].
 Joint vectors are numpy arrays of shape (7,), joint 1 first.
@@ -108,7 +110,11 @@ def _nominal_model(setup: RobotSetup) -> pin.Model:
     model = full if not locked else pin.buildReducedModel(full, locked, pin.neutral(full))
     if model.nq != N_JOINTS:
         raise InputError(f"robot {setup.robot!r} has {model.nq} joints, not {N_JOINTS}")
-    if setup.payload_kg:
+    if setup.dynamics is not None:
+        for joint, parameters in enumerate(setup.dynamics.parameters, 1):
+            model.inertias[joint] = pin.Inertia.FromDynamicParameters(parameters)
+        model.armature[:] = setup.dynamics.armature_kgm2
+    elif setup.payload_kg:
         flange = model.frames[model.getFrameId(spec.flange)]
         payload = pin.Inertia(setup.payload_kg, np.array(setup.payload_com_m, dtype=float),
                               np.zeros((3, 3)))
@@ -121,7 +127,8 @@ class RobotModel:
 
     Each instance owns its pinocchio ``Data``, so it is not shared between threads.
     ``spec`` is the robot's registry entry, ``limits`` its joint limits,
-    ``end_effector`` the frame of the workspace wrench (hand TCP or flange).
+    ``end_effector`` the frame of the workspace wrench (hand TCP or flange),
+    ``friction`` the joint friction (identified, else the robot's; None for none).
     """
 
     def __init__(self, setup: RobotSetup | None = None, model: pin.Model | None = None) -> None:
@@ -133,6 +140,7 @@ class RobotModel:
         self._frame_ids: dict[str, int] = {}
         self._axes: dict[int, np.ndarray] = {}
         self.limits = self.spec.limits
+        self.friction = self.setup.friction(self.spec)
 
     @property
     def with_hand(self) -> bool:

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -120,8 +120,9 @@ def simulate_batch(specs: list[SessionSpec], config: SimConfig, out_dir: str | P
     paths: list[str] = []
     problems: list[tuple[str, str]] = []
     try:
-        for index, data in _simulated(specs, config):
-            name, path, problem = _write_simulated(specs[index], config, data, Path(out_dir))
+        for index, data, reflex in _simulated(specs, config):
+            name, path, problem = _write_simulated(specs[index], config, data, reflex,
+                                                   Path(out_dir))
             if problem is None:
                 paths.append(path)
             else:
@@ -138,15 +139,18 @@ def simulate_batch(specs: list[SessionSpec], config: SimConfig, out_dir: str | P
 
 
 def _simulated(specs: list[SessionSpec], config: SimConfig
-               ) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
-    """Yield ``(spec index, columns)`` of every session of a batch as it finishes."""
+               ) -> Iterator[tuple[int, dict[str, np.ndarray], dict[str, Any] | None]]:
+    """Yield ``(spec index, columns, reflex)`` of every session of a batch as it
+    finishes; ``reflex`` says what stopped the arm (:attr:`ArmSimulator.reflexes`), or
+    is None."""
     parts: dict[int, list[dict[str, np.ndarray]]] = {}
-    for index, columns, finished in ArmSimulator(config).run(specs):
+    simulator = ArmSimulator(config)
+    for index, columns, finished in simulator.run(specs):
         parts.setdefault(index, []).append(columns)
         if finished:
             chunks = parts.pop(index)
             yield index, {name: np.concatenate([c[name] for c in chunks])
-                          for name in SIM_COLUMNS}
+                          for name in SIM_COLUMNS}, simulator.reflexes.get(index)
 
 
 def _spec_name(spec: SessionSpec, config: SimConfig) -> str:
@@ -162,15 +166,23 @@ def simulated_violation(data: dict[str, np.ndarray], robot: str) -> str | None:
         return np.column_stack([data[f"{prefix}_{j}"] for j in range(1, 8)])
 
     return limit_violation(data["t"], joints("q"), joints("dq"), joints("tau"),
-                           get_robot(robot).limits)
+                           get_robot(robot).limits, data.get("robot_mode"))
 
 
 def _write_simulated(spec: SessionSpec, config: SimConfig, data: dict[str, np.ndarray],
-                     out_dir: Path) -> tuple[str, str, str | None]:
-    """Write one simulated session unless its file exists; return (name, path, problem)."""
+                     reflex: dict[str, Any] | None, out_dir: Path
+                     ) -> tuple[str, str, str | None]:
+    """Write one simulated session unless its file exists; return (name, path, problem).
+
+    A session the arm's reflex stopped says so in its metadata (``simulator.reflex``:
+    what triggered it, :attr:`ArmSimulator.reflexes`) as well as in its ``robot_mode``
+    column.
+    """
     try:
         meta = SimSource(spec, config).session_meta()
         name = session_filename(meta)
+        if reflex is not None:
+            meta = replace(meta, simulator={**(meta.simulator or {}), "reflex": reflex})
         path = out_dir / name
         unstable = simulated_violation(data, config.robot)
         if unstable is not None:

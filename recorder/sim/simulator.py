@@ -42,6 +42,13 @@ Physics (thesis section 5.3.1, extended):
   its level on the real arm holding a pose), a per-session torque bias, optional
   time-stamp jitter and dropped samples.
 * Contacts: :mod:`contactkit.recorder.sim.forces` (any link, any direction, person-dependent).
+* Reflex stop: a joint driven past its velocity limit or out of its range (a strong
+  shove on the wrist can do both) stops the arm as a real Franka's reflex does. The
+  arm brakes every joint to rest at its acceleration limit and holds there, with the
+  brakes taking whatever torque the person still applies (the torque sensors measure
+  it); the commanded motion is abandoned (``q_d`` holds, ``dq_d`` is 0). The
+  ``robot_mode`` column says 2 (move) before and 4 (reflex) from the stop on, as
+  libfranka's does, and :attr:`ArmSimulator.reflexes` what triggered it.
 
 Sessions are stepped in lockstep in batches, with ``pin.abaInParallel`` over the
 batch, which amortises Python overhead (see ``benchmarks/bench_simulator.py``).
@@ -51,12 +58,14 @@ on its seed and the configuration, not on the batch it ran in.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import pinocchio as pin
 
+from contactkit.features.limits import ROBOT_MODE_REFLEX
 from contactkit.recorder.protocol import (
     check_action,
     check_condition,
@@ -69,6 +78,7 @@ from contactkit.recorder.sim.forces import Contact, Persona, sample_contact
 from contactkit.recorder.sim.motion import MotionPlan, free_motion_plan
 from contactkit.recorder.sim.noise import SensorNoise, default_noise
 from contactkit.robots import N_JOINTS, RobotSetup, canonical_robot_name, get_robot
+from contactkit.robots.dynamics import ArmDynamics
 from contactkit.robots.model import RobotModel
 from contactkit.robots.surfaces import link_surface
 from contactkit.schemas import InputError, joint_columns
@@ -82,6 +92,8 @@ KI = (300.0, 300.0, 300.0, 300.0, 125.0, 75.0, 25.0)  # Nm/(rad s)
 # oscillated at the control's Nyquist frequency (0.45 Nm on joints 1 and 3, where the real
 # Panda shows 0.09). The wrist joints are left without: their holding noise matched.
 ARMATURE_KGM2 = (0.1, 0.1, 0.1, 0.1, 0.0, 0.0, 0.0)
+ROBOT_MODE_MOVE = 2
+"""libfranka's ``RobotMode::kMove``: a controller runs (the ``robot_mode`` column)."""
 
 
 @dataclass(frozen=True)
@@ -342,6 +354,31 @@ class ArmSimulator:
         self.noise_scale = noise_scale
         self.bias_scale = np.array(noise.tau_bias_nm) * noise_scale
         self.kp, self.kd, self.ki = (np.array(g)[:, None] for g in (KP, KD, KI))
+        self.reflexes: dict[int, dict[str, float | int | str]] = {}
+        """What stopped each session of the last :meth:`run` that met a reflex, by spec
+        index: the time [s], the joint (1..7), the quantity (``dq`` [rad/s] or ``q``
+        [rad]), its value and the limit it passed (the speed limit, or the end of the
+        range)."""
+
+    def true_dynamics(self, provenance: dict | None = None) -> ArmDynamics:
+        """Return this robot instance's own parameters in the identification's format:
+        the perturbed plant's link inertias and its scaled friction, with ``provenance``.
+        The armature is 0: the torque sensors sit between the motors and the links, so
+        the rotors' inertia is not in what they measure. The observer given these has
+        the plant's true model (the floor an identification can reach)."""
+        friction = self.friction
+        terms = ((np.zeros(N_JOINTS), np.ones(N_JOINTS), np.zeros(N_JOINTS),
+                  np.zeros(N_JOINTS), np.zeros(N_JOINTS)) if friction is None else
+                 (friction.phi1, friction.phi2, friction.phi3, friction.viscous,
+                  friction.offset))
+        model = self.plant.model
+        return ArmDynamics(
+            robot=self.config.robot, with_hand=self.plant.with_hand,
+            inertias=tuple(tuple(float(v) for v in model.inertias[j].toDynamicParameters())
+                           for j in range(1, N_JOINTS + 1)),
+            friction=tuple(tuple(float(v) for v in values) for values in terms),
+            provenance=json.dumps(dict(provenance or {}, simulator=self.config.to_dict()),
+                                  sort_keys=True, default=str))
 
     def _gravity(self, pool: pin.ModelPool, q: np.ndarray) -> np.ndarray:
         zeros = np.zeros_like(q, order="F")
@@ -355,8 +392,9 @@ class ArmSimulator:
 
         ``columns`` holds the next rows of that session in session-file columns
         (``t``, ``q_*``, ``dq_*``, ``tau_*``, ``q_d_*``, ``dq_d_*``, ``f_ext_*``,
-        ``contact``); ``finished`` is true on a session's last chunk. Rows come in
-        chunks of ``chunk`` samples.
+        ``contact``, ``robot_mode``); ``finished`` is true on a session's last chunk.
+        Rows come in chunks of ``chunk`` samples. :attr:`reflexes` says which sessions
+        met a reflex stop.
         """
         cfg = self.config
         ticks = control_ticks(cfg.rate_hz)
@@ -375,7 +413,9 @@ class ArmSimulator:
             index=np.arange(count), q=q0.copy(order="F"), dq=np.zeros_like(q0, order="F"),
             q0=q0, dq01=np.asfortranarray(q1 - q0), t_move=t_move, t_len=t_len,
             ei=np.asfortranarray(gap / self.ki), tau_prev=self._gravity(self._plant_pool, q0),
-            bias=bias, length=lengths)
+            bias=bias, length=lengths, reflex=np.zeros(count, dtype=bool),
+            q_hold=np.zeros_like(q0, order="F"))
+        self.reflexes = {}
         if any(s.motion is not None for s in specs):
             self._plan_references(batch, specs, int(lengths.max()) * ticks, dt)
         contacts = [s.contact for s in specs]
@@ -401,6 +441,7 @@ class ArmSimulator:
         out = {name: np.empty((steps, N_JOINTS, width)) for name in ("q", "dq", "tau", "q_d",
                                                                        "dq_d")}
         out["f_ext"] = np.zeros((steps, 3, width))
+        out["mode"] = np.empty((steps, width), dtype=np.int8)
         active = [(col, contacts[i]) for col, i in enumerate(batch.index)
                   if contacts[i] is not None]
         for j in range(steps):
@@ -466,30 +507,79 @@ class ArmSimulator:
         batch.ei[saturated] -= error[saturated] * dt
         tau_c = np.asfortranarray(np.clip(tau_c, -tau_max, tau_max))
         batch.tau_prev[:] = tau_c
-        drive = tau_c.copy(order="F")
+        external = np.zeros_like(tau_c, order="F")
         for col, contact in active:
             magnitude = float(contact.magnitude(t))
             if magnitude > 0.0:
                 force = magnitude * np.array(contact.direction)
                 jac = self.plant.point_jacobian(q[:, col], contact.link,
                                                 np.array(contact.point_local))
-                drive[:, col] += jac[:3].T @ force
+                external[:, col] = jac[:3].T @ force
                 if record is not None:
                     record["f_ext"][:, col] = force
-        dq_before = dq.copy() if record is not None else None
+        drive = np.asfortranarray(tau_c + external)
+        q_before, dq_before = q.copy(order="F"), dq.copy(order="F")
         ddq = np.zeros_like(q, order="F")
         for _ in range(self.config.substeps):
             plant = drive if self.friction is None else drive - self.friction.torque(dq)
             pin.abaInParallel(1, self._plant_pool, q, dq, plant, ddq)
             dq += ddq * h
             q += dq * h
+        stopped = batch.reflex.copy()
+        for col in np.flatnonzero(stopped):
+            tau_c[:, col] = self._brake(batch, col, q_before[:, col], dq_before[:, col],
+                                        external[:, col], dt)
         if record is not None:
             # The joint torque sensors sit between the motors and the links: they measure
             # the motor torque less what accelerates the rotors over this period.
             tau_sensed = tau_c - self.armature * (dq - dq_before) / dt
             record["q"][:], record["dq"][:] = q_m, dq_m
             record["tau"][:] = tau_sensed + batch.bias + noise[2 * N_JOINTS:]
-            record["q_d"][:], record["dq_d"][:] = q_d, dq_d
+            record["q_d"][:] = np.where(stopped, batch.q_hold, q_d)
+            record["dq_d"][:] = np.where(stopped, 0.0, dq_d)
+            record["mode"][:] = np.where(stopped, ROBOT_MODE_REFLEX, ROBOT_MODE_MOVE)
+        self._check_reflex(batch, q_d, t + dt)
+
+    def _brake(self, batch: _Batch, col: int, q: np.ndarray, dq: np.ndarray,
+               external: np.ndarray, dt: float) -> np.ndarray:
+        """Advance session column ``col`` of the batch, stopped by a reflex, over one
+        control period of ``dt`` [s] from joint positions ``q`` [rad] and velocities
+        ``dq`` [rad/s]: every joint decelerates at its acceleration limit to rest and
+        stays there. Return the torque [Nm] motors and brakes transmit to do so against
+        the person's joint torques ``external`` [Nm] (the arm's inverse dynamics, rotors
+        and friction included)."""
+        step = self.nominal.limits.ddq_max * dt
+        dq_next = dq - np.clip(dq, -step, step)
+        ddq = (dq_next - dq) / dt
+        batch.q[:, col] = q + 0.5 * (dq + dq_next) * dt
+        batch.dq[:, col] = dq_next
+        torque = pin.rnea(self.plant.model, self.plant.data, q, dq, ddq) - external
+        return torque if self.friction is None else torque + self.friction.torque(dq)
+
+    def _check_reflex(self, batch: _Batch, q_d: np.ndarray, t: float) -> None:
+        """Stop (from the next control period on) every running session whose arm is
+        past a joint's velocity limit or out of a joint's range at time ``t`` [s],
+        holding its command ``q_d`` [rad] (7, B); note what triggered it in
+        :attr:`reflexes`."""
+        limits = self.nominal.limits
+        speed = np.abs(batch.dq) - limits.dq_max[:, None]
+        place = np.maximum(limits.q_min[:, None] - batch.q, batch.q - limits.q_max[:, None])
+        beyond = ((speed > 0.0) | (place > 0.0)).any(axis=0) & ~batch.reflex
+        for col in np.flatnonzero(beyond):
+            if (speed[:, col] > 0.0).any():
+                joint = int(np.argmax(speed[:, col]))
+                quantity, value, limit = "dq", batch.dq[joint, col], limits.dq_max[joint]
+            else:
+                joint = int(np.argmax(place[:, col]))
+                value = batch.q[joint, col]
+                limit = limits.q_max[joint] if value > limits.q_max[joint] else \
+                    limits.q_min[joint]
+                quantity = "q"
+            self.reflexes[int(batch.index[col])] = {
+                "t_s": round(t, 6), "joint": joint + 1, "quantity": quantity,
+                "value": round(float(value), 4), "limit": round(float(limit), 4)}
+            batch.reflex[col] = True
+            batch.q_hold[:, col] = q_d[:, col]
 
     def _finish_rows(self, rows: dict[str, np.ndarray], timing_rng: np.random.Generator,
                      k0: int) -> dict[str, np.ndarray]:
@@ -509,6 +599,7 @@ class ArmSimulator:
         for axis, name in enumerate(("f_ext_x", "f_ext_y", "f_ext_z")):
             columns[name] = np.ascontiguousarray(f_ext[:, axis])
         columns["contact"] = np.linalg.norm(f_ext, axis=1) > 0.0
+        columns["robot_mode"] = np.ascontiguousarray(rows["mode"][keep])
         return columns
 
 

@@ -25,7 +25,7 @@ if TYPE_CHECKING:
 
 SIM_COLUMNS = ["t", *joint_columns("q"), *joint_columns("dq"), *joint_columns("tau"),
                *joint_columns("q_d"), *joint_columns("dq_d"), "f_ext_x", "f_ext_y", "f_ext_z",
-               "contact"]
+               "contact", "robot_mode"]
 
 
 def sim_session_id(spec: SessionSpec, config: SimConfig, trajectory: str | None = None

@@ -32,11 +32,12 @@ import numpy as np
 from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features import chain_cache
 from contactkit.features.agreement import session_residual_agreement
-from contactkit.features.limits import robot_limits
-from contactkit.features.timeseries import TimeseriesChain
+from contactkit.features.limits import ROBOT_MODE_REFLEX, robot_limits
+from contactkit.features.timeseries import ChainConfig, TimeseriesChain
 from contactkit.features.timing import streamed_sampling_stats
 from contactkit.features.windows import WindowSearch, WindowSpec
 from contactkit.recorder.importers.spill import RowSpill
+from contactkit.robots.dynamics import ArmDynamics
 from contactkit.schemas import InputError, SessionMeta
 from contactkit.schemas.columns import REQUIRED_COLUMNS
 from contactkit.schemas.session import (
@@ -150,17 +151,19 @@ class _Profile:
         return np.interp(self.times, t, force, left=np.nan, right=np.nan)
 
 
-def session_summary(path: str) -> dict:
-    """Measure one session; on a bad file return ``{"file": name, "problem": text}``."""
+def session_summary(path: str, dynamics: ArmDynamics | None = None) -> dict:
+    """Measure one session (its residual with the arm's identified ``dynamics`` when
+    given); on a bad file, or dynamics of another arm, return ``{"file": name,
+    "problem": text}``."""
     name = Path(path).name
     try:
         meta, footer = read_session_meta(path)
-        return _summary(Path(path), meta, footer.num_rows)
+        return _summary(Path(path), meta, footer.num_rows, ChainConfig(dynamics=dynamics))
     except DATA_ERRORS as err:
         return {"file": name, "problem": problem_text(err)}
 
 
-def _summary(path: Path, meta: SessionMeta, rows: int) -> dict:
+def _summary(path: Path, meta: SessionMeta, rows: int, config: ChainConfig) -> dict:
     chunks = _Chunks(path, rows)
     planned = meta.planned_at_s
     search = WindowSearch(planned, WindowSpec("difference")) if planned is not None else None
@@ -174,7 +177,11 @@ def _summary(path: Path, meta: SessionMeta, rows: int) -> dict:
             first_t = float(t[0])
         q_low, q_high = np.minimum(q_low, q.min(axis=0)), np.maximum(q_high, q.max(axis=0))
         dq_peak = np.maximum(dq_peak, np.abs(dq).max(axis=0))
-        tau_peak = np.maximum(tau_peak, np.abs(tau).max(axis=0))
+        # after a reflex stop the brakes, not the motors, hold the arm: not the motors'
+        # torque (features.limits)
+        motors = tau if batch.robot_mode is None else tau[batch.robot_mode != ROBOT_MODE_REFLEX]
+        if len(motors):
+            tau_peak = np.maximum(tau_peak, np.abs(motors).max(axis=0))
         tau_moments.add(tau)
         last_t = float(t[-1])
         if search is not None:
@@ -187,7 +194,7 @@ def _summary(path: Path, meta: SessionMeta, rows: int) -> dict:
     window = search.finish() if search is not None else None
     onset = None if window is None else (window.onset_s if window.found else planned)
     profile = _Profile(onset + PROFILE_T) if onset is not None else None
-    chain = TimeseriesChain(None, meta.robot_setup(path), ["r", "fm_norm"])
+    chain = TimeseriesChain(config, config.robot_setup(meta, path), ["r", "fm_norm"])
     peak_residual = peak_force = -math.inf
     settled = RowSpill(7)
     try:
@@ -226,7 +233,7 @@ def _summary(path: Path, meta: SessionMeta, rows: int) -> dict:
                     "force_profile_n": None})
     robot = meta.robot_setup(path).robot
     out["robot"] = robot
-    out["residual_agreement"] = session_residual_agreement(path, meta)
+    out["residual_agreement"] = session_residual_agreement(path, meta, config)
     limits = robot_limits(meta)
     margins = np.minimum(q_low - limits.q_min, limits.q_max - q_high)
     # a continuous joint has no position limit: no margin (None, as JSON has no infinity)

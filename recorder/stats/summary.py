@@ -25,6 +25,7 @@ import json
 import logging
 from collections.abc import Callable
 from datetime import UTC, datetime
+from functools import partial
 from pathlib import Path
 from typing import cast
 
@@ -38,6 +39,7 @@ from contactkit.features.limits import POSITION_SLACK_RAD, SPEED_MARGIN, TORQUE_
 from contactkit.features.timing import rate_warning
 from contactkit.recorder.sim.noise import SensorNoise
 from contactkit.recorder.stats.deep import session_summary
+from contactkit.robots.dynamics import ArmDynamics
 from contactkit.schemas import ACTIONS, InputError
 from contactkit.schemas.dataset import (
     INDEX_NAME,
@@ -206,10 +208,12 @@ def _least_margins(margins: list[list[float | None]]) -> list[float | None]:
 
 def deep_stats(paths: list[Path], workers: int,
                progress: Callable[[int, int], None] | None = None, *,
-               scheduler: str | None = None) -> dict:
+               scheduler: str | None = None, dynamics: ArmDynamics | None = None) -> dict:
     """Read every session in ``workers`` processes (or on the Dask ``scheduler``) and
-    aggregate the summaries."""
-    summaries = list(map_ordered(session_summary, [str(p) for p in paths], workers=workers,
+    aggregate the summaries (residuals with the arm's identified ``dynamics`` when
+    given)."""
+    summaries = list(map_ordered(partial(session_summary, dynamics=dynamics),
+                                 [str(p) for p in paths], workers=workers,
                                  progress=progress, scheduler=scheduler))
     good = [s for s in summaries if "problem" not in s]
     problems = [{"file": s["file"], "problem": s["problem"]} for s in summaries
@@ -321,9 +325,10 @@ def write_noise_file(path: Path, noise: dict, dataset: Path, *, overwrite: bool 
 
 def build_report(directory: Path, deep: bool, workers: int,
                  progress: Callable[[int, int], None] | None = None, *,
-                 scheduler: str | None = None) -> dict:
+                 scheduler: str | None = None, dynamics: ArmDynamics | None = None) -> dict:
     """Compute the whole report of a dataset directory (see the module docstring); the
-    deep part reads the sessions in ``workers`` processes or on the Dask ``scheduler``."""
+    deep part reads the sessions in ``workers`` processes or on the Dask ``scheduler``,
+    with the arm's identified ``dynamics`` (``--dynamics``) when given."""
     index, index_problems = load_index(directory)
     stats = index_stats(index)
     report = {"schema": SCHEMA_ID, "dataset": str(directory),
@@ -337,7 +342,8 @@ def build_report(directory: Path, deep: bool, workers: int,
     private = {"durations": stats["_durations"], "frame": stats["_frame"], "summaries": []}
     if deep:
         files = [directory / name for name in stats["_frame"]["file"].to_list()]
-        deep_part = deep_stats(files, workers, progress, scheduler=scheduler)
+        deep_part = deep_stats(files, workers, progress, scheduler=scheduler,
+                               dynamics=dynamics)
         report["problems"] += deep_part.pop("problems")
         private["summaries"] = deep_part.pop("_summaries")
         report["deep"] = deep_part

@@ -1,0 +1,661 @@
+"""Identify an arm's own dynamics from free motion: link inertias, armature, friction,
+the payload at the flange, and the detector's thresholds with that model.
+
+A library a notebook can call (:func:`identify` on arrays, :func:`identify_sessions` on
+session files), behind ``recorder identify``. It reads only t, q, dq and tau and the
+arm's name and hand: nothing comes from a simulated session's own parameters.
+
+Method:
+
+1. Each session is cut at gaps, and its last :data:`HOLDOUT` (25 %) is kept back for
+   the detector. dq and tau are low-passed without phase (4th-order Butterworth at
+   :data:`CUTOFF_HZ`, forward and backward, ``scipy.signal.sosfiltfilt``) after linear
+   interpolation onto a uniform grid at the median time step (a host's time stamps
+   jitter, and dropped samples leave holes), ddq is the filtered dq differenced on that
+   grid, the filters' ends are cut, and the samples are thinned to about
+   :data:`IDENT_RATE_HZ`.
+2. The model is linear in its parameters: tau = Y(q, dq, ddq) theta + F(dq, ddq) phi,
+   Y pinocchio's joint-torque regressor (10 parameters per link, their full values),
+   F per joint a friction sigmoid of fixed shape (Gaz et al.'s phi2 and phi3 for a
+   robot that has them, else a Coulomb step with phi2 = :data:`COULOMB_PHI2`), a viscous
+   term dq and the armature ddq, plus a free constant per session and joint (a torque
+   sensor's offset moves between sessions; the simulator draws one per session too):
+   each session's samples are centred on their means. The normal equations are summed
+   chunk by chunk per joint, so memory does not grow with the data. The offset stored
+   is the sessions' mean where they agree (:meth:`_Normal.offset`).
+3. The fit is regularised toward the nominal model (a Gaussian prior on every
+   parameter, centred on the nominal value with a per-parameter scale
+   :func:`prior_scales`), with each joint's residual weighted by its own noise level
+   (two passes). Directions the motion does not excite keep their nominal values; a
+   parameter counts as *determined* when the data shrink its prior's variance at
+   least four-fold (:data:`DETERMINED`). The condition number of the whitened
+   regressor over the determined directions is reported.
+4. Where the fit leaves a link physically inconsistent (its 4x4 pseudo-inertia not
+   positive semi-definite), the fit is solved again under the constraint: the nearest
+   consistent parameters in the fit's own quadratic cost, those links parameterised by
+   the log-Cholesky factors of their pseudo-inertia (:func:`_consistent_fit`), so the
+   result is physically consistent.
+5. The detector is calibrated (:func:`contactkit.features.detector.calibrate`) on the
+   held-out parts, with the identified model's residual.
+
+Units: t [s], q [rad], dq [rad/s], ddq [rad/s^2], tau [Nm].
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import cast
+
+import numpy as np
+import pinocchio as pin
+
+from contactkit.errors import DATA_ERRORS, InputError, problem_text
+from contactkit.robots import N_JOINTS, RobotSetup, get_robot
+from contactkit.robots.dynamics import (
+    PARAMETER_NAMES,
+    ArmDynamics,
+    Payload,
+    consistent,
+    from_pseudo_inertia,
+    pseudo_inertia,
+)
+from contactkit.robots.model import RobotModel
+
+log = logging.getLogger(__name__)
+
+CUTOFF_HZ = 10.0
+"""The low-pass cut-off for dq and tau [Hz]: above the arm's motion, below most noise."""
+IDENT_RATE_HZ = 100.0
+"""About how many samples per second the fit uses after filtering [Hz]."""
+HOLDOUT = 0.25
+"""The share of each session's end kept back to calibrate the detector."""
+EDGE_S = 0.2
+"""Time cut from both ends of each filtered stretch [s] (the filter's transients)."""
+GAP_FACTOR = 5.0
+"""A step longer than this many median steps cuts a session into stretches."""
+MIN_MOTION_RAD_S = 0.05
+"""A joint counts as moving when its filtered speed exceeds this somewhere [rad/s]."""
+MIN_SAMPLES = 200
+"""The fewest fitted samples (some 2 s at :data:`IDENT_RATE_HZ`) that identify anything."""
+COULOMB_PHI2 = 20.0
+"""phi2 [s/rad] of the Coulomb sigmoid fitted on a robot without identified friction."""
+NOISE_NM = 0.5
+"""The torque residual's assumed noise on the first pass [Nm] (the second uses the
+first's per-joint RMS, no less than :data:`MIN_NOISE_NM`)."""
+MIN_NOISE_NM = 0.05
+DETERMINED = 0.25
+"""A parameter is determined when its posterior variance is below this share of its
+prior's."""
+CORRELATION = 2.0
+"""How many fitted samples count as one independent one (filtered, then thinned)."""
+N_FRICTION = 3  # per joint: sigmoid amplitude, viscous, armature
+N_LINK = len(PARAMETER_NAMES)
+
+
+@dataclass
+class Motion:
+    """One session's free motion: ``t`` (N,) [s], ``q`` [rad], ``dq`` [rad/s] and ``tau``
+    [Nm] (N, 7), and its ``name`` (for messages)."""
+
+    t: np.ndarray
+    q: np.ndarray
+    dq: np.ndarray
+    tau: np.ndarray
+    name: str = ""
+
+
+@dataclass
+class Excitation:
+    """What the data determine: ``determined`` / ``undetermined`` parameter names,
+    ``directions`` how many directions of the whitened regressor the data fix better
+    than the prior, ``condition`` the whitened regressor's condition number over them,
+    ``samples`` the samples fitted, ``moving`` the joints that moved (1-based),
+    ``projected`` links whose fit was projected to be physically consistent, ``rms_nm``
+    the fitted residual's RMS per joint [Nm] before (nominal model) and after."""
+
+    determined: list[str]
+    undetermined: list[str]
+    directions: int
+    condition: float
+    samples: int
+    moving: list[int]
+    projected: list[int] = field(default_factory=list)
+    rms_before_nm: list[float] = field(default_factory=list)
+    rms_after_nm: list[float] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        """Return the report as a JSON-ready dictionary."""
+        return {"determined": self.determined, "undetermined": self.undetermined,
+                "directions": self.directions,
+                "condition": round(self.condition, 3) if np.isfinite(self.condition) else None,
+                "samples": self.samples, "moving_joints": self.moving,
+                "projected_links": self.projected,
+                "rms_before_nm": [round(v, 4) for v in self.rms_before_nm],
+                "rms_after_nm": [round(v, 4) for v in self.rms_after_nm]}
+
+
+@dataclass
+class Identified:
+    """The result: the ``dynamics`` (file content) and the ``excitation`` report."""
+
+    dynamics: ArmDynamics
+    excitation: Excitation
+
+
+def parameter_names() -> list[str]:
+    """Return the names of the fitted parameters, in the fit's order: each link's 10
+    (``link3.I_zz``), then per joint the friction sigmoid's amplitude, viscous and
+    armature (``joint2.viscous``)."""
+    links = [f"link{i}.{n}" for i in range(1, N_JOINTS + 1) for n in PARAMETER_NAMES]
+    joints = [f"joint{j}.{n}" for j in range(1, N_JOINTS + 1)
+              for n in ("friction", "viscous", "armature")]
+    return links + joints
+
+
+def _stretches(t: np.ndarray) -> list[slice]:
+    """Return the stretches of ``t`` between gaps (steps over GAP_FACTOR median steps)."""
+    step = np.diff(t)
+    cut = np.flatnonzero(step > GAP_FACTOR * np.median(step)) + 1
+    bounds = [0, *cut.tolist(), len(t)]
+    return [slice(a, b) for a, b in itertools.pairwise(bounds)]
+
+
+def _resample(grid: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Return ``values`` (n, 7) sampled at times ``t`` interpolated linearly at ``grid``."""
+    return np.column_stack([np.interp(grid, t, column) for column in values.T])
+
+
+def prepare(motion: Motion) -> tuple[np.ndarray, ...]:
+    """Return the fit's samples of one motion: (q, dq, ddq, tau), each (n, 7), resampled
+    on a uniform grid at the median step (a host's time stamps jitter), low-passed
+    without phase, differenced, ends cut and thinned (see the module's docstring); empty
+    arrays when the motion is too short."""
+    from scipy.signal import butter, sosfiltfilt
+
+    parts: list[tuple[np.ndarray, ...]] = []
+    for piece in _stretches(motion.t):
+        t = motion.t[piece]
+        if len(t) < 50:
+            continue
+        step = float(np.median(np.diff(t)))
+        rate = 1.0 / step
+        edge = int(EDGE_S * rate)
+        if len(t) <= 2 * edge + 20 or 0.45 * rate <= CUTOFF_HZ:
+            continue
+        grid = t[0] + step * np.arange(int((t[-1] - t[0]) / step) + 1)
+        sos = butter(4, CUTOFF_HZ, fs=rate, output="sos")
+        q, dq, tau = (sosfiltfilt(sos, _resample(grid, t, x[piece]), axis=0)
+                      for x in (motion.q, motion.dq, motion.tau))
+        ddq = np.gradient(dq, step, axis=0)
+        keep = slice(edge, len(grid) - edge, max(1, round(rate / IDENT_RATE_HZ)))
+        parts.append(tuple(x[keep] for x in (q, dq, ddq, tau)))
+    if not parts:
+        return tuple(np.zeros((0, N_JOINTS)) for _ in range(4))
+    return tuple(np.concatenate(column) for column in zip(*parts, strict=True))
+
+
+def _friction_shape(setup: RobotSetup) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return the friction sigmoid's fixed (phi2, phi3) and the prior amplitude phi1."""
+    friction = get_robot(setup.robot).friction
+    if friction is None:
+        return np.full(N_JOINTS, COULOMB_PHI2), np.zeros(N_JOINTS), np.zeros(N_JOINTS)
+    return friction.phi2.copy(), friction.phi3.copy(), friction.phi1.copy()
+
+
+def _sigmoid_shape(dq: np.ndarray, phi2: np.ndarray, phi3: np.ndarray) -> np.ndarray:
+    """The friction sigmoid with unit amplitude, zero at rest."""
+    return 0.5 * (np.tanh(0.5 * phi2 * (dq + phi3)) - np.tanh(0.5 * phi2 * phi3))
+
+
+def prior_scales(nominal: np.ndarray) -> np.ndarray:
+    """Return the prior's standard deviation of every fitted parameter
+    (:func:`parameter_names`' order) around the ``nominal`` values: 30 % of a link's
+    mass (at least 0.1 kg), its mass times 5 cm for a first moment, 30 % of its largest
+    inertia entry (at least 0.005 kg m^2) for an inertia; 1 Nm for friction amplitudes,
+    1 Nm s/rad viscous, 0.05 kg m^2 armature."""
+    scales = np.empty_like(nominal)
+    for i in range(N_JOINTS):
+        link = nominal[i * N_LINK:(i + 1) * N_LINK]
+        mass = max(abs(link[0]), 0.3)
+        scales[i * N_LINK] = max(0.3 * abs(link[0]), 0.1)
+        scales[i * N_LINK + 1:i * N_LINK + 4] = 0.05 * mass
+        scales[i * N_LINK + 4:(i + 1) * N_LINK] = max(0.3 * np.abs(link[4:]).max(), 0.005)
+    joints = scales[N_JOINTS * N_LINK:].reshape(N_JOINTS, N_FRICTION)
+    joints[:] = (1.0, 1.0, 0.05)
+    return scales
+
+
+class _Normal:
+    """Per-joint normal equations with a free constant per session and joint (a torque
+    sensor's offset, which moves between sessions): sums of Y_j^T Y_j, Y_j^T tau_j and
+    tau_j^2 over each session's samples, centred on the session's means, for the
+    regressor row Y_j of joint j. The sessions' means are kept to recover the
+    offsets."""
+
+    def __init__(self, size: int) -> None:
+        self.a = np.zeros((N_JOINTS, size, size))
+        self.b = np.zeros((N_JOINTS, size))
+        self.c = np.zeros(N_JOINTS)
+        self.n = 0
+        self.means: list[tuple[np.ndarray, np.ndarray]] = []
+        self._rows = np.zeros((N_JOINTS, size))
+        self._tau = np.zeros(N_JOINTS)
+        self._n = 0
+
+    def add(self, rows: np.ndarray, tau: np.ndarray) -> None:
+        """Add samples of the current session: ``rows`` (n, 7, size) regressor rows,
+        ``tau`` (n, 7) [Nm]."""
+        self.a += np.einsum("njp,njq->jpq", rows, rows)
+        self.b += np.einsum("njp,nj->jp", rows, tau)
+        self.c += (tau ** 2).sum(axis=0)
+        self._rows += rows.sum(axis=0)
+        self._tau += tau.sum(axis=0)
+        self._n += len(tau)
+
+    def end_session(self) -> None:
+        """Centre the current session's sums on its means (sum of (y - m)(y - m)^T =
+        sum of y y^T - n m m^T) and start the next."""
+        if self._n:
+            rows, tau = self._rows / self._n, self._tau / self._n
+            self.a -= self._n * np.einsum("jp,jq->jpq", rows, rows)
+            self.b -= self._n * rows * tau[:, None]
+            self.c -= self._n * tau ** 2
+            self.n += self._n
+            self.means.append((rows, tau))
+        self._rows, self._tau, self._n = np.zeros_like(self._rows), np.zeros(N_JOINTS), 0
+
+    def rms(self, theta: np.ndarray) -> np.ndarray:
+        """The RMS per joint [Nm] of the residual tau - Y theta, each session's mean
+        removed."""
+        sq = (self.c - 2 * self.b @ theta + np.einsum("p,jpq,q->j", theta, self.a, theta))
+        return np.sqrt(np.maximum(sq, 0.0) / max(self.n, 1))
+
+    def offset(self, theta: np.ndarray) -> np.ndarray:
+        """Return the torque offset per joint [Nm] the model keeps: the mean of the
+        sessions' own offsets (each session's mean residual). The model's constant part
+        cannot be told from a session's offset, so it is kept; but with three sessions
+        or more, a joint whose offsets scatter more than their mean (twice its standard
+        error) gets 0: offsets that come and go with the sessions, as a torque sensor's
+        bias after a restart, are no property of the arm."""
+        each = np.array([tau - rows @ theta for rows, tau in self.means])
+        mean = each.mean(axis=0)
+        if len(each) < 3:
+            return mean
+        error = each.std(axis=0, ddof=1) / np.sqrt(len(each))
+        return np.where(np.abs(mean) > 2.0 * error, mean, 0.0)
+
+
+def _rows(model: pin.Model, data: pin.Data, q: np.ndarray, dq: np.ndarray,
+          ddq: np.ndarray, phi2: np.ndarray, phi3: np.ndarray) -> np.ndarray:
+    """Return the regressor rows (n, 7, 91) of samples (q, dq, ddq) (n, 7)."""
+    n = len(q)
+    size = N_JOINTS * (N_LINK + N_FRICTION)
+    rows = np.zeros((n, N_JOINTS, size))
+    for k in range(n):
+        rows[k, :, :N_JOINTS * N_LINK] = pin.computeJointTorqueRegressor(
+            model, data, q[k], dq[k], ddq[k])
+    base = N_JOINTS * N_LINK
+    joint = np.arange(N_JOINTS)
+    rows[:, joint, base + N_FRICTION * joint] = _sigmoid_shape(dq, phi2, phi3)
+    rows[:, joint, base + N_FRICTION * joint + 1] = dq
+    rows[:, joint, base + N_FRICTION * joint + 2] = ddq
+    return rows
+
+
+def _solve(normal: _Normal, weights: np.ndarray, prior: np.ndarray, scales: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return the regularised estimate, the matrix of its quadratic cost (information
+    plus prior) and the whitened information matrix S A S."""
+    a = np.einsum("j,jpq->pq", weights, normal.a) / CORRELATION
+    b = np.einsum("j,jp->p", weights, normal.b) / CORRELATION
+    lhs = a + np.diag(1.0 / scales ** 2)
+    theta = np.linalg.solve(lhs, b + prior / scales ** 2)
+    return theta, lhs, scales[:, None] * a * scales[None, :]
+
+
+def _cholesky_factors(link: np.ndarray) -> np.ndarray:
+    """Return the 10 log-Cholesky coordinates of a consistent link (its pseudo-inertia,
+    nudged to be positive definite, = L L^T: log of L's diagonal, then its lower part)."""
+    pseudo = pseudo_inertia(link)
+    lower = np.linalg.cholesky(pseudo + 1e-9 * max(np.trace(pseudo), 1e-9) * np.eye(4))
+    return np.concatenate([np.log(np.diag(lower)), lower[np.tril_indices(4, -1)]])
+
+
+def _from_factors(factors: np.ndarray) -> np.ndarray:
+    """Return the 10 parameters of log-Cholesky coordinates (always consistent)."""
+    lower = np.diag(np.exp(factors[:4]))
+    lower[np.tril_indices(4, -1)] = factors[4:]
+    return from_pseudo_inertia(lower @ lower.T)
+
+
+def _consistent_fit(theta: np.ndarray, cost: np.ndarray, nominal: np.ndarray
+                    ) -> tuple[np.ndarray, list[int]]:
+    """Return the physically consistent parameters nearest (in the fit's own cost,
+    (x - theta)^T cost (x - theta)) to the unconstrained fit ``theta``, and the links
+    (0-based) that the constraint moved.
+
+    The links that the fit leaves inconsistent are parameterised by the log-Cholesky
+    factors of their pseudo-inertia (Rucker and Wensing 2022), so every iterate is
+    consistent; the other parameters, linear, are eliminated in closed form (the
+    Schur complement of the cost), and the rest is a small nonlinear least-squares
+    problem, solved by Levenberg-Marquardt from those links' nominal values. Moving
+    those links moves the others (the eliminated parameters follow them): a link that
+    this leaves inconsistent joins them and the fit is solved again."""
+    bad: list[int] = []
+    fitted = theta
+    while True:
+        more = [i for i in range(N_JOINTS)
+                if i not in bad and not consistent(fitted[i * N_LINK:(i + 1) * N_LINK])]
+        if not more:
+            return fitted, sorted(bad)
+        bad = sorted(bad + more)
+        fitted = _fit_links(theta, cost, nominal, bad)
+
+
+def _fit_links(theta: np.ndarray, cost: np.ndarray, nominal: np.ndarray, bad: list[int]
+               ) -> np.ndarray:
+    """Return :func:`_consistent_fit`'s solution with the links ``bad`` parameterised by
+    their log-Cholesky factors."""
+    held = np.zeros(len(theta), bool)
+    for i in bad:
+        held[i * N_LINK:(i + 1) * N_LINK] = True
+    free = ~held
+    coupling = np.linalg.solve(cost[np.ix_(free, free)], cost[np.ix_(free, held)])
+    schur = cost[np.ix_(held, held)] - cost[np.ix_(held, free)] @ coupling
+    root = np.linalg.cholesky(0.5 * (schur + schur.T)).T  # schur = root^T root
+    target = theta[held]
+
+    def params(factors: np.ndarray) -> np.ndarray:
+        return np.concatenate([_from_factors(f) for f in factors.reshape(-1, N_LINK)])
+
+    def jacobian(factors: np.ndarray) -> np.ndarray:
+        jac = np.zeros((len(factors), len(factors)))
+        for k, f in enumerate(factors.reshape(-1, N_LINK)):
+            base, step = _from_factors(f), 1e-7
+            jac[k * N_LINK:(k + 1) * N_LINK, k * N_LINK:(k + 1) * N_LINK] = np.column_stack(
+                [(_from_factors(f + step * e) - base) / step for e in np.eye(N_LINK)])
+        return root @ jac
+
+    starts = [nominal[i] if consistent(nominal[i])
+              else _project(theta[i * N_LINK:(i + 1) * N_LINK]) for i in bad]
+    factors = np.concatenate([_cholesky_factors(x) for x in starts])
+    residual = root @ (params(factors) - target)
+    damping = 1e-3
+    for _ in range(200):
+        jac = jacobian(factors)
+        normal = jac.T @ jac
+        step = np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12),
+                               -jac.T @ residual)
+        with np.errstate(over="ignore", invalid="ignore"):  # a wild step: rejected below
+            trial = root @ (params(factors + step) - target)
+            better = bool(np.isfinite(trial).all() and trial @ trial < residual @ residual)
+        if better:
+            gain = residual @ residual - trial @ trial
+            factors, residual, damping = factors + step, trial, damping / 3
+            if gain < 1e-10 * (1.0 + residual @ residual):
+                break
+        else:
+            damping *= 4
+            if damping > 1e10:
+                break
+    out = theta.copy()
+    out[held] = params(factors)
+    out[free] = theta[free] - coupling @ (out[held] - target)
+    return out
+
+
+def _project(link: np.ndarray) -> np.ndarray:
+    """Return one link's parameters with the pseudo-inertia's eigenvalues clipped to be
+    positive (at 1e-6 of the largest): a start for a link whose nominal values are not
+    consistent either."""
+    values, vectors = np.linalg.eigh(pseudo_inertia(link))
+    floor = 1e-6 * max(values[-1], 1e-9)
+    return from_pseudo_inertia((vectors * np.maximum(values, floor)) @ vectors.T)
+
+
+def _payload(model: RobotModel, nominal: np.ndarray, identified: np.ndarray) -> Payload:
+    """Return what the identification put at the flange: link 7's identified minus
+    nominal parameters, at the flange (see :class:`~contactkit.robots.dynamics.Payload`)."""
+    delta = identified - nominal
+    mass = float(delta[0])
+    flange = model.model.frames[model.frame_id(model.spec.flange)].placement
+    rotation, origin = flange.rotation, flange.translation
+    inertia = pseudo_inertia(delta)
+    inertia = np.trace(inertia[:3, :3]) * np.eye(3) - inertia[:3, :3]  # about joint origin
+    if abs(mass) < 1e-6:
+        return Payload(mass, (0.0, 0.0, 0.0), (0.0,) * 6)
+    com = delta[1:4] / mass
+    skew = np.array([[0, -com[2], com[1]], [com[2], 0, -com[0]], [-com[1], com[0], 0]])
+    at_com = rotation.T @ (inertia + mass * skew @ skew) @ rotation
+    com_flange = rotation.T @ (com - origin)
+    return Payload(mass, cast("tuple[float, float, float]", tuple(float(v) for v in com_flange)),
+                   tuple(float(at_com[i, j]) for i, j in
+                         ((0, 0), (0, 1), (1, 1), (0, 2), (1, 2), (2, 2))))
+
+
+def identify(motions: Sequence[Motion], setup: RobotSetup, *,
+             provenance: dict | None = None, calibrate_detector: bool = True,
+             progress: Callable[[int, int], None] | None = None) -> Identified:
+    """Identify the dynamics of ``setup``'s arm (its nominal model the prior) from
+    ``motions``, free motion with nobody touching the arm. ``provenance`` is stored with
+    the result (sessions, hashes); ``calibrate_detector`` calibrates the detector on
+    the motions' held-out ends. ``progress(done, total)`` is called per motion.
+
+    Returns the :class:`Identified`. Raises InputError (one line) when the motion
+    determines nothing: no joint moving, or too little of it."""
+    setup = replace(setup, dynamics=None)
+    model = RobotModel(setup)
+    spec = model.spec
+    regress = pin.Model(model.model)
+    regress.armature[:] = 0.0
+    data = regress.createData()
+    phi2, phi3, phi1 = _friction_shape(setup)
+    nominal_links = np.array([regress.inertias[j].toDynamicParameters()
+                              for j in range(1, N_JOINTS + 1)])
+    prior = np.concatenate([nominal_links.ravel(),
+                            np.column_stack([phi1, np.zeros((N_JOINTS, 2))]).ravel()])
+    scales = prior_scales(prior)
+    normal = _Normal(len(prior))
+    held_out: list[Motion] = []
+    moving = np.zeros(N_JOINTS, bool)
+    started = time.perf_counter()
+    for done, motion in enumerate(motions, 1):
+        split = round(len(motion.t) * (1.0 - HOLDOUT))
+        fit = Motion(motion.t[:split], motion.q[:split], motion.dq[:split],
+                     motion.tau[:split], motion.name)
+        held_out.append(Motion(motion.t[split:], motion.q[split:], motion.dq[split:],
+                               motion.tau[split:], motion.name))
+        q, dq, ddq, tau = prepare(fit)
+        if len(q):
+            moving |= np.abs(dq).max(axis=0) > MIN_MOTION_RAD_S
+        for start in range(0, len(q), 2000):
+            chunk = slice(start, start + 2000)
+            normal.add(_rows(regress, data, q[chunk], dq[chunk], ddq[chunk], phi2, phi3),
+                       tau[chunk])
+        normal.end_session()
+        if progress is not None:
+            progress(done, len(motions))
+    if normal.n < MIN_SAMPLES:
+        raise InputError(f"too little free motion to identify from ({normal.n / IDENT_RATE_HZ:.1f}"
+                         f" s after filtering; at least {MIN_SAMPLES / IDENT_RATE_HZ:.0f} s of "
+                         "moving joints needed)")
+    if not moving.any():
+        raise InputError(f"no joint moves faster than {MIN_MOTION_RAD_S} rad/s: identifying "
+                         "needs free motion of the joints (record the arm moving)")
+    rms_before = normal.rms(prior)
+    weights = np.full(N_JOINTS, 1.0 / NOISE_NM ** 2)
+    theta, _, _ = _solve(normal, weights, prior, scales)
+    weights = 1.0 / np.maximum(normal.rms(theta), MIN_NOISE_NM) ** 2
+    theta, cost, information = _solve(normal, weights, prior, scales)
+    theta, projected = _consistent_fit(theta, cost, nominal_links)
+    eig = np.linalg.eigvalsh(information)
+    variance = np.diag(np.linalg.inv(information + np.eye(len(prior))))
+    names = parameter_names()
+    determined = [n for n, v in zip(names, variance, strict=True) if v < DETERMINED]
+    strong = eig[eig > 1.0]
+    condition = float(np.sqrt(strong.max() / strong.min())) if strong.size else float("inf")
+    if not determined:
+        raise InputError("the motion determines no parameter: move more joints, faster and "
+                         "over a wider range (an exciting trajectory)")
+    links = theta[:N_JOINTS * N_LINK].reshape(N_JOINTS, N_LINK)
+    joints = theta[N_JOINTS * N_LINK:].reshape(N_JOINTS, N_FRICTION)
+    armature = np.maximum(joints[:, 2], 0.0)
+    viscous = np.maximum(joints[:, 1], 0.0)
+    theta_used = theta.copy()
+    theta_used[N_JOINTS * N_LINK + 2::N_FRICTION] = armature
+    theta_used[N_JOINTS * N_LINK + 1::N_FRICTION] = viscous
+    excitation = Excitation(
+        determined=determined, undetermined=[n for n in names if n not in determined],
+        directions=int(strong.size), condition=condition, samples=normal.n,
+        moving=[int(j) + 1 for j in np.flatnonzero(moving)],
+        projected=[i + 1 for i in projected],
+        rms_before_nm=rms_before.tolist(),
+        rms_after_nm=normal.rms(theta_used).tolist())
+    doc = dict(provenance or {})
+    doc.update(excitation=excitation.to_dict(), method=_method(),
+               fit_seconds=round(time.perf_counter() - started, 3))
+    dynamics = ArmDynamics(
+        robot=spec.name, with_hand=model.with_hand,
+        inertias=tuple(tuple(float(v) for v in link) for link in links),
+        armature_kgm2=tuple(float(v) for v in armature),
+        friction=tuple(tuple(float(v) for v in values) for values in
+                       (joints[:, 0], phi2, phi3, viscous, normal.offset(theta_used))),
+        payload=_payload(model, nominal_links[-1], links[-1]),
+        provenance=json.dumps(doc, sort_keys=True))
+    if calibrate_detector:
+        dynamics = replace(dynamics, detector=_detector(held_out, setup, dynamics))
+    return Identified(dynamics, excitation)
+
+
+def _method() -> dict:
+    return {"cutoff_hz": CUTOFF_HZ, "ident_rate_hz": IDENT_RATE_HZ, "holdout": HOLDOUT,
+            "prior": "nominal model", "determined_variance_ratio": DETERMINED}
+
+
+def _detector(held_out: Sequence[Motion], setup: RobotSetup, dynamics: ArmDynamics
+              ) -> str | None:
+    """Return the detector calibrated on the held-out motions with the identified model
+    (its settings' JSON text), or None (with a warning) when they are too short."""
+    from contactkit.features.detector import DetectorConfig, calibrate, calibration_samples
+    from contactkit.features.timeseries import TimeseriesChain
+
+    chain = TimeseriesChain(robot=replace(setup, dynamics=dynamics), names=["r"])
+    parts = []
+    for motion in held_out:
+        if len(motion.t) < 2:
+            continue
+        r = chain.compute(motion.t, motion.q, motion.dq, motion.tau)["r"]
+        parts.append(calibration_samples(motion.t, r, motion.dq))
+    try:
+        config = calibrate(parts, DetectorConfig(), source={"held_out": HOLDOUT})
+    except InputError as err:
+        log.warning("no detector calibrated with the identified model: %s", err.problem)
+        return None
+    return json.dumps(replace(config, robot=dynamics.robot).to_dict(), sort_keys=True)
+
+
+def _sha256(path: Path) -> str:
+    """Return the SHA-256 (hex) of a file's bytes."""
+    digest = hashlib.sha256()
+    with path.open("rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def session_inputs(sources: Sequence[str | Path]) -> list[Path]:
+    """Return the session files of ``sources``: a directory's (without its index), a
+    file as given. InputError for a missing path or a directory without sessions."""
+    from contactkit.schemas.dataset import session_files
+
+    paths: list[Path] = []
+    for source in map(Path, sources):
+        if source.is_dir():
+            files = session_files(source)
+            if not files:
+                raise InputError("no session files (*.parquet) in this directory", source)
+            paths += files
+        elif source.exists():
+            paths.append(source)
+        else:
+            raise InputError("no such file or directory", source)
+    return paths
+
+
+def free_motion(path: Path, robot: str | None = None) -> tuple[Motion, RobotSetup]:
+    """Read one session's free motion (t, q, dq, tau only) and the arm it names (or
+    ``robot`` in its place, ``--robot``). Raises InputError naming the file for a file
+    that is not a session, or a session with contact: an action other than none
+    without a contact column, or a contact column that is true anywhere."""
+    from contactkit.schemas import read_session
+    from contactkit.schemas.dataset import INDEX_NAME
+
+    if path.name == INDEX_NAME:
+        raise InputError("a dataset's index, not a session", path)
+    session = read_session(path)
+    if session.has("contact"):
+        touched = int(session.column("contact").astype(bool).sum())
+        if touched:
+            raise InputError(f"session has contact ({touched} samples): identification "
+                             "needs free motion with nobody touching the arm", path)
+    elif session.meta.action != "none":
+        raise InputError(f"session has a {session.meta.action!r} contact and no contact "
+                         "column: identification needs free motion", path)
+    setup = session.meta.with_robot(robot).robot_setup(path)
+    return Motion(session.t, session.q, session.dq, session.tau, str(path)), setup
+
+
+def identify_sessions(paths: Sequence[str | Path], robot: str | None = None, *,
+                      problems: list[tuple[str, str]] | None = None,
+                      progress: Callable[[int, int], None] | None = None) -> Identified:
+    """Identify the arm of the free-motion sessions ``paths`` (:func:`identify`), with
+    the arm ``robot`` names instead of the sessions' own when given.
+
+    A file that is not a session, or a session with contact, is left out and appended
+    to ``problems`` as ``(file, why)`` (without ``problems`` its InputError is raised).
+    Raises InputError (one line) when no session is left, when the sessions are of
+    different arms (or with and without the hand), or when the motion determines
+    nothing. The provenance names each session with its SHA-256 and samples."""
+    from contactkit import __version__
+
+    motions: list[Motion] = []
+    setups: dict[RobotSetup, str] = {}
+    used = []
+    for name in paths:
+        path = Path(name)
+        try:
+            motion, setup = free_motion(path, robot)
+        except DATA_ERRORS as err:
+            if problems is None:
+                raise
+            problems.append((str(path), problem_text(err)))
+            continue
+        motions.append(motion)
+        setups.setdefault(setup, str(path))
+        used.append({"file": path.name, "sha256": _sha256(path), "samples": len(motion.t),
+                     "duration_s": round(float(motion.t[-1] - motion.t[0]), 3)})
+    if not motions:
+        why = "" if not problems else f": {Path(problems[0][0]).name}: {problems[0][1]}" + (
+            f" (and {len(problems) - 1} more)" if len(problems) > 1 else "")
+        raise InputError("no free-motion session to identify from (sessions with action "
+                         f"none, or a contact column that is all false){why}")
+    if len(setups) > 1:
+        (first, a), (second, b) = list(setups.items())[:2]
+        raise InputError(f"sessions of different arms: {a} is {_arm(first)}, {b} is "
+                         f"{_arm(second)}: identify each arm on its own")
+    setup = next(iter(setups))
+    provenance = {"sessions": used, "tool": f"contactkit {__version__}",
+                  "created_utc": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")}
+    return identify(motions, setup, provenance=provenance, progress=progress)
+
+
+def _arm(setup: RobotSetup) -> str:
+    return f"{setup.robot} {'with' if setup.with_hand else 'without'} hand"

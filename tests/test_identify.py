@@ -1,0 +1,259 @@
+"""Identifying an arm's dynamics from free motion, the dynamics file and its checks."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from contactkit.errors import InputError
+from contactkit.features.detector import dynamics_detector
+from contactkit.features.identification import Motion, identify, identify_sessions
+from contactkit.features.timeseries import ChainConfig, TimeseriesChain
+from contactkit.recorder.sim.dataset import simulate_dataset
+from contactkit.recorder.sim.simulator import ArmSimulator, SimConfig
+from contactkit.robots import RobotSetup
+from contactkit.robots.dynamics import (
+    MAX_BYTES,
+    ArmDynamics,
+    ArmOverride,
+    consistent,
+    dynamics_checksum,
+    load_dynamics,
+    save_dynamics,
+)
+from contactkit.schemas import read_session, write_session
+from contactkit.schemas.dataset import session_files
+from tests.conftest import make_session, run_command, save_quick_model
+
+ROBOT_SEED = 7
+RATE_HZ = 250.0
+
+
+@pytest.fixture(scope="module")
+def free_motion(tmp_path_factory) -> list[Path]:
+    """Eight 8 s free-motion sessions of one simulated Panda instance at 250 Hz."""
+    out = tmp_path_factory.mktemp("free")
+    config = SimConfig(rate_hz=RATE_HZ, robot_seed=ROBOT_SEED)
+    simulate_dataset(out, "free-motion", 8, 3, 1, config)
+    return session_files(out)
+
+
+@pytest.fixture(scope="module")
+def quick_model(tmp_path_factory) -> Path:
+    return save_quick_model(tmp_path_factory.mktemp("model") / "m.skops", events=True)
+
+
+@pytest.fixture(scope="module")
+def identified(free_motion) -> ArmDynamics:
+    return identify_sessions(free_motion[:6]).dynamics
+
+
+def _rms(paths: list[Path], setup: RobotSetup) -> np.ndarray:
+    chain = TimeseriesChain(robot=setup, names=["r"])
+    residuals = []
+    for path in paths:
+        s = read_session(path)
+        residuals.append(chain.compute(s.t, s.q, s.dq, s.tau)["r"][s.t > 0.5])
+    return np.sqrt((np.concatenate(residuals) ** 2).mean(axis=0))
+
+
+def test_identification_reaches_the_true_parameter_floor(free_motion, identified) -> None:
+    setup = RobotSetup("panda", True)
+    truth = ArmSimulator(SimConfig(rate_hz=RATE_HZ, robot_seed=ROBOT_SEED)).true_dynamics()
+    held_out = free_motion[6:]
+    before = _rms(held_out, setup)
+    after = _rms(held_out, replace(setup, dynamics=identified))
+    floor = _rms(held_out, replace(setup, dynamics=truth))
+    assert (after < before).all()
+    assert all(consistent(np.array(link)) for link in identified.inertias)
+    assert (after <= 1.5 * floor + 0.01).all(), (before, after, floor)
+    # friction amplitudes within 15 % of the instance's (scaled +-40 % from nominal)
+    phi1, true_phi1 = np.array(identified.friction[0]), np.array(truth.friction[0])
+    assert np.abs(phi1 / true_phi1 - 1).max() < 0.15
+    detector = dynamics_detector(identified)
+    assert detector is not None and detector.robot == "panda"
+
+
+def test_file_round_trip_and_checksum(tmp_path, identified) -> None:
+    path = save_dynamics(tmp_path / "arm.json", identified)
+    again = load_dynamics(path, RobotSetup("panda"))
+    assert again == identified and again.checksum == identified.checksum
+    assert hash(again) == hash(identified)
+    with pytest.raises(InputError, match="exists"):
+        save_dynamics(path, identified)
+
+
+def _signed(doc: dict) -> dict:
+    body = {k: v for k, v in doc.items() if k != "checksum"}
+    return body | {"checksum": dynamics_checksum(body)}
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    (lambda d: d["links"][2].__setitem__(0, 1.5), "checksum"),  # tampered, not re-signed
+    (lambda d: _signed(d | {"robot": "nonexistent"}), "unknown robot"),
+    (lambda d: _signed(d | {"links": [[-1.0, *d["links"][0][1:]], *d["links"][1:]]}),
+     "mass"),
+    (lambda d: _signed(d | {"links": [[d["links"][0][0], *d["links"][0][1:4], 1.0, 0.0,
+                                       0.0, 0.0, 0.0, 0.0], *d["links"][1:]]}),
+     "not physically consistent"),
+    (lambda d: _signed(d | {"armature_kgm2": [-0.1] * 7}), "armature"),
+])
+def test_a_failing_check_is_refused_in_one_line(tmp_path, identified, change,
+                                                 message) -> None:
+    doc = identified.to_dict()
+    changed = change(doc)
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(changed if changed is not None else doc))
+    with pytest.raises(InputError, match=message) as err:
+        load_dynamics(path)
+    assert str(path) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_non_finite_huge_and_deep_files_are_refused(tmp_path, identified) -> None:
+    text = json.dumps(identified.to_dict()).replace(
+        str(identified.to_dict()["links"][3][0]), "NaN", 1)
+    cases = {"nan.json": (text, "not finite"),
+             "huge.json": (" " * (MAX_BYTES + 1), "larger than"),
+             "deep.json": ("[" * 100_000 + "]" * 100_000, "nested too deeply"),
+             "other.json": ("{}", "not a dynamics file")}
+    for name, (content, message) in cases.items():
+        path = tmp_path / name
+        path.write_text(content)
+        with pytest.raises(InputError, match=message):
+            load_dynamics(path)
+
+
+def test_dynamics_of_another_arm_or_hand_are_refused(tmp_path, identified,
+                                                      quick_model) -> None:
+    path = save_dynamics(tmp_path / "arm.json", identified)
+    with pytest.raises(InputError, match="not a 'fr3'"):
+        load_dynamics(path, RobotSetup("fr3"))
+    with pytest.raises(InputError, match="with the hand"):
+        load_dynamics(path, RobotSetup("panda", with_hand=False))
+    session = make_session(tmp_path, robot="fr3", action="none", link=None)
+    result = run_command("replay", str(session), "--dynamics", str(path), "--model",
+                         str(quick_model), "--viewer", "none", "--save", str(tmp_path / "x.rrd"))
+    assert result.returncode == 2 and not (tmp_path / "x.rrd").exists()
+    assert "'panda', not a 'fr3'" in result.stderr and str(path) in result.stderr
+
+
+def test_dynamics_reach_replay_and_predict(tmp_path, free_motion, identified,
+                                          quick_model) -> None:
+    from contactkit.classify.modelfile import load_model
+    from contactkit.classify.prediction import predict_sources
+    from contactkit.replay.engine import ReplayStream
+
+    model = load_model(quick_model)
+    override = ArmOverride(None, identified)
+    plain = ReplayStream(free_motion[6], model)
+    streams = [plain, ReplayStream(free_motion[6], model, robot=override)]
+    r = [np.vstack([block.r for block in stream.blocks()]) for stream in streams]
+    assert np.abs(r[0] - r[1]).max() > 0.1
+    assert streams[1].detector.noise == dynamics_detector(identified).noise
+    assert streams[1].detector.noise != plain.detector.noise
+    found = [predict_sources(model, [free_motion[6]], robot)[0][0].probabilities
+             for robot in (None, override)]
+    assert found[0] != found[1]
+    path = save_dynamics(tmp_path / "arm.json", identified)
+    result = run_command("classify", "predict", str(quick_model), str(free_motion[6]),
+                         "--dynamics", str(path))
+    assert result.returncode == 0, result.stderr
+
+
+def test_the_result_uses_no_simulator_metadata(tmp_path, free_motion) -> None:
+    stripped = []
+    for path in free_motion[:3]:
+        session = read_session(path)
+        session.meta.simulator = None
+        out = tmp_path / path.name
+        write_session(out, session.table, session.meta)
+        stripped.append(out)
+    first = identify_sessions(free_motion[:3]).dynamics
+    second = identify_sessions(stripped).dynamics
+    assert replace(first, provenance="{}") == replace(second, provenance="{}")
+
+
+def test_batch_and_per_sample_agree_with_viscous_and_offset(free_motion) -> None:
+    s = read_session(free_motion[0])
+    friction = ((0.5,) * 7, (8.0,) * 7, (0.02,) * 7, (0.3,) * 7, (0.2, -0.1, 0, 0, 0.1, 0, 0))
+    base = ArmSimulator(SimConfig(rate_hz=RATE_HZ, robot_seed=ROBOT_SEED)).true_dynamics()
+    setup = RobotSetup("panda", True, dynamics=replace(base, friction=friction))
+    n = 300
+    batch = TimeseriesChain(robot=setup, names=["r"]).compute(
+        s.t[:n], s.q[:n], s.dq[:n], s.tau[:n])["r"]
+    chain = TimeseriesChain(robot=setup, names=["r"])
+    stepped = np.vstack([chain.update(s.t[k], s.q[k], s.dq[k], s.tau[k])["r"]
+                         for k in range(n)])
+    assert np.abs(stepped - batch).max() <= 1e-9
+    without = TimeseriesChain(robot=replace(setup, dynamics=base), names=["r"]).compute(
+        s.t[:n], s.q[:n], s.dq[:n], s.tau[:n])["r"]
+    assert np.abs(without - batch).max() > 0.05  # the terms are used
+
+
+def test_chain_cache_key_changes_with_the_dynamics(free_motion, identified) -> None:
+    from contactkit.features.chain_cache import _key
+
+    session = read_session(free_motion[0])
+    keys = {_key(session, ChainConfig()), _key(session, ChainConfig(dynamics=identified))}
+    assert len(keys) == 2
+
+
+def test_motion_that_determines_nothing_is_refused(free_motion) -> None:
+    s = read_session(free_motion[0])
+    still = Motion(s.t, np.repeat(s.q[:1], len(s.t), axis=0), np.zeros_like(s.dq),
+                   np.repeat(s.tau[:1], len(s.t), axis=0))
+    with pytest.raises(InputError, match="no joint moves"):
+        identify([still], RobotSetup())
+    short = Motion(s.t[:300], s.q[:300], s.dq[:300], s.tau[:300])
+    with pytest.raises(InputError, match="too little free motion"):
+        identify([short], RobotSetup())
+
+
+def test_identify_cli_refuses_bad_input_in_one_line(tmp_path, free_motion) -> None:
+    out = tmp_path / "arm.json"
+    shove = make_session(tmp_path, action="shove")
+    result = run_command("recorder", "identify", str(shove), "--out", str(out))
+    assert result.returncode == 2 and not out.exists()
+    assert "has contact" in result.stderr and "no free-motion session" in result.stderr
+    fr3 = make_session(tmp_path, robot="fr3", action="none", link=None, duration_s=4.0)
+    result = run_command("recorder", "identify", str(free_motion[0]), str(fr3),
+                         "--out", str(out))
+    assert result.returncode == 2 and not out.exists()
+    assert "sessions of different arms" in result.stderr
+    assert len([line for line in result.stderr.splitlines() if "error" in line]) == 1
+    index = free_motion[0].parent / "index.parquet"
+    result = run_command("recorder", "identify", str(free_motion[0]), str(index),
+                         str(free_motion[1]), "--out", str(out))
+    assert out.exists() and "index" in result.stderr
+    assert "determined:" in result.stdout
+
+
+def test_write_dynamics_gives_the_simulated_instance(tmp_path) -> None:
+    out = tmp_path / "true.json"
+    result = run_command("recorder", "simulate", str(tmp_path / "d"), "--preset", "smoke",
+                         "--sessions", "1", "--robot-seed", "5", "--write-dynamics", str(out))
+    assert result.returncode == 0, result.stderr
+    truth = ArmSimulator(SimConfig(robot_seed=5)).true_dynamics()
+    assert load_dynamics(out).inertias == truth.inertias
+    result = run_command("recorder", "simulate", str(tmp_path / "e"), "--preset", "smoke",
+                         "--sessions", "1", "--robot-seed", "6", "--write-dynamics", str(out))
+    assert result.returncode == 2 and "other parameters" in result.stderr
+
+
+def test_stats_deep_takes_the_dynamics(tmp_path, free_motion, identified) -> None:
+    path = save_dynamics(tmp_path / "arm.json", identified)
+    reports = []
+    for extra in ([], ["--dynamics", str(path)]):
+        out = tmp_path / f"report{len(extra)}.json"
+        result = run_command("recorder", "stats", str(free_motion[0].parent), "--deep",
+                             "--format", "json", "--out", str(out), "--workers", "1", *extra)
+        assert result.returncode == 0, result.stderr
+        reports.append(json.loads(out.read_text()))
+    assert reports[0]["deep"] != reports[1]["deep"]
+    result = run_command("recorder", "stats", str(free_motion[0].parent), "--dynamics",
+                         str(path), "--out", str(tmp_path / "r.json"), "--format", "json")
+    assert result.returncode == 2 and "needs --deep" in result.stderr
