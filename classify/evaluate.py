@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 from sklearn.base import clone
@@ -46,7 +47,7 @@ def confusion(y_true: np.ndarray, y_pred: np.ndarray, classes: list[str]) -> np.
     return _confusion_codes(_codes(y_true, classes), _codes(y_pred, classes), len(classes))
 
 
-def metrics_from_confusion(matrix: np.ndarray) -> dict[str, float | list[float]]:
+def metrics_from_confusion(matrix: np.ndarray) -> dict[str, Any]:
     """Return accuracy, balanced accuracy, macro-F1 and per-class recall of a confusion
     matrix (classes with no true sample are left out of the averages)."""
     total = matrix.sum()
@@ -114,7 +115,8 @@ def _bootstrap(y_true, y_pred, clusters, classes, rng) -> dict[str, np.ndarray]:
     unique, inverse = np.unique(clusters, return_inverse=True)
     per_cluster = np.stack([_confusion_codes(t[inverse == g], p[inverse == g], k)
                             for g in range(len(unique))])
-    samples = {"accuracy": [], "balanced_accuracy": [], "macro_f1": [], "recall": []}
+    samples: dict[str, list[Any]] = {"accuracy": [], "balanced_accuracy": [], "macro_f1": [],
+                                     "recall": []}
     for _ in range(BOOTSTRAP):
         pick = rng.integers(len(unique), size=len(unique))
         m = metrics_from_confusion(per_cluster[pick].sum(axis=0))
@@ -137,7 +139,7 @@ def splits(protocol: str, y: np.ndarray, groups: np.ndarray | None, seed: int):
         return list(ShuffleSplit(THESIS_SPLITS, test_size=0.2, random_state=seed).split(y))
     if protocol != "group":
         raise InputError(f"unknown protocol {protocol!r} (expected thesis or group)")
-    n_groups = len(np.unique(groups))
+    n_groups = 0 if groups is None else len(np.unique(groups))
     if n_groups < 2:
         raise InputError("the group protocol needs at least two groups")
     if n_groups <= LOGO_MAX_GROUPS:

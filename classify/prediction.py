@@ -54,8 +54,8 @@ def is_feature_table(path: Path) -> bool:
     return FEATURES_KEY in metadata
 
 
-def _rows(model: ModelFile, probabilities: np.ndarray, sources: Sequence[str],
-          recorded: Sequence[str | None]) -> list[Prediction]:
+def _rows(model: ModelFile, probabilities: np.ndarray, sources: Sequence[str] | np.ndarray,
+          recorded: Sequence[str | None] | np.ndarray) -> list[Prediction]:
     classes = model.classes
     return [Prediction(str(source), classes[int(np.argmax(p))],
                        dict(zip(classes, (float(v) for v in p), strict=True)), truth)

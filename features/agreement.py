@@ -69,6 +69,7 @@ class ResidualAgreement:
         filtered = solve_recurrence(a, (1.0 - a) * r, before)
         self._filtered = filtered[-1]
         self._t_last = float(t[-1])
+        assert self._t_first is not None  # set at the stream's first sample
         keep = t >= self._t_first + self.warmup_s
         x, y = filtered[keep], -tau_ext_hat[keep]
         self._sums += np.stack([x.sum(0), y.sum(0), (x * x).sum(0), (y * y).sum(0),
@@ -120,6 +121,7 @@ class StreamAgreement:
             return
         batch = batch.complete()
         r = self.chain.feed(batch)["r"]
+        assert batch.tau_ext_hat is not None  # complete() keeps the columns
         known = np.isfinite(batch.tau_ext_hat).all(axis=1)
         self.agreement.update(batch.t[known], r[known], batch.tau_ext_hat[known])
 

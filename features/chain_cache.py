@@ -25,6 +25,7 @@ from collections.abc import Iterable, Iterator, Sequence
 from contextlib import ExitStack
 from dataclasses import asdict, replace
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import pyarrow as pa
@@ -142,7 +143,8 @@ def chain_series(session: Session, config: ChainConfig | None = None,
     cheap = [n for n in names if n not in CACHED]
     computed = TimeseriesChain(config, robot).compute(
         session.t, session.q, session.dq, session.tau, cheap) if cheap else {}
-    return {n: stored[n] if n in CACHED else computed[n] for n in names}
+    # every cached name is read back after writing
+    return {n: cast(np.ndarray, stored[n]) if n in CACHED else computed[n] for n in names}
 
 
 def iter_chain_batches(batches: Iterable[SampleBatch], robot: RobotSetup,

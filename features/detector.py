@@ -57,6 +57,7 @@ import os
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
+from typing import overload
 
 import numpy as np
 
@@ -246,6 +247,12 @@ class _JointFloats:
     def __init__(self, name: str) -> None:
         self.name = name
 
+    @overload
+    def __get__(self, detector: None, owner: type | None = None) -> _JointFloats: ...
+
+    @overload
+    def __get__(self, detector: object, owner: type | None = None) -> np.ndarray: ...
+
     def __get__(self, detector: object, owner: type | None = None
                 ) -> np.ndarray | _JointFloats:
         """Return the state as an array (the descriptor itself on the class)."""
@@ -301,8 +308,8 @@ class Detector:
         """Advance the motion measures to sample ``t`` [s] with joint velocity ``dq``
         [rad/s] (7,); return (s [rad/s], a [rad/s^2])."""
         hold = self.config.motion_hold_s
-        dq = np.asarray(dq, dtype=float).tolist()  # seven floats, kept as dq_prev
-        speed = math.hypot(*dq)  # |dq|, to rounding as sqrt(dq . dq)
+        floats: list[float] = np.asarray(dq, dtype=float).tolist()  # kept as dq_prev
+        speed = math.hypot(*floats)  # |dq|, to rounding as sqrt(dq . dq)
         if self.t is None:
             self.speed, self.accel = speed, 0.0
         else:
@@ -310,12 +317,12 @@ class Detector:
             if h > 0:  # the low-pass of ddq = (dq - dq_prev) / h; without a step it holds
                 denominator = 1.0 + FILTER_GAIN * h
                 self._ddq_f = [(f + FILTER_GAIN * (v - v0)) / denominator
-                               for f, v, v0 in zip(self._ddq_f, dq, self._dq_prev,
+                               for f, v, v0 in zip(self._ddq_f, floats, self._dq_prev,
                                                    strict=True)]
             decay = math.exp(-h / hold) if hold > 0 else 0.0
             self.speed = max(speed, self.speed * decay)
             self.accel = max(math.hypot(*self._ddq_f), self.accel * decay)
-        self._dq_prev = dq
+        self._dq_prev = floats
         return self.speed, self.accel
 
     def run(self, t: np.ndarray, r: np.ndarray, dq: np.ndarray) -> Detection:
@@ -363,16 +370,16 @@ class Detector:
             self.reset()
         s, a = self.motion(t, dq)
         first = self.t is None
-        h = 0.0 if first else t - self.t
+        h = 0.0 if self.t is None else t - self.t
         self.t = t
         if self.t0 is None:
             self.t0 = t
-        r = np.asarray(r, dtype=float).tolist()
+        r_floats: list[float] = np.asarray(r, dtype=float).tolist()
         if first or cfg.smooth_s == 0.0:
-            self._r_f = r
+            self._r_f = r_floats
         else:
             gain = h / (cfg.smooth_s + h)
-            self._r_f = [f + gain * (x - f) for f, x in zip(self._r_f, r, strict=True)]
+            self._r_f = [f + gain * (x - f) for f, x in zip(self._r_f, r_floats, strict=True)]
         if t - self.t0 < cfg.warmup_s:
             self._baseline = self._r_f
             return DetectorState(False, 0.0, False, False, _zeros, self._threshold(s, a),
@@ -463,7 +470,7 @@ class _Run:
         self.det, self.cfg, self.out, self.offset = detector, detector.config, out, offset
         self.t, self.r = t, r
         first = detector.t is None
-        before = t[0] if first else detector.t
+        before = t[0] if detector.t is None else detector.t
         self.h = np.diff(t, prepend=before)  # 0 at a stream's first sample
         if detector.t0 is None:
             detector.t0 = float(t[0])
@@ -515,7 +522,7 @@ class _Run:
         det.r_f = r_f[-1]
         return r_f
 
-    def _write(self, start: int, stop: int, e: np.ndarray, score: np.ndarray,
+    def _write(self, start: int, stop: int, e: np.ndarray | float, score: np.ndarray | float,
                baseline: np.ndarray, contact: bool) -> None:
         rows = slice(self.offset + start, self.offset + stop)
         out = self.out
@@ -588,6 +595,7 @@ class _Run:
             return i + fall
         self._write(i, i + onset, e[:onset], score[:onset], det.baseline, False)
         self._write(i + onset, i + onset + 1, e[onset], score[onset], det.baseline, True)
+        assert self.out.onset is not None  # Detector.run gives the per-sample flags
         self.out.onset[self.offset + i + onset] = True
         self.out.intervals.append((self.offset + i + onset, None))
         det.contact, det._since = True, None
@@ -627,6 +635,7 @@ class _Run:
         det.baseline = baseline
         self._write(k, k + 1, e[release], score[release], baseline, False)
         row = self.offset + k
+        assert self.out.release is not None  # Detector.run gives the per-sample flags
         self.out.release[row] = True
         if self.out.intervals and self.out.intervals[-1][1] is None:
             self.out.intervals[-1] = (self.out.intervals[-1][0], row)

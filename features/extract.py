@@ -32,7 +32,7 @@ class SessionFeatures(TransformerMixin, BaseEstimator, WindowFeatures):
     transformer (see :class:`contactkit.features.window_features.WindowFeatures` for the
     parameters and the features)."""
 
-    def fit(self, X: Iterable, y=None) -> SessionFeatures:
+    def fit(self, X: Iterable | None, y=None) -> SessionFeatures:
         """Nothing to learn from the sessions: checks the parameters, records the
         per-sample columns the features come from (``channels_``, so scikit-learn sees a
         fitted transformer) and returns self."""

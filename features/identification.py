@@ -52,6 +52,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import pinocchio as pin
@@ -437,7 +438,7 @@ def _payload(model: RobotModel, nominal: np.ndarray, identified: np.ndarray) -> 
     skew = np.array([[0, -com[2], com[1]], [com[2], 0, -com[0]], [-com[1], com[0], 0]])
     at_com = rotation.T @ (inertia + mass * skew @ skew) @ rotation
     com_flange = rotation.T @ (com - origin)
-    return Payload(mass, tuple(float(v) for v in com_flange),
+    return Payload(mass, cast("tuple[float, float, float]", tuple(float(v) for v in com_flange)),
                    tuple(float(at_com[i, j]) for i, j in
                          ((0, 0), (0, 1), (1, 1), (0, 2), (1, 2), (2, 2))))
 

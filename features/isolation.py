@@ -59,7 +59,7 @@ import math
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 import pinocchio as pin
@@ -90,9 +90,12 @@ class Surface(Protocol):
     """A link's collision surface in the link frame: triangles ``vertices`` (n, 3, 3)
     [m], unit outward ``normals`` (n, 3) and ``areas`` (n,) [m^2]."""
 
-    vertices: np.ndarray
-    normals: np.ndarray
-    areas: np.ndarray
+    @property
+    def vertices(self) -> np.ndarray: ...
+    @property
+    def normals(self) -> np.ndarray: ...
+    @property
+    def areas(self) -> np.ndarray: ...
 
 
 SurfaceProvider = Callable[[int], Surface | None]
@@ -490,12 +493,13 @@ class ContactIsolator:
         confidence = min(max(1.0 - (e_link + 1.0) / (e_other + 1.0), 0.0), 1.0) \
             if rival else 1.0
         rival_error = _torque_error(jac[other], r, fits.get(other), wrenches.get(other))
-        common = dict(link=link + 1, residual_nm=norm,
-                      error_nm=_torque_error(jac[link], r, fits.get(link), wrenches.get(link)),
-                      runner_up=other + 1 if rival else None,
-                      runner_up_error_nm=rival_error if rival else float("nan"),
-                      confidence=confidence, ambiguous=confidence < self.config.ambiguous_below)
-        if link in fits and link + 1 < MIN_DETERMINED:
+        common: dict[str, Any] = dict(
+            link=link + 1, residual_nm=norm,
+            error_nm=_torque_error(jac[link], r, fits.get(link), wrenches.get(link)),
+            runner_up=other + 1 if rival else None,
+            runner_up_error_nm=rival_error if rival else float("nan"),
+            confidence=confidence, ambiguous=confidence < self.config.ambiguous_below)
+        if coarse is not None and link in fits and link + 1 < MIN_DETERMINED:
             # the point is undetermined: report the middle one (the error is the best's)
             fits[link] = self._middle(link, coarse)
         if link not in fits:
@@ -763,7 +767,7 @@ class EventTrack:
     def _settle_peak(self) -> None:
         if self._pending is None:
             return
-        self._pending, pending = None, self._pending
+        pending, self._pending = self._pending, None
         self.peak = self.at(*pending)
 
 

@@ -62,7 +62,7 @@ class ObserverConfig:
 
 
 def observer_coefficients(t: np.ndarray, p: np.ndarray, u: np.ndarray, gain: np.ndarray,
-                          before: tuple[float, np.ndarray] | None = None
+                          before: tuple[float, np.ndarray | list[float]] | None = None
                           ) -> tuple[np.ndarray, np.ndarray]:
     """Return (a, b) of the recurrence r_k = a_k r_{k-1} + b_k, each (N, 7), for times
     ``t`` (N,) [s], momenta ``p`` [Nm s] and ``u`` [Nm] (N, 7). ``before`` is the time
@@ -86,8 +86,8 @@ def observer_coefficients(t: np.ndarray, p: np.ndarray, u: np.ndarray, gain: np.
     return a, b
 
 
-def solve_recurrence(a: np.ndarray, b: np.ndarray, r_before: np.ndarray | None = None
-                     ) -> np.ndarray:
+def solve_recurrence(a: np.ndarray, b: np.ndarray,
+                     r_before: np.ndarray | list[float] | None = None) -> np.ndarray:
     """Solve r_k = a_k r_{k-1} + b_k for (N, 7) arrays, vectorised, from r_{-1} =
     ``r_before`` (zero when omitted; the last r of the previous chunk when a stream is
     solved chunk by chunk). Return r (N, 7), in the units of b.

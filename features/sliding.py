@@ -67,10 +67,12 @@ def window_moments(y: np.ndarray, starts: np.ndarray, stops: np.ndarray,
         rows = slice(None) if has.all() else np.flatnonzero(has)
         _merge_into(total, rows, runs[level], position[rows])
         position[rows] += 1 << level
-    high, low = ((total.max, total.min) if extremes else (np.zeros(shape), np.zeros(shape)))
-    if extremes:
+    if total.max is not None and total.min is not None:  # with extremes
+        high, low = total.max, total.min
         empty = n_segments == 0
         high[empty] = low[empty] = 0.0
+    else:
+        high, low = np.zeros(shape), np.zeros(shape)
     var = total.m2 / np.maximum(total.count, 1.0)
     return WindowMoments(total.count, total.mean, var, high, low)
 
@@ -131,6 +133,7 @@ def _merge_into(total: _Moments, rows: slice | np.ndarray, part: _Moments,
     total.m2[rows] += part.m2[pieces] + delta * delta * (n_a * n_b / n)
     total.count[rows] = n
     if total.max is not None:
+        assert total.min is not None and part.max is not None and part.min is not None
         total.max[rows] = np.maximum(total.max[rows], part.max[pieces])
         total.min[rows] = np.minimum(total.min[rows], part.min[pieces])
 
@@ -146,7 +149,7 @@ def window_scalar_blocks(values: np.ndarray, firsts: np.ndarray, lasts: np.ndarr
         raise ValueError(f"not computed from segments: {sorted(unknown)}")
     stops = np.asarray(lasts) + 1
     moments = window_moments(values, firsts, stops, extremes="range" in names)
-    hjorth = None
+    hjorth: dict[str, np.ndarray] = {}
     if not {"hjorth_mob", "hjorth_comp"}.isdisjoint(names):
         first_diff = np.diff(values, axis=0)  # a window's differences are the series'
         var_first = window_moments(first_diff, firsts, stops - 1, extremes=False).var

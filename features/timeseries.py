@@ -55,7 +55,7 @@ import itertools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import pinocchio as pin
@@ -143,6 +143,7 @@ class ChainConfig:
         for an unknown robot, a URDF that is not the session's, or dynamics of another
         arm."""
         try:
+            assert not isinstance(self.robot, ArmOverride)  # unpacked in __post_init__
             setup = meta.with_robot(self.robot).robot_setup(path)
             return setup if self.dynamics is None else with_dynamics(setup, self.dynamics)
         except InputError as err:
@@ -290,7 +291,7 @@ class TimeseriesChain:
             before = None  # a gap: the chain restarts here
         h = 0.0 if before is None else t - before.t
         model, data, need = self.model.model, self.model.data, self._need
-        out: dict[str, np.ndarray] = {"q": q, "dq": dq, "tau": tau}
+        out: dict[str, Any] = {"q": q, "dq": dq, "tau": tau}  # g: None unless needed
         g = pin.computeGeneralizedGravity(model, data, q) if need.g else None
         out["g"] = g
         if need.ddq:
@@ -306,6 +307,7 @@ class TimeseriesChain:
             # C^T dq as dq C: computeCoriolisMatrix also leaves the joint placements
             # and Jacobians in data, which getFrameJacobian reads below
             coriolis = dq.dot(pin.computeCoriolisMatrix(model, data, q, dq))
+            assert g is not None  # r needs g (_Needs)
             r = ([0.0] * 7 if before is None else
                  self._observer_step(h, before, p, tau, g, coriolis, dq_floats))
             out["r"] = r_array = np.array(r)
@@ -330,6 +332,7 @@ class TimeseriesChain:
         floats: one pass over seven joints costs less than the dozen array operations
         it replaces."""
         tanh = math.tanh
+        assert before.p is not None and before.r is not None  # kept while r is computed
         return [(r0 + k * (p1 - p0 - h * (tq + c - gq
                                           - (fa * tanh(fb * (v + fc)) + fd + fe * v))))
                 / (1.0 + k * h)
@@ -364,7 +367,7 @@ class TimeseriesChain:
         if gaps.size and gaps[0] == 0:  # a gap before the chunk: it starts a new stream
             before, gaps = None, gaps[1:]
         zeros = np.zeros_like(q)
-        out: dict[str, np.ndarray] = {"q": q, "dq": dq, "tau": tau}
+        out: dict[str, Any] = {"q": q, "dq": dq, "tau": tau}  # g: None unless needed
         need = _Needs.of(names)
         g = self._rnea(q, zeros, zeros) if need.g else None
         out["g"] = g
@@ -387,7 +390,8 @@ class TimeseriesChain:
             jac = np.empty((n, 6, 7)) if per_sample else None
             for k in range(n):
                 coriolis[k] = pin.computeCoriolisMatrix(model, data, q[k], dq[k])
-                if per_sample:  # the Coriolis pass has placed every joint and its Jacobian
+                if jac is not None:  # per sample: the Coriolis pass has placed every joint
+                    # and its Jacobian
                     jac[k] = pin.getFrameJacobian(model, data, self._fid,
                                                   pin.LOCAL_WORLD_ALIGNED)
             u = tau + np.einsum("kji,kj->ki", coriolis, dq) - g
@@ -398,8 +402,11 @@ class TimeseriesChain:
             if need.p_ext:
                 out["p_ext"] = r * dq
             if need.wrench:
-                wrench = (damped_wrench(jac, r) if per_sample else
-                          _cholesky_wrench(self._kinematics.jacobian_rows(q), r))
+                if jac is not None:
+                    wrench = damped_wrench(jac, r)
+                else:  # not per sample: the arm has its kinematics
+                    assert self._kinematics is not None
+                    wrench = _cholesky_wrench(self._kinematics.jacobian_rows(q), r)
                 out.update(_wrench_features(wrench))
         after = ChainState(float(t[-1]), dq[-1].copy(), None if p is None else p[-1].copy(),
                            None if r is None else r[-1].copy())
@@ -411,9 +418,12 @@ class TimeseriesChain:
         momenta ``p`` [Nm s] and ``u`` [Nm] (n, 7) that follow ``before``, restarted (r =
         0) at the samples ``gaps`` (> 0) that follow a gap."""
         if not gaps.size:
-            return solve_recurrence(*observer_coefficients(
-                t, p, u, self._gain, None if before is None else (before.t, before.p)),
-                None if before is None else before.r)
+            start = None
+            if before is not None:
+                assert before.p is not None  # kept while r is computed
+                start = (before.t, before.p)
+            return solve_recurrence(*observer_coefficients(t, p, u, self._gain, start),
+                                    None if before is None else before.r)
         r = np.empty_like(p)
         for start, stop in itertools.pairwise([0, *gaps.tolist(), len(t)]):
             piece = slice(start, stop)

@@ -182,7 +182,7 @@ class WindowFeatures:
         return self._scalar_row(values, names, window, session.path)
 
     def _scalar_row(self, values: np.ndarray, names: list[str], window: Window,
-                    path: Path | None) -> tuple[np.ndarray, list[str], Window]:
+                    path: str | Path | None) -> tuple[np.ndarray, list[str], Window]:
         """Return (scalar features, their names, window) of a window's samples."""
         if len(values) < 2:
             raise InputError(f"window {window.start_s:.3f}-{window.end_s:.3f} s holds fewer "

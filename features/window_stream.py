@@ -79,6 +79,7 @@ class WindowCollector:
             self._rows, self._fallback = _Rows(values.shape[1]), _Rows(values.shape[1])
         search = self.search
         if search.window is None:
+            assert self._fallback is not None  # made with _rows
             search.feed(t, signal_values)
             near = self._near(self._planned, t)
             self._fallback.add(sample[near], t[near], values[near])
@@ -95,6 +96,7 @@ class WindowCollector:
         ``margin_s`` of it; None before any sample."""
         if self._rows is None:
             return None
+        assert self._fallback is not None  # made with _rows
         decided = self.search.window is not None  # the rows were kept from its start
         window = self.search.finish()
         rows = self._rows if decided or window.found else self._fallback

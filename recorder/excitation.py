@@ -45,6 +45,7 @@ import time
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -429,7 +430,7 @@ def _excite(robot: RobotSetup, q0: np.ndarray, settings: ExcitationSettings,
     x = problem.start(rng)
     began = time.perf_counter()
     start_value = problem.criterion(x)
-    best = {"x": x, "value": start_value, "iterations": 0}
+    best: dict[str, Any] = {"x": x, "value": start_value, "iterations": 0}
 
     def follow(xk: np.ndarray) -> None:
         best["iterations"] += 1

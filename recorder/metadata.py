@@ -15,6 +15,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from contactkit.recorder.protocol import POSES, check_action, check_condition, pose_q
 from contactkit.robots import DEFAULT_ROBOT, canonical_robot_name, get_robot
 from contactkit.schemas import InputError, SessionMeta, new_session_id
@@ -42,8 +44,8 @@ def utc_now() -> str:
 
 def session_meta(*, source: str, action: str, condition: str = "static",
                  pose: str | None = None, target_pose: str | None = None,
-                 pose_q_rad: Sequence[float] | None = None,
-                 target_q_rad: Sequence[float] | None = None,
+                 pose_q_rad: Sequence[float] | np.ndarray | None = None,
+                 target_q_rad: Sequence[float] | np.ndarray | None = None,
                  speed_rad_s: float | None = None, link: int | None = None,
                  planned_at_s: float | None = None, nominal_rate_hz: float | None = None,
                  operator: str = "", notes: str = "", with_hand: bool = True,

@@ -135,7 +135,7 @@ def _model(path: Path) -> ModelFile:
     return load_model(path, lazy=True)
 
 
-def _num(x: float | None) -> float | None:
+def _num(x: float | np.floating[Any] | None) -> float | None:
     return None if x is None or not math.isfinite(float(x)) else float(x)
 
 
@@ -446,6 +446,7 @@ def build_catalog(dataset: Path, out: Path, model_path: Path, identity: CatalogI
             if stale is not None and _ours(out, stale):  # of the file before it changed
                 (out / stale["recording"]).unlink()
         else:
+            assert rows is not None  # a session without a problem has its rows
             sessions[sid], events[sid] = rows["session"], rows["events"]
             target = out / recording_name(sid)
             manifest_sessions[sid] = {"file": file, "sha256": hashes[sid],

@@ -13,6 +13,8 @@ the blocks have streamed (events are few).
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 import rerun as rr
 
@@ -49,13 +51,17 @@ class ContactTrackLogger:
         samples = [k for k, _ in block.estimates]
         points = [np.zeros(3) if e.point_base is None else e.point_base
                   for _, e in block.estimates]
-        forces = [np.zeros(3) if e.point_base is None else e.force for _, e in block.estimates]
+        # an estimate with a point has its force
+        forces = [np.zeros(3) if e.point_base is None else cast(np.ndarray, e.force)
+                  for _, e in block.estimates]
         present = [e.point_base is not None for _, e in block.estimates]
         estimated = np.array(times)
+        assert self.stream.pipeline is not None  # active: the stream has events
         released = self.stream.pipeline.events
         while self._released < len(released) and \
                 released[self._released].release_s <= block.t[-1]:
             end = released[self._released].release_s
+            assert end is not None  # a released event
             self._released += 1
             before = int(np.searchsorted(estimated, end, side="right"))
             last = float(estimated[before - 1]) if before else self._last_s
@@ -72,7 +78,8 @@ class ContactTrackLogger:
     def finish(self) -> None:
         """Clear the track of an event still open at the end at the last sample (when
         its last estimate came before it); call once, after the last block."""
-        if not self.active or self._end is None or self.stream.pipeline.current is None:
+        if not self.active or self._end is None or self.stream.pipeline is None \
+                or self.stream.pipeline.current is None:
             return
         end, sample = self._end
         if self._last_s is not None and self._last_s < end:
@@ -111,7 +118,9 @@ def log_contact_links(rec: rr.RecordingStream, stream: ReplayStream) -> None:
                 [(event.onset_s, ends[event.onset_s], True), (end, ends[end], False)])
     for link, rows in shown.items():
         rows.sort()
-        layout.log_link_highlight(rec, link, isolator.samples[link - 1].points,
+        samples = isolator.samples[link - 1]
+        assert samples is not None  # only links with samples are shown
+        layout.log_link_highlight(rec, link, samples.points,
                                   np.array([r[0] for r in rows]),
                                   np.array([r[1] for r in rows]),
                                   np.array([r[2] for r in rows]))

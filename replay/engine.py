@@ -143,10 +143,10 @@ class _HopLog:
 
     def __init__(self, n_classes: int) -> None:
         self.size = 0
-        self._columns = {"t": np.zeros(0), "sample": np.zeros(0, dtype=np.int64),
-                         "proba": np.zeros((0, n_classes)),
-                         "window_proba": np.zeros((0, n_classes)),
-                         "label": np.zeros(0, dtype=np.int16)}
+        self._columns: dict[str, np.ndarray] = {
+            "t": np.zeros(0), "sample": np.zeros(0, dtype=np.int64),
+            "proba": np.zeros((0, n_classes)), "window_proba": np.zeros((0, n_classes)),
+            "label": np.zeros(0, dtype=np.int16)}
 
     def append(self, **rows: np.ndarray) -> None:
         """Add the rows of each column (the same number of rows in each)."""
@@ -277,8 +277,9 @@ class ReplayStream:
         return first, last
 
     def _batches(self) -> Iterator[SampleBatch]:
-        return iter_sample_batches(self.session if self.session is not None else self.path,
-                                   self.batch_rows)
+        source = self.session if self.session is not None else self.path
+        assert source is not None  # a stream has its session or its file
+        return iter_sample_batches(source, self.batch_rows)
 
     def blocks(self, every_hop: bool = False) -> Iterator[Block]:
         """Stream the session; yield a :class:`Block` per batch read, or with
@@ -312,7 +313,7 @@ class ReplayStream:
                 self._offline.add(np.arange(start, start + n), t, values,
                                   out[self.window_spec.signal])
             labels = scores = None
-            estimates = []
+            estimates: list[tuple[int, ContactEstimate]] = []
             if self.pipeline is not None:
                 labels, scores, estimates = self._events(t, out["r"], dq, q, start)
             truth, contact = batch.f_ext, batch.contact
@@ -339,6 +340,7 @@ class ReplayStream:
             self.n_samples = start
         if start == 0:
             raise InputError("session has no complete samples", self.path)
+        assert last_t is not None  # set by the first batch
         self.event_samples[last_t] = start - 1
 
     def _events(self, t: np.ndarray, r: np.ndarray, dq: np.ndarray, q: np.ndarray,
@@ -348,13 +350,16 @@ class ReplayStream:
         note the samples where events begin, are decided or end. Return the per-sample
         labels and detector scores, and the contact estimates of the events' tracks
         made in the batch as (session sample, estimate)."""
+        assert self.pipeline is not None  # called with a pipeline only
         found = self.pipeline.update_block(t, r, dq, q)
         estimates = []
         for k, state in found.steps:
             at, sample = float(t[k]), start + k
-            cut = state.released is not None and state.released.release_s < at
+            released_s = None if state.released is None else state.released.release_s
+            cut = released_s is not None and released_s < at
             if cut:  # by a gap: decided (if it was not) and released at the sample before it
-                self.event_samples[state.released.release_s] = sample - 1
+                assert released_s is not None
+                self.event_samples[released_s] = sample - 1
             if state.started is not None or (not cut and (state.decided or state.released)):
                 self.event_samples[at] = sample
             if state.estimate is not None:
@@ -431,7 +436,9 @@ class ReplayStream:
             return None
         if self.n_samples == 0:
             self.run()
-        window, sample, t, values = self._offline.result()
+        result = self._offline.result()
+        assert result is not None  # the session has samples (run() raises otherwise)
+        window, sample, t, values = result
         row = self.transformer.window_row(t, values, window, self.path)
         proba = self._predict_proba(row[None, ...])[0]
         last = len(t) - 1

@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rerun as rr
@@ -51,8 +52,8 @@ def log_session_properties(rec: rr.RecordingStream, stream: ReplayStream,
     """Store the session metadata as the recording's ``session`` properties, the session
     file named ``file`` (default: its path as given)."""
     meta = vars(stream.meta).copy()
-    values = {k: (json.dumps(v) if isinstance(v, (dict, list)) else v) for k, v in meta.items()
-              if v is not None}
+    values: dict[str, Any] = {k: (json.dumps(v) if isinstance(v, (dict, list)) else v)
+                              for k, v in meta.items() if v is not None}
     values["file"] = file if file is not None else str(stream.path or "")
     values["model_kind"] = stream.model.meta.get("kind", "")
     rec.send_property("session", rr.AnyValues(**values))
@@ -197,10 +198,10 @@ class BlockLogger:
         """Send the (thinned) samples, the predictions and the contact estimates of one
         block."""
         rec = self.rec
-        keep = self.series.keep(block.t)
-        if len(keep):
-            if len(keep) == len(block.t):  # every row: the block's arrays themselves, no copies
-                keep = slice(None)
+        kept = self.series.keep(block.t)
+        if len(kept):
+            # every row: the block's arrays themselves, no copies
+            keep: np.ndarray | slice = slice(None) if len(kept) == len(block.t) else kept
             t, sample = block.t[keep], block.sample[keep]
             layout.log_joint_columns(rec, t, sample, block.q[keep], block.dq[keep],
                                      block.tau[keep])
@@ -308,6 +309,7 @@ def log_results(rec: rr.RecordingStream, stream: ReplayStream,
     log_planned(rec, stream)
     if stream.pipeline is not None:
         times = sorted(stream.event_samples)
+        assert stream.detector is not None  # the pipeline's
         log_contact_events(rec, np.array(times), stream.events, {
             f"joint {j} at rest": v for j, v in enumerate(stream.detector.noise, 1)},
             samples=np.array([stream.event_samples[t] for t in times]))
@@ -336,7 +338,8 @@ def save_paths_for(save: Path, session_paths: Sequence[Path]) -> list[Path]:
     when two sessions would be saved under one name (equal file names in different
     directories), so that no session's recording silently replaces another's."""
     many = len(session_paths) > 1
-    targets, first = [], {}
+    targets: list[Path] = []
+    first: dict[Path, Path] = {}
     for session_path in session_paths:
         target = save_path_for(save, Path(session_path), many)
         if target in first:

@@ -202,7 +202,9 @@ def replay_sessions(paths: Sequence[Path], model: ModelFile, *, save: Path | Non
     summary or its error. Two sessions that would be saved under one name (equal file
     names in different directories) raise InputError before any is replayed."""
     targets = [None] * len(paths) if save is None else save_paths_for(save, paths)
-    summaries, problems = [], []
+    summaries: list[ReplaySummary] = []
+    problems: list[InputError] = []
+    result: ReplaySummary | InputError
     for path, target in zip(paths, targets, strict=True):
         try:
             result = replay_session(path, model, save=target, connect=connect, spawn=spawn,

@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -18,9 +19,9 @@ import pyarrow.parquet as pq
 from contactkit.errors import InputError
 from contactkit.robots import canonical_robot_name
 from contactkit.schemas.columns import check_time_range
+from contactkit.schemas.metadata import SessionMeta
 from contactkit.schemas.session import (
     METADATA_KEY,
-    SessionMeta,
     atomic_write_parquet,
     read_session_meta,
 )
@@ -70,7 +71,7 @@ def session_files(directory: str | Path) -> list[Path]:
                   if p.name != INDEX_NAME and not p.name.startswith("."))
 
 
-def _time_range(footer) -> tuple[float, float]:
+def _time_range(footer: pq.FileMetaData) -> tuple[float, float]:
     """Return (first, last) time stamp [s] from the Parquet column statistics of ``t``."""
     t_index = footer.schema.to_arrow_schema().get_field_index("t")
     lo, hi = float("nan"), float("nan")
@@ -83,7 +84,7 @@ def _time_range(footer) -> tuple[float, float]:
     return lo, hi
 
 
-def index_row(path: Path, meta: SessionMeta, footer) -> dict:
+def index_row(path: Path, meta: SessionMeta, footer: pq.FileMetaData) -> dict[str, Any]:
     """Return the index row of one session from its metadata and Parquet footer."""
     t0, t1 = _time_range(footer)
     if t0 == t0 and t1 == t1:  # row groups without statistics leave NaN

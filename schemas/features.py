@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -41,7 +42,7 @@ ID_COLUMNS: list[tuple[str, pa.DataType]] = [
 ID_NAMES = [name for name, _ in ID_COLUMNS]
 
 
-def feature_table_schema(feature_names: list[str], config: dict) -> pa.Schema:
+def feature_table_schema(feature_names: list[str], config: dict[str, Any]) -> pa.Schema:
     """Return the schema of a scalar feature table for these features and config."""
     doc = {"version": FEATURE_TABLE_VERSION, "config": config, "features": feature_names}
     fields = [pa.field(n, t) for n, t in ID_COLUMNS]
@@ -50,7 +51,7 @@ def feature_table_schema(feature_names: list[str], config: dict) -> pa.Schema:
 
 
 def feature_table(info: Sequence[Mapping[str, object]], X: np.ndarray,
-                  feature_names: list[str], config: dict) -> pa.Table:
+                  feature_names: list[str], config: dict[str, Any]) -> pa.Table:
     """Return a scalar feature table: the identifying columns (:data:`ID_COLUMNS`) from
     ``info``, one mapping per session, and the feature columns from the matrix ``X``
     (sessions, features), taken as float64 arrays as they are."""
@@ -69,7 +70,7 @@ def write_feature_table(path: str | Path, table: pa.Table, overwrite: bool = Tru
     return path
 
 
-def read_feature_table(path: str | Path) -> tuple[pa.Table, dict]:
+def read_feature_table(path: str | Path) -> tuple[pa.Table, dict[str, Any]]:
     """Read a scalar feature table; return it and its feature document
     (``config``, ``features``). Raises InputError on a foreign file."""
     path = Path(path)

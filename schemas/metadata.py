@@ -11,7 +11,7 @@ import re
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 from contactkit.errors import InputError, input_error_about
 from contactkit.robots import (
@@ -246,7 +246,7 @@ _BOUNDS = (("planned_at_s", 0.0, MAX_SESSION_S), ("speed_rad_s", 1e-6, 100.0),
            ("nominal_rate_hz", 1e-3, 1e6))
 
 
-def _is_number(value: object) -> bool:
+def _is_number(value: object) -> TypeGuard[int | float]:
     return isinstance(value, _NUMBER) and not isinstance(value, bool)
 
 

@@ -14,6 +14,7 @@ import uuid
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -107,7 +108,8 @@ class Session:
     @property
     def n_samples(self) -> int:
         """Number of samples (rows)."""
-        return self.table.num_rows
+        rows: int = self.table.num_rows
+        return rows
 
     @property
     def duration_s(self) -> float:
@@ -340,7 +342,8 @@ class SampleBatch:
             names = set(columns.schema.names)
 
             def get(name: str) -> np.ndarray:
-                return columns.column(name).to_numpy(zero_copy_only=False)
+                values: np.ndarray = columns.column(name).to_numpy(zero_copy_only=False)
+                return values
         else:
             names = set(columns)
 
@@ -355,10 +358,12 @@ class SampleBatch:
         def single(name: str) -> np.ndarray | None:
             return get(name) if name in names else None
 
-        return cls(np.asarray(get("t"), dtype=float),
-                   *(stacked(joint_columns(p)) for p in ALL_JOINT_PREFIXES),
-                   stacked(FORCE_COLUMNS), stacked(WRENCH_HAT_COLUMNS), single("contact"),
-                   single("robot_mode"), single("command_success_rate"))
+        fields_in_order: list[Any] = [
+            np.asarray(get("t"), dtype=float),
+            *(stacked(joint_columns(p)) for p in ALL_JOINT_PREFIXES),
+            stacked(FORCE_COLUMNS), stacked(WRENCH_HAT_COLUMNS), single("contact"),
+            single("robot_mode"), single("command_success_rate")]
+        return cls(*fields_in_order)
 
     def __len__(self) -> int:
         """Return the number of samples."""
@@ -366,8 +371,9 @@ class SampleBatch:
 
     def take(self, rows: np.ndarray | slice) -> SampleBatch:
         """Return the samples ``rows`` (indices, a boolean mask or a slice)."""
-        return SampleBatch(**{f.name: None if getattr(self, f.name) is None
-                              else getattr(self, f.name)[rows] for f in fields(self)})
+        taken: dict[str, Any] = {f.name: None if getattr(self, f.name) is None
+                                 else getattr(self, f.name)[rows] for f in fields(self)}
+        return SampleBatch(**taken)
 
     def complete(self) -> SampleBatch:
         """Return the samples that have a time and every joint value (q, dq, tau), as

@@ -297,3 +297,28 @@ def import_array_files(t_path: Path, q_path: Path, dq_path: Path, tau_path: Path
 
     return import_file(ImportJob(Path(t_path), out_dir, protocol_from({}, meta_pairs), "arrays",
                                  {"q": q_path, "dq": dq_path, "tau": tau_path})).session
+
+
+# Markers by file or test, so that `make check` can leave out what needs the nn extra
+# (torch, aeon, onnx, onnxruntime) or builds the documentation, without each test file
+# saying so; and a longer timeout for the tests marked slow or nn than the default
+# (pyproject.toml's `timeout`), which is sized to catch a hang in minutes.
+NN_FILES = {"test_nn.py", "test_gridsearch.py"}
+NN_TESTS = {"test_gridsearch_and_lstm_evaluate_identical",
+            "test_onnx_model_with_metadata_of_the_wrong_shape_is_one_line",
+            "test_malformed_onnx_metadata_is_one_line",
+            "test_onnx_graph_that_onnxruntime_refuses_is_one_line",
+            "test_onnx_without_onnxruntime_names_the_extra"}
+DOCS_FILES = {"test_notebook.py"}
+LONG_TIMEOUT_S = 900
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    for item in items:
+        if item.path.name in NN_FILES or getattr(item, "originalname", "") in NN_TESTS:
+            item.add_marker(pytest.mark.nn)
+        if item.path.name in DOCS_FILES:
+            item.add_marker(pytest.mark.docs)
+        if (item.get_closest_marker("slow") or item.get_closest_marker("nn")) \
+                and not item.get_closest_marker("timeout"):
+            item.add_marker(pytest.mark.timeout(LONG_TIMEOUT_S))

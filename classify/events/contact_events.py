@@ -44,6 +44,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field, fields
+from typing import Any
 
 import numpy as np
 
@@ -134,7 +135,7 @@ class EventModel:
     model files written before them, whose events beyond the range are all
     ``unknown``)."""
 
-    estimator: object
+    estimator: Any  # a fitted scikit-learn classifier
     classes: list[str]
     decide_after_s: float = DEFAULT_DECIDE_AFTER_S
     low: np.ndarray = field(default_factory=lambda: np.full(len(EVENT_FEATURES), -np.inf))
@@ -309,6 +310,7 @@ class EventPipeline:
 
     def _decide(self, t: float) -> ContactEvent:
         event = self.current
+        assert event is not None  # decided during an event
         times = np.array([s for s, _ in self._window])
         e = np.array([r for _, r in self._window]) - self._baseline
         event.decision_s = t
@@ -316,6 +318,7 @@ class EventPipeline:
         if self.model is None:
             event.label = "contact"
             return event
+        assert self._predict is not None  # made with the model
         proba = self._predict(x[None, :])[0]
         event.probabilities = {c: float(p) for c, p in zip(self.model.classes, proba,
                                                            strict=True)}
@@ -338,6 +341,7 @@ class EventPipeline:
         e = r - self._baseline
         made = self._track.update(t, q, e, threshold)
         event = self.current
+        assert event is not None  # a track is an event's
         if decided:
             event.contact_at_decision = self._track.at(t, q, e, threshold)
         event.contact_track = self._track.track
@@ -362,6 +366,7 @@ class EventPipeline:
         the samples of an event."""
         n = len(t)
         found = self.detector.run(t, r, dq)
+        assert found.onset is not None and found.release is not None  # run gives them
         out = BlockEvents(np.full(n, NONE, dtype=object), found.score, found.contact)
         onsets = np.flatnonzero(found.onset)
         restarted, cuts = set(found.restarts), set(found.cuts)
@@ -401,6 +406,7 @@ class EventPipeline:
         self._last_q = q
         if state.onset:
             self.current = out.started = ContactEvent(onset_s=t)
+            assert baseline is not None  # given at an onset
             self._baseline = baseline.copy()
             self._window = [s for s in self._recent if s[0] >= t - PRE_S]
             self._track = None if self.isolator is None else EventTrack(
@@ -430,6 +436,7 @@ class EventPipeline:
         """Release the current event at the last sample before a gap (deciding it there
         if it is undecided), as the detector's release at that sample would have."""
         event = self.current
+        assert event is not None  # a cut ends the current event
         t, r = self._recent[-1]
         decide_now = event.decision_s is None
         if decide_now:

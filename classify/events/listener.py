@@ -37,6 +37,7 @@ def contact_text(estimate: ContactEstimate | None) -> str:
     if estimate.status != OK:
         return (f"link {estimate.link}, no point ({estimate.status})" if estimate.link
                 else f"no contact estimate ({estimate.status})")
+    assert estimate.point_base is not None and estimate.force is not None  # status OK
     point = ", ".join(f"{v:.3f}" for v in estimate.point_base)
     force = ", ".join(f"{v:.1f}" for v in estimate.force)
     return (f"link {estimate.link} at ({point}) m, force ({force}) N, confidence "
@@ -57,6 +58,7 @@ def describe(kind: str, event: ContactEvent) -> str:
                    f"{', '.join(event.beyond_features)})" if event.beyond_range else "")
                 + ("" if event.contact_at_decision is None
                    else f"; {contact_text(event.contact_at_decision)}"))
+    assert event.release_s is not None  # a release
     return (f"contact released at {event.release_s:.3f} s: {event.label}, "
             f"{event.release_s - event.onset_s:.3f} s long"
             + ("" if event.contact_at_peak is None

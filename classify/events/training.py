@@ -119,9 +119,9 @@ def fit_event_model(sessions: Sequence[SessionEvents], decide_after_s: float,
     :class:`EventModel` with its training range, overall and per class."""
     xs, ys = [], []
     for session in sessions:
-        x, y = session.rows()
-        xs += x
-        ys += y
+        rows, labels = session.rows()
+        xs += rows
+        ys += labels
     X, y = np.asarray(xs), np.asarray(ys)
     names, counts = np.unique(y, return_counts=True)
     keep = np.isin(y, names[counts >= 2])  # a class seen once cannot be calibrated

@@ -21,6 +21,7 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -116,7 +117,8 @@ def run_augmentation(real_dir: Path, sim_dir: Path, out_dir: Path, *, kind: Mode
         raise InputError(f"repeats must be at least 1, got {repeats}")
     check_results(out_dir, [f"augmentation.{ext}" for ext in ("md", "json", "png")])
     options = kind.check_options(options)
-    spec = kind.transformer(options).spec
+    transformer: Any = kind.transformer(options)  # SessionGrids: the kind takes grids
+    spec = transformer.spec
     seed = options.seed
     baseline = noise_baseline(real_dir, noise_file)
 
@@ -125,7 +127,8 @@ def run_augmentation(real_dir: Path, sim_dir: Path, out_dir: Path, *, kind: Mode
         return load_grids([source], spec, workers, aug, report, scheduler=scheduler)
 
     real = grids(real_dir, None, "real grids")
-    sim_sets = {"1xSim": grids(sim_dir, None, "sim grids")}
+    # a grid set per simulated condition; a list of them (one per gain) per noise level
+    sim_sets: dict[str, Any] = {"1xSim": grids(sim_dir, None, "sim grids")}
     for level in NOISE_LEVELS:
         parts = [grids(sim_dir, Augmentation(level, tuple(baseline), factor, seed),
                        f"sim grids, noise x{level}, gain x{factor}")

@@ -21,7 +21,7 @@ import json
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from contactkit.classify.data import FeatureSet
 from contactkit.classify.evaluate import Report, evaluate
@@ -218,7 +218,7 @@ def ranked(results: Sequence[TrialResult]) -> list[TrialResult]:
     values of the searched parameters first, in declaration order: for the networks the
     smaller network)."""
     good = [r for r in results if r.report is not None]
-    return sorted(good, key=lambda r: (-r.report.balanced_accuracy.value,
+    return sorted(good, key=lambda r: (-cast(Report, r.report).balanced_accuracy.value,
                                        *(value for _, value in r.trial.params)))
 
 
@@ -245,6 +245,7 @@ def results_markdown(results: Sequence[TrialResult], protocol: Protocol) -> str:
              "|---|" + "---|" * (len(searched) + 5)]
     for rank, r in enumerate(ranked(results), 1):
         t, rep = r.trial, r.report
+        assert rep is not None  # ranked keeps the successful results
         values = "".join(f"{_text(v)} | " for _, v in t.params)
         lines.append(f"| {rank} | {values}{t.steps} | "
                      f"{'+'.join(t.inputs)} | {rep.balanced_accuracy.text()} | "

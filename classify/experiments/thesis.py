@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from itertools import pairwise
 from pathlib import Path
 
@@ -159,7 +160,7 @@ def recursive_elimination(data: FeatureSet, setting: Setting, sizes: Sequence[in
 
     rows = []
     for i, n in enumerate(sizes):
-        report = evaluate(data.X, y, lambda n=n: pipeline(n), protocol=setting.protocol,
+        report = evaluate(data.X, y, partial(pipeline, n), protocol=setting.protocol,
                           groups=groups, group_by=setting.group_by, model=f"rfe-{n}",
                           scheme=setting.scheme, classes=scheme_classes(setting.scheme),
                           seed=setting.seed)

@@ -76,7 +76,7 @@ def _cnn_module(torch, channels: int, steps: int, classes: int, depth: int, widt
     head = nn.Sequential(nn.Linear(in_ch * channels, dense), nn.BatchNorm1d(dense),
                          nn.LeakyReLU(0.01), nn.Dropout(dropout), nn.Linear(dense, classes))
 
-    class CNN(nn.Module):
+    class CNN(nn.Module):  # type: ignore[name-defined]  # torch is imported lazily
         def __init__(self) -> None:
             super().__init__()
             self.body = nn.Sequential(*layers)
@@ -95,7 +95,7 @@ def _lstm_module(torch, channels: int, classes: int, depth: int, width: float,
     sizes = [max(4, round(u * width)) for u in (32, 16) for _ in range(depth)]
     dense = max(4, round(16 * width))
 
-    class LSTM(nn.Module):
+    class LSTM(nn.Module):  # type: ignore[name-defined]  # torch is imported lazily
         def __init__(self) -> None:
             super().__init__()
             self.lstms = nn.ModuleList()
@@ -223,7 +223,7 @@ class _TorchClassifier(ClassifierMixin, BaseEstimator):
         (input ``grid`` float32 (batch, channels, steps), output ``probabilities``)."""
         torch = require_torch()
 
-        class WithScaling(torch.nn.Module):
+        class WithScaling(torch.nn.Module):  # type: ignore[name-defined]  # lazy torch
             def __init__(self, net, mean, std) -> None:
                 super().__init__()
                 self.net = net

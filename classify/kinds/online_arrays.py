@@ -16,6 +16,7 @@ from __future__ import annotations
 import io
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 
@@ -63,8 +64,8 @@ def online_members(compiled: Compiled, prefix: str) -> tuple[dict, dict[str, byt
     that store ``compiled`` under ``prefix``."""
     parts = ([(None, compiled)] if isinstance(compiled, CompiledSVM) else
              [(cols.tolist(), svm) for cols, svm in compiled.members])
-    doc = {"form": FORM, "parts": []}
-    members = {}
+    doc: dict[str, Any] = {"form": FORM, "parts": []}
+    members: dict[str, bytes] = {}
     for i, (columns, svm) in enumerate(parts):
         doc["parts"].append({"columns": columns, "prefix": f"{prefix}{i}/"})
         members |= {f"{prefix}{i}/{name}.npy": npy_bytes(value)
@@ -100,7 +101,8 @@ def read_online(doc: object, member: Callable[[str], bytes], n_features: int,
     if any(columns is None for columns, _ in members):
         raise InputError("invalid compiled classifier in the model file (a part of an "
                          "ensemble without its columns)", path)
-    return CompiledEnsemble(members)
+    # every part has its columns (checked above)
+    return CompiledEnsemble(cast("list[tuple[np.ndarray, CompiledSVM]]", members))
 
 
 def _parts(doc: object, n_features: int) -> list[tuple[list[int] | None, str]]:

@@ -27,7 +27,7 @@ import zipfile
 from collections.abc import Callable
 from contextlib import suppress
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -87,9 +87,10 @@ class ModelFile:
         self.online = online
 
     @property
-    def estimator(self) -> object:
+    def estimator(self) -> Any:
         """The fitted estimator (built on first use where the file was loaded lazily)."""
         if self._estimator is None:
+            assert self._build_estimator is not None  # one of the two is given
             self._estimator = self._build_estimator()
         return self._estimator
 
@@ -407,7 +408,7 @@ def _check_event_meta(doc: object, path: Path) -> None:
     _check_labels(doc.get("classes"), "event classes", path)
     if doc.get("features") != EVENT_FEATURES:
         raise InputError("the event classifier was trained on other event features", path)
-    decide = doc.get("decide_after_s")
+    decide: Any = doc.get("decide_after_s")
     problem = Interval(0, None).problem(decide)
     if problem is None and not math.isfinite(decide):
         problem = f"must be finite, got {decide!r}"
@@ -479,7 +480,7 @@ def _check_copies(archive: zipfile.ZipFile, online: object, estimator: zipfile.Z
     edited apart from its estimator and re-sealed)."""
     prefixes = [part.get("prefix") for part in online.get("parts", [])
                 if isinstance(part, dict)] if isinstance(online, dict) else []
-    stored = {}
+    stored: dict[str, Any] = {}
     for name in estimator.namelist():
         if name.endswith(".npy") and "/" not in name:
             with suppress(ValueError, OSError, EOFError):

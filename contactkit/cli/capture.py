@@ -54,7 +54,7 @@ def register_capture(app: typer.Typer, extensions: tuple[CaptureExtension, ...] 
     ``sources`` to the recorder app."""
     classes, problems = load_sources()
     names = list(classes)
-    chooser = Param("source", Literal[tuple(names)], "sim",  # type: ignore[misc]
+    chooser = Param("source", Literal[tuple(names)], "sim",
                     help="Where the samples come from (recorder sources lists each source's "
                          "options): sim is the simulated Panda.")
     fixed, clash = shared_flags({"capture": (chooser, *(p for e in extensions

@@ -20,7 +20,10 @@ if TYPE_CHECKING:
 
 Condition = Literal["static", "dynamic"]
 Action = Literal[ACTIONS]  # type: ignore[valid-type]
-Pose = Literal[tuple(POSES)]  # type: ignore[valid-type]
+if TYPE_CHECKING:  # the poses are known at run time: a name for the type checker
+    Pose = str
+else:
+    Pose = Literal[tuple(POSES)]
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ import json
 import signal
 import threading
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Literal, cast
 
 import typer
 
@@ -66,7 +66,8 @@ def build(dataset: Path, out: Path, model: Path | None, workers: int, overwrite:
     arm = arm_override(robot, identified)
     # a catalog built with other dynamics is refused without --overwrite
     catalog = CatalogIdentity(identity, None if identified is None else
-                              {"name": Path(dynamics).name, "checksum": identified.checksum})
+                              {"name": Path(cast(Path, dynamics)).name,  # given with identified
+                               "checksum": identified.checksum})
     check_inputs(dataset, out, catalog, overwrite=overwrite)  # before the progress bar
     with progress_bar("replaying") as bar:
         result = build_catalog(dataset, out, model_path, catalog,

@@ -12,7 +12,7 @@ import math
 import sys
 from enum import Enum
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any, TypeAlias, overload
 
 import typer
 
@@ -68,17 +68,35 @@ DEFAULT_WORKERS = available_cpus()
 
 
 def _choices(name: str, values) -> type[Enum]:
-    return Enum(name, {v: v for v in values}, type=str)
+    return Enum(name, {v: v for v in values}, type=str)  # type: ignore[return-value]
 
 
-Kind = _choices("Kind", kind_names())
-Scheme = _choices("Scheme", SCHEMES)
-Protocol = _choices("Protocol", PROTOCOLS)
-Group = _choices("Group", GROUP_KEYS)
-Method = _choices("Method", METHODS)
-Experiment = _choices("Experiment", (*EXPERIMENTS, "augmentation"))
-Device = _choices("Device", DEVICES)
-Network = _choices("Network", searchable_kinds())
+if TYPE_CHECKING:  # the choices are known at run time: a member of any for the checker
+    Kind: TypeAlias = Any
+    Scheme: TypeAlias = Any
+    Protocol: TypeAlias = Any
+    Group: TypeAlias = Any
+    Method: TypeAlias = Any
+    Experiment: TypeAlias = Any
+    Device: TypeAlias = Any
+    Network: TypeAlias = Any
+else:
+    Kind = _choices("Kind", kind_names())
+    Scheme = _choices("Scheme", SCHEMES)
+    Protocol = _choices("Protocol", PROTOCOLS)
+    Group = _choices("Group", GROUP_KEYS)
+    Method = _choices("Method", METHODS)
+    Experiment = _choices("Experiment", (*EXPERIMENTS, "augmentation"))
+    Device = _choices("Device", DEVICES)
+    Network = _choices("Network", searchable_kinds())
+
+
+@overload
+def _split(value: str) -> tuple[str, ...]: ...
+
+
+@overload
+def _split(value: None) -> None: ...
 
 
 def _split(value: str | None) -> tuple[str, ...] | None:
@@ -296,11 +314,12 @@ def predict_command(
         if detector is None:
             raise InputError("model carries no contact detector; give --calibration",
                              model_path)
-        problems = []
+        event_problems = []
         for source in sessions:
-            problems += _print_events(model, source, detector, decide_after, as_json, arm)
-        print_problems(problems)
-        exit_if_failed(problems)
+            event_problems += _print_events(model, source, detector, decide_after, as_json,
+                                            arm)
+        print_problems(event_problems)
+        exit_if_failed(event_problems)
         return
     predictions, problems = predict_sources(model, sessions, arm)
     print_problems(problems)

@@ -89,7 +89,7 @@ class _StderrHandler(logging.StreamHandler):
         return printable(super().format(record))
 
     @property
-    def stream(self):  # type: ignore[override]
+    def stream(self):
         """The current ``sys.stderr``."""
         return sys.stderr
 
@@ -111,7 +111,7 @@ SOME_FAILED = 2
 each failure is listed on stderr, and the output of the others is written."""
 
 
-def print_problems(problems: Sequence[object], verb: str = "skipped") -> None:
+def print_problems(problems: Sequence[Any], verb: str = "skipped") -> None:
     """Print each problem of a command over many sessions on stderr: ``verb name:
     problem``, from ``(name, problem)`` pairs or errors with ``path`` and ``problem``,
     with control characters and console markup in them escaped."""

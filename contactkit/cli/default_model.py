@@ -41,6 +41,7 @@ import hashlib
 import json
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from contactkit.classify.events.contact_events import DEFAULT_DECIDE_AFTER_S, EVENT_FEATURES
 from contactkit.classify.kinds.kind import ModelOptions
@@ -54,7 +55,7 @@ from contactkit.util.progress import LabelledProgress
 
 SHOULDER_FLOOR_NM = 0.2
 """The default detector's at-rest threshold floor on joints 1-4 [Nm] (recipe step 3)."""
-RECIPE = {
+RECIPE: dict[str, Any] = {
     "presets": ["default-static", "default-dynamic"],
     "event_presets": ["free-motion", "mixed-motion"],
     "range_presets": {"thesis-static": 64, "thesis-dynamic": 64, "aug-real": 32},

@@ -16,8 +16,9 @@ chosen owner and refuses a flag it does not take.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Set as AbstractSet
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import typer
 import typer.core
@@ -59,7 +60,7 @@ def flag_key(param: Param) -> str:
     return param.option.removeprefix("--").replace("-", "_")
 
 
-def shared_flags(owners: Mapping[str, Sequence[Param]], taken: set[str] = frozenset(),
+def shared_flags(owners: Mapping[str, Sequence[Param]], taken: AbstractSet[str] = frozenset(),
                  what: str = "") -> tuple[dict[str, SharedFlag], dict[str, str]]:
     """Return the flags of every owner's parameters by option (``--name``), and the problem
     of each owner whose options clash with a ``taken`` option or with another owner's
@@ -89,7 +90,7 @@ def _option(flag: SharedFlag) -> typer.core.TyperOption:
     annotation = Literal[choices[0]] if p.type is str and choices else p.type
     meta = typer.models.ParamMeta(name=flag.key, annotation=annotation | None,
                                   default=typer.Option(None, decl, help=flag.help()))
-    return typer.main._get_param(meta)
+    return cast(typer.core.TyperOption, typer.main._get_param(meta))  # an option's meta
 
 
 def command_with_flags(app: typer.Typer, name: str, flags: Sequence[SharedFlag], *,
@@ -109,7 +110,7 @@ def command_with_flags(app: typer.Typer, name: str, flags: Sequence[SharedFlag],
             super().__init__(*args, **kwargs)
             self.params.extend(options)
 
-        def invoke(self, ctx: typer.Context) -> Any:
+        def invoke(self, ctx: Any) -> Any:  # a typer.Context (click's, to the checker)
             ctx.meta[key] = {o.name: ctx.params.pop(o.name, None) for o in options}
             return super().invoke(ctx)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal, cast
 
 import typer
 
@@ -54,7 +54,10 @@ if TYPE_CHECKING:
 # tests/cli/test_startup.py checks which modules they import.
 
 DEFAULT_WORKERS = available_cpus()
-Preset = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
+if TYPE_CHECKING:  # the presets are known at run time: a name for the type checker
+    Preset = str
+else:
+    Preset = Literal[tuple(PRESETS)]
 ReportFormat = Literal["html", "md", "json"]
 
 
@@ -698,7 +701,8 @@ def can_bridge_command(
     if log is not None:
         check_target(log, overwrite=overwrite)
     recorded = read_session(session)
-    bus = None if log is not None else BusConfig(interface, channel)
+    # without a log, the channel was given (checked above)
+    bus = None if log is not None else BusConfig(interface, cast(str, channel))
     sent = bridge_session(recorded, load_map(can_map), bus=bus, log=log, rate=rate,
                           overwrite=overwrite)
     err_console.print(f"{sent} frames ({recorded.n_samples} samples) sent"

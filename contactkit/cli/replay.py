@@ -171,7 +171,7 @@ def replay_command(
     if len(written) == 1:
         err_console.print(f"saved {console_text(written[0])}; open it with "
                           f"`rerun {console_text(written[0])}`")
-    elif written:
+    elif written and save is not None:  # several recordings are saved with --save only
         err_console.print(f"saved {len(written)} recordings as {console_text(save.parent)}/"
                           f"{console_text(save.stem)}_"
                           f"<session>.rrd; open them together with "

@@ -23,6 +23,7 @@ rate limiter's ``kMaxJointAcceleration`` and ``kMaxJointJerk``); the torque-rate
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -76,7 +77,8 @@ def fr3_urdf_path() -> Path:
     return DATA / "fr3" / "fr3_hand.urdf"
 
 
-def _franka(prefix: str, ddq_max: tuple[float, ...], jerk_max: tuple[float, ...]) -> dict:
+def _franka(prefix: str, ddq_max: tuple[float, ...], jerk_max: tuple[float, ...]
+            ) -> dict[str, Any]:
     return {
         "joint_names": tuple(f"{prefix}_joint{i}" for i in range(1, 8)),
         "link_frames": tuple(f"{prefix}_link{i}" for i in range(1, 8)),

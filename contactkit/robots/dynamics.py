@@ -31,6 +31,7 @@ import json
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -40,12 +41,12 @@ from contactkit.robots.spec import (
     FORMAT,
     FRICTION_TERMS,
     N_JOINTS,
-    PARAMETER_NAMES,
-    ArmDynamics,
-    Payload,
     RobotSetup,
     dynamics_checksum,
 )
+from contactkit.robots.spec import PARAMETER_NAMES as PARAMETER_NAMES  # re-exported
+from contactkit.robots.spec import ArmDynamics as ArmDynamics
+from contactkit.robots.spec import Payload as Payload
 from contactkit.util.atomic import write_text
 from contactkit.util.safe_open import parse_json, read_input_bytes
 
@@ -111,7 +112,8 @@ def consistent(parameters: np.ndarray) -> bool:
     return bool(parameters[0] > 0 and eig[0] >= -PSD_TOLERANCE * max(eig[-1], 1e-12))
 
 
-def _numbers(value: object, count: int, what: str, where: str | Path | None) -> tuple:
+def _numbers(value: object, count: int, what: str, where: str | Path | None
+             ) -> tuple[float, ...]:
     if not (isinstance(value, list) and len(value) == count and all(
             isinstance(v, int | float) and not isinstance(v, bool) for v in value)):
         raise InputError(f"{what} must be a list of {count} numbers", where)
@@ -203,7 +205,8 @@ def dynamics_from_dict(doc: object, where: str | Path | None = None) -> ArmDynam
     return ArmDynamics(
         robot=robot, with_hand=doc["with_hand"], inertias=inertias, armature_kgm2=armature,
         friction=terms,
-        payload=Payload(mass, _numbers(payload["com_m"], 3, "payload com_m", where),
+        payload=Payload(mass, cast("tuple[float, float, float]",  # three, checked
+                                   _numbers(payload["com_m"], 3, "payload com_m", where)),
                         _numbers(payload["inertia_kgm2"], 6, "payload inertia_kgm2", where)),
         detector=None if detector is None else json.dumps(detector, sort_keys=True),
         provenance=json.dumps(doc["provenance"], sort_keys=True))

@@ -180,24 +180,29 @@ class RobotModel:
 
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
         """Return the joint-space inertia matrix M(q) [kg m^2], shape (7, 7), symmetric."""
-        m = pin.crba(self.model, self.data, q)
-        return np.triu(m) + np.triu(m, 1).T
+        m: np.ndarray = pin.crba(self.model, self.data, q)
+        symmetric: np.ndarray = np.triu(m) + np.triu(m, 1).T
+        return symmetric
 
     def coriolis_matrix(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """Return C(q, dq) [Nm s/rad] with dM/dt - 2C skew-symmetric, shape (7, 7)."""
-        return pin.computeCoriolisMatrix(self.model, self.data, q, dq).copy()
+        c: np.ndarray = pin.computeCoriolisMatrix(self.model, self.data, q, dq).copy()
+        return c
 
     def gravity(self, q: np.ndarray) -> np.ndarray:
         """Return the gravity torque g(q) [Nm], shape (7,)."""
-        return pin.computeGeneralizedGravity(self.model, self.data, q).copy()
+        g: np.ndarray = pin.computeGeneralizedGravity(self.model, self.data, q).copy()
+        return g
 
     def inverse_dynamics(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
         """Return M ddq + C dq + g [Nm]: the joint torque for ``ddq`` with no external force."""
-        return pin.rnea(self.model, self.data, q, dq, ddq).copy()
+        tau: np.ndarray = pin.rnea(self.model, self.data, q, dq, ddq).copy()
+        return tau
 
     def forward_dynamics(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """Return ddq [rad/s^2] = M^-1 (tau - C dq - g) (articulated-body algorithm)."""
-        return pin.aba(self.model, self.data, q, dq, tau).copy()
+        ddq: np.ndarray = pin.aba(self.model, self.data, q, dq, tau).copy()
+        return ddq
 
     def frame_placement(self, q: np.ndarray, link: int | str) -> pin.SE3:
         """Return the world placement of link 1..7 (or a named frame) at ``q``."""
@@ -257,7 +262,8 @@ class RobotModel:
         fid = self.frame_id(link)
         pin.computeJointJacobians(self.model, self.data, q)
         pin.updateFramePlacements(self.model, self.data)
-        jac = pin.getFrameJacobian(self.model, self.data, fid, pin.LOCAL_WORLD_ALIGNED)
+        jac: np.ndarray = pin.getFrameJacobian(self.model, self.data, fid,
+                                               pin.LOCAL_WORLD_ALIGNED)
         if point_local is not None:
             offset = self.data.oMf[fid].rotation @ np.asarray(point_local, dtype=float)
             jac = jac.copy()
@@ -267,9 +273,11 @@ class RobotModel:
 
 def _rotate(rotation: np.ndarray, vector: np.ndarray) -> np.ndarray:
     """Return ``rotation`` (n, 3, 3) applied to one ``vector`` (3,): (n, 3)."""
-    return (rotation.reshape(-1, 3) @ vector).reshape(-1, 3)
+    rotated: np.ndarray = (rotation.reshape(-1, 3) @ vector).reshape(-1, 3)
+    return rotated
 
 
 def _compose(rotation: np.ndarray, right: np.ndarray) -> np.ndarray:
     """Return ``rotation`` (n, 3, 3) times one matrix ``right`` (3, 3): (n, 3, 3)."""
-    return (rotation.reshape(-1, 3) @ right).reshape(-1, 3, 3)
+    composed: np.ndarray = (rotation.reshape(-1, 3) @ right).reshape(-1, 3, 3)
+    return composed

@@ -28,7 +28,7 @@ import os
 import xml.etree.ElementTree as ET
 from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 from contactkit.errors import InputError
 from contactkit.robots.builtin import BUILTIN
@@ -114,10 +114,13 @@ def urdf_robot(path: str) -> RobotSpec:
     """
     file = Path(path).expanduser()
     root = parse_urdf(read_input_text(file, "robot's URDF", "urdf"), file)
-    children: dict[str, list[ET.Element]] = {}
+    children: dict[str | None, list[ET.Element]] = {}
     for joint in root.iter("joint"):
-        children.setdefault(joint.find("parent").get("link"), []).append(joint)
-    child_links = {joint.find("child").get("link") for joint in root.iter("joint")}
+        parent = joint.find("parent")
+        assert parent is not None  # parse_urdf checked every joint's parent and child
+        children.setdefault(parent.get("link"), []).append(joint)
+    child_links = {cast(ET.Element, joint.find("child")).get("link")
+                   for joint in root.iter("joint")}
     roots = [link.get("name") for link in root.iter("link")
              if link.get("name") not in child_links]
 
@@ -131,10 +134,14 @@ def urdf_robot(path: str) -> RobotSpec:
                 return True
             if id(joint) not in visited:
                 visited.add(id(joint))
-                stack += children.get(joint.find("child").get("link"), [])
+                child = joint.find("child")
+                assert child is not None  # every joint's child was checked above
+                stack += children.get(child.get("link"), [])
         return False
 
-    joints, links, seen = [], [], set()
+    joints: list[str | None] = []
+    links: list[str | None] = []
+    seen: set[str] = set()
     link = roots[0] if len(roots) == 1 else None
     while link is not None:
         if link in seen:
@@ -149,7 +156,9 @@ def urdf_robot(path: str) -> RobotSpec:
         if not following:
             break
         joint = following[0]
-        link = joint.find("child").get("link")
+        child = joint.find("child")
+        assert child is not None  # every joint's child was checked above
+        link = child.get("link")
         if joint.get("type") in ("revolute", "continuous") and len(joints) < N_JOINTS:
             joints.append(joint.get("name"))
             links.append(link)
@@ -159,9 +168,11 @@ def urdf_robot(path: str) -> RobotSpec:
         raise InputError(f"the URDF has no serial chain of {N_JOINTS} revolute joints "
                          f"(found {len(joints)})", file)
     resolved = file.resolve()
+    # a joint or link without a name (None) fails the limits check below
     spec = RobotSpec(name=f"{URDF_PREFIX}{path}", description=f"7-joint arm from {resolved}",
-                     urdf_file=lambda: resolved, joint_names=tuple(joints),
-                     link_frames=tuple(links), flange=link, provenance=str(resolved))
+                     urdf_file=lambda: resolved, joint_names=cast("tuple[str, ...]", tuple(joints)),
+                     link_frames=cast("tuple[str, ...]", tuple(links)), flange=cast(str, link),
+                     provenance=str(resolved))
     try:
         spec.limits  # noqa: B018 - checks the joints' limits once, here
     except ValueError as err:
@@ -190,8 +201,8 @@ def parse_urdf(text: str, file: Path) -> ET.Element:
     for kind, names in (("link", links), ("joint", [j.get("name") for j in root.iter("joint")])):
         if len(set(names)) != len(names) or None in names:
             raise InputError(f"the URDF has a {kind} without a name or two of one name", file)
-    parent_of: dict[str, str] = {}
-    below: dict[str, list[str]] = {}
+    parent_of: dict[str | None, str | None] = {}
+    below: dict[str | None, list[str | None]] = {}
     for joint in root.iter("joint"):
         parent, child = joint.find("parent"), joint.find("child")
         if parent is None or child is None:
@@ -217,8 +228,8 @@ def parse_urdf(text: str, file: Path) -> ET.Element:
     if len(reached) != len(links):
         loop = next(link for link in links if link not in reached)
         raise InputError(f"the URDF's joints form a loop at link {loop!r}", file)
-    for link in root.iter("link"):
-        _check_inertial(link, file)
+    for element in root.iter("link"):
+        _check_inertial(element, file)
     return root
 
 

@@ -21,6 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -96,7 +97,8 @@ class FrictionModel:
         if dq.ndim == 2 and dq.shape[0] == N_JOINTS and dq.shape[1] != N_JOINTS:
             phi1, phi2, phi3, rest, viscous, offset = (
                 x[:, None] for x in (phi1, phi2, phi3, rest, viscous, offset))
-        return phi1 * _sigmoid(phi2 * (dq + phi3)) - rest + viscous * dq + offset
+        friction: np.ndarray = phi1 * _sigmoid(phi2 * (dq + phi3)) - rest + viscous * dq + offset
+        return friction
 
     @cached_property
     def sample_coefficients(self) -> tuple[list[float], ...]:
@@ -112,7 +114,7 @@ class FrictionModel:
     @property
     def at_rest(self) -> np.ndarray:
         """The sigmoid's value at dq = 0, subtracted so that it is zero at rest [Nm]."""
-        cached = self.__dict__.get("_at_rest")
+        cached: np.ndarray | None = self.__dict__.get("_at_rest")
         if cached is None:
             cached = self.phi1 * _sigmoid(self.phi2 * self.phi3)
             object.__setattr__(self, "_at_rest", cached)
@@ -230,7 +232,7 @@ def urdf_joint_limits(text: str, joint_names: tuple[str, ...]
     for name in joint_names:
         joint = joints.get(name)
         limit = None if joint is None else joint.find("limit")
-        if limit is None:
+        if joint is None or limit is None:
             raise ValueError(f"the URDF has no joint {name!r} with a <limit>")
         row = [float(limit.get(k, "nan")) for k in ("lower", "upper", "velocity", "effort")]
         if joint.get("type") == "continuous":
@@ -294,11 +296,12 @@ class ArmDynamics:
         return np.array(self.inertias, dtype=float)
 
     @property
-    def provenance_doc(self) -> dict:
+    def provenance_doc(self) -> dict[str, Any]:
         """Return the provenance as a dictionary."""
-        return json.loads(self.provenance)
+        doc: dict[str, Any] = json.loads(self.provenance)
+        return doc
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """Return the JSON document of these dynamics, with its ``checksum``."""
         doc = {
             "format": FORMAT,
@@ -320,10 +323,11 @@ class ArmDynamics:
     def checksum(self) -> str:
         """The file's checksum (``sha256:`` and 64 hex digits) over the canonical content:
         it shows the content is whole, nothing more."""
-        return self.to_dict()["checksum"]
+        checksum: str = self.to_dict()["checksum"]
+        return checksum
 
 
-def dynamics_checksum(doc: dict) -> str:
+def dynamics_checksum(doc: dict[str, Any]) -> str:
     """Return the checksum (``sha256:`` and 64 hex digits) of a dynamics document without
     its ``checksum``: SHA-256 over its canonical JSON (sorted keys, no spaces)."""
     text = json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False)

@@ -111,7 +111,7 @@ def _rpy_matrix(rpy: np.ndarray) -> np.ndarray:
                      [-sp, cp * sr, cp * cr]])
 
 
-def _mesh_file(spec: RobotSpec, link_name: str, filename: str
+def _mesh_file(spec: RobotSpec, link_name: str | None, filename: str
                ) -> tuple[Path, np.ndarray] | None:
     """Return the file a collision ``<mesh>`` of link ``link_name`` names and its
     triangles (n, 3, 3) [file units]; None, with a warning once per problem, for a mesh

@@ -328,7 +328,7 @@ def remove_stale_temporaries(directory: str | Path, max_age_s: float = STALE_AGE
     ``.<name>.<pid>.tmp``), only those of the file named ``target`` when given; return
     them. One is removed only when its writer's process is gone or it is older than
     ``max_age_s`` [s]; others stay."""
-    removed = []
+    removed: list[Path] = []
     try:
         entries = list(os.scandir(directory))
     except OSError:

@@ -22,6 +22,7 @@ import itertools
 import logging
 import os
 from collections.abc import Callable, Iterable, Iterator
+from types import ModuleType
 from typing import Any, TypeVar
 
 from contactkit.errors import DependencyMissing, InputError, ResourceError
@@ -55,7 +56,7 @@ def parse_scheduler(address: str) -> tuple[str, int | None]:
     raise InputError(f"scheduler {address!r} is not local, local:N or tcp://host:port")
 
 
-def _require_distributed():
+def _require_distributed() -> ModuleType:
     try:
         import distributed
     except ImportError as err:
@@ -64,7 +65,7 @@ def _require_distributed():
     return distributed
 
 
-def get_client(address: str):
+def get_client(address: str) -> Any:
     """Return the (cached) ``distributed.Client`` of a scheduler string.
 
     Raises :class:`~contactkit.errors.ResourceError` when a remote scheduler does not
@@ -111,7 +112,7 @@ def get_client(address: str):
     return client
 
 
-def _die_with_parent_plugin(parent_pid: int):
+def _die_with_parent_plugin(parent_pid: int) -> Any:
     """Return a worker plugin for a LocalCluster: its workers end when this process
     (their parent) ends, even by SIGKILL (see
     :func:`contactkit.util.workers.die_with_parent`). Built here so that importing
@@ -121,7 +122,7 @@ def _die_with_parent_plugin(parent_pid: int):
     class DieWithParent(WorkerPlugin):
         name = "contactkit-die-with-parent"
 
-        def setup(self, worker) -> None:
+        def setup(self, worker: Any) -> None:
             import os
 
             from contactkit.util.workers import die_with_parent
@@ -145,9 +146,10 @@ def close_clients() -> None:
 atexit.register(close_clients)
 
 
-def worker_count(client) -> int:
+def worker_count(client: Any) -> int:
     """Return the number of worker threads the client's cluster has now (at least 1)."""
-    return max(1, sum(client.nthreads().values()))
+    threads: int = max(1, sum(client.nthreads().values()))
+    return threads
 
 
 def batch_size(total: int | None, workers: int) -> int:
@@ -184,8 +186,9 @@ def dask_map_ordered(fn: Callable[..., R], items: Iterable[Any], address: str, *
     workers = worker_count(client)
     size = batch_size(total, workers)
 
-    def wait_first(jobs: list) -> Iterable:
-        return distributed.wait(jobs, return_when="FIRST_COMPLETED").done
+    def wait_first(jobs: list[Any]) -> Iterable[Any]:
+        done: Iterable[Any] = distributed.wait(jobs, return_when="FIRST_COMPLETED").done
+        return done
 
     if size == 1:
         yield from ordered_results(lambda item: client.submit(fn, item, pure=False),

@@ -56,7 +56,9 @@ class _Target:
         column = keys[:, self.column]
         if self.known == 0:
             return column
-        return column[(column >> np.uint64(64 - self.known)) == np.uint64(self.prefix)]
+        selected: np.ndarray = column[(column >> np.uint64(64 - self.known))
+                                      == np.uint64(self.prefix)]
+        return selected
 
     def narrow(self, histogram: np.ndarray) -> None:
         """Keep the bin of the histogram of the next 16 bits that holds the rank."""
@@ -91,13 +93,15 @@ def exact_medians(read: Callable[[], Iterable[np.ndarray]]) -> np.ndarray:
         _one_pass(read, [target for target in targets if target.key is None])
     keys = np.array([target.key for target in targets], dtype=np.uint64)
     middle = key_values(keys).reshape(width, len(ranks))
-    return np.mean(middle, axis=1)
+    medians: np.ndarray = np.mean(middle, axis=1)
+    return medians
 
 
 def _one_pass(read: Callable[[], Iterable[np.ndarray]], targets: list[_Target]) -> None:
     """Read the stream once: gather the candidates of targets with few enough left,
     count the next 16 bits of the others; targets sharing candidates share the work."""
-    collect = {t.selector(): [] for t in targets if t.count <= COLLECT_AT}
+    collect: dict[tuple[int, int, int], list[np.ndarray]] = {
+        t.selector(): [] for t in targets if t.count <= COLLECT_AT}
     count = {t.selector(): np.zeros(1 << DIGIT_BITS, dtype=np.int64) for t in targets
              if t.count > COLLECT_AT}
     first = {t.selector(): t for t in targets}

@@ -14,9 +14,13 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from contactkit.errors import InputError
 from contactkit.util.atomic import Owned, atomic_write, check_target
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 
 def owned_by_marker(marker: bytes, within: int = 4096) -> Owned:
@@ -40,7 +44,7 @@ def result_markdown(text: str) -> str:
     return f"<!-- {RESULT_MARK} -->\n{text}"
 
 
-def result_json(doc: dict) -> dict:
+def result_json(doc: dict[str, Any]) -> dict[str, Any]:
     """Return a result file's JSON object ``doc`` with :data:`RESULT_MARK` first."""
     return {"generator": RESULT_MARK} | doc
 
@@ -75,8 +79,8 @@ def check_results(out_dir: str | Path, names: Sequence[str]) -> list[Path]:
     return paths
 
 
-def write_figure(path: str | Path, fig, *, overwrite: bool = False,
-                 owned: Owned | None = None, **savefig) -> Path:
+def write_figure(path: str | Path, fig: Figure, *, overwrite: bool = False,
+                 owned: Owned | None = None, **savefig: Any) -> Path:
     """Save a Matplotlib figure as PNG to ``path`` with :func:`atomic_write`; return it.
     The PNG's ``Software`` is :data:`RESULT_MARK` unless ``metadata`` says otherwise."""
     savefig.setdefault("metadata", {"Software": RESULT_MARK})

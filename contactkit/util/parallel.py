@@ -122,7 +122,7 @@ server process instead (``forkserver``)."""
 
 def pool_context(spawn: bool = False
                  ) -> tuple[multiprocessing.context.BaseContext | None, Callable[..., None],
-                            tuple]:
+                            tuple[Any, ...]]:
     """Return the multiprocessing context of the local pool and the initializer of its
     workers with its arguments, which make them end with this process: fresh
     interpreters with ``spawn``; where a library of :data:`FORK_UNSAFE_MODULES` is

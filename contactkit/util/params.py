@@ -103,7 +103,7 @@ class Param:
     constraints: tuple[Interval | Choice, ...] = ()
     optional: bool = False
     flag: str | None = None
-    grid: tuple = ()
+    grid: tuple[Any, ...] = ()
 
     @property
     def option(self) -> str:
@@ -221,7 +221,7 @@ def check_settings(params: Sequence[Param], values: object, owner: str) -> dict[
     if unknown:
         raise InputError(f"{owner}: unknown setting {unknown[0][:80]!r} (known: "
                          f"{', '.join(declared) or 'none'})")
-    out = {}
+    out: dict[str, Any] = {}
     for name, value in values.items():
         p = declared[name]
         if value is None:

@@ -5,7 +5,14 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TaskID,
+    TextColumn,
+    TimeRemainingColumn,
+)
 
 ProgressCallback = Callable[[int, int], None]
 """``(done, total)``: how many items of how many are finished."""
@@ -36,7 +43,7 @@ def bar_callback(bar: Progress, description: str = "") -> ProgressCallback:
 
 def labelled_progress(bar: Progress) -> LabelledProgress:
     """Return a callback ``(label, done, total)`` that keeps one task of ``bar`` per label."""
-    tasks: dict[str, int] = {}
+    tasks: dict[str, TaskID] = {}
 
     def progress(label: str, done: int, total: int) -> None:
         if label not in tasks:

@@ -22,6 +22,7 @@ from contactkit.errors import InputError, ResourceError
 
 if TYPE_CHECKING:
     import rerun as rr
+    import rerun.blueprint as rrb
 
 RRD_FOOTER = b"RRF2FOOT"
 """The mark near the end of every whole .rrd file (followed by 4 bytes of version)."""
@@ -54,7 +55,7 @@ def check_space(target: str | Path) -> None:
 
 
 def start_recording(rec: rr.RecordingStream, written: Path, target: str | Path,
-                    blueprint: object = None) -> None:
+                    blueprint: rrb.Blueprint | None = None) -> None:
     """Save ``rec`` into the file ``written`` (the temporary behind ``target``) with the
     default ``blueprint``, after :func:`check_space` (Rerun's ``save`` waits for ever
     when the device is already full)."""

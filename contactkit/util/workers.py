@@ -87,7 +87,8 @@ def join_parent(pid: int, environ: dict[str, str], cwd: str) -> None:
     die_with(pid)
 
 
-def ordered_results(submit: Callable[[Any], Any], wait_first: Callable[[list], Iterable],
+def ordered_results(submit: Callable[[Any], Any],
+                    wait_first: Callable[[list[Any]], Iterable[Any]],
                     items: Iterable[Any], limit: int, progress: ProgressCallback | None,
                     total: int | None) -> Iterator[Any]:
     """Run ``items`` through an executor and yield the results in the order of the items:

@@ -52,6 +52,7 @@ from __future__ import annotations
 
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -94,8 +95,8 @@ THRESHOLD_COLOR = (120, 120, 120)
 CONTACT_COLORS = {"contact": (230, 140, 40), "free": (205, 205, 205)}
 WINDOW_COLOR = (90, 170, 200)
 LEGEND_ROOM = 0.2  # time axes run this fraction of the session past its end: the legends' room
-CAMERA = {"position": (1.1, -0.9, 0.8), "look_target": (0.3, 0.0, 0.45),
-          "eye_up": (0.0, 0.0, 1.0)}  # [m] in the base frame: frames the whole arm
+CAMERA: dict[str, Any] = {"position": (1.1, -0.9, 0.8), "look_target": (0.3, 0.0, 0.45),
+                          "eye_up": (0.0, 0.0, 1.0)}  # [m] in the base frame: the whole arm
 
 
 def time_columns(t: np.ndarray, sample: np.ndarray) -> list[rr.TimeColumn]:
@@ -230,10 +231,10 @@ def log_contact_styles(rec: rr.RecordingStream) -> None:
 
 
 @cache
-def _contact_styles() -> tuple[tuple, ...]:
+def _contact_styles() -> tuple[tuple[str, rr.CoordinateFrame, rr.Points3D | rr.Arrows3D], ...]:
     """Return (entity path, frame, style) of the isolated and the true contact's points
     and arrows (built once per process)."""
-    styles = []
+    styles: list[tuple[str, rr.CoordinateFrame, rr.Points3D | rr.Arrows3D]] = []
     for point, arrow, color in ((CONTACT_POINT, CONTACT_FORCE, CONTACT_COLOR),
                                 (TRUE_POINT, TRUE_ARROW, TRUTH_COLOR)):
         styles.append((point, rr.CoordinateFrame(BASE_FRAME),

@@ -339,6 +339,7 @@ def _recover_locked(journal: Path, out_path: Path) -> Recovery:
                                               "away and run recover again", failed=True)
         journal.unlink()
         return Recovery(journal, out_path, 0, "session already complete; stale journal removed")
+    assert reader is not None and meta is not None  # read: no session beside it
     n = gaps = 0
     torn = [False]
     for batch in _complete_batches(reader, torn):  # first pass: count, one batch at a time
@@ -383,5 +384,5 @@ def _recover_one(journal: Path) -> Recovery:
     """Recover one journal of a directory; a failure is its Recovery, not the end."""
     try:
         return recover_journal(journal)
-    except (*DATA_ERRORS, OSError) as err:
+    except (*DATA_ERRORS, OSError) as err:  # type: ignore[misc]  # mypy: a starred tuple
         return Recovery(journal, None, 0, f"left in place: {problem_text(err)}", failed=True)

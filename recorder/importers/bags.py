@@ -122,6 +122,7 @@ class _Stacked:
 
     def read(self, start: int, stop: int) -> np.ndarray:
         """Return the values of messages ``start`` up to ``stop``, each of ``shape``."""
+        assert self.spill is not None  # read after the messages came
         rows = self.spill.read(start, stop)
         return rows.reshape(len(rows), *self.shape)
 

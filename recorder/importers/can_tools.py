@@ -199,6 +199,7 @@ def bridge_session(session: Session, fmap: FrameMap, *, bus: BusConfig | None = 
                 _drain(writer)
                 writer.stop()
         return sent
+    assert bus is not None  # either a bus or a log
     channel = bus.open(fmap.fd)
     sent = 0
     try:

@@ -236,6 +236,7 @@ def _spill_block(spill: CsvSpill, cmap: CsvMap, values: dict[str, np.ndarray],
         block = np.column_stack([values[name] for name in spec.names]) * spec.factor
         spill.joints[prefix].append(block[keep])
     if spill.contact is not None:
+        assert cmap.contact is not None  # the spill has a contact column when the map has
         spill.contact.append(values[cmap.contact][keep] == 1)
 
 

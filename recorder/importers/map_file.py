@@ -9,13 +9,14 @@ import math
 import tomllib
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import TypeVar
+from typing import TypeVar, cast
 
 from contactkit.schemas import InputError
 from contactkit.util.safe_open import read_input_text
 from contactkit.util.text import printable
 
 Parsed = TypeVar("Parsed")
+A = TypeVar("A")
 
 
 def load_map_file(path: Path, what: str, parse: Callable[[dict, str], Parsed]) -> Parsed:
@@ -69,7 +70,7 @@ def known_keys(table: object, allowed: Iterable[str], where: str,
     return table
 
 
-def one_of(value: object, allowed: Iterable, what: str) -> object:
+def one_of(value: object, allowed: Iterable[A], what: str) -> A:
     """Return ``value`` when it is one of ``allowed`` (the same value and type: 1.0 is
     not 1); else raise ValueError naming ``what`` and the allowed values
     (:func:`load_map_file` turns it into an InputError)."""
@@ -78,7 +79,7 @@ def one_of(value: object, allowed: Iterable, what: str) -> object:
         names = [str(a) for a in allowed]
         choices = names[0] if len(names) == 1 else f"{', '.join(names[:-1])} or {names[-1]}"
         raise ValueError(f"{what} must be {choices}, got {value!r}")
-    return value
+    return cast(A, value)  # equal in value and type to one of allowed
 
 
 def integer(value: object, what: str, low: int | None = None, high: int | None = None) -> int:

@@ -136,9 +136,10 @@ def _message_streams(session: Session, store: Any) -> dict[str, tuple[str, Any]]
     if hat is not None:
         streams[EXPORT_TOPICS["tau_ext_hat"]] = (JOINT_STATE, lambda i, h: joint_state(
             header=h, name=names, position=empty, velocity=empty, effort=hat[i]))
-    for key, names in (("wrench_hat", WRENCH_HAT_COLUMNS), ("applied", FORCE_COLUMNS)):
-        if all(session.has(n) for n in names):
-            values = np.column_stack([session.column(n) for n in names])
+    # not ``names``: the joint states' lambdas above read that name when called
+    for key, columns in (("wrench_hat", WRENCH_HAT_COLUMNS), ("applied", FORCE_COLUMNS)):
+        if all(session.has(n) for n in columns):
+            values = np.column_stack([session.column(n) for n in columns])
             if values.shape[1] == 3:
                 values = np.column_stack([values, np.zeros((len(values), 3))])
             streams[EXPORT_TOPICS[key]] = (WRENCH_STAMPED, _wrench_maker(store, values))

@@ -77,14 +77,15 @@ def preset_specs(preset: Preset, n: int, seed: int, robot: RobotSetup | None = N
         session_seed = int(rng.integers(2**63))
         link = None if preset.links is None or action == "none" else \
             int(preset.links[int(rng.integers(len(preset.links)))])
-        common = dict(seed=session_seed, action=action, operator=OPERATORS[k % len(OPERATORS)],
-                      pose_jitter_rad=preset.pose_jitter_rad, robot=robot,
-                      duration_s=preset.duration_s, link=link,
-                      operator_variability=preset.variability if variability is None
-                      else variability)
+        common: dict[str, Any] = dict(
+            seed=session_seed, action=action, operator=OPERATORS[k % len(OPERATORS)],
+            pose_jitter_rad=preset.pose_jitter_rad, robot=robot, duration_s=preset.duration_s,
+            link=link,
+            operator_variability=preset.variability if variability is None else variability)
         if preset.free_motion:
             specs.append(plan_free_session(pose=pose, **common))
         elif preset.condition == "dynamic":
+            assert preset.speed_range is not None  # a dynamic preset has its speeds
             speed = float(rng.uniform(*preset.speed_range))
             specs.append(plan_session(condition="dynamic", pose=START_POSE, target_pose=pose,
                                       speed_rad_s=round(speed, 4), **common))

@@ -37,6 +37,7 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+from typing import cast
 
 import numpy as np
 import pyarrow as pa
@@ -46,6 +47,8 @@ from contactkit.recorder.protocol import MAX_ONSET_DELAY_S
 from contactkit.robots.model import RobotModel
 from contactkit.robots.surfaces import LinkSurface, link_surface
 from contactkit.schemas import Session, joint_columns
+
+Vec3 = tuple[float, float, float]
 
 PROFILE_RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "bump": {"peak_n": (8.0, 30.0), "rise_s": (0.025, 0.075)},
@@ -159,8 +162,8 @@ def sample_contact(rng: np.random.Generator, action: str, planned_at_s: float, l
         action=action,
         onset_s=planned_at_s + float(rng.uniform(0.0, MAX_ONSET_DELAY_S)),
         link=link,
-        point_local=tuple(float(x) for x in point),
-        direction=tuple(float(x) for x in direction),
+        point_local=cast(Vec3, tuple(float(x) for x in point)),
+        direction=cast(Vec3, tuple(float(x) for x in direction)),
         peak_n=draw["peak_n"] * persona.strength,
         rise_s=draw["rise_s"] * persona.tempo,
         hold_s=draw.get("hold_s", 0.0) * persona.tempo,
@@ -231,7 +234,7 @@ def add_synthetic_touches(session: Session, rng: np.random.Generator,
     robot = session.meta.robot_setup(session.path)
     model = RobotModel(robot)
     tau = session.tau.copy()
-    contacts = []
+    contacts: list[Contact] = []
     for at in onsets_s:
         link = int(rng.integers(1, 8))
         action = ("bump", "adjust", "shove")[int(rng.integers(3))]
@@ -239,6 +242,7 @@ def add_synthetic_touches(session: Session, rng: np.random.Generator,
                                          link).rotation
         contact = sample_contact(rng, action, at, link, link_surface(robot, link), rotation,
                                  Persona("synthetic", 1.0, 1.0))
+        assert contact is not None  # a touch's action is never "none"
         tau -= contact_torque(model, session.t, session.q, contact)
         contacts.append(contact)
     table = session.table

@@ -347,12 +347,12 @@ class ArmSimulator:
         self._plant_pool = pin.ModelPool(self.plant.model, 1)
         self._nominal_pool = pin.ModelPool(self.nominal.model, 1)
         noise = config.noise
-        scale = config.noise_scale
+        noise_scale = config.noise_scale
         self.sigma = np.concatenate([np.array(noise.q_sigma_rad), np.ones(N_JOINTS),
-                                     np.array(noise.tau_sigma_nm)])[:, None] * scale
+                                     np.array(noise.tau_sigma_nm)])[:, None] * noise_scale
         self.noise = noise
-        self.noise_scale = scale
-        self.bias_scale = np.array(noise.tau_bias_nm) * scale
+        self.noise_scale = noise_scale
+        self.bias_scale = np.array(noise.tau_bias_nm) * noise_scale
         self.kp, self.kd, self.ki = (np.array(g)[:, None] for g in (KP, KD, KI))
         self.reflexes: dict[int, dict[str, float | int | str]] = {}
         """What stopped each session of the last :meth:`run` that met a reflex, by spec

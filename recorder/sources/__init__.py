@@ -56,7 +56,7 @@ def registered_sources() -> dict[str, str]:
 
 
 def _load(name: str, target: str) -> type[Source]:
-    cls = load_class("source", name, target, Source)
+    cls: type[Source] = load_class("source", name, target, Source)
     try:
         source_options(cls.Config)
     except (AttributeError, TypeError, NameError) as err:

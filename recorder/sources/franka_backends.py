@@ -86,7 +86,7 @@ class PylibfrankaBackend:
     """The official libfranka bindings (FR3, robot system 5.9 or newer)."""
 
     name = "pylibfranka"
-    robot = "fr3"
+    robot: Any = "fr3"  # the arm's name on the class; the libfranka robot when open
 
     def __init__(self, host: str, realtime_kernel: bool, module: Any = None) -> None:
         self.lib = module or _import(self.name)
@@ -118,7 +118,7 @@ class PandaPyBackend:
     """
 
     name = "panda-python"
-    robot = "panda"
+    robot: Any = "panda"  # the arm's name on the class; the libfranka robot when open
 
     def __init__(self, host: str, realtime_kernel: bool, module: Any = None) -> None:
         self.lib = module or _import(self.name)
@@ -147,7 +147,9 @@ class PandaPyBackend:
         self.robot = None
 
 
-BACKEND_CLASSES = {"pylibfranka": PylibfrankaBackend, "panda-python": PandaPyBackend}
+BackendClass = type[PylibfrankaBackend] | type[PandaPyBackend]
+BACKEND_CLASSES: dict[str, BackendClass] = {"pylibfranka": PylibfrankaBackend,
+                                            "panda-python": PandaPyBackend}
 
 
 def _installed(backend: str) -> bool:
@@ -178,7 +180,7 @@ def open_backend(host: str, backend: str, realtime_kernel: bool) -> Backend:
     raise InputError(f"no franka backend connects to {host}: " + "; ".join(answers))
 
 
-def _connect(cls: type, host: str, realtime_kernel: bool) -> Backend:
+def _connect(cls: BackendClass, host: str, realtime_kernel: bool) -> Backend:
     try:
         return cls(host, realtime_kernel)
     except ContactkitError:

@@ -135,6 +135,7 @@ class SimSource(Source):
                              "motion and the duration")
         trajectory = read_trajectory(path, config.robot)
         duration = trajectory.duration_s
+        assert choices.pose is not None  # the caller refuses a missing start pose
         spec = plan_session(seed=seed, condition="static", action="none", pose=choices.pose,
                             planned_at_s=duration / 2.0, duration_s=duration,
                             operator=choices.operator or "sim", robot=config.setup)

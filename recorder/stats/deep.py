@@ -221,8 +221,10 @@ def _summary(path: Path, meta: SessionMeta, rows: int, config: ChainConfig) -> d
            "peak_residual_norm_nm": peak_residual,
            "peak_force_n": peak_force}
     if window is not None:
+        assert planned is not None and profile is not None  # a window has its plan
         out.update({"window_found": window.found,
-                    "onset_delay_s": None if not window.found else window.onset_s - planned,
+                    "onset_delay_s": None if not window.found or window.onset_s is None
+                    else window.onset_s - planned,
                     "short_for_window": bool(last_t < planned + 0.5),
                     "force_profile_n": profile.values().tolist()})
     else:

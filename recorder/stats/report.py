@@ -47,7 +47,8 @@ PAGE_STYLE = (
 
 
 def _color(action: str) -> tuple[float, float, float]:
-    return tuple(c / 255 for c in CLASS_COLORS.get(action, (0, 0, 0)))
+    r, g, b = CLASS_COLORS.get(action, (0, 0, 0))
+    return r / 255, g / 255, b / 255
 
 
 REPORT_MARK = "contactkit dataset report"

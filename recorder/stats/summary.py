@@ -27,6 +27,7 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 from functools import partial
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import polars as pl
@@ -77,7 +78,7 @@ def load_index(directory: Path) -> tuple[pl.LazyFrame, list[dict]]:
     except ContactkitError as err:  # a read-only dataset: the index is used unwritten
         log.warning("the index is not saved (%s); the statistics use it unsaved",
                     printable(err))
-        return pl.from_arrow(result.table).lazy(), problems
+        return cast(pl.DataFrame, pl.from_arrow(result.table)).lazy(), problems  # a table's
     return pl.scan_parquet(index_path), problems
 
 
@@ -157,11 +158,11 @@ def index_stats(index: pl.LazyFrame) -> dict:
             "by_action": _records(by_action),
         },
         "class_balance_warnings": warnings,
-        "durations": {"total_s": float(durations.sum() or 0.0),
-                      "mean_s": float(durations.mean() or 0.0),
-                      "median_s": float(durations.median() or 0.0),
-                      "min_s": float(durations.min() or 0.0),
-                      "max_s": float(durations.max() or 0.0)},
+        "durations": {"total_s": float(cast(float, durations.sum()) or 0.0),
+                      "mean_s": float(cast(float, durations.mean()) or 0.0),
+                      "median_s": float(cast(float, durations.median()) or 0.0),
+                      "min_s": float(cast(float, durations.min()) or 0.0),
+                      "max_s": float(cast(float, durations.max()) or 0.0)},
         "sources": _records(frame.group_by("source").agg(pl.len().alias("sessions"))
                             .sort("source")),
         "operators": _records(frame.group_by("operator").agg(pl.len().alias("sessions"))
