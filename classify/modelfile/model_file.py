@@ -478,8 +478,10 @@ def _check_copies(archive: zipfile.ZipFile, online: object, estimator: zipfile.Z
     (members of ``archive`` the ``online`` document names) is not one of the
     estimator's arrays stored in the skops archive ``estimator`` (a compiled classifier
     edited apart from its estimator and re-sealed)."""
-    prefixes = [part.get("prefix") for part in online.get("parts", [])
-                if isinstance(part, dict)] if isinstance(online, dict) else []
+    parts = online.get("parts") if isinstance(online, dict) else None
+    # a malformed document (parts not a list) is left to read_online's one-line refusal
+    prefixes = [part.get("prefix") for part in parts
+                if isinstance(part, dict)] if isinstance(parts, list) else []
     stored: dict[str, Any] = {}
     for name in estimator.namelist():
         if name.endswith(".npy") and "/" not in name:
