@@ -178,7 +178,7 @@ TINY_ARM = RobotSpec(name="tinyarm", description="a Panda under another name",
 def test_a_plugin_robot_is_one_module_and_one_entry_point(tmp_path: Path,
                                                           monkeypatch: pytest.MonkeyPatch
                                                           ) -> None:
-    entry = importlib.metadata.EntryPoint("tinyarm", "tests.test_robots:TINY_ARM",
+    entry = importlib.metadata.EntryPoint("tinyarm", "tests.robots.test_robots:TINY_ARM",
                                           "contactkit.robots")
     real = importlib.metadata.entry_points
 
