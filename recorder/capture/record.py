@@ -6,7 +6,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import IO, TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -36,10 +36,11 @@ class CaptureListener(Protocol):
 
 
 class OperatorCue:
-    """Counts down to the planned interaction time on the terminal, then rings the bell."""
+    """Counts down to the planned interaction time on the terminal, then rings the bell.
+    ``stream`` is where it prints (None: whatever ``sys.stderr`` is when it prints)."""
 
     def __init__(self, planned_at_s: float, action: str, link: int | None,
-                 stream=sys.stderr, countdown_s: int = 3,
+                 stream: IO[str] | None = None, countdown_s: int = 3,
                  echo: Callable[[float, str], None] | None = None) -> None:
         self.planned_at_s = planned_at_s
         self.what = action + (f" link {link}" if link else "")
@@ -50,7 +51,7 @@ class OperatorCue:
         self.echo = echo
 
     def _say(self, t: float, text: str, bell: bool = False) -> None:
-        print(("\a" if bell else "") + "  " + text, file=self.stream, flush=True)
+        print(("\a" if bell else "") + "  " + text, file=self.stream or sys.stderr, flush=True)
         if self.echo is not None:
             self.echo(t, text)
 
