@@ -24,7 +24,9 @@ import importlib
 import importlib.abc
 import importlib.machinery
 import sys
+from collections.abc import Callable
 from types import ModuleType
+from typing import Any
 
 MOVED = {
     "kind": "kinds.kind", "registry": "kinds.registry", "inputs": "kinds.inputs",
@@ -38,6 +40,22 @@ MOVED = {
     "gridsearch": "experiments.gridsearch",
 }
 """Earlier module names under ``contactkit.classify`` and where each module is now."""
+
+
+def names_of(package: str, main: str) -> Callable[[str], Any]:
+    """Return the module ``__getattr__`` of ``package``, a module that became a package:
+    it hands out the names of its main module ``main`` (imported on first use), so that
+    ``from package import name`` works as before."""
+
+    def forward(name: str) -> Any:
+        if name.startswith("__"):
+            raise AttributeError(name)
+        try:
+            return getattr(importlib.import_module(main), name)
+        except AttributeError:
+            raise AttributeError(f"module {package!r} has no attribute {name!r}") from None
+
+    return forward
 
 
 class _MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):

@@ -8,20 +8,8 @@ were before this package had modules of its own; nothing is imported until one i
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from contactkit.classify import names_of
 
 __all__ = ["augmentation", "gridsearch", "thesis"]
 """The public modules, for the API reference."""
-_MAIN = "contactkit.classify.experiments.thesis"
-
-
-def __getattr__(name: str) -> Any:
-    """Return ``name`` from
-    :mod:`contactkit.classify.experiments.thesis` (imported on first use)."""
-    if name.startswith("__"):
-        raise AttributeError(name)
-    try:
-        return getattr(importlib.import_module(_MAIN), name)
-    except AttributeError:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+__getattr__ = names_of(__name__, "contactkit.classify.experiments.thesis")

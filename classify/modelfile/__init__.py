@@ -9,20 +9,8 @@ modules of its own; nothing is imported until one is asked for.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from contactkit.classify import names_of
 
 __all__ = ["model_file"]
 """The public modules, for the API reference."""
-_MAIN = "contactkit.classify.modelfile.model_file"
-
-
-def __getattr__(name: str) -> Any:
-    """Return ``name`` from
-    :mod:`contactkit.classify.modelfile.model_file` (imported on first use)."""
-    if name.startswith("__"):
-        raise AttributeError(name)
-    try:
-        return getattr(importlib.import_module(_MAIN), name)
-    except AttributeError:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+__getattr__ = names_of(__name__, "contactkit.classify.modelfile.model_file")
