@@ -113,32 +113,27 @@ def dask_worker_rank() -> int | None:
     return int(tail) if tail.isdigit() else 0
 
 
-FORK_UNSAFE_MODULES = ("polars",)
-"""Libraries whose thread pools do not survive ``fork``: a forked child of a process that
-has run one (a Polars query, say, in a notebook or an earlier in-process import) hangs
-in its next call. While one is loaded, the local pool forks its workers from a clean
-server process instead (``forkserver``)."""
-
-
 def pool_context(spawn: bool = False
-                 ) -> tuple[multiprocessing.context.BaseContext | None, Callable[..., None],
+                 ) -> tuple[multiprocessing.context.BaseContext, Callable[..., None],
                             tuple[Any, ...]]:
     """Return the multiprocessing context of the local pool and the initializer of its
-    workers with its arguments, which make them end with this process: fresh
-    interpreters with ``spawn``; where a library of :data:`FORK_UNSAFE_MODULES` is
-    loaded, workers forked from a clean server process (started once, with this
-    process's state then), which take on this process's environment and working
-    directory as they are now (:func:`~contactkit.util.workers.join_parent`); else
-    forks of this process (the platform's default, None). Like spawned workers, a
-    server's do not see what this process changed in its modules, and a script that
-    maps must guard with ``if __name__ == "__main__":``."""
-    if spawn:
+    workers with its arguments, which make them end with this process.
+
+    Workers are never plain forks of this process: a fork copies the memory of every
+    library's thread pool but none of its threads, and a child of a process whose pool
+    has run hangs in its next call (OpenBLAS's after a matrix product, Polars' after a
+    query, Rerun's and DataFusion's; the notebooks' kernels spun so). With ``spawn``
+    they are fresh interpreters; else, where the platform has it, they are forked from
+    a clean server process (``forkserver``, started once, with this process's state
+    then; Python 3.14's default), and take on this process's environment and working
+    directory as they are at the map (:func:`~contactkit.util.workers.join_parent`);
+    elsewhere they are spawned. Like spawned workers, a server's do not see what this
+    process changed in its modules, and a script that maps must guard with
+    ``if __name__ == "__main__":``."""
+    if spawn or "forkserver" not in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("spawn"), die_with_parent, (os.getpid(),)
-    if "forkserver" in multiprocessing.get_all_start_methods() and any(
-            name in sys.modules for name in FORK_UNSAFE_MODULES):
-        return (multiprocessing.get_context("forkserver"), join_parent,
-                (os.getpid(), dict(os.environ), os.getcwd()))
-    return None, die_with_parent, (os.getpid(),)
+    return (multiprocessing.get_context("forkserver"), join_parent,
+            (os.getpid(), dict(os.environ), os.getcwd()))
 
 
 def map_ordered(fn: Callable[..., R], items: Iterable[Any], *, workers: int = 1,
@@ -149,9 +144,8 @@ def map_ordered(fn: Callable[..., R], items: Iterable[Any], *, workers: int = 1,
 
     ``workers`` <= 1 runs in this process. Otherwise a pool of ``workers`` processes,
     at most one per job and :data:`WORKERS_PER_CPU` per usable CPU (with a warning)
-    (``spawn``: fresh interpreters, needed where a library keeps threads, such as
-    PyTorch; forked from a clean server where a library that forks badly is loaded, see
-    :func:`pool_context`; scripts must then guard with ``if __name__ == "__main__":``)
+    (``spawn``: fresh interpreters; else forked from a clean server process, see
+    :func:`pool_context`; scripts must guard with ``if __name__ == "__main__":``)
     holds at most ``in_flight`` jobs per worker, so ``items`` may be a lazy generator of
     large inputs. ``progress(done, total)`` is called as jobs finish; ``total`` defaults to
     ``len(items)`` where it has one. An exception raised by ``fn`` propagates.

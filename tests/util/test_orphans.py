@@ -21,7 +21,7 @@ def job(_):
 
 if __name__ == "__main__":
     mode = sys.argv[1] if len(sys.argv) > 1 else None
-    if mode == "polars":  # a thread pool in this process: workers come from a fork server
+    if mode == "polars":  # a thread pool in this process; workers come from a fork server
         import polars as pl
         pl.DataFrame({"a": [1, 2, 3]}).lazy().select(pl.col("a").sum()).collect()
         for _ in map_ordered(job, range(4), workers=2):

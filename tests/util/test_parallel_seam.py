@@ -88,9 +88,9 @@ if __name__ == "__main__":
 
 def test_a_parent_that_ran_polars_still_gets_working_workers(tmp_path: Path) -> None:
     """A forked child of a process whose Polars thread pool has started hangs in its first
-    query (the CI's import test hung so, after an earlier in-process import); with Polars
-    loaded the pool forks its workers from a clean server instead, and they take on the
-    parent's environment and working directory of the moment, not the server's."""
+    query (the CI's import test hung so, after an earlier in-process import); the pool
+    forks its workers from a clean server instead, and they take on the parent's
+    environment and working directory of the moment, not the server's."""
     import subprocess
     import sys
 
