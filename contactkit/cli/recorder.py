@@ -211,11 +211,12 @@ def _simulated_arm(path: Path | None, robot: str, robot_seed: int | None) -> Any
     if robot_seed is not None:
         raise InputError("--robot-seed picks a random instance of the nominal arm, "
                          "--dynamics simulates an identified one: give one of them")
+    from contactkit.features.detector import dynamics_detector
     from contactkit.robots import RobotSetup
-    from contactkit.robots.dynamics import check_arm
+    from contactkit.robots.dynamics import load_dynamics
 
-    dynamics = load_dynamics_option(path)
-    check_arm(dynamics, RobotSetup(robot), path)
+    dynamics = load_dynamics(path, RobotSetup(robot))
+    dynamics_detector(dynamics)  # every check of --dynamics elsewhere
     return dynamics
 
 
