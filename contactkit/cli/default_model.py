@@ -33,6 +33,15 @@ Simulated data only. Everything is seeded, so the same package version always bu
 the same model. It is cached under the contactkit cache directory
 ($CONTACTKIT_CACHE or ~/.cache/contactkit), keyed by the recipe; nothing is
 downloaded.
+
+For an identified arm (``replay --build-default-model --dynamics FILE``) the same recipe
+simulates every preset on that arm (its robot, hand, link inertias, friction and
+armature: ``SimConfig.dynamics``) instead of the presets' random instances of the
+nominal Panda; the rest is unchanged: the features, detector and event classifier are
+computed with each session's nominal model, as the default model's are, so its detector
+covers that arm's own error against its nominal model. It is cached under a key that
+adds the dynamics' simulated values (:func:`~contactkit.recorder.sim.simulator.
+simulated_dynamics`); without dynamics the key is the default model's.
 """
 
 from __future__ import annotations
@@ -49,7 +58,8 @@ from contactkit.classify.kinds.registry import DEFAULT_KIND
 from contactkit.classify.modelfile.model_file import FORMAT as MODEL_FORMAT
 from contactkit.classify.modelfile.model_file import ModelFile, load_model
 from contactkit.features.detector import MIN_NOISE, DetectorConfig
-from contactkit.recorder.sim.simulator import SimConfig
+from contactkit.recorder.sim.simulator import SimConfig, simulated_dynamics
+from contactkit.robots.dynamics import ArmDynamics
 from contactkit.util.cache import cache_dir
 from contactkit.util.progress import LabelledProgress
 
@@ -74,21 +84,30 @@ RECIPE: dict[str, Any] = {
 Progress = Callable[[str, int, int], None]
 
 
-def recipe_dir() -> Path:
-    """Return the cache directory of the current recipe and simulator defaults."""
+def recipe_dir(dynamics: ArmDynamics | None = None, recipe: dict[str, Any] | None = None
+               ) -> Path:
+    """Return the cache directory of ``recipe`` (default :data:`RECIPE`) and the
+    simulator defaults, for the arm of identified ``dynamics`` (None: the nominal
+    Panda's random instances, the default model)."""
     # The simulator's defaults and the event features are part of the key: a
     # recalibrated simulator or new event features build anew; so is what the training
-    # document records (since the arms of its sessions, which a replay checks).
-    recipe = {**RECIPE, "simulator": SimConfig().to_dict(), "event_features": EVENT_FEATURES,
-              "model_format": MODEL_FORMAT,
-              "training_records": ["robots", "event class ranges"]}
-    key = hashlib.sha256(json.dumps(recipe, sort_keys=True).encode()).hexdigest()[:12]
+    # document records (since the arms of its sessions, which a replay checks). An
+    # identified arm adds its simulated values (no entry without: the default model's
+    # key stays as it was).
+    keyed = {**(RECIPE if recipe is None else recipe), "simulator": SimConfig().to_dict(),
+             "event_features": EVENT_FEATURES, "model_format": MODEL_FORMAT,
+             "training_records": ["robots", "event class ranges"]}
+    if dynamics is not None:
+        keyed["dynamics"] = simulated_dynamics(dynamics)
+    key = hashlib.sha256(json.dumps(keyed, sort_keys=True).encode()).hexdigest()[:12]
     return cache_dir() / "default-model" / key
 
 
-def default_model_path() -> Path:
-    """Return where the default model file lives (it may not exist yet)."""
-    return recipe_dir() / "model.skops"
+def default_model_path(dynamics: ArmDynamics | None = None,
+                       recipe: dict[str, Any] | None = None) -> Path:
+    """Return where the default model file of ``recipe`` for the arm of ``dynamics``
+    lives (see :func:`recipe_dir`; it may not exist yet)."""
+    return recipe_dir(dynamics, recipe) / "model.skops"
 
 
 def _labelled(progress: Progress | None, label: str) -> Callable[[int, int], None] | None:
@@ -96,26 +115,37 @@ def _labelled(progress: Progress | None, label: str) -> Callable[[int, int], Non
 
 
 def _simulated(presets: list[str] | dict[str, int], workers: int,
-               progress: Progress | None) -> list[Path]:
+               progress: Progress | None, home: Path, seed: int,
+               dynamics: ArmDynamics | None) -> list[Path]:
     """Simulate each preset (a dict gives the number of its first sessions to simulate,
-    a list all of them) into the recipe's directory; return the directories."""
+    a list all of them) into directory ``home``, on the arm of ``dynamics`` (None: the
+    preset's instance of the nominal Panda); return the directories."""
     from contactkit.recorder.sim.dataset import simulate_dataset
+    from contactkit.recorder.sim.presets import PRESETS
 
     sizes = presets if isinstance(presets, dict) else dict.fromkeys(presets)
     directories = []
     for preset, sessions in sizes.items():
-        directory = recipe_dir() / preset
-        simulate_dataset(directory, preset, sessions, RECIPE["seed"], workers,
+        directory = home / preset
+        config = None if dynamics is None else SimConfig(
+            rate_hz=PRESETS[preset].rate_hz, robot=dynamics.robot,
+            with_hand=dynamics.with_hand, dynamics=dynamics)
+        simulate_dataset(directory, preset, sessions, seed, workers, config,
                          progress=_labelled(progress, f"simulating {preset}"))
         directories.append(directory)
     return directories
 
 
 def build_default_model(workers: int = 2, progress: Progress | None = None,
-                        rebuild: bool = False) -> Path:
+                        rebuild: bool = False, dynamics: ArmDynamics | None = None,
+                        recipe: dict[str, Any] | None = None) -> Path:
     """Simulate the recipe's data, calibrate the detector, train the event and per-hop
-    classifiers, cache the model file; return its path."""
-    path = default_model_path()
+    classifiers, cache the model file; return its path. ``dynamics``: build it for that
+    identified arm (see the module's docstring). ``recipe``: another recipe than
+    :data:`RECIPE` (the same keys; its presets may give session counts, as
+    ``range_presets`` does: a small build for tests), cached under its own key."""
+    recipe = RECIPE if recipe is None else recipe
+    path = default_model_path(dynamics, recipe)
     if path.exists() and not rebuild:
         return path
     from contactkit.classify.events.calibrate import calibrate_sessions
@@ -123,24 +153,26 @@ def build_default_model(workers: int = 2, progress: Progress | None = None,
     from contactkit.classify.training import train
     from contactkit.schemas.dataset import session_files
 
-    sources = _simulated(RECIPE["presets"], workers, progress)
-    moving = [p for d in _simulated(RECIPE["event_presets"], workers, progress)
-              for p in session_files(d)]
-    detector = calibrate_sessions(moving, margin=RECIPE["detector"]["margin"],
-                                  motion_margin=RECIPE["detector"]["motion_margin"],
+    def simulated(presets: list[str] | dict[str, int]) -> list[Path]:
+        return _simulated(presets, workers, progress, path.parent, recipe["seed"], dynamics)
+
+    sources = simulated(recipe["presets"])
+    moving = [p for d in simulated(recipe["event_presets"]) for p in session_files(d)]
+    detector = calibrate_sessions(moving, margin=recipe["detector"]["margin"],
+                                  motion_margin=recipe["detector"]["motion_margin"],
                                   workers=workers, progress=_labelled(progress, "detector"),
-                                  floor=tuple(RECIPE["detector"]["min_noise"]))
-    delay = RECIPE["events"]["decide_after_s"]
-    contacts = [p for d in [*sources, *_simulated(RECIPE["range_presets"], workers, progress)]
+                                  floor=tuple(recipe["detector"]["min_noise"]))
+    delay = recipe["events"]["decide_after_s"]
+    contacts = [p for d in [*sources, *simulated(recipe["range_presets"])]
                 for p in session_files(d)]
     events = load_session_events(moving + contacts, detector, [delay], workers,
                                  _labelled(progress, "events"))[delay]
-    event_model = fit_event_model(events, delay, RECIPE["events"]["C"], RECIPE["seed"])
-    features = RECIPE["features"]
-    options = ModelOptions(kind=RECIPE["model"], timeseries=tuple(features["timeseries"]),
+    event_model = fit_event_model(events, delay, recipe["events"]["C"], recipe["seed"])
+    features = recipe["features"]
+    options = ModelOptions(kind=recipe["model"], timeseries=tuple(features["timeseries"]),
                            scalars=tuple(features["scalars"]), window=features["window"],
-                           window_s=features["window_s"], seed=RECIPE["seed"],
-                           params={"c": RECIPE["C"]})
+                           window_s=features["window_s"], seed=recipe["seed"],
+                           params={"c": recipe["C"]})
     return train(sources, path, options, workers=workers, overwrite=True, progress=progress,
                  detector=detector.to_dict(),
                  events=(event_model.estimator, event_model.meta())).path

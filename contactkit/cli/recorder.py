@@ -163,6 +163,13 @@ def simulate_command(
              "identify`: `--dynamics FILE` then gives the observer the plant's own model, "
              "the floor an identification can reach. An existing file is kept when it "
              "holds the same parameters, else refused.")] = None,
+    dynamics: Annotated[Path | None, typer.Option(
+        "--dynamics", metavar="FILE",
+        help="Simulate this identified arm (`recorder identify`, or --write-dynamics of "
+             "another run) instead of a random instance of the nominal one: its link "
+             "inertias, friction and armature are the plant's, unperturbed; the training "
+             "data of your own arm. Checked against --robot. Not with --robot-seed.")
+                        ] = None,
 ) -> None:
     """Write many simulated sessions in parallel (existing ones are skipped) and index them.
 
@@ -172,8 +179,10 @@ def simulate_command(
     from contactkit.recorder.sim.simulator import ArmSimulator, SimConfig
 
     chosen = PRESETS[preset]
+    identified = _simulated_arm(dynamics, robot, robot_seed)
     config = SimConfig(rate_hz=rate or chosen.rate_hz, noise_scale=noise_scale, robot=robot,
-                       robot_seed=chosen.robot_seed if robot_seed is None else robot_seed)
+                       robot_seed=chosen.robot_seed if robot_seed is None else robot_seed,
+                       dynamics=identified)
     if write_dynamics is not None:
         _write_true_dynamics(write_dynamics, ArmSimulator(config).true_dynamics(
             {"preset": preset}))
@@ -192,6 +201,23 @@ def simulate_command(
 
 
 register_catalog(app)
+
+
+def _simulated_arm(path: Path | None, robot: str, robot_seed: int | None) -> Any:
+    """Return the identified dynamics of ``simulate --dynamics`` checked against the
+    simulated arm (``--robot``, with its hand), or None without the option."""
+    if path is None:
+        return None
+    if robot_seed is not None:
+        raise InputError("--robot-seed picks a random instance of the nominal arm, "
+                         "--dynamics simulates an identified one: give one of them")
+    from contactkit.features.detector import dynamics_detector
+    from contactkit.robots import RobotSetup
+    from contactkit.robots.dynamics import load_dynamics
+
+    dynamics = load_dynamics(path, RobotSetup(robot))
+    dynamics_detector(dynamics)  # every check of --dynamics elsewhere
+    return dynamics
 
 
 def _write_true_dynamics(path: Path, dynamics: Any) -> None:

@@ -96,7 +96,10 @@ def replay_command(
              "when it is a recording).")] = False,
     build_default_model_: Annotated[bool, typer.Option(
         "--build-default-model", help="(Re)build the default model from its recipe "
-                                      "(see contactkit/cli/default_model.py) and exit.")] = False,
+                                      "(see contactkit/cli/default_model.py), print its "
+                                      "path and exit. With --dynamics, the recipe "
+                                      "simulates that identified arm: a model for your "
+                                      "arm, cached apart; pass it with --model.")] = False,
     verbose: VerboseOpt = 0,
     quiet: QuietOpt = False,
 ) -> None:
@@ -115,11 +118,16 @@ def replay_command(
     from contactkit.features.detector import load_calibration
     from contactkit.replay.recording import owned_recording, save_paths_for
     from contactkit.replay.session_replay import ReplaySummary, replay_sessions, session_inputs
-    from contactkit.robots.dynamics import arm_override
+    from contactkit.robots import RobotSetup
+    from contactkit.robots.dynamics import arm_override, check_arm
 
     if build_default_model_:
+        identified = load_dynamics_option(dynamics)
+        if identified is not None and robot is not None:
+            check_arm(identified, RobotSetup(robot, identified.with_hand), dynamics)
         with progress_bar() as bar:
-            print(build_default_model(progress=labelled_progress(bar), rebuild=True))
+            print(build_default_model(progress=labelled_progress(bar), rebuild=True,
+                                      dynamics=identified))
         return
     if not sessions:
         raise InputError("give at least one session file or directory (see replay --help)")

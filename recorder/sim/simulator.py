@@ -29,6 +29,13 @@ Physics (thesis section 5.3.1, extended):
   instance" chosen by ``robot_seed``, the same for every session of a dataset, as
   a lab records a dataset on one robot), and joint friction follows the identified
   model of Gaz et al. with amplitudes scaled per joint.
+* An identified arm (``SimConfig.dynamics``, ``--dynamics FILE``, the format of
+  ``recorder identify``) replaces that random instance: the file is the instance's
+  truth. The plant's links carry the file's inertial parameters, its joints the file's
+  friction and, beside the motors' armature, the file's (which the torque sensors see,
+  unlike the motors'); ``robot_seed`` and the perturbation spreads then play no part
+  (no perturbation around the file). The controller keeps the robot's nominal model,
+  as a real arm's does, and the observer whatever model it is given.
 * Those plant defaults (masses and inertias +-15 %, centres of mass +-1 cm,
   friction amplitudes +-40 %) were chosen so that the simulated robot shows
   free-motion observer residuals of the same size as the real robot: in the
@@ -60,7 +67,8 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -77,8 +85,14 @@ from contactkit.recorder.protocol import (
 from contactkit.recorder.sim.forces import Contact, Persona, sample_contact
 from contactkit.recorder.sim.motion import MotionPlan, free_motion_plan
 from contactkit.recorder.sim.noise import SensorNoise, default_noise
-from contactkit.robots import N_JOINTS, RobotSetup, canonical_robot_name, get_robot
-from contactkit.robots.dynamics import ArmDynamics
+from contactkit.robots import (
+    N_JOINTS,
+    FrictionModel,
+    RobotSetup,
+    canonical_robot_name,
+    get_robot,
+)
+from contactkit.robots.dynamics import ArmDynamics, check_arm
 from contactkit.robots.model import RobotModel
 from contactkit.robots.surfaces import link_surface
 from contactkit.schemas import InputError, joint_columns
@@ -107,7 +121,9 @@ class SimConfig:
     relative spread of friction amplitudes; ``armature_kgm2`` the motors' inertia
     reflected to each joint [kg m^2]; ``noise_scale`` multiplies the sensor noise;
     ``jitter_s`` uniform time-stamp jitter [s]; ``drop_prob`` probability of losing a
-    sample.
+    sample; ``dynamics`` an identified arm to simulate instead of a random instance of
+    the nominal one (its robot and hand must be this configuration's; None: the
+    instance of ``robot_seed``).
     """
 
     rate_hz: float = 1000.0
@@ -124,9 +140,12 @@ class SimConfig:
     operator_variability: float = 1.0
     armature_kgm2: tuple[float, ...] = ARMATURE_KGM2
     noise: SensorNoise = field(default_factory=default_noise)
+    dynamics: ArmDynamics | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "robot", canonical_robot_name(self.robot))
+        if self.dynamics is not None:
+            check_arm(self.dynamics, self.setup, self.dynamics.source or None)
         if not 1.0 <= self.rate_hz <= 10_000.0:
             raise InputError(f"rate must be between 1 and 10000 Hz, got {self.rate_hz}")
         if self.substeps < 1:
@@ -142,13 +161,29 @@ class SimConfig:
             raise InputError(f"drop probability must be in [0, 1), got {self.drop_prob}")
 
     def to_dict(self) -> dict:
-        """Return the configuration as JSON-ready values (for session metadata)."""
-        return asdict(self)
+        """Return the configuration as JSON-ready values (for session metadata, session
+        ids and cache keys): with identified dynamics, their values that the plant
+        uses (:func:`simulated_dynamics`); without, no ``dynamics`` entry at all, so a
+        nominal configuration's document, and what is keyed by it, stay as they were."""
+        doc = asdict(replace(self, dynamics=None))
+        del doc["dynamics"]
+        if self.dynamics is not None:
+            doc["dynamics"] = simulated_dynamics(self.dynamics)
+        return doc
 
     @property
     def setup(self) -> RobotSetup:
         """The simulated arm: robot and hand."""
         return RobotSetup(self.robot, self.with_hand)
+
+
+def simulated_dynamics(dynamics: ArmDynamics) -> dict[str, Any]:
+    """Return what of identified ``dynamics`` the simulated plant uses, as JSON-ready
+    values: robot, hand, link parameters, armature, friction, and the file's checksum
+    (which names the whole file, its provenance and detector too)."""
+    doc = dynamics.to_dict()
+    return {key: doc[key] for key in ("robot", "with_hand", "links", "armature_kgm2",
+                                      "friction", "checksum")}
 
 
 @dataclass(frozen=True)
@@ -334,16 +369,26 @@ class ArmSimulator:
     def __init__(self, config: SimConfig) -> None:
         self.config = config
         self.nominal = RobotModel(config.setup)
-        robot_rng = np.random.default_rng([config.robot_seed, 0xC0FFEE])
-        self.plant = self.nominal.perturbed(robot_rng, config.mass_perturbation,
-                                            config.com_perturbation_m)
         self.armature = np.array(config.armature_kgm2)[:, None]
-        self.plant.model.armature[:] = config.armature_kgm2
+        identified = config.dynamics
+        self.friction: FrictionModel | None
+        if identified is None:
+            robot_rng = np.random.default_rng([config.robot_seed, 0xC0FFEE])
+            self.plant = self.nominal.perturbed(robot_rng, config.mass_perturbation,
+                                                config.com_perturbation_m)
+            self.plant.model.armature[:] = config.armature_kgm2
+            spread = config.friction_spread
+            scale = robot_rng.uniform(1 - spread, 1 + spread, N_JOINTS)
+            friction = get_robot(config.robot).friction
+            self.friction = None if friction is None else friction.scaled(scale)
+        else:
+            # the identified arm is the instance: its links, friction and the armature
+            # the sensors see, on top of the motors' (which they do not)
+            self.plant = RobotModel(replace(config.setup, dynamics=identified))
+            self.plant.model.armature[:] = (np.array(config.armature_kgm2)
+                                            + np.array(identified.armature_kgm2))
+            self.friction = identified.friction_model
         self.plant.data = self.plant.model.createData()
-        spread = config.friction_spread
-        scale = robot_rng.uniform(1 - spread, 1 + spread, N_JOINTS)
-        friction = get_robot(config.robot).friction
-        self.friction = None if friction is None else friction.scaled(scale)
         self._plant_pool = pin.ModelPool(self.plant.model, 1)
         self._nominal_pool = pin.ModelPool(self.nominal.model, 1)
         noise = config.noise
@@ -365,8 +410,10 @@ class ArmSimulator:
         the perturbed plant's link inertias and its scaled friction, with ``provenance``.
         The armature is 0: the torque sensors sit between the motors and the links, so
         the rotors' inertia is not in what they measure. The observer given these has
-        the plant's true model (the floor an identification can reach)."""
+        the plant's true model (the floor an identification can reach). An identified
+        arm's (``SimConfig.dynamics``) are its file's links, friction and armature."""
         friction = self.friction
+        identified = self.config.dynamics
         terms = ((np.zeros(N_JOINTS), np.ones(N_JOINTS), np.zeros(N_JOINTS),
                   np.zeros(N_JOINTS), np.zeros(N_JOINTS)) if friction is None else
                  (friction.phi1, friction.phi2, friction.phi3, friction.viscous,
@@ -376,6 +423,8 @@ class ArmSimulator:
             robot=self.config.robot, with_hand=self.plant.with_hand,
             inertias=tuple(tuple(float(v) for v in model.inertias[j].toDynamicParameters())
                            for j in range(1, N_JOINTS + 1)),
+            armature_kgm2=(0.0,) * N_JOINTS if identified is None else
+            identified.armature_kgm2,
             friction=tuple(tuple(float(v) for v in values) for values in terms),
             provenance=json.dumps(dict(provenance or {}, simulator=self.config.to_dict()),
                                   sort_keys=True, default=str))

@@ -40,7 +40,9 @@ def sim_session_id(spec: SessionSpec, config: SimConfig, trajectory: str | None 
 
 class SimSource(Source):
     """The simulated Panda (pinocchio dynamics, the thesis protocol), one session streamed
-    in chunks of ``chunk`` samples."""
+    in chunks of ``chunk`` samples; with ``dynamics``, an identified arm instead of a
+    random instance (the simulator's ``SimConfig.dynamics``; its values go into the
+    ``simulator`` metadata and the session id)."""
 
     name = "sim"
     columns = SIM_COLUMNS
@@ -58,8 +60,14 @@ class SimSource(Source):
         seed: int | None = field(default=None, metadata={
             "help": "Random seed; the same seed gives the same data (default: random, stored "
                     "in the metadata)."})
-        robot_seed: int = field(default=0, metadata={
-            "help": "Simulated robot instance (its true inertia and friction)."})
+        robot_seed: int | None = field(default=None, metadata={
+            "help": "Simulated robot instance (its true inertia and friction; default 0). "
+                    "Not with --dynamics."})
+        dynamics: Path | None = field(default=None, metadata={
+            "help": "Simulate this identified arm (a file of recorder identify, or of "
+                    "recorder simulate --write-dynamics) instead of a random instance of "
+                    "the nominal one: its link inertias, friction and armature are the "
+                    "plant's, unperturbed. Checked against --robot and --hand."})
         noise_file: Path | None = field(default=None, metadata={
             "help": "Sensor-noise JSON (from recorder stats --deep); default: measured on "
                     "the real Panda reference recording."})
@@ -94,16 +102,28 @@ class SimSource(Source):
             raise InputError(f"noise scale must be >= 0, got {config.noise_scale}")
         if choices.pose is None:
             raise InputError("the simulator needs a start pose")
+        from contactkit.features.detector import dynamics_detector
         from contactkit.recorder.sim.noise import SensorNoise, default_noise
         from contactkit.recorder.sim.simulator import SimConfig, plan_session
+        from contactkit.robots import RobotSetup
+        from contactkit.robots.dynamics import load_dynamics
 
+        if config.dynamics is not None and config.robot_seed is not None:
+            raise InputError("--robot-seed picks a random instance of the nominal arm, "
+                             "--dynamics simulates an identified one: give one of them")
         noise = default_noise() if config.noise_file is None else \
             SensorNoise.from_file(config.noise_file)
+        dynamics = None
+        if config.dynamics is not None:  # every check of --dynamics elsewhere, and the arm
+            dynamics = load_dynamics(config.dynamics, RobotSetup(config.robot,
+                                                                 choices.with_hand))
+            dynamics_detector(dynamics)
         sim_config = SimConfig(rate_hz=config.rate, robot=config.robot,
                                with_hand=choices.with_hand,
-                               robot_seed=config.robot_seed, noise=noise,
+                               robot_seed=config.robot_seed or 0, noise=noise,
                                noise_scale=config.noise_scale,
-                               jitter_s=config.jitter_ms / 1000.0, drop_prob=config.drop_prob)
+                               jitter_s=config.jitter_ms / 1000.0, drop_prob=config.drop_prob,
+                               dynamics=dynamics)
         seed = secrets.randbits(63) if config.seed is None else config.seed
         if config.trajectory is not None:
             return cls._following(config.trajectory, sim_config, seed, choices)
