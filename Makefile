@@ -10,7 +10,7 @@ GAZ     := ../shared/reference/gaz2019-exciting-traj
 
 TYPES   := build/typecheck
 
-.PHONY: install test check lint typecheck docs demo viewer-check chromium clean
+.PHONY: install test check lint typecheck model docs demo viewer-check chromium clean
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -44,12 +44,16 @@ check: lint typecheck
 	$(PY) -m pytest -q -n 2 -p no:cacheprovider -m "not slow and not browser and not nn and not docs" \
 	  --durations=10
 
-# The site is built after the unit tests, which build and cache the default model the
-# demo replay (and so the docs' screenshots) needs, while the second worker runs tests.
-test: $(STAMP) lint typecheck chromium
+# The default model is built (and cached) before the unit tests, on both cores, so that
+# no test's fixture builds it under the per-test timeout while the other worker runs tests.
+test: $(STAMP) lint typecheck chromium model
 	$(PY) -m pytest -q -n 2 -m "not slow and not browser" --durations=25
 	@$(MAKE) --no-print-directory docs
 	$(PY) -m pytest -q -m "browser and not slow"
+
+# The default model (built from its recipe once, then cached; a few minutes on 2 cores).
+model: $(STAMP)
+	$(VENV)/bin/replay --build-default-model
 
 # The documentation site (mkdocs.yml, docs/): strict, so a broken link or reference fails.
 # The command reference and the session format are generated at build time (docs/hooks.py);

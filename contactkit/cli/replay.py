@@ -93,10 +93,12 @@ def replay_command(
     dynamics: DynamicsOpt = None,
     overwrite: Annotated[bool, typer.Option(
         help="Replace existing --save files (the default replay.rrd is replaced only "
-             "when it is a recording).")] = False,
+             "when it is a recording); with --build-default-model, rebuild a cached "
+             "model.")] = False,
     build_default_model_: Annotated[bool, typer.Option(
-        "--build-default-model", help="(Re)build the default model from its recipe "
-                                      "(see contactkit/cli/default_model.py), print its "
+        "--build-default-model", help="Build the default model from its recipe "
+                                      "(see contactkit/cli/default_model.py) unless it is "
+                                      "cached (--overwrite rebuilds it), print its "
                                       "path and exit. With --dynamics, the recipe "
                                       "simulates that identified arm: a model for your "
                                       "arm, cached apart; pass it with --model.")] = False,
@@ -126,7 +128,7 @@ def replay_command(
         if identified is not None and robot is not None:
             check_arm(identified, RobotSetup(robot, identified.with_hand), dynamics)
         with progress_bar() as bar:
-            print(build_default_model(progress=labelled_progress(bar), rebuild=True,
+            print(build_default_model(progress=labelled_progress(bar), rebuild=overwrite,
                                       dynamics=identified))
         return
     if not sessions:

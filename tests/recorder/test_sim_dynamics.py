@@ -287,11 +287,16 @@ def test_replay_builds_the_default_model_for_an_identified_arm(
     done = run_command("replay", "--build-default-model", "--dynamics", str(truth_file))
     assert done.returncode == 0, done.stderr
     assert built[0]["dynamics"] == load_dynamics(truth_file)
+    assert built[0]["rebuild"] is False  # a cached model is kept unless --overwrite
     assert done.stdout.strip() == str(tmp_path / "model.skops")
+    again = run_command("replay", "--build-default-model", "--dynamics", str(truth_file),
+                        "--overwrite")
+    assert again.returncode == 0, again.stderr
+    assert built[1]["rebuild"] is True
     wrong = run_command("replay", "--build-default-model", "--dynamics", str(truth_file),
                         "--robot", "fr3")
     assert wrong.returncode == 2 and len(wrong.stderr.strip().splitlines()) == 1
-    assert "not a 'fr3'" in wrong.stderr and len(built) == 1
+    assert "not a 'fr3'" in wrong.stderr and len(built) == 2
 
 
 def test_simulator_config_refuses_another_arms_dynamics(truth_file: Path) -> None:
