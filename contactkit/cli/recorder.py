@@ -61,45 +61,63 @@ else:
 ReportFormat = Literal["html", "md", "json"]
 
 
-def _start_events(values: dict[str, Any], meta: SessionMeta) -> Any:
-    """Store the --dynamics given in ``meta``; return the live event pipeline (a capture
-    listener) for a capture with --events, else None. The classifier side is imported
-    here, when asked for: it takes seconds."""
+def _start_events(values: dict[str, Any], meta: SessionMeta, source: Any) -> Any:
+    """Store the --dynamics given in ``meta``; return the capture's listener: the live
+    event pipeline with --events (behind :class:`RobotLoad` with --robot-load), else
+    None. The classifier side is imported here, when asked for: it takes seconds."""
     identified = load_dynamics_option(values["dynamics"])
     if identified is not None:  # stored with the session, and the live model below
-        stored = meta.with_dynamics(identified, values["dynamics"])
-        meta.dynamics = stored.dynamics
+        meta.dynamics = meta.with_dynamics(identified, values["dynamics"]).dynamics
+    elif values["robot_load"]:
+        raise InputError("--robot-load needs --dynamics")
     if not values["events"]:
         given = [flag for flag, key in (("--model", "model"), ("--calibration", "calibration"),
                                         ("--decide-after", "decide_after"))
                  if values[key] is not None]
         if given:
             raise InputError(f"{given[0]} needs --events")
-        return None
+        start = None
+    else:
+        start = _live_events(values)
+    if not values["robot_load"]:
+        return None if start is None else start(meta)
+    from contactkit.recorder.capture.robot_load import RobotLoad
+
+    assert identified is not None  # refused above
+    return RobotLoad(meta, source, identified, start or (lambda _: None))
+
+
+def _live_events(values: dict[str, Any]) -> Any:
+    """Load the event model and detector of --events; return what starts the live event
+    pipeline for the session metadata it is given (its arm, and the identified dynamics
+    it carries: the chain, the detector's thresholds unless --calibration, isolation)."""
     from contactkit.classify.events.listener import LiveEvents, describe
     from contactkit.cli.default_model import default_model_missing, model_or_default
     from contactkit.features.detector import dynamics_detector, load_calibration
+    from contactkit.features.isolation import robot_isolator
 
-    detector = None if values["calibration"] is None else load_calibration(values["calibration"])
+    calibration = None if values["calibration"] is None else load_calibration(
+        values["calibration"])
     if values["model"] is None and default_model_missing():
         err_console.print("No --model given: building the default model once (simulated "
                           "data, then an SVM); it is cached for next time.")
     with progress_bar() as bar:
         model = model_or_default(values["model"], labelled_progress(bar))
-    chain = model.online_transformer().chain_config()
-    robot = chain.robot_setup(meta)  # with the identified dynamics the session carries
-    detector = detector or dynamics_detector(robot.dynamics) or model.detector_config()
-    if detector is None:
+    if calibration is None and model.detector_config() is None:
         raise InputError("model carries no contact detector; give --calibration",
                          values["model"])
+    chain = model.online_transformer().chain_config()
 
     def report(kind: str, event: Any) -> None:
         err_console.print(f"  [bold]event[/] {describe(kind, event)}")
 
-    from contactkit.features.isolation import robot_isolator
+    def start(meta: SessionMeta) -> Any:
+        robot = chain.robot_setup(meta)  # with the identified dynamics the session carries
+        detector = calibration or dynamics_detector(robot.dynamics) or model.detector_config()
+        return LiveEvents(chain, robot, detector, model.event_model(), values["decide_after"],
+                          report, robot_isolator(robot))
 
-    return LiveEvents(chain, robot, detector, model.event_model(), values["decide_after"],
-                      report, robot_isolator(robot))
+    return start
 
 
 EVENTS = CaptureExtension((
@@ -116,6 +134,10 @@ EVENTS = CaptureExtension((
           "stored with the session as values; with --events, the observer, the detector "
           "(the file's thresholds, unless --calibration) and isolation use them live. "
           "Refused for another arm or hand: with --source franka, name the arm (--robot)."),
+    Param("robot_load", bool, False, "With --dynamics: the load the robot reports once "
+          "connected (--source franka: m_load at F_x_Cload, stored as payload_kg) is the "
+          "identification's payload, in place of the identified one (link 7: the nominal "
+          "one plus that load)."),
 ), _start_events)
 
 

@@ -229,3 +229,99 @@ def test_info_shows_the_dynamics_or_nominal(files, tmp_path) -> None:
     assert "nominal" in plain.stdout
     assert json.loads(run_command("recorder", "info", str(files["plain"]), "--json").stdout
                       )["dynamics"] == "nominal"
+
+
+# -- live capture with identified dynamics --------------------------------------------------
+
+def _values(files: dict[str, Path], **given) -> dict:
+    return {"events": True, "model": files["model"], "calibration": None,
+            "decide_after": None, "dynamics": files["truth"], "robot_load": False} | given
+
+
+class _LoadedRobot:
+    """A source that reports a configured load, as the franka source does once
+    connected."""
+
+    def metadata(self) -> dict:
+        return {"source": "franka", "robot": "panda", "payload_kg": 1.2,
+                "payload_com_m": [0.0, 0.0, 0.05], "source_info": {"m_load_kg": 1.2}}
+
+
+def test_capture_events_run_live_with_the_dynamics(files, truth) -> None:
+    from contactkit.cli.recorder import _start_events
+
+    meta = read_session(files["plain"]).meta
+    listener = _start_events(_values(files), meta, None)
+    assert meta.dynamics == truth.to_dict()
+    assert listener.chain.model.setup.dynamics == truth
+    assert listener.pipeline.detector.config.noise == NOISE
+    # the robot's configured load becomes the identification's payload, from the first
+    # chunk on (the live model too)
+    meta = read_session(files["plain"]).meta
+    listener = _start_events(_values(files, robot_load=True), meta, _LoadedRobot())
+    table = pq.read_table(files["plain"])
+    listener.on_chunk({name: table.column(name).to_numpy()[:50] for name in table.column_names})
+    stored = listener.session_fields()["dynamics"]
+    assert stored["payload"]["mass_kg"] == 1.2 and stored["links"][:6] == meta.dynamics[
+        "links"][:6] == truth.to_dict()["links"][:6]
+    assert stored["links"][6] != truth.to_dict()["links"][6]
+    assert listener.listener.chain.model.setup.dynamics.payload.mass_kg == 1.2
+    assert "events" in listener.session_fields()
+    # without --events: stored all the same; --robot-load needs --dynamics
+    meta = read_session(files["plain"]).meta
+    assert _start_events(_values(files, events=False, model=None), meta, None) is None
+    assert meta.dynamics == truth.to_dict()
+    with pytest.raises(Exception, match="--robot-load needs --dynamics"):
+        _start_events(_values(files, dynamics=None, robot_load=True), meta, None)
+
+
+def test_simulated_capture_stores_the_dynamics(files, tmp_path, truth) -> None:
+    out = tmp_path / "captured"
+    result = run_command("recorder", "capture", "--pose", "B", "--action", "bump", "--link",
+                         "5", "--duration", "1.5", "--planned-at", "0.7", "--rate", "250",
+                         "--seed", "4", "--events", "--model", str(files["model"]),
+                         "--dynamics", str(files["truth"]), "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    meta = read_session(result.stdout.strip()).meta
+    assert meta.dynamics == truth.to_dict() and isinstance(meta.events, list)
+    # another arm's dynamics are refused before anything is recorded
+    fr3 = save_dynamics(tmp_path / "fr3.json", ArmSimulator(
+        SimConfig(robot="fr3", robot_seed=3)).true_dynamics())
+    result = run_command("recorder", "capture", "--pose", "B", "--action", "none",
+                         "--duration", "1", "--planned-at", "0.5", "--dynamics", str(fr3),
+                         "--out", str(out))
+    assert result.returncode == 2 and "not a 'panda'" in result.stderr
+    assert len(list(out.glob("*.parquet"))) == 1
+
+
+@pytest.mark.skipif(not all(__import__("importlib").util.find_spec(m)
+                            for m in ("pylibfranka", "franky_sim")),
+                    reason="pylibfranka and franky-sim not installed (contactkit[sim-robot])")
+def test_franka_capture_with_dynamics_and_the_robot_load(files, tmp_path) -> None:
+    """Against franky-sim (a simulated FR3 behind the FCI protocol, on loopback): the
+    session carries the FR3's identified dynamics, their payload the load the robot
+    reports, and the live events were found with them."""
+    from tests.recorder.test_franka import start_server, stop_server
+
+    fr3 = ArmSimulator(SimConfig(robot="fr3", robot_seed=3)).true_dynamics()
+    path = save_dynamics(tmp_path / "fr3.json", replace(fr3, payload=replace(
+        fr3.payload, mass_kg=0.4)))
+    proc, host = start_server()
+    try:
+        result = run_command("recorder", "capture", "--source", "franka", "--host", host,
+                             "--backend", "pylibfranka", "--robot", "fr3", "--pose", "A",
+                             "--action", "none", "--duration", "1", "--planned-at", "0.5",
+                             "--events", "--model",
+                             str(files["model"]), "--dynamics", str(path), "--robot-load",
+                             "--out", str(tmp_path / "out"))
+    finally:
+        stop_server(proc)
+    assert result.returncode == 0, result.stderr
+    session = read_session(result.stdout.strip())
+    meta = session.meta
+    load = meta.source_info.get("m_load_kg")
+    assert meta.robot == "fr3" and load is not None and isinstance(meta.events, list)
+    stored = meta.arm_dynamics()
+    assert stored.payload.mass_kg == meta.payload_kg == load
+    assert stored.provenance_doc["payload"]["from"] == "the robot's configured load"
+    assert stored.inertias[:6] == fr3.inertias[:6]
