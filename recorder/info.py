@@ -144,8 +144,10 @@ def dynamics_line(summary: dict | str | None) -> str:
     if summary.get("sessions") is not None:
         parts.append(f"{summary['sessions']} sessions, {summary.get('samples', '?')} samples")
     if summary.get("determined"):
+        condition = summary.get("condition")
         parts.append(f"{summary['determined']} parameters determined, condition number "
-                     f"{summary.get('condition', '?')}")
+                     + (format(condition, ".3g") if isinstance(condition, int | float)
+                        else "?"))
     if summary.get("rms_before_nm") and summary.get("rms_after_nm"):
         parts.append(f"residual RMS {numbers('rms_before_nm')} -> {numbers('rms_after_nm')} "
                      "Nm")

@@ -258,7 +258,8 @@ def identify_command(
     (too short, no joint moving), no session is free motion, or the sessions are of
     different arms. Sessions with contact, index.parquet and files that are not
     sessions are skipped, each with a line. Pass the file with --dynamics to replay,
-    classify and recorder commands.
+    classify and recorder commands, or store it with sessions (recorder set-robot
+    --dynamics).
     """
     from contactkit.features.detector import dynamics_detector
     from contactkit.features.identification import identify_sessions, session_inputs

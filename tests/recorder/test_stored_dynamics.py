@@ -195,7 +195,10 @@ def _signed(doc: dict) -> dict:
     (lambda d: _signed(d | {"armature_kgm2": [-0.1] * 7}), "armature"),
     (lambda d: d.update(format="x"), "not a dynamics file"),
     (lambda d: d.pop("friction") and None, "lacks"),
-], ids=["tampered", "other-arm", "hand", "mass", "armature", "format", "missing"])
+    (lambda d: "arm.json", "wrong type"),  # a path, not the values
+    (lambda d: d["links"][0].__setitem__(0, float("nan")), "not finite"),
+], ids=["tampered", "other-arm", "hand", "mass", "armature", "format", "missing", "path",
+        "nan"])
 def test_bad_dynamics_in_the_metadata_are_one_line_exit_2(files, tmp_path, edit,
                                                           message) -> None:
     def change(doc: dict) -> None:
@@ -325,3 +328,53 @@ def test_franka_capture_with_dynamics_and_the_robot_load(files, tmp_path) -> Non
     assert stored.payload.mass_kg == meta.payload_kg == load
     assert stored.provenance_doc["payload"]["from"] == "the robot's configured load"
     assert stored.inertias[:6] == fr3.inertias[:6]
+
+
+# -- training, evaluation and export --------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    """Eight 1.5 s sessions (none and bump, four poses) at 200 Hz."""
+    out = tmp_path_factory.mktemp("dataset")
+    for seed, (action, pose) in enumerate([(a, p) for p in "ABCD" for a in ("none", "bump")]):
+        make_session(out, seed=seed, action=action, pose=pose, link=5, duration_s=1.5,
+                     planned_at_s=0.7, rate_hz=200.0)
+    return out
+
+
+def test_train_and_evaluate_take_dynamics(files, dataset, tmp_path, monkeypatch, truth) -> None:
+    from contactkit.classify.grids import GridSpec, load_grids
+    from contactkit.classify.kinds.kind import ModelOptions
+    from contactkit.classify.modelfile import load_model
+    from contactkit.classify.training import training_set
+
+    monkeypatch.setenv("CONTACTKIT_CACHE", str(tmp_path / "cache"))
+    options = ModelOptions(kind="svm", window="planned")
+    nominal, identified = (training_set([dataset], options, dynamics=d).data.X
+                           for d in (None, truth))
+    assert np.abs(nominal - identified).max() > 0.01  # the cache keeps them apart
+    spec = GridSpec(timeseries=("r",), steps=20)
+    grids = [load_grids([dataset], spec, dynamics=d).X for d in (None, truth)]
+    assert np.abs(grids[0] - grids[1]).max() > 0.01
+    result = run_command("classify", "train", str(dataset), "--out", str(tmp_path / "m.skops"),
+                         "--window", "planned", "--workers", "1", "--dynamics",
+                         str(files["truth"]))
+    assert result.returncode == 0, result.stderr
+    model = load_model(tmp_path / "m.skops")  # a model file does not carry the dynamics
+    assert model.meta["training"]["dynamics"] == truth.checksum
+    result = run_command("classify", "evaluate", str(dataset), "--protocol", "thesis",
+                         "--window", "planned", "--workers", "1", "--dynamics",
+                         str(tmp_path / "missing.json"))
+    assert result.returncode == 2 and "missing.json" in result.stderr
+
+
+def test_export_mcap_carries_the_dynamics(files, tmp_path, truth, other) -> None:
+    from contactkit.recorder.importers.bags import BagImporter
+
+    for name, extra, expected in (("stored", [], truth), ("given", ["--dynamics",
+                                                                    str(files["other"])], other)):
+        result = run_command("recorder", "export-mcap", str(files["stored"]), "--out",
+                             str(tmp_path / f"{name}.mcap"), *extra)
+        assert result.returncode == 0, result.stderr
+        back = BagImporter.read(tmp_path / f"{name}.mcap").metadata(None)
+        assert back.arm_dynamics() == expected
