@@ -378,3 +378,22 @@ def test_export_mcap_carries_the_dynamics(files, tmp_path, truth, other) -> None
         assert result.returncode == 0, result.stderr
         back = BagImporter.read(tmp_path / f"{name}.mcap").metadata(None)
         assert back.arm_dynamics() == expected
+
+
+def test_identify_reads_no_stored_dynamics(tmp_path, truth) -> None:
+    """Identification reads the arm's name and hand, not an earlier identification a
+    session carries: the same result with some sessions carrying dynamics."""
+    from contactkit.features.identification import identify_sessions
+    from contactkit.recorder.sim.dataset import simulate_dataset
+    from contactkit.schemas.dataset import session_files
+
+    simulate_dataset(tmp_path / "free", "free-motion", 4, 3, 1,
+                     SimConfig(rate_hz=250.0, robot_seed=7))
+    paths = session_files(tmp_path / "free")
+    before = identify_sessions(paths).dynamics
+    save_dynamics(tmp_path / "truth.json", truth)
+    result = run_command("recorder", "set-robot", str(paths[0]), "--dynamics",
+                         str(tmp_path / "truth.json"))
+    assert result.returncode == 0, result.stderr
+    after = identify_sessions(paths).dynamics
+    assert replace(after, provenance="{}") == replace(before, provenance="{}")
