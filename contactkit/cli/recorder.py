@@ -63,8 +63,10 @@ ReportFormat = Literal["html", "md", "json"]
 
 def _start_events(values: dict[str, Any], meta: SessionMeta, source: Any) -> Any:
     """Store the --dynamics given in ``meta``; return the capture's listener: the live
-    event pipeline with --events (behind :class:`RobotLoad` with --robot-load), else
-    None. The classifier side is imported here, when asked for: it takes seconds."""
+    event pipeline with --events (behind
+    :class:`~contactkit.recorder.capture.live_dynamics.LiveDynamics` with --dynamics),
+    else None. The classifier side is imported here, when asked for: it takes
+    seconds."""
     identified = load_dynamics_option(values["dynamics"])
     if identified is not None:  # stored with the session, and the live model below
         meta.dynamics = meta.with_dynamics(identified, values["dynamics"]).dynamics
@@ -79,12 +81,12 @@ def _start_events(values: dict[str, Any], meta: SessionMeta, source: Any) -> Any
         start = None
     else:
         start = _live_events(values)
-    if not values["robot_load"]:
+    if identified is None:
         return None if start is None else start(meta)
-    from contactkit.recorder.capture.robot_load import RobotLoad
+    from contactkit.recorder.capture.live_dynamics import LiveDynamics
 
-    assert identified is not None  # refused above
-    return RobotLoad(meta, source, identified, start or (lambda _: None))
+    return LiveDynamics(meta, source, identified, start or (lambda _: None),
+                        values["robot_load"])
 
 
 def _live_events(values: dict[str, Any]) -> Any:

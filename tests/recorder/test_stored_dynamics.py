@@ -14,6 +14,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from contactkit.errors import InputError
 from contactkit.features.detector import DetectorConfig
 from contactkit.features.timeseries import ChainConfig
 from contactkit.recorder.sim.simulator import ArmSimulator, SimConfig
@@ -243,38 +244,53 @@ def _values(files: dict[str, Path], **given) -> dict:
 
 class _LoadedRobot:
     """A source that reports a configured load, as the franka source does once
-    connected."""
+    connected, and the arm ``robot``."""
+
+    def __init__(self, robot: str = "panda") -> None:
+        self.robot = robot
 
     def metadata(self) -> dict:
-        return {"source": "franka", "robot": "panda", "payload_kg": 1.2,
+        return {"source": "franka", "robot": self.robot, "payload_kg": 1.2,
                 "payload_com_m": [0.0, 0.0, 0.05], "source_info": {"m_load_kg": 1.2}}
+
+
+def _chunk(path: Path, rows: int = 50) -> dict[str, np.ndarray]:
+    table = pq.read_table(path)
+    return {name: table.column(name).to_numpy()[:rows] for name in table.column_names}
 
 
 def test_capture_events_run_live_with_the_dynamics(files, truth) -> None:
     from contactkit.cli.recorder import _start_events
 
     meta = read_session(files["plain"]).meta
-    listener = _start_events(_values(files), meta, None)
+    listener = _start_events(_values(files), meta, _LoadedRobot())
     assert meta.dynamics == truth.to_dict()
-    assert listener.chain.model.setup.dynamics == truth
-    assert listener.pipeline.detector.config.noise == NOISE
+    live = listener.listener  # built before the capture
+    assert live.chain.model.setup.dynamics == truth
+    assert live.pipeline.detector.config.noise == NOISE
+    listener.on_chunk(_chunk(files["plain"]))
+    assert live.samples == 50 and listener.session_fields()["dynamics"] == truth.to_dict()
     # the robot's configured load becomes the identification's payload, from the first
     # chunk on (the live model too)
     meta = read_session(files["plain"]).meta
     listener = _start_events(_values(files, robot_load=True), meta, _LoadedRobot())
-    table = pq.read_table(files["plain"])
-    listener.on_chunk({name: table.column(name).to_numpy()[:50] for name in table.column_names})
+    listener.on_chunk(_chunk(files["plain"]))
     stored = listener.session_fields()["dynamics"]
     assert stored["payload"]["mass_kg"] == 1.2 and stored["links"][:6] == meta.dynamics[
         "links"][:6] == truth.to_dict()["links"][:6]
     assert stored["links"][6] != truth.to_dict()["links"][6]
     assert listener.listener.chain.model.setup.dynamics.payload.mass_kg == 1.2
     assert "events" in listener.session_fields()
+    # a robot that names another arm once connected stops the capture at its first chunk
+    listener = _start_events(_values(files), read_session(files["plain"]).meta,
+                             _LoadedRobot("fr3"))
+    with pytest.raises(InputError, match="not a 'fr3'"):
+        listener.on_chunk(_chunk(files["plain"]))
     # without --events: stored all the same; --robot-load needs --dynamics
     meta = read_session(files["plain"]).meta
-    assert _start_events(_values(files, events=False, model=None), meta, None) is None
-    assert meta.dynamics == truth.to_dict()
-    with pytest.raises(Exception, match="--robot-load needs --dynamics"):
+    listener = _start_events(_values(files, events=False, model=None), meta, _LoadedRobot())
+    assert listener.listener is None and meta.dynamics == truth.to_dict()
+    with pytest.raises(InputError, match="--robot-load needs --dynamics"):
         _start_events(_values(files, dynamics=None, robot_load=True), meta, None)
 
 
@@ -324,6 +340,7 @@ def test_franka_capture_with_dynamics_and_the_robot_load(files, tmp_path) -> Non
     meta = session.meta
     load = meta.source_info.get("m_load_kg")
     assert meta.robot == "fr3" and load is not None and isinstance(meta.events, list)
+    assert meta.residual_agreement  # measured with the model the session carries
     stored = meta.arm_dynamics()
     assert stored.payload.mass_kg == meta.payload_kg == load
     assert stored.provenance_doc["payload"]["from"] == "the robot's configured load"
