@@ -38,6 +38,7 @@ from contactkit.features.chain_cache import chain_series
 from contactkit.features.observer import DEFAULT_GAIN, ObserverConfig
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
 from contactkit.features.windows import METHODS, Window, WindowSpec, find_window
+from contactkit.robots.dynamics import ArmDynamics
 from contactkit.schemas import InputError, Session, read_session
 from contactkit.schemas.dataset import session_files
 from contactkit.util.parallel import map_ordered, split_problems
@@ -108,15 +109,19 @@ def window_grid(t: np.ndarray, values: np.ndarray, start_s: float, spec: GridSpe
 
 
 def session_grid(session: Session, spec: GridSpec,
-                 augmentation: Augmentation | None = None) -> np.ndarray:
+                 augmentation: Augmentation | None = None,
+                 dynamics: ArmDynamics | None = None) -> np.ndarray:
     """Return one session's grid (channels x steps)."""
-    return session_grid_and_window(session, spec, augmentation)[0]
+    return session_grid_and_window(session, spec, augmentation, dynamics)[0]
 
 
 def session_grid_and_window(session: Session, spec: GridSpec,
-                            augmentation: Augmentation | None = None
+                            augmentation: Augmentation | None = None,
+                            dynamics: ArmDynamics | None = None
                             ) -> tuple[np.ndarray, Window]:
-    """Return one session's grid (channels x steps) and the window it covers."""
+    """Return one session's grid (channels x steps) and the window it covers, the
+    model-based channels with the identified ``dynamics`` (``--dynamics``; None: those
+    the session carries, else the nominal model)."""
     session = session.complete()
     tau = session.tau
     gain = spec.gain
@@ -127,7 +132,7 @@ def session_grid_and_window(session: Session, spec: GridSpec,
             augmentation.noise_multiplier
         gain *= augmentation.gain_factor
     names = expand(list(spec.timeseries))
-    config = ChainConfig(ObserverConfig(gain=gain))
+    config = ChainConfig(ObserverConfig(gain=gain), dynamics=dynamics)
     needed = list(dict.fromkeys([*names, "tau"]))
     if augmentation is None:
         series = chain_series(session, config, needed)
@@ -145,7 +150,12 @@ def session_grid_and_window(session: Session, spec: GridSpec,
 
 class SessionGrids(TransformerMixin, BaseEstimator):
     """A scikit-learn transformer from sessions (paths or :class:`Session`) to their
-    grids, shape (sessions, channels, steps); the parameters are :class:`GridSpec`'s."""
+    grids, shape (sessions, channels, steps); the parameters are :class:`GridSpec`'s.
+    ``dynamics`` (an attribute, not a parameter: a model file does not carry it) is the
+    arm's identified dynamics the chain uses (``--dynamics``), None for those each
+    session carries, else the nominal model."""
+
+    dynamics: ArmDynamics | None = None
 
     def __init__(self, timeseries: Sequence[str] = CNN_INPUT, window: str = "planned",
                  window_s: float = 0.5, steps: int = 300, gain: float = DEFAULT_GAIN,
@@ -191,7 +201,7 @@ class SessionGrids(TransformerMixin, BaseEstimator):
 
     def chain_config(self) -> ChainConfig:
         """The feature-chain settings."""
-        return ChainConfig(ObserverConfig(gain=self.gain))
+        return ChainConfig(ObserverConfig(gain=self.gain), dynamics=self.dynamics)
 
     def transform(self, X) -> np.ndarray:
         """Return the (sessions, channels, steps) grids."""
@@ -213,7 +223,7 @@ class SessionGrids(TransformerMixin, BaseEstimator):
         """Return (grid, channel names, window) for one session."""
         if not isinstance(session, Session):
             session = read_session(session)
-        grid, window = session_grid_and_window(session, self.spec)
+        grid, window = session_grid_and_window(session, self.spec, dynamics=self.dynamics)
         return grid, self.spec.channels(), window
 
     def online_rows(self, t: np.ndarray, values: np.ndarray, ends: np.ndarray | list[int]
@@ -233,9 +243,9 @@ class SessionGrids(TransformerMixin, BaseEstimator):
         return np.stack(grids)
 
 
-def _grid_job(job: tuple[str, GridSpec, Augmentation | None]
+def _grid_job(job: tuple[str, GridSpec, Augmentation | None, ArmDynamics | None]
               ) -> tuple[str, tuple[np.ndarray, dict] | None, str | None]:
-    path, spec, augmentation = job
+    path, spec, augmentation, dynamics = job
     try:
         session = read_session(path)
         meta = session.meta
@@ -243,7 +253,7 @@ def _grid_job(job: tuple[str, GridSpec, Augmentation | None]
                 "condition": meta.condition, "pose": meta.pose, "target_pose": meta.target_pose,
                 "operator": meta.operator,
                 "speed_rad_s": np.nan if meta.speed_rad_s is None else meta.speed_rad_s}
-        return Path(path).name, (session_grid(session, spec, augmentation), info), None
+        return Path(path).name, (session_grid(session, spec, augmentation, dynamics), info), None
     except DATA_ERRORS as err:
         return Path(path).name, None, problem_text(err)
 
@@ -265,14 +275,16 @@ def session_paths(sources: Sequence[Path]) -> list[str]:
 def load_grids(sources: Sequence[Path], spec: GridSpec, workers: int = 1,
                augmentation: Augmentation | None = None,
                progress: Callable[[int, int], None] | None = None, *,
-               scheduler: str | None = None) -> FeatureSet:
+               scheduler: str | None = None,
+               dynamics: ArmDynamics | None = None) -> FeatureSet:
     """Compute the grids of every session of the dataset directories (in ``workers``
-    processes or on the Dask ``scheduler``).
+    processes or on the Dask ``scheduler``), with the identified ``dynamics`` (None:
+    those each session carries, else the nominal model).
 
     Returns a :class:`contactkit.classify.data.FeatureSet` whose X is (sessions, channels, steps),
     so labels, groups and the limited context work as for scalar features.
     """
-    jobs = [(p, spec, augmentation) for p in session_paths(sources)]
+    jobs = [(p, spec, augmentation, dynamics) for p in session_paths(sources)]
     good, problems = split_problems(map_ordered(_grid_job, jobs, workers=workers,
                                                 progress=progress, scheduler=scheduler))
     if not good:
@@ -327,4 +339,5 @@ def load_grid_set(sources: Sequence[Path], grids: SessionGrids, workers: int = 1
     """Return the grids ``grids`` describes of every session of the dataset directories
     ``sources`` (see :func:`load_grids`), in ``workers`` processes or on the Dask
     ``scheduler``."""
-    return load_grids(sources, grids.spec, workers, progress=progress, scheduler=scheduler)
+    return load_grids(sources, grids.spec, workers, progress=progress, scheduler=scheduler,
+                      dynamics=grids.dynamics)

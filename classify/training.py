@@ -19,6 +19,7 @@ from contactkit.classify.modelfile.model_file import save_model
 from contactkit.classify.names import PROTOCOLS
 from contactkit.classify.schemes import check_scheme, check_two_classes, scheme_classes
 from contactkit.errors import check_choice
+from contactkit.robots.dynamics import ArmDynamics
 from contactkit.robots.registry import canonical_robot_name
 from contactkit.schemas import InputError
 from contactkit.schemas.dataset import session_files
@@ -38,14 +39,19 @@ class TrainingSet:
 
 def training_set(datasets: Sequence[Path], options: ModelOptions, *, workers: int = 1,
                  limited: bool = False, progress: LabelledProgress | None = None,
-                 scheduler: str | None = None) -> TrainingSet:
+                 scheduler: str | None = None,
+                 dynamics: ArmDynamics | None = None) -> TrainingSet:
     """Check ``options`` for their kind, then compute (or read from the dataset cache)
     the kind's input for every session of ``datasets`` (in ``workers`` processes or on
     the Dask ``scheduler``); sessions that fail are listed in ``data.problems``.
-    ``limited`` keeps the limited context only."""
+    ``limited`` keeps the limited context only. ``dynamics`` (``--dynamics``) are the
+    arm's identified dynamics the chain uses for every session (None: those each
+    session carries, else the nominal model)."""
     kind = get_kind(options.kind)
     options = kind.check_options(options)
     transformer = kind.transformer(options)
+    if dynamics is not None:
+        transformer.dynamics = dynamics  # type: ignore[attr-defined]  # both inputs take them
     report = None if progress is None else (
         lambda done, total: progress(f"{kind.input.name} of sessions", done, total))
     data = kind.input.load([Path(d) for d in datasets], transformer, workers, report,
@@ -92,12 +98,14 @@ def train(datasets: Sequence[Path], out: Path, options: ModelOptions, *, scheme:
           limited: bool = False, workers: int = 1, overwrite: bool = False,
           progress: LabelledProgress | None = None, detector: dict | None = None,
           events: tuple[object, dict] | None = None,
-          scheduler: str | None = None) -> TrainedModel:
+          scheduler: str | None = None, dynamics: ArmDynamics | None = None) -> TrainedModel:
     """Train a model of ``options.kind`` on every session of ``datasets`` and save it to
     ``out`` in the kind's file format; return what was written. ``detector`` and
     ``events`` (a contact detector's settings, an event classifier with its settings)
     travel in the model file (see :func:`contactkit.classify.modelfile.model_file.save_model`). The
-    input is computed in ``workers`` processes or on the Dask ``scheduler``."""
+    input is computed in ``workers`` processes or on the Dask ``scheduler``, with the
+    identified ``dynamics`` when given (see :func:`training_set`; the model file names
+    their checksum, it does not carry them)."""
     check_scheme(scheme)
     out = Path(out)
     check_target(out, overwrite=overwrite)
@@ -107,7 +115,8 @@ def train(datasets: Sequence[Path], out: Path, options: ModelOptions, *, scheme:
                          f"name must end in {kind.file_format.suffix}", out)
     options = kind.check_options(options)
     found = training_set(datasets, options, workers=workers, limited=limited,
-                         progress=progress, scheduler=scheduler)
+                         progress=progress, scheduler=scheduler, dynamics=dynamics)
+    vars(found.transformer).pop("dynamics", None)  # not stored: each use gives its own
     data = found.data
     labels = data.labels(scheme)
     check_two_classes(labels, "training")
@@ -118,7 +127,8 @@ def train(datasets: Sequence[Path], out: Path, options: ModelOptions, *, scheme:
                 "sessions": len(data), "options": asdict(options),
                 "epochs": getattr(estimator, "n_epochs_", None),
                 "robots": trained_robots(datasets, getattr(found.transformer, "robot", None),
-                                         set(data.info["file"]))}
+                                         set(data.info["file"])),
+                "dynamics": None if dynamics is None else dynamics.checksum}
     path = save_model(out, estimator, kind=kind, transformer=found.transformer,
                       feature_names=list(data.names), classes=classes, scheme=scheme,
                       fingerprint=data.fingerprint(), training=training,
@@ -130,15 +140,17 @@ def train(datasets: Sequence[Path], out: Path, options: ModelOptions, *, scheme:
 def evaluate_kind(datasets: Sequence[Path], options: ModelOptions, *, protocol: str = "group",
                   group: str = "pose", scheme: str = "full", limited: bool = False,
                   workers: int = 1, progress: LabelledProgress | None = None,
-                  scheduler: str | None = None) -> tuple[Report, list[tuple[str, str]]]:
+                  scheduler: str | None = None, dynamics: ArmDynamics | None = None
+                  ) -> tuple[Report, list[tuple[str, str]]]:
     """Evaluate ``options.kind`` on ``datasets`` under a protocol (see
     :mod:`contactkit.classify.evaluate`), in ``workers`` processes or on the Dask
-    ``scheduler``; return the report and the skipped files."""
+    ``scheduler``, with the identified ``dynamics`` when given (see
+    :func:`training_set`); return the report and the skipped files."""
     check_scheme(scheme)
     check_choice("protocol", protocol, PROTOCOLS)
     check_choice("grouping", group, GROUP_KEYS)
     found = training_set(datasets, options, workers=workers, limited=limited,
-                         progress=progress, scheduler=scheduler)
+                         progress=progress, scheduler=scheduler, dynamics=dynamics)
     data, kind = found.data, found.kind
     template = kind.estimator(options, data.names)
     report = None if progress is None else (

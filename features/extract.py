@@ -21,6 +21,7 @@ from sklearn.base import BaseEstimator, TransformerMixin
 from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of
 from contactkit.features.window_features import WindowFeatures
+from contactkit.robots.dynamics import ArmDynamics
 from contactkit.schemas import Session
 from contactkit.schemas.features import feature_table
 from contactkit.schemas.session import read_session_meta
@@ -68,10 +69,11 @@ class FeatureRows:
         return feature_table(self.info, self.X, self.names, config)
 
 
-def _session_feature_row(job: tuple[str, dict]
+def _session_feature_row(job: tuple[str, dict, ArmDynamics | None]
                          ) -> tuple[str, tuple[np.ndarray, dict] | None, str | None]:
-    path, params = job
+    path, params, dynamics = job
     extractor = SessionFeatures(**params)
+    extractor.dynamics = dynamics  # an attribute, not a parameter: passed on beside them
     try:
         meta, _ = read_session_meta(path)
         values, names, window = extractor.session_row(path)
@@ -103,7 +105,7 @@ def feature_rows(paths: Sequence[str | Path], extractor: SessionFeatures, worker
     extractor.fit(None)
     params = extractor.get_params()
     names = list(extractor.get_feature_names_out())
-    jobs = [(str(p), params) for p in paths]
+    jobs = [(str(p), params, extractor.dynamics) for p in paths]
     rows, problems = split_problems(map_ordered(_session_feature_row, jobs, workers=workers,
                                                 progress=progress, scheduler=scheduler))
     X = np.array([values for values, _ in rows]).reshape(len(rows), len(names))

@@ -611,7 +611,8 @@ def free_motion(path: Path, robot: str | None = None) -> tuple[Motion, RobotSetu
     elif session.meta.action != "none":
         raise InputError(f"session has a {session.meta.action!r} contact and no contact "
                          "column: identification needs free motion", path)
-    setup = session.meta.with_robot(robot).robot_setup(path)
+    # the arm's name and hand only: not the dynamics an earlier identification stored
+    setup = replace(session.meta.with_robot(robot).robot_setup(path), dynamics=None)
     return Motion(session.t, session.q, session.dq, session.tau, str(path)), setup
 
 

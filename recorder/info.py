@@ -42,7 +42,9 @@ def session_info(path: str | Path) -> dict:
     stats = sampling_stats(session.t)
     return {
         "file": str(path),
-        "metadata": {k: v for k, v in vars(session.meta).items() if k != "simulator"},
+        "metadata": {k: v for k, v in vars(session.meta).items()
+                     if k not in ("simulator", "dynamics")},
+        "dynamics": dynamics_summary(session.meta.dynamics),
         "columns": session.table.column_names,
         "sampling": stats.as_dict(),
         "rate_warning": rate_warning(stats.rate_hz),
@@ -61,6 +63,7 @@ def print_info(info: dict, console: Console) -> None:
                 "recovered_samples", "created_utc", "notes"):
         if meta.get(key) not in (None, ""):
             table.add_row(key, _shown(meta[key]))
+    table.add_row("dynamics", _shown(dynamics_line(info.get("dynamics"))))
     table.add_row("samples", str(s["samples"]))
     table.add_row("duration", f"{s['duration_s']:.3f} s")
     table.add_row("rate", f"{s['rate_hz']:.1f} Hz (median step {s['median_step_s'] * 1e3:.3f} "
@@ -88,6 +91,71 @@ def print_info(info: dict, console: Console) -> None:
         table.add_row(f"event {number}", _shown(event_line(event) if isinstance(event, dict)
                                                 else event))
     console.print(table)
+
+
+def dynamics_summary(doc: dict | None) -> dict | str:
+    """Return what identified dynamics stored in a session's metadata (checked when it
+    was read) say about themselves: arm and hand, the payload at the flange [kg], how
+    they were identified (method, sessions, samples, condition number, parameters
+    determined), the residual RMS [Nm] before and after, whether they carry detector
+    thresholds, tool, date and checksum. "nominal" for a session without them."""
+    if doc is None:
+        return "nominal"
+    provenance = doc.get("provenance")
+    provenance = provenance if isinstance(provenance, dict) else {}
+    excitation = provenance.get("excitation")
+    excitation = excitation if isinstance(excitation, dict) else {}
+    determined, undetermined = excitation.get("determined"), excitation.get("undetermined")
+    summary = {
+        "robot": doc.get("robot"), "with_hand": doc.get("with_hand"),
+        "payload_kg": (doc.get("payload") or {}).get("mass_kg"),
+        "identified_by": ("the simulator's true parameters" if "simulator" in provenance
+                          else "recorder identify" if excitation else "unknown"),
+        "sessions": len(provenance["sessions"]) if isinstance(
+            provenance.get("sessions"), list) else None,
+        "samples": excitation.get("samples"),
+        "condition": excitation.get("condition"),
+        "determined": None if not isinstance(determined, list) else
+        f"{len(determined)} of "
+        f"{len(determined) + (len(undetermined) if isinstance(undetermined, list) else 0)}",
+        "rms_before_nm": excitation.get("rms_before_nm"),
+        "rms_after_nm": excitation.get("rms_after_nm"),
+        "detector": doc.get("detector") is not None,
+        "tool": provenance.get("tool"), "created_utc": provenance.get("created_utc"),
+        "checksum": doc.get("checksum"),
+    }
+    return {k: v for k, v in summary.items() if v is not None}
+
+
+def dynamics_line(summary: dict | str | None) -> str:
+    """Return one line for :func:`dynamics_summary`'s result."""
+    if not isinstance(summary, dict):
+        return "nominal"
+
+    def numbers(key: str) -> str:
+        values = summary.get(key)
+        return " ".join(format(v, ".2f") if isinstance(v, int | float) else "-"
+                        for v in (values if isinstance(values, list) else []))
+
+    parts = [f"{summary.get('robot')} {'with' if summary.get('with_hand') else 'without'} "
+             f"hand, from {summary.get('identified_by')}"]
+    if isinstance(summary.get("payload_kg"), int | float):
+        parts.append(f"payload {summary['payload_kg']:.3f} kg")
+    if summary.get("sessions") is not None:
+        parts.append(f"{summary['sessions']} sessions, {summary.get('samples', '?')} samples")
+    if summary.get("determined"):
+        condition = summary.get("condition")
+        parts.append(f"{summary['determined']} parameters determined, condition number "
+                     + (format(condition, ".3g") if isinstance(condition, int | float)
+                        else "?"))
+    if summary.get("rms_before_nm") and summary.get("rms_after_nm"):
+        parts.append(f"residual RMS {numbers('rms_before_nm')} -> {numbers('rms_after_nm')} "
+                     "Nm")
+    parts.append("detector thresholds" if summary.get("detector") else "no detector")
+    if summary.get("created_utc"):
+        parts.append(f"made {summary['created_utc']}")
+    parts.append(str(summary.get("checksum", ""))[:19])
+    return "; ".join(parts)
 
 
 def _shown(value: object) -> str:

@@ -19,6 +19,7 @@ import numpy as np
 
 from contactkit.recorder.protocol import POSES, check_action, check_condition, pose_q
 from contactkit.robots import DEFAULT_ROBOT, canonical_robot_name, get_robot
+from contactkit.robots.spec import ArmDynamics
 from contactkit.schemas import InputError, SessionMeta, new_session_id
 from contactkit.schemas.session import (
     iter_session_batches,
@@ -107,22 +108,30 @@ def session_filename(meta: SessionMeta) -> str:
                      "session file name")
 
 
-def set_session_robot(path: str | Path, robot: str) -> SessionMeta:
+def set_session_robot(path: str | Path, robot: str | None = None, *,
+                      dynamics: ArmDynamics | None = None,
+                      clear_dynamics: bool = False) -> SessionMeta:
     """Rewrite the session file at ``path`` so that its metadata names ``robot`` (with that
-    robot's URDF hash); return the new metadata. The file is rewritten row group by row
+    robot's URDF hash; None: the arm it names) and carries the identified ``dynamics`` as
+    values (checked for that arm and hand; InputError naming ``path`` otherwise), or, with
+    ``clear_dynamics``, none (the nominal model); return the new metadata. Naming another
+    arm drops the dynamics stored for the old one. The file is rewritten row group by row
     group into a temporary file that replaces it atomically, so a reader sees the old or
     the new session, never a mix; the samples are unchanged. This is how a session
-    recorded before its arm was named (an FR3 captured as ``franka_panda``) is corrected.
-    A symbolic link is followed: its target is rewritten (the link stays a link) and
-    keeps its permissions; a read-only file is refused.
+    recorded before its arm was named (an FR3 captured as ``franka_panda``) is corrected,
+    and how an identification is stored with it. A symbolic link is followed: its target
+    is rewritten (the link stays a link) and keeps its permissions; a read-only file, and
+    a link to nothing or to something that is not a regular file, are refused.
     """
     path = Path(path)
-    meta, _ = read_session_meta(path)
+    meta, _ = read_session_meta(path)  # a regular file (through links), else InputError
     target = path.resolve()  # a link's target is edited, the link stays
     mode = stat.S_IMODE(target.stat().st_mode)
     if not mode & stat.S_IWUSR:
         raise InputError("is read-only: not changed (make it writable to correct it)", path)
     updated = meta.with_robot(robot)
+    if clear_dynamics or dynamics is not None:
+        updated = updated.with_dynamics(dynamics, path)
     write_session_batches(target, iter_session_batches(target), updated, overwrite=True)
     try:
         os.chmod(target, mode)  # the file keeps its permissions

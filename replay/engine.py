@@ -225,7 +225,8 @@ class ReplayStream:
         self.names = expand(list(timeseries))
         self.channels = [c for name in self.names for c in columns_of(name)]
         self._hops = _HopLog(len(self.classes))
-        detector = detector or dynamics_detector(dynamics) or model.detector_config()
+        # the identified model's thresholds: --dynamics', else those the session carries
+        detector = detector or dynamics_detector(setup.dynamics) or model.detector_config()
         self.detector = detector = None if detector is None else detector.for_robot(
             get_robot(setup.robot))
         self.pipeline = None if detector is None else EventPipeline(

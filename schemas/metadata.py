@@ -21,7 +21,7 @@ from contactkit.robots import (
     canonical_robot_name,
     get_robot,
 )
-from contactkit.robots.spec import N_JOINTS
+from contactkit.robots.spec import N_JOINTS, ArmDynamics
 
 SCHEMA_VERSION = 1
 ACTIONS = ("none", "bump", "adjust", "shove")
@@ -60,6 +60,11 @@ class SessionMeta:
     payload_com_m: list[float] | None = None
     """The payload's centre of mass in the flange frame [m]."""
     urdf_sha256: str = ""
+    dynamics: dict[str, Any] | None = None
+    """The arm's identified dynamics, stored as values: the document of a dynamics file
+    (:mod:`contactkit.robots.dynamics`, ``recorder set-robot --dynamics``), checked as
+    that file is on every read (:meth:`arm_dynamics`). None: the robot's nominal
+    model."""
     simulator: dict[str, Any] | None = None
     source_info: dict[str, Any] = field(default_factory=dict)
     recovered: bool = False
@@ -97,16 +102,51 @@ class SessionMeta:
         com = self.payload_com_m or (0.0, 0.0, 0.0)
         return RobotSetup(robot=name, with_hand=self.with_hand,
                           payload_kg=float(self.payload_kg),
-                          payload_com_m=(float(com[0]), float(com[1]), float(com[2])))
+                          payload_com_m=(float(com[0]), float(com[1]), float(com[2])),
+                          dynamics=self.arm_dynamics(path))
+
+    def arm_dynamics(self, path: str | Path | None = None) -> ArmDynamics | None:
+        """Return the identified dynamics the session carries (:attr:`dynamics`), None
+        for the nominal model. They pass every check of a dynamics file
+        (:func:`~contactkit.robots.dynamics.dynamics_from_dict`) and are this session's
+        arm's and hand's (:func:`~contactkit.robots.dynamics.check_arm`); InputError
+        naming ``path`` (one line) otherwise."""
+        if self.dynamics is None:
+            return None
+        from contactkit.robots.dynamics import check_arm, dynamics_from_dict
+
+        try:
+            dynamics = dynamics_from_dict(self.dynamics)
+            check_arm(dynamics, RobotSetup(canonical_robot_name(self.robot), self.with_hand))
+        except InputError as err:
+            raise InputError(f"metadata dynamics: {err.problem}", path) from err
+        return replace(dynamics, source=f"{path} (stored dynamics)" if path else "")
 
     def with_robot(self, robot: str | None) -> SessionMeta:
         """Return a copy that names ``robot`` (the session's own when None), with the
-        URDF hash of that robot's model: how ``--robot`` overrides a session's arm."""
+        URDF hash of that robot's model: how ``--robot`` overrides a session's arm. The
+        stored :attr:`dynamics` stay when ``robot`` is the session's own arm; another
+        arm's model is its nominal one."""
         if robot is None:
             return self
         name = canonical_robot_name(robot)
+        same = name == canonical_robot_name(self.robot)
         return replace(self, robot=name,
-                       urdf_sha256=get_robot(name).urdf_sha256(self.with_hand))
+                       urdf_sha256=get_robot(name).urdf_sha256(self.with_hand),
+                       dynamics=self.dynamics if same else None)
+
+    def with_dynamics(self, dynamics: ArmDynamics | None,
+                      path: str | Path | None = None) -> SessionMeta:
+        """Return a copy that carries ``dynamics`` as values (None: the nominal model);
+        InputError naming ``path`` when they are another arm's or hand's."""
+        if dynamics is None:
+            return replace(self, dynamics=None)
+        from contactkit.robots.dynamics import check_arm
+
+        check_arm(dynamics, self.robot_setup(path), path)
+        updated = replace(self, dynamics=dynamics.to_dict())
+        updated.check(path)
+        return updated
 
     @classmethod
     def from_dict(cls, doc: Mapping[str, Any], path: str | Path | None = None) -> SessionMeta:
@@ -134,7 +174,8 @@ class SessionMeta:
         Domains: action and condition from their lists; pose names A-H or a safe name
         (they become file-name parts); links 1..7; joint vectors of 7 finite numbers;
         times [s] finite and within :data:`MAX_SESSION_S`; rates and speeds finite and
-        positive; text fields strings; flags booleans.
+        positive; text fields strings; flags booleans; stored dynamics every check of
+        a dynamics file, for this session's arm and hand.
         """
         for name, kinds in _FIELD_TYPES.items():
             value = getattr(self, name)
@@ -192,6 +233,7 @@ class SessionMeta:
             raise InputError(f"metadata events {_short(self.events)} is not a list of event "
                              "objects", path)
         _check_true_contact(self.simulator, path)
+        self.arm_dynamics(path)
 
 
 MAX_CONTACT_POINT_M = 10.0
@@ -237,7 +279,7 @@ _FIELD_TYPES: dict[str, tuple[type, ...]] = {
     "planned_at_s": _OPTIONAL_NUMBER, "nominal_rate_hz": _OPTIONAL_NUMBER,
     "operator": (str,), "notes": (str,), "created_utc": (str,), "robot": (str,),
     "with_hand": (bool,), "payload_kg": _NUMBER, "payload_com_m": (list, type(None)),
-    "urdf_sha256": (str,), "simulator": (dict, type(None)),
+    "urdf_sha256": (str,), "dynamics": (dict, type(None)), "simulator": (dict, type(None)),
     "source_info": (dict,), "recovered": (bool,), "recovered_samples": (int, type(None)),
     "events": (list, type(None)), "residual_agreement": (dict, type(None)),
     "tool_version": (str,), "schema_version": (int,),

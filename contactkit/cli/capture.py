@@ -124,7 +124,7 @@ def register_capture(app: typer.Typer, extensions: tuple[CaptureExtension, ...] 
         for extension in extensions:
             given = {p.name: flags[flag_key(p)] for p in extension.parameters}
             listener = extension.start(check_params(extension.parameters, given, "capture"),
-                                       meta)
+                                       meta, source)
             if listener is not None:
                 listeners.append(listener)
         _record(source, meta, listeners, directory, realtime=realtime,

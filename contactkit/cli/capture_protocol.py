@@ -17,6 +17,7 @@ from contactkit.util.params import Param
 
 if TYPE_CHECKING:
     from contactkit.recorder.capture.record import CaptureListener
+    from contactkit.recorder.sources import Source
 
 Condition = Literal["static", "dynamic"]
 Action = Literal[ACTIONS]  # type: ignore[valid-type]
@@ -30,11 +31,12 @@ else:
 class CaptureExtension:
     """Extra ``capture`` options and what to do with them: ``parameters`` are declared
     like a source's options and become flags; ``start`` is called with their values
-    (declared defaults for those not given) and the session metadata before recording;
-    it returns a listener that sees every chunk as it is recorded (or None to stay out)."""
+    (declared defaults for those not given), the session metadata and the source before
+    recording; it returns a listener that sees every chunk as it is recorded (or None to
+    stay out)."""
 
     parameters: tuple[Param, ...]
-    start: Callable[[dict[str, Any], SessionMeta], CaptureListener | None]
+    start: Callable[[dict[str, Any], SessionMeta, Source], CaptureListener | None]
 
 
 PROTOCOL_FLAGS = {"--pose", "--action", "--condition", "--target-pose", "--speed",

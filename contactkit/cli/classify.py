@@ -188,7 +188,8 @@ DatasetsArg = Annotated[list[Path], typer.Argument(
          "combined, e.g. a static and a dynamic set.")]
 MODEL_OPTIONS = {"--out", "--model", "--features", "--scalars", "--window", "--window-s",
                  "--scheme", "--limited", "--no-limited", "--seed", "--workers", "--overwrite",
-                 "--no-overwrite", "--steps", "--protocol", "--group", "--json", "--help"}
+                 "--no-overwrite", "--steps", "--protocol", "--group", "--json", "--dynamics",
+                 "--help"}
 """The options of train and evaluate themselves, which no kind's parameter may take."""
 KIND_FLAGS, _ = shared_flags({name: get_kind(name).params for name in kind_names()},
                              MODEL_OPTIONS, what="models")
@@ -222,18 +223,22 @@ def train_command(
     workers: WorkersOpt = DEFAULT_WORKERS,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing model file.")] = False,
     steps: StepsOpt = 300,
+    dynamics: DynamicsOpt = None,
 ) -> None:
     """Train a classifier on every session of the datasets and save it as a safe model file
     (.skops; a CNN or LSTM as .onnx). The model's own parameters are the options after
-    --steps (each names the models that take it)."""
+    --dynamics (each names the models that take it). Each session's features come from
+    the identified dynamics it carries (recorder set-robot --dynamics), unless --dynamics
+    gives others for all."""
     from contactkit.classify.training import train
 
     _refuse_existing(out, overwrite)
     options = _options(ctx, model, features, scalars, window, window_s, seed, steps)
+    identified = load_dynamics_option(dynamics)
     with progress_bar("train") as bar:
         trained = train(datasets, out, options, scheme=Scheme(scheme).value, limited=limited,
                         workers=workers, overwrite=overwrite, progress=labelled_progress(bar),
-                        scheduler=scheduler_of(ctx))
+                        scheduler=scheduler_of(ctx), dynamics=identified)
     print_problems(trained.problems)
     err_console.print(f"trained {trained.kind} on {trained.sessions} sessions, classes "
                       f"{', '.join(trained.classes)}")
@@ -257,22 +262,26 @@ def evaluate_command(
         "--json", help="Also write the report as JSON.")] = None,
     steps: StepsOpt = 300,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing --json file.")] = False,
+    dynamics: DynamicsOpt = None,
 ) -> None:
     """Evaluate a classifier honestly and print accuracy, balanced accuracy, macro-F1,
     per-class recall with 95 % confidence intervals, and the confusion matrix. The
-    model's own parameters are the options after --overwrite (each names the models
-    that take it)."""
+    model's own parameters are the options after --dynamics (each names the models
+    that take it). Each session's features come from the identified dynamics it
+    carries (recorder set-robot --dynamics), unless --dynamics gives others for all."""
     from contactkit.classify.evaluate import report_markdown
     from contactkit.classify.training import evaluate_kind
 
     if json_out is not None:
         check_target(json_out, overwrite=overwrite)
     options = _options(ctx, model, features, scalars, window, window_s, seed, steps)
+    identified = load_dynamics_option(dynamics)
     with progress_bar("evaluate") as bar:
         report, problems = evaluate_kind(
             datasets, options, protocol=Protocol(protocol).value, group=Group(group).value,
             scheme=Scheme(scheme).value, limited=limited, workers=workers,
-            progress=labelled_progress(bar), scheduler=scheduler_of(ctx))
+            progress=labelled_progress(bar), scheduler=scheduler_of(ctx),
+            dynamics=identified)
     print_problems(problems)
     print(report_markdown(report))
     if json_out is not None:
@@ -310,8 +319,8 @@ def predict_command(
     arm = arm_override(robot, identified)
     if events or calibration is not None:
         detector = (load_calibration(calibration) if calibration is not None
-                    else dynamics_detector(identified) or model.detector_config())
-        if detector is None:
+                    else dynamics_detector(identified))
+        if detector is None and model.detector_config() is None:
             raise InputError("model carries no contact detector; give --calibration",
                              model_path)
         event_problems = []
@@ -337,21 +346,26 @@ def predict_command(
     exit_if_failed(problems)
 
 
-def _print_events(model, source: Path, detector: DetectorConfig, decide_after: float | None,
-                  as_json: bool, robot: RobotChoice) -> list[tuple[str, str]]:
+def _print_events(model, source: Path, detector: DetectorConfig | None,
+                  decide_after: float | None, as_json: bool, robot: RobotChoice
+                  ) -> list[tuple[str, str]]:
     """Print the contact events of each session of ``source``, with the arm's model
     ``robot`` instead of each session's own when given; return the sessions that failed
-    as ``(path, problem)``."""
+    as ``(path, problem)``. ``detector`` None: the thresholds of the identified dynamics
+    a session carries, else the model's."""
     from contactkit.classify.events.contact_events import session_events
     from contactkit.classify.events.listener import contact_text
     from contactkit.classify.prediction import session_paths
+    from contactkit.features.timeseries import ChainConfig
 
     events_model = model.event_model()
     problems = []
     for path in session_paths(source):
         try:
             session = read_session(path)
-            found = session_events(session, detector, events_model, decide_after, robot)
+            setup = ChainConfig(robot=robot).robot_setup(session.meta, path)
+            chosen = detector or dynamics_detector(setup.dynamics) or model.detector_config()
+            found = session_events(session, chosen, events_model, decide_after, robot)
         except DATA_ERRORS as err:
             problems.append((str(path), problem_text(err)))
             continue

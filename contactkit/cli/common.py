@@ -44,8 +44,9 @@ RobotOpt = Annotated[str | None, typer.Option(
 DynamicsOpt = Annotated[Path | None, typer.Option(
     "--dynamics", metavar="FILE",
     help="The arm's identified dynamics (`recorder identify`): link inertias, friction and "
-         "the detector's thresholds calibrated with them, used instead of the robot's "
-         "nominal model. Refused for another arm or hand (and with a failing check).")]
+         "the detector's thresholds calibrated with them, used instead of those a session "
+         "carries (`recorder set-robot --dynamics`) or the robot's nominal model. Refused "
+         "for another arm or hand (and with a failing check).")]
 """The ``--dynamics`` option, beside ``--robot``: read with :func:`load_dynamics_option`."""
 
 

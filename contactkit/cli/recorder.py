@@ -61,28 +61,51 @@ else:
 ReportFormat = Literal["html", "md", "json"]
 
 
-def _start_events(values: dict[str, Any], meta: SessionMeta) -> Any:
-    """Return the live event pipeline (a capture listener) for a capture with --events,
-    else None. The classifier side is imported here, when asked for: it takes seconds."""
+def _start_events(values: dict[str, Any], meta: SessionMeta, source: Any) -> Any:
+    """Store the --dynamics given in ``meta``; return the capture's listener: the live
+    event pipeline with --events (behind
+    :class:`~contactkit.recorder.capture.live_dynamics.LiveDynamics` with --dynamics),
+    else None. The classifier side is imported here, when asked for: it takes
+    seconds."""
+    identified = load_dynamics_option(values["dynamics"])
+    if identified is not None:  # stored with the session, and the live model below
+        meta.dynamics = meta.with_dynamics(identified, values["dynamics"]).dynamics
+    elif values["robot_load"]:
+        raise InputError("--robot-load needs --dynamics")
     if not values["events"]:
         given = [flag for flag, key in (("--model", "model"), ("--calibration", "calibration"),
                                         ("--decide-after", "decide_after"))
                  if values[key] is not None]
         if given:
             raise InputError(f"{given[0]} needs --events")
-        return None
+        start = None
+    else:
+        start = _live_events(values)
+    if identified is None:
+        return None if start is None else start(meta)
+    from contactkit.recorder.capture.live_dynamics import LiveDynamics
+
+    return LiveDynamics(meta, source, identified, start or (lambda _: None),
+                        values["robot_load"])
+
+
+def _live_events(values: dict[str, Any]) -> Any:
+    """Load the event model and detector of --events; return what starts the live event
+    pipeline for the session metadata it is given (its arm, and the identified dynamics
+    it carries: the chain, the detector's thresholds unless --calibration, isolation)."""
     from contactkit.classify.events.listener import LiveEvents, describe
     from contactkit.cli.default_model import default_model_missing, model_or_default
-    from contactkit.features.detector import load_calibration
+    from contactkit.features.detector import dynamics_detector, load_calibration
+    from contactkit.features.isolation import robot_isolator
 
-    detector = None if values["calibration"] is None else load_calibration(values["calibration"])
+    calibration = None if values["calibration"] is None else load_calibration(
+        values["calibration"])
     if values["model"] is None and default_model_missing():
         err_console.print("No --model given: building the default model once (simulated "
                           "data, then an SVM); it is cached for next time.")
     with progress_bar() as bar:
         model = model_or_default(values["model"], labelled_progress(bar))
-    detector = detector or model.detector_config()
-    if detector is None:
+    if calibration is None and model.detector_config() is None:
         raise InputError("model carries no contact detector; give --calibration",
                          values["model"])
     chain = model.online_transformer().chain_config()
@@ -90,11 +113,13 @@ def _start_events(values: dict[str, Any], meta: SessionMeta) -> Any:
     def report(kind: str, event: Any) -> None:
         err_console.print(f"  [bold]event[/] {describe(kind, event)}")
 
-    from contactkit.features.isolation import robot_isolator
+    def start(meta: SessionMeta) -> Any:
+        robot = chain.robot_setup(meta)  # with the identified dynamics the session carries
+        detector = calibration or dynamics_detector(robot.dynamics) or model.detector_config()
+        return LiveEvents(chain, robot, detector, model.event_model(), values["decide_after"],
+                          report, robot_isolator(robot))
 
-    robot = chain.robot_setup(meta)
-    return LiveEvents(chain, robot, detector, model.event_model(), values["decide_after"],
-                      report, robot_isolator(robot))
+    return start
 
 
 EVENTS = CaptureExtension((
@@ -107,6 +132,14 @@ EVENTS = CaptureExtension((
           "calibrate` (overrides the model's detector settings)."),
     Param("decide_after", float, None, "Events: time after a contact's onset at which its "
           "intent is decided (default: the model's).", unit="s"),
+    Param("dynamics", Path, None, "The arm's identified dynamics (`recorder identify`), "
+          "stored with the session as values; with --events, the observer, the detector "
+          "(the file's thresholds, unless --calibration) and isolation use them live. "
+          "Refused for another arm or hand: with --source franka, name the arm (--robot)."),
+    Param("robot_load", bool, False, "With --dynamics: the load the robot reports once "
+          "connected (--source franka: m_load at F_x_Cload, stored as payload_kg) is the "
+          "identification's payload, in place of the identified one (link 7: the nominal "
+          "one plus that load)."),
 ), _start_events)
 
 
@@ -253,7 +286,8 @@ def identify_command(
     (too short, no joint moving), no session is free motion, or the sessions are of
     different arms. Sessions with contact, index.parquet and files that are not
     sessions are skipped, each with a line. Pass the file with --dynamics to replay,
-    classify and recorder commands.
+    classify and recorder commands, or store it with sessions (recorder set-robot
+    --dynamics).
     """
     from contactkit.features.detector import dynamics_detector
     from contactkit.features.identification import identify_sessions, session_inputs
@@ -408,15 +442,34 @@ def robots_command() -> None:
 @app.command("set-robot")
 def set_robot_command(
     sessions: Annotated[list[Path], typer.Argument(help="Session files to correct.")],
-    robot: Annotated[str, typer.Option(
-        help="The arm they were recorded on: panda, fr3, a plugin's name or urdf:PATH.")],
+    robot: Annotated[str | None, typer.Option(
+        help="The arm they were recorded on: panda, fr3, a plugin's name or urdf:PATH "
+             "(default: the arm each names).")] = None,
+    dynamics: Annotated[Path | None, typer.Option(
+        "--dynamics", metavar="FILE",
+        help="Store the arm's identified dynamics (`recorder identify`) in each session's "
+             "metadata, as values (not the file's path): every command then uses them "
+             "unless its own --dynamics overrides them. Checked as the file is, and "
+             "refused for another arm or hand.")] = None,
+    clear_dynamics: Annotated[bool, typer.Option(
+        "--clear-dynamics", help="Remove the stored dynamics: the nominal model again.")
+                              ] = False,
 ) -> None:
     """Correct the robot a session names (for example FR3 sessions recorded with --source
-    franka before sessions named their arm, which say franka_panda). Each file's metadata
-    is rewritten atomically; its samples are unchanged."""
+    franka before sessions named their arm, which say franka_panda), or store the arm's
+    identified dynamics with it. Each file's metadata is rewritten atomically (a
+    symbolic link's target, keeping its permissions); its samples are unchanged. Naming
+    another arm drops the dynamics stored for the old one."""
+    if robot is None and dynamics is None and not clear_dynamics:
+        raise InputError("give --robot, --dynamics or --clear-dynamics")
+    if dynamics is not None and clear_dynamics:
+        raise InputError("--dynamics and --clear-dynamics exclude each other")
+    identified = load_dynamics_option(dynamics)
     for path in sessions:
-        meta = set_session_robot(path, robot)
-        err_console.print(f"{console_text(path)}: robot {console_text(meta.robot)}")
+        meta = set_session_robot(path, robot, dynamics=identified,
+                                 clear_dynamics=clear_dynamics)
+        err_console.print(f"{console_text(path)}: robot {console_text(meta.robot)}, "
+                          f"{'identified dynamics' if meta.dynamics else 'nominal model'}")
 
 
 @app.command("index")
@@ -692,13 +745,17 @@ def export_mcap_command(
              "inside; default: the session's name without suffix, beside it).")] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing file or bag directory.")
                          ] = False,
+    dynamics: DynamicsOpt = None,
 ) -> None:
     """Write a session as MCAP (JointState, WrenchStamped) for Foxglove, PlotJuggler or
-    the Rerun viewer; print the .mcap file's path. `recorder import` reads it back."""
+    the Rerun viewer; print the .mcap file's path. `recorder import` reads it back. The
+    metadata it carries holds the session's identified dynamics, or --dynamics' in
+    their place."""
     from contactkit.recorder.importers.mcap_export import export_mcap
 
     print(printable(export_mcap(session, out or session.with_suffix(""),
-                                overwrite=overwrite)))
+                                overwrite=overwrite,
+                                dynamics=load_dynamics_option(dynamics))))
 
 
 @app.command("can-bridge")

@@ -68,6 +68,31 @@ def with_dynamics(setup: RobotSetup, dynamics: ArmDynamics,
     return replace(setup, dynamics=dynamics)
 
 
+def with_payload(dynamics: ArmDynamics, mass_kg: float,
+                 com_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> ArmDynamics:
+    """Return ``dynamics`` with their payload replaced by a point mass ``mass_kg`` [kg] at
+    ``com_m`` [m, flange frame]: a robot's configured load (libfranka's ``m_load`` and
+    ``F_x_Cload``, which a session from ``--source franka`` stores). Link 7 becomes the
+    nominal link 7 (the hand included where mounted) plus that mass, as the nominal
+    model adds a payload; the other links, the armature, the friction and the detector
+    stay as identified, and the provenance says where the payload came from. InputError
+    for a mass that is negative or not finite."""
+    from contactkit.robots.model import RobotModel
+
+    if not (math.isfinite(mass_kg) and mass_kg >= 0 and all(map(math.isfinite, com_m))):
+        raise InputError(f"a payload of {mass_kg:g} kg at {list(com_m)} m cannot be used")
+    loaded = RobotModel(RobotSetup(dynamics.robot, dynamics.with_hand, payload_kg=mass_kg,
+                                   payload_com_m=com_m))
+    link = loaded.model.inertias[N_JOINTS].toDynamicParameters()
+    provenance = dynamics.provenance_doc | {"payload": {
+        "from": "the robot's configured load", "mass_kg": mass_kg, "com_m": list(com_m),
+        "identified_mass_kg": dynamics.payload.mass_kg}}
+    return replace(dynamics,
+                   inertias=(*dynamics.inertias[:-1], tuple(float(v) for v in link)),
+                   payload=Payload(float(mass_kg), com_m), provenance=json.dumps(
+                       provenance, sort_keys=True))
+
+
 def check_arm(dynamics: ArmDynamics, setup: RobotSetup, where: str | Path | None = None
               ) -> None:
     """Raise InputError naming ``where`` unless ``dynamics`` are for ``setup``'s arm and

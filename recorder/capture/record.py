@@ -74,7 +74,10 @@ class AgreementListener:
     it in the metadata's ``residual_agreement``. The arm's model is built before the
     stream starts (building it takes longer than a live robot waits), from the arm the
     source names then; if the source names another once its first chunk has arrived (a
-    Franka robot's backend tells which arm), the model is built again. Chunks are
+    Franka robot's backend tells which arm), or the session's identified dynamics have
+    changed then (the robot's load as their payload,
+    :class:`~contactkit.recorder.capture.live_dynamics.LiveDynamics`), the model is built
+    again. Chunks are
     gathered to ``BATCH_ROWS`` samples before the chain runs on them, so a live source
     loses at most a few states to it per second."""
 
@@ -82,7 +85,7 @@ class AgreementListener:
 
     def __init__(self, meta: SessionMeta, source: Source) -> None:
         self.meta, self.source = meta, source
-        self.robot = self._robot()
+        self.robot, self.dynamics = self._robot(), meta.dynamics
         self.stream = self._stream()
         self.first = True
         self.pending: list[dict[str, np.ndarray]] = []
@@ -99,8 +102,8 @@ class AgreementListener:
 
     def on_chunk(self, chunk: dict[str, np.ndarray]) -> None:
         """Take the next chunk of session columns."""
-        if self.first and self._robot() != self.robot:
-            self.robot = self._robot()
+        if self.first and (self._robot(), self.meta.dynamics) != (self.robot, self.dynamics):
+            self.robot, self.dynamics = self._robot(), self.meta.dynamics
             self.stream = self._stream()
         self.first = False
         self.pending.append(chunk)

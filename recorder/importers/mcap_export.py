@@ -31,6 +31,7 @@ from contactkit.recorder.importers.bags import (
     WRENCH_STAMPED,
 )
 from contactkit.robots import get_robot
+from contactkit.robots.spec import ArmDynamics
 from contactkit.schemas import InputError, Session, joint_columns, read_session
 from contactkit.schemas.columns import FORCE_COLUMNS, WRENCH_HAT_COLUMNS
 from contactkit.util.atomic import atomic_directory, atomic_write, scratch_directory
@@ -41,7 +42,7 @@ def _stamps_ns(t: np.ndarray, start_ns: int) -> np.ndarray:
 
 
 def export_mcap(session_path: Path, out: Path, *, start_ns: int = 0,
-                overwrite: bool = False) -> Path:
+                overwrite: bool = False, dynamics: ArmDynamics | None = None) -> Path:
     """Write the session at ``session_path`` as MCAP; return the MCAP file's path.
 
     ``out`` ending in ``.mcap`` is that one file; any other ``out`` is a ROS 2 bag
@@ -50,7 +51,10 @@ def export_mcap(session_path: Path, out: Path, *, start_ns: int = 0,
     output is written aside and moved into place at the end (a failure leaves nothing);
     an existing ``out`` is replaced only with ``overwrite``, and a directory only when it
     is such a bag (:func:`is_mcap_bag`), never another folder named by mistake, and
-    never the session file itself (a session named without a suffix)."""
+    never the session file itself (a session named without a suffix). The metadata
+    message carries the identified dynamics the session carries, or ``dynamics``
+    (``--dynamics``) in their place (InputError for another arm's or hand's), so that
+    ``recorder import`` gives them back."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -58,6 +62,8 @@ def export_mcap(session_path: Path, out: Path, *, start_ns: int = 0,
         raise InputError("is the session it exports: not replaced, even with --overwrite "
                          "(give --out)", out)
     session = read_session(session_path)
+    if dynamics is not None:
+        session.meta = session.meta.with_dynamics(dynamics, session_path)
     store = get_typestore(Stores.ROS2_HUMBLE)
     stamps = _stamps_ns(session.t, start_ns)
     if stamps[0] < 0:
