@@ -61,12 +61,16 @@ def flag_key(param: Param) -> str:
 
 
 def shared_flags(owners: Mapping[str, Sequence[Param]], taken: AbstractSet[str] = frozenset(),
-                 what: str = "") -> tuple[dict[str, SharedFlag], dict[str, str]]:
+                 what: str = "", joins: Mapping[str, SharedFlag] | None = None
+                 ) -> tuple[dict[str, SharedFlag], dict[str, str]]:
     """Return the flags of every owner's parameters by option (``--name``), and the problem
     of each owner whose options clash with a ``taken`` option or with another owner's
     option of another type (that owner's parameters get no flags). ``what`` names the
-    kind of owner in the flags' help (empty: the owners are not listed)."""
-    flags: dict[str, SharedFlag] = {}
+    kind of owner in the flags' help (empty: the owners are not listed). An owner's
+    parameter with the option and type of one of the flags ``joins`` (by option) joins
+    that flag (it becomes one of its owners) instead of getting its own; those flags are
+    not in the result."""
+    flags: dict[str, SharedFlag] = dict(joins or {})
     problems: dict[str, str] = {}
     for owner, params in owners.items():
         clash = [p.option for p in params if p.option in taken or (
@@ -76,7 +80,7 @@ def shared_flags(owners: Mapping[str, Sequence[Param]], taken: AbstractSet[str] 
             continue
         for p in params:
             flags.setdefault(p.option, SharedFlag(p, what=what)).owners[owner] = p.name
-    return flags, problems
+    return {o: f for o, f in flags.items() if o not in (joins or {})}, problems
 
 
 def _option(flag: SharedFlag) -> typer.core.TyperOption:

@@ -133,8 +133,10 @@ EVENTS = CaptureExtension((
     Param("decide_after", float, None, "Events: time after a contact's onset at which its "
           "intent is decided (default: the model's).", unit="s"),
     Param("dynamics", Path, None, "The arm's identified dynamics (`recorder identify`), "
-          "stored with the session as values; with --events, the observer, the detector "
-          "(the file's thresholds, unless --calibration) and isolation use them live. "
+          "stored with the session as values; --source sim simulates that arm (its "
+          "links, friction and armature, unperturbed); with --events, the observer, the "
+          "detector (the file's thresholds, unless --calibration) and isolation use them "
+          "live. "
           "Refused for another arm or hand: with --source franka, name the arm (--robot)."),
     Param("robot_load", bool, False, "With --dynamics: the load the robot reports once "
           "connected (--source franka: m_load at F_x_Cload, stored as payload_kg) is the "

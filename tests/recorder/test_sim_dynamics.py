@@ -166,6 +166,9 @@ def test_the_simulated_arm_is_the_file(truth_file: Path, tmp_path: Path) -> None
         json.loads(truth_file.read_text())["links"]
     assert "dynamics" not in read_session(nominal).meta.simulator["config"]
     assert meta.session_id != read_session(nominal).meta.session_id
+    # one --dynamics: the sim source simulates the arm and the session carries it
+    assert meta.dynamics is not None and meta.dynamics["checksum"] == truth.checksum
+    assert read_session(nominal).meta.dynamics is None
     # the same file, the same session: simulate --dynamics writes it under the same name
     again = run_command("recorder", "simulate", str(tmp_path / "set"), "--preset", "smoke",
                         "--sessions", "1", "--workers", "1", "--dynamics", str(truth_file),
