@@ -46,10 +46,13 @@ check: lint typecheck
 
 # The default model is built (and cached) before the unit tests, on both cores, so that
 # no test's fixture builds it under the per-test timeout while the other worker runs tests.
+# The notebooks (the docs marker) and the browser checks run alone, after the rest: a
+# notebook's kernel maps its jobs on a pool of its own, whose workers spun at full CPU
+# in two full parallel runs (never alone, beside the other notebook or under load).
 test: $(STAMP) lint typecheck chromium model
-	$(PY) -m pytest -q -n 2 -m "not slow and not browser" --durations=25
+	$(PY) -m pytest -q -n 2 -m "not slow and not browser and not docs" --durations=25
 	@$(MAKE) --no-print-directory docs
-	$(PY) -m pytest -q -m "browser and not slow"
+	$(PY) -m pytest -q -m "(browser or docs) and not slow" --durations=10
 
 # The default model (built from its recipe once, then cached; a few minutes on 2 cores).
 model: $(STAMP)
