@@ -28,7 +28,13 @@ and ends when the joints that started it stay below ``release`` for ``min_off_s`
 (hysteresis); the other joints then take their current residual as baseline. That
 rule exists because a touch can leave a lasting offset on a joint it barely loads:
 on the real Panda a wrist joint's static friction keeps up to 0.5 Nm after a push
-on the upper arm, which would otherwise hold the contact on forever. Onset and
+on the upper arm, which would otherwise hold the contact on forever. The joints that
+started it keep the baseline frozen at the onset, and for ``reacquire_s`` after the
+release every joint's baseline follows r_f with the short time constant
+``baseline_reacquire_s``: on a moving arm the model error drifts while the baseline is
+frozen, and the stale part left at the release, with the threshold shrinking as the
+contact's own jolt leaves the motion measures, gave a second, false contact right
+after a contact (simulated thesis-dynamic sessions, robot instances 22 and 25). Onset and
 release are stamped with the sample at which the detector *decides*, so they are
 what an online consumer sees. The first ``warmup_s`` of a stream only sets the
 baseline (the observer starts at r = 0).
@@ -93,7 +99,9 @@ def _seven(value: object, name: str) -> tuple[float, ...]:
 class DetectorConfig:
     """Detector settings. Per joint (7 values each): ``noise`` [Nm] at rest,
     ``speed`` [Nm per rad/s of |dq|], ``accel`` [Nm per rad/s^2 of |ddq|]. Timing
-    in seconds; ``release`` is the score below which a contact ends (< 1).
+    in seconds; ``release`` is the score below which a contact ends (< 1);
+    ``reacquire_s`` how long after a release the baseline follows with the time
+    constant ``baseline_reacquire_s`` (0: not at all).
     ``robot`` is the registry name of the arm the settings were calibrated on (None:
     not recorded); :meth:`for_robot` adapts them to another arm."""
 
@@ -105,6 +113,8 @@ class DetectorConfig:
     min_off_s: float = 0.05
     baseline_s: float = 2.0
     baseline_moving_s: float = 0.5
+    reacquire_s: float = 0.5
+    baseline_reacquire_s: float = 0.1
     motion_hold_s: float = 0.5
     warmup_s: float = 0.3
     smooth_s: float = 0.03
@@ -118,11 +128,12 @@ class DetectorConfig:
             raise ValueError("noise thresholds must be positive")
         if not 0 < self.release < 1:
             raise ValueError(f"release must lie in (0, 1), got {self.release}")
-        for name in ("min_on_s", "min_off_s", "motion_hold_s", "warmup_s", "smooth_s"):
+        for name in ("min_on_s", "min_off_s", "motion_hold_s", "warmup_s", "smooth_s",
+                     "reacquire_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a non-negative number of seconds")
-        for name in ("baseline_s", "baseline_moving_s"):
+        for name in ("baseline_s", "baseline_moving_s", "baseline_reacquire_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number of seconds")
@@ -162,6 +173,7 @@ class DetectorConfig:
         # baseline time constant.
         settings.setdefault("smooth_s", 0.0)
         settings.setdefault("baseline_moving_s", settings.get("baseline_s", 2.0))
+        settings.setdefault("reacquire_s", 0.0)  # and no re-acquisition after a release
         try:
             return cls(**settings)
         except (TypeError, ValueError, ArithmeticError) as err:
@@ -293,6 +305,7 @@ class Detector:
         self._r_f = [0.0] * N_JOINTS
         self.contact = False
         self._since: float | None = None  # time the pending switch started
+        self._released: float | None = None  # time of the last release
         self._onset_joints = np.ones(N_JOINTS, bool)
 
     baseline = _JointFloats("_baseline")
@@ -400,6 +413,8 @@ class Detector:
             else:
                 self._since = None
                 tau = cfg.baseline_moving_s if s >= REST_SPEED else cfg.baseline_s
+                if self._released is not None and t - self._released < cfg.reacquire_s:
+                    tau = cfg.baseline_reacquire_s
                 gain = h / (tau + h)
                 # zip's length check costs ~0.6 us: these lists are r_f's and b's,
                 # checked above
@@ -408,6 +423,7 @@ class Detector:
             self._since = t if self._since is None else self._since
             if t - self._since >= cfg.min_off_s - 1e-12:
                 self.contact, release, self._since = False, True, None
+                self._released = t
                 self._baseline = [b if held else f for b, f, held in zip(
                     self._baseline, self._r_f, self._onset_joints.tolist(), strict=True)]
         else:
@@ -563,6 +579,8 @@ class _Run:
         det, cfg = self.det, self.cfg
         h = self.h[i:stop]
         tau = np.where(self.speed[i:stop] >= REST_SPEED, cfg.baseline_moving_s, cfg.baseline_s)
+        if det._released is not None:
+            tau[self.t[i:stop] - det._released < cfg.reacquire_s] = cfg.baseline_reacquire_s
         gain = (h / (tau + h))[:, None]
         after = solve_recurrence(np.broadcast_to(1.0 - gain, (len(h), N_JOINTS)),
                                  gain * self.r_f[i:stop], det.baseline)
@@ -639,7 +657,7 @@ class _Run:
         self.out.release[row] = True
         if self.out.intervals and self.out.intervals[-1][1] is None:
             self.out.intervals[-1] = (self.out.intervals[-1][0], row)
-        det.contact, det._since = False, None
+        det.contact, det._since, det._released = False, None, float(self.t[k])
         return k + 1
 
 

@@ -20,6 +20,9 @@ a progress bar, the first time replay needs the model):
    real MindLab recordings give a false event, at 0.15 Nm still none); the growth with speed and
    acceleration gets margin 3: the simulator's model error in motion matches a real
    Panda's only within about +-50 % RMS per joint (tests/recorder/test_sim_calibration.py);
+   after a release its baseline re-acquires the residual for 0.5 s with a 0.1 s time
+   constant (``DetectorConfig.reacquire_s``), which removed the false events that
+   followed contacts on a moving arm;
 4. the per-event intent classifier (:mod:`contactkit.classify.events.training`): SVM
    (C = 10) on the events the detector finds, decided 0.15 s after onset, from
    residual-only event features, in the free-motion presets, the thesis-protocol
@@ -78,7 +81,9 @@ RECIPE: dict[str, Any] = {
     "detector": {"margin": 1.5, "motion_margin": 3.0,
                  "min_noise": [*[SHOULDER_FLOOR_NM] * 4, *[MIN_NOISE] * 3],
                  "smooth_s": DetectorConfig().smooth_s,
-                 "baseline_moving_s": DetectorConfig().baseline_moving_s},
+                 "baseline_moving_s": DetectorConfig().baseline_moving_s,
+                 "reacquire_s": DetectorConfig().reacquire_s,
+                 "baseline_reacquire_s": DetectorConfig().baseline_reacquire_s},
     "events": {"decide_after_s": DEFAULT_DECIDE_AFTER_S, "C": 10.0},
 }
 Progress = Callable[[str, int, int], None]

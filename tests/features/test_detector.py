@@ -144,6 +144,42 @@ def test_the_baseline_follows_model_error_that_changes_along_a_move() -> None:
     assert t[lagging.intervals[0][0]] < 6.0  # a 2 s baseline lags: a false contact
 
 
+def _push_leaving_an_offset() -> tuple[np.ndarray, ...]:
+    """A held pose, a 0.4 s push of 3 Nm on joint 2 at t = 1.5 s that jolts the arm,
+    after which joint 2's residual keeps 0.3 Nm (what the frozen baseline took before
+    the push no longer matches: on a moving arm the model error drifted meanwhile)."""
+    t, r, dq = _synthetic(4000)
+    push = (t > 1.5) & (t < 1.9)
+    dq[push, 1] += 0.3 * np.sin(np.pi * (t[push] - 1.5) / 0.4)
+    r[t >= 1.9, 1] += 0.3
+    return t, r, dq
+
+
+def test_the_baseline_reacquires_quickly_after_a_release() -> None:
+    t, r, dq = _push_leaving_an_offset()
+    config = DetectorConfig(noise=(0.3,) * 7, speed=(0.5,) * 7, accel=(0.3,) * 7)
+    quick, slow = detect(t, r, dq, config), detect(t, r, dq, replace(config, reacquire_s=0.0))
+    assert quick.intervals == slow.intervals and len(quick.intervals) == 1
+    release = quick.intervals[0][1]
+    assert release is not None
+    later = np.searchsorted(t, t[release] + 0.3)
+    # the stale 0.3 Nm is gone within 0.3 s (time constant 0.1 s) instead of lingering
+    # near the threshold while the contact's own motion no longer raises it
+    assert abs(quick.e[later, 1]) < 0.05 < 0.1 < abs(slow.e[later, 1])
+    detector = Detector(config)
+    states = [detector.update(t[k], r[k], dq[k]) for k in range(len(t))]
+    assert np.array_equal(quick.contact, [s.contact for s in states])
+    assert np.abs(quick.score - [s.score for s in states]).max() < 1e-9
+
+
+def test_calibrations_from_before_reacquisition_keep_their_meaning() -> None:
+    doc = DetectorConfig().to_dict()
+    del doc["reacquire_s"], doc["baseline_reacquire_s"]
+    assert DetectorConfig.from_dict(doc).reacquire_s == 0.0
+    with pytest.raises(ValueError, match="baseline_reacquire_s"):
+        DetectorConfig(baseline_reacquire_s=0.0)
+
+
 def test_motion_margin_widens_only_the_growth_with_motion() -> None:
     t, r, dq = _slow_move()
     quiet = t < 5.9
