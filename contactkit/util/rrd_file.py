@@ -27,8 +27,10 @@ if TYPE_CHECKING:
 RRD_FOOTER = b"RRF2FOOT"
 """The mark near the end of every whole .rrd file (followed by 4 bytes of version)."""
 MIN_FREE_BYTES = 1 << 20
-"""Free space [bytes] below which a recording being written is stopped as a full disk
-(Rerun's writer thread stalls and retries when the device fills up)."""
+"""Free space [bytes] below which a recording being written is stopped as a full disk:
+Rerun's writer thread retries a write that failed for space, and a disconnect waits for
+it, for ever when the device stays full (Rerun 0.41), so the writers stop while there is
+still room."""
 FLUSH_TIMEOUT_S = 60.0
 """Longest wait [s] for Rerun to write what was logged at the end of a recording."""
 

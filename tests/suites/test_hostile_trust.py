@@ -224,19 +224,45 @@ def small_disk(tmp_path: Path):
         subprocess.run(["umount", "-l", str(mount)], capture_output=True)
 
 
-@pytest.mark.parametrize("free_kib, margin", [(100, None), (300, 0)],
-                         ids=["below-the-margin", "fills-while-writing"])
-def test_a_full_disk_during_replay_save_leaves_nothing(good, small_disk, capsys, monkeypatch,
-                                                       free_kib, margin) -> None:
-    import contactkit.util.rrd_file as rrd_file
-
-    if margin is not None:  # let Rerun's writer run into the full disk itself
-        monkeypatch.setattr(rrd_file, "MIN_FREE_BYTES", margin)
+def test_a_full_disk_during_replay_save_leaves_nothing(good, small_disk, capsys) -> None:
+    """Less than the writer's margin free: the replay stops in one line, nothing left."""
     fill = small_disk / "fill"
-    fill.write_bytes(b"\0" * (4096 - free_kib) * 1024)
+    fill.write_bytes(b"\0" * (4096 - 100) * 1024)
     code, _, err = _run(replay_app, "replay", capsys, good, "--viewer", "none", "--save",
                         small_disk / "r.rrd")
     _one_line(code, err, "r.rrd", "nothing was written")
+    assert [p.name for p in small_disk.iterdir()] == ["fill"]
+
+
+FILLS_WHILE_WRITING = """
+import sys
+import contactkit.util.rrd_file as rrd_file
+from contactkit.cli.common import run_app
+from contactkit.cli.replay import app
+
+rrd_file.MIN_FREE_BYTES = 0  # let Rerun's writer run into the full disk itself
+sys.exit(run_app(app, "replay", sys.argv[1:]))
+"""
+
+
+@pytest.mark.slow
+def test_a_disk_that_fills_while_rerun_writes(good, small_disk) -> None:
+    """Without the margin, Rerun's own file writer runs into the full device. Most runs
+    end in one line with nothing left; but Rerun 0.41's writer retries a write that
+    failed for space, and its disconnect, which waits for it, can then wait for ever (a
+    CI run hung so, out of reach of the per-test timeout: the wait holds the
+    interpreter). So this runs in a process of its own with a time limit, and it is
+    slow: the margin (rrd_file.MIN_FREE_BYTES), checked between blocks, is what keeps
+    contactkit's writers from it."""
+    import subprocess
+    import sys
+
+    (small_disk / "fill").write_bytes(b"\0" * (4096 - 300) * 1024)
+    done = subprocess.run([sys.executable, "-c", FILLS_WHILE_WRITING, str(good), "--viewer",
+                           "none", "--save", str(small_disk / "r.rrd")],
+                          capture_output=True, text=True, timeout=120)
+    err = " ".join(done.stderr.split())
+    _one_line(done.returncode, err, "r.rrd", "nothing was written")
     assert [p.name for p in small_disk.iterdir()] == ["fill"]
 
 
