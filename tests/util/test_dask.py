@@ -106,7 +106,7 @@ def test_features_and_svm_identical(cluster, tmp_path, session_path):
     extractor = SessionFeatures()
     extractor.fit(None)
     params = extractor.get_params()
-    jobs = [(str(p), params) for p in (session_path, bad, session_path)]
+    jobs = [(str(p), params, None) for p in (session_path, bad, session_path)]
     local = list(map_ordered(_session_feature_row, jobs, workers=2))
     remote = list(map_ordered(_session_feature_row, jobs, scheduler=CLUSTER))
     assert [r[2] is None for r in remote] == [True, False, True]  # the bad file is data
