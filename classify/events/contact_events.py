@@ -190,12 +190,17 @@ class EventModel:
         beyond = np.flatnonzero(above | below)
         if not beyond.size:
             return RangeCheck()
-        names = tuple(EVENT_FEATURES[i] for i in beyond)
+        # a vector with features past the event features (an experiment's extra inputs)
+        # names those by position; they are not strength features
+        names = tuple(EVENT_FEATURES[i] if i < len(EVENT_FEATURES) else f"feature {i}"
+                      for i in beyond)
         if above.any() and below.any():
             return RangeCheck(True, "both", names)
         side = "above" if above.any() else "below"
+        strength = np.zeros(len(x), bool)
+        strength[:min(len(x), len(STRENGTH))] = STRENGTH[:len(x)]
         if (self.class_low is None or self.class_high is None or label not in self.classes
-                or not STRENGTH[beyond].all()):
+                or not strength[beyond].all()):
             return RangeCheck(True, side, names)
         extremes = np.array([(self.class_high if side == "above" else self.class_low)[c]
                              for c in self.classes])[:, beyond]

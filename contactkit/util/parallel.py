@@ -121,8 +121,8 @@ def pool_context(spawn: bool = False
 
     Workers are never plain forks of this process: a fork copies the memory of every
     library's thread pool but none of its threads, and a child of a process whose pool
-    has run hangs in its next call (OpenBLAS's after a matrix product, Polars' after a
-    query, Rerun's and DataFusion's; the notebooks' kernels spun so). With ``spawn``
+    has run can hang in its next call (Polars' after a query; OpenBLAS's, waiting for
+    its threads in a forked worker of a notebook's kernel). With ``spawn``
     they are fresh interpreters; else, where the platform has it, they are forked from
     a clean server process (``forkserver``, started once, with this process's state
     then; Python 3.14's default), and take on this process's environment and working

@@ -176,3 +176,22 @@ def test_the_default_model_keeps_a_shove_harder_than_any_it_saw_and_refuses_host
         label = events_model.classes[int(np.argmax(
             events_model.estimator.predict_proba(x[None, :])[0]))]
         assert events_model.range_check(x, label).refused
+
+
+def test_features_past_the_event_features_are_named_by_position(model) -> None:
+    """An experiment that appends inputs to the event features (docs/isolation.py's
+    isolated link and force direction) gets a verdict, with those named by position and
+    never counted as strength: a value far past the range there is not explained."""
+    from dataclasses import replace
+
+    extra = 3
+    wider = replace(model, low=np.r_[model.low, np.zeros(extra)],
+                    high=np.r_[model.high, np.ones(extra)],
+                    class_low={c: np.r_[v, np.zeros(extra)] for c, v in model.class_low.items()},
+                    class_high={c: np.r_[v, np.ones(extra)] for c, v in model.class_high.items()})
+    typical = np.r_[_features(_profile("shove", 6.0, 0.06)), np.full(extra, 0.5)]
+    assert not wider.range_check(typical, "shove").refused
+    odd = typical.copy()
+    odd[-1] = 10.0
+    check = wider.range_check(odd, "shove")
+    assert check.refused and check.features == (f"feature {len(odd) - 1}",)
