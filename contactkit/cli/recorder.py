@@ -211,10 +211,12 @@ def simulate_command(
     A session that fails is reported and the others are still written (exit code 2).
     """
     from contactkit.recorder.sim.dataset import simulate_dataset
-    from contactkit.recorder.sim.simulator import ArmSimulator, SimConfig
+    from contactkit.recorder.sim.simulator import ArmSimulator, SimConfig, load_simulated_arm
+    from contactkit.robots import RobotSetup
 
     chosen = PRESETS[preset]
-    identified = _simulated_arm(dynamics, robot, robot_seed)
+    identified = None if dynamics is None else load_simulated_arm(
+        dynamics, RobotSetup(robot), robot_seed)
     config = SimConfig(rate_hz=rate or chosen.rate_hz, noise_scale=noise_scale, robot=robot,
                        robot_seed=chosen.robot_seed if robot_seed is None else robot_seed,
                        dynamics=identified)
@@ -236,23 +238,6 @@ def simulate_command(
 
 
 register_catalog(app)
-
-
-def _simulated_arm(path: Path | None, robot: str, robot_seed: int | None) -> Any:
-    """Return the identified dynamics of ``simulate --dynamics`` checked against the
-    simulated arm (``--robot``, with its hand), or None without the option."""
-    if path is None:
-        return None
-    if robot_seed is not None:
-        raise InputError("--robot-seed picks a random instance of the nominal arm, "
-                         "--dynamics simulates an identified one: give one of them")
-    from contactkit.features.detector import dynamics_detector
-    from contactkit.robots import RobotSetup
-    from contactkit.robots.dynamics import load_dynamics
-
-    dynamics = load_dynamics(path, RobotSetup(robot))
-    dynamics_detector(dynamics)  # every check of --dynamics elsewhere
-    return dynamics
 
 
 def _write_true_dynamics(path: Path, dynamics: Any) -> None:

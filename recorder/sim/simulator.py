@@ -68,6 +68,7 @@ from __future__ import annotations
 import json
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -184,6 +185,24 @@ def simulated_dynamics(dynamics: ArmDynamics) -> dict[str, Any]:
     doc = dynamics.to_dict()
     return {key: doc[key] for key in ("robot", "with_hand", "links", "armature_kgm2",
                                       "friction", "checksum")}
+
+
+def load_simulated_arm(path: str | Path, setup: RobotSetup, robot_seed: int | None
+                       ) -> ArmDynamics:
+    """Return the identified dynamics in the file ``path`` for simulating the arm
+    ``setup`` (``--dynamics`` of ``capture --source sim`` and ``simulate``): every check
+    of ``--dynamics`` elsewhere (the file's, and its detector settings'), and the arm
+    and hand. InputError (one line) for a file that fails one, or when ``robot_seed``
+    (not None) also picks a random instance of the nominal arm."""
+    if robot_seed is not None:
+        raise InputError("--robot-seed picks a random instance of the nominal arm, "
+                         "--dynamics simulates an identified one: give one of them")
+    from contactkit.features.detector import dynamics_detector
+    from contactkit.robots.dynamics import load_dynamics
+
+    dynamics = load_dynamics(path, setup)
+    dynamics_detector(dynamics)
+    return dynamics
 
 
 @dataclass(frozen=True)

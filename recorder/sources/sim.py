@@ -102,22 +102,14 @@ class SimSource(Source):
             raise InputError(f"noise scale must be >= 0, got {config.noise_scale}")
         if choices.pose is None:
             raise InputError("the simulator needs a start pose")
-        from contactkit.features.detector import dynamics_detector
         from contactkit.recorder.sim.noise import SensorNoise, default_noise
-        from contactkit.recorder.sim.simulator import SimConfig, plan_session
+        from contactkit.recorder.sim.simulator import SimConfig, load_simulated_arm, plan_session
         from contactkit.robots import RobotSetup
-        from contactkit.robots.dynamics import load_dynamics
 
-        if config.dynamics is not None and config.robot_seed is not None:
-            raise InputError("--robot-seed picks a random instance of the nominal arm, "
-                             "--dynamics simulates an identified one: give one of them")
+        dynamics = None if config.dynamics is None else load_simulated_arm(
+            config.dynamics, RobotSetup(config.robot, choices.with_hand), config.robot_seed)
         noise = default_noise() if config.noise_file is None else \
             SensorNoise.from_file(config.noise_file)
-        dynamics = None
-        if config.dynamics is not None:  # every check of --dynamics elsewhere, and the arm
-            dynamics = load_dynamics(config.dynamics, RobotSetup(config.robot,
-                                                                 choices.with_hand))
-            dynamics_detector(dynamics)
         sim_config = SimConfig(rate_hz=config.rate, robot=config.robot,
                                with_hand=choices.with_hand,
                                robot_seed=config.robot_seed or 0, noise=noise,
