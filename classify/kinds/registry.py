@@ -17,26 +17,27 @@ importing heavy libraries.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 from contactkit.classify.kinds.kind import ModelKind, ModelOptions
 from contactkit.classify.kinds.neural import CNN, LSTM, MINIROCKET
 from contactkit.classify.kinds.svm import PER_JOINT, SVM, THREE_JOINT
 from contactkit.errors import InputError
-
-if TYPE_CHECKING:
-    import importlib.metadata
+from contactkit.util.plugins import Registry
 
 ENTRY_POINT_GROUP = "contactkit.models"
-_KINDS: dict[str, ModelKind | importlib.metadata.EntryPoint] = {kind.name: kind for kind in (
-    SVM,
-    PER_JOINT,
-    THREE_JOINT,
-    CNN,
-    LSTM,
-    MINIROCKET,
-)}
-_entry_points_loaded = False
+
+
+def _check(name: str, target: str, loaded: object) -> ModelKind:
+    if not isinstance(loaded, ModelKind):
+        raise InputError(f"entry point {name!r} of {ENTRY_POINT_GROUP} is not a "
+                         f"ModelKind ({target})")
+    return loaded
+
+
+REGISTRY: Registry[ModelKind] = Registry(
+    "model", ENTRY_POINT_GROUP,
+    {kind.name: kind for kind in (SVM, PER_JOINT, THREE_JOINT, CNN, LSTM, MINIROCKET)},
+    _check)
+"""The classifier kinds by name (:class:`contactkit.util.plugins.Registry`)."""
 DEFAULT_KIND = SVM.name
 """The kind a command trains when none is named."""
 DEFAULT_SEARCHED = LSTM.name
@@ -46,61 +47,23 @@ DEFAULT_SEARCHED = LSTM.name
 def register(kind: ModelKind, *, replace: bool = False) -> ModelKind:
     """Add a kind under its name; return it. A name already taken is refused unless
     ``replace``."""
-    _load_entry_points()
-    if kind.name in _KINDS and not replace and _resolve(kind.name) is not kind:
-        raise InputError(f"model kind {kind.name!r} is already registered")
-    _KINDS[kind.name] = kind
-    return kind
+    return REGISTRY.register(kind.name, kind, replace=replace)
 
 
 def unregister(name: str) -> None:
     """Remove a kind (for tests and notebooks that registered their own)."""
-    _KINDS.pop(name, None)
-
-
-def _load_entry_points() -> None:
-    """Add the names the ``contactkit.models`` entry points declare, without importing
-    them (:func:`get_kind` does, on first use)."""
-    global _entry_points_loaded
-    if _entry_points_loaded:
-        return
-    _entry_points_loaded = True
-    import importlib.metadata  # some 35 ms, paid only where plugins are looked for
-
-    for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
-        _KINDS.setdefault(entry.name, entry)
-
-
-def _resolve(name: str) -> ModelKind:
-    """Return the kind registered as ``name``, loading its entry point on first use."""
-    found = _KINDS[name]
-    if isinstance(found, ModelKind):
-        return found
-    try:
-        kind = found.load()
-    except (ImportError, AttributeError) as err:
-        raise InputError(f"model kind {name!r} ({found.value}) cannot be loaded: "
-                         f"{err}") from err
-    if not isinstance(kind, ModelKind):
-        raise InputError(f"entry point {found.name!r} of {ENTRY_POINT_GROUP} is not a "
-                         f"ModelKind ({found.value})")
-    _KINDS[name] = kind
-    return kind
+    REGISTRY.unregister(name)
 
 
 def kind_names() -> list[str]:
     """Return the names of every known kind, built-in first (loading no plugin)."""
-    _load_entry_points()
-    return list(_KINDS)
+    return REGISTRY.names()
 
 
 def get_kind(name: str) -> ModelKind:
     """Return the kind called ``name`` (a plugin's loaded on first use), or raise
     InputError listing the known ones."""
-    _load_entry_points()
-    if name not in _KINDS:
-        raise InputError(f"unknown model {name!r} (expected one of {', '.join(_KINDS)})")
-    return _resolve(name)
+    return REGISTRY.get(name)
 
 
 def searchable_kinds() -> list[str]:

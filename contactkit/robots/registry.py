@@ -22,40 +22,43 @@ A session names its robot in its metadata (``robot``). The name is looked up her
 
 from __future__ import annotations
 
-import importlib
 import math
 import os
 import xml.etree.ElementTree as ET
 from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING, cast
+from typing import cast
 
 from contactkit.errors import InputError
 from contactkit.robots.builtin import BUILTIN
 from contactkit.robots.spec import N_JOINTS, RobotSpec
+from contactkit.util.plugins import Registry
 from contactkit.util.safe_open import read_input_text
-
-if TYPE_CHECKING:
-    import importlib.metadata
 
 ENTRY_POINT_GROUP = "contactkit.robots"
 URDF_PREFIX = "urdf:"
 DEFAULT_ROBOT = "panda"
-_BUILTIN = {spec.name: spec for spec in BUILTIN}
 _ALIASES = {alias: spec.name for spec in BUILTIN for alias in spec.aliases}
 
 
-def _plugins() -> dict[str, importlib.metadata.EntryPoint]:
-    import importlib.metadata  # some 35 ms, paid only where plugins are looked for
+def _check(name: str, target: str, loaded: object) -> RobotSpec:
+    spec = loaded() if callable(loaded) and not isinstance(loaded, RobotSpec) else loaded
+    if not isinstance(spec, RobotSpec) or len(spec.joint_names) != N_JOINTS:
+        raise InputError(f"robot {name!r} ({target}) is not a 7-joint RobotSpec")
+    return spec
 
-    return {e.name: e for e in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
-            if e.name not in _BUILTIN and e.name not in _ALIASES}
+
+REGISTRY: Registry[RobotSpec] = Registry("robot", ENTRY_POINT_GROUP,
+                                         {spec.name: spec for spec in BUILTIN}, _check,
+                                         reserved=_ALIASES)
+"""The named robots, built-in and plugins (:class:`contactkit.util.plugins.Registry`);
+``urdf:PATH`` is not in it."""
 
 
 def robot_names() -> list[str]:
     """Return the names of every known robot: built-in first, then plugins (names only,
     nothing is imported)."""
-    return [*_BUILTIN, *sorted(_plugins())]
+    return REGISTRY.names()
 
 
 def canonical_robot_name(name: str) -> str:
@@ -71,7 +74,7 @@ def canonical_robot_name(name: str) -> str:
         if not path:
             raise InputError(f"robot {name!r} names no URDF file ({URDF_PREFIX}PATH)")
         return URDF_PREFIX + os.path.abspath(os.path.expanduser(path))
-    if name in _BUILTIN or name in _plugins():
+    if name in REGISTRY:
         return name
     shown = name if len(name) <= 60 else name[:57] + "..."
     raise InputError(f"unknown robot {shown!r} (known: {', '.join(robot_names())}, or "
@@ -82,24 +85,9 @@ def get_robot(name: str) -> RobotSpec:
     """Return the :class:`RobotSpec` registered under ``name`` (or an alias, or
     ``urdf:PATH``). Raises InputError for an unknown name or a plugin that cannot load."""
     name = canonical_robot_name(name)
-    if name in _BUILTIN:
-        return _BUILTIN[name]
     if name.startswith(URDF_PREFIX):
         return urdf_robot(name[len(URDF_PREFIX):])
-    return _plugin_robot(name)
-
-
-@cache
-def _plugin_robot(name: str) -> RobotSpec:
-    entry = _plugins()[name]
-    try:
-        target = entry.load()
-    except (ImportError, AttributeError) as err:
-        raise InputError(f"robot {name!r} ({entry.value}) cannot be loaded: {err}") from err
-    spec = target() if callable(target) and not isinstance(target, RobotSpec) else target
-    if not isinstance(spec, RobotSpec) or len(spec.joint_names) != N_JOINTS:
-        raise InputError(f"robot {name!r} ({entry.value}) is not a 7-joint RobotSpec")
-    return spec
+    return REGISTRY.get(name)
 
 
 @cache

@@ -18,10 +18,11 @@ be taken over.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import cast
 
 from contactkit.errors import InputError
 from contactkit.recorder.importers.base import Importer
-from contactkit.util.plugins import load_all, load_class, registered
+from contactkit.util.plugins import Registry, subclass_check
 
 ENTRY_POINT_GROUP = "contactkit.importers"
 IMPORTERS: dict[str, str] = {
@@ -33,38 +34,39 @@ IMPORTERS: dict[str, str] = {
 """The built-in formats: name -> ``module:Class``. Suffixes are tried in this order."""
 
 
-def registered_importers() -> dict[str, str]:
-    """Return every format name with its ``module:Class``: the built-in ones, then those
-    installed packages declare in the ``contactkit.importers`` entry-point group (nothing
-    is imported)."""
-    return registered(IMPORTERS, ENTRY_POINT_GROUP)
-
-
-def _load(name: str, target: str) -> type[Importer]:
-    cls = load_class("importer", name, target, Importer)
+def _check(name: str, target: str, loaded: object) -> type[Importer]:
+    cls = cast(type[Importer], subclass_check("importer", Importer)(name, target, loaded))
     if getattr(cls, "name", None) != name or not isinstance(getattr(cls, "source", None), str):
         raise InputError(f"importer {name!r} ({target}) must set name = {name!r} and a "
                          "source")
     return cls
 
 
+REGISTRY: Registry[type[Importer]] = Registry("import format", ENTRY_POINT_GROUP, IMPORTERS,
+                                              _check)
+"""The import formats by name (:class:`contactkit.util.plugins.Registry`)."""
+
+
+def registered_importers() -> list[str]:
+    """Return every format name: the built-in ones, then those installed packages
+    declare in the ``contactkit.importers`` entry-point group (nothing is imported)."""
+    return REGISTRY.names()
+
+
 def importer_class(name: str) -> type[Importer]:
     """Return the importer registered under ``name``; raise InputError for an unknown
     name or an importer that cannot be loaded."""
-    found = registered_importers()
-    if name not in found:
-        raise InputError(f"unknown import format {name!r} (available: {', '.join(found)})")
-    return _load(name, found[name])
+    return REGISTRY.get(name)
 
 
 def importer_for(path: Path) -> type[Importer]:
     """Return the importer that claims ``path`` (by its suffix, or a ROS 2 bag's folder):
     the built-in formats first, then plugins, each imported only when the ones before
     did not claim it. Raises InputError naming the file when none does."""
-    found = registered_importers()
-    for name, target in found.items():
+    found = REGISTRY.names()
+    for name in found:
         try:
-            cls = _load(name, target)
+            cls = REGISTRY.get(name)
         except InputError:
             if name in IMPORTERS:
                 raise
@@ -79,8 +81,8 @@ def importer_for(path: Path) -> type[Importer]:
 def load_importers() -> tuple[dict[str, type[Importer]], dict[str, str]]:
     """Return the loadable importers by name, and the problem of each one that is not (a
     broken plugin must not hide the others)."""
-    return load_all(registered_importers(), _load)
+    return REGISTRY.load_all()
 
 
-__all__ = ["ENTRY_POINT_GROUP", "IMPORTERS", "Importer", "importer_class", "importer_for",
-           "load_importers", "registered_importers"]
+__all__ = ["ENTRY_POINT_GROUP", "IMPORTERS", "REGISTRY", "Importer", "importer_class",
+           "importer_for", "load_importers", "registered_importers"]

@@ -35,10 +35,12 @@ none).
 
 from __future__ import annotations
 
+from typing import cast
+
 from contactkit.recorder.sources.base import ProtocolChoices, Source
 from contactkit.recorder.sources.options import make_config, source_options
 from contactkit.schemas import InputError
-from contactkit.util.plugins import load_all, load_class, registered
+from contactkit.util.plugins import Registry, subclass_check
 
 ENTRY_POINT_GROUP = "contactkit.sources"
 SOURCES: dict[str, str] = {
@@ -48,15 +50,8 @@ SOURCES: dict[str, str] = {
 }
 
 
-def registered_sources() -> dict[str, str]:
-    """Return every source name with its ``module:Class``: the built-in ones, then those
-    that installed packages declare in the ``contactkit.sources`` entry-point group (a
-    built-in name cannot be taken over)."""
-    return registered(SOURCES, ENTRY_POINT_GROUP)
-
-
-def _load(name: str, target: str) -> type[Source]:
-    cls: type[Source] = load_class("source", name, target, Source)
+def _check(name: str, target: str, loaded: object) -> type[Source]:
+    cls = cast(type[Source], subclass_check("source", Source)(name, target, loaded))
     try:
         source_options(cls.Config)
     except (AttributeError, TypeError, NameError) as err:
@@ -65,19 +60,27 @@ def _load(name: str, target: str) -> type[Source]:
     return cls
 
 
+REGISTRY: Registry[type[Source]] = Registry("source", ENTRY_POINT_GROUP, SOURCES, _check)
+"""The sources by name (:class:`contactkit.util.plugins.Registry`)."""
+
+
+def registered_sources() -> list[str]:
+    """Return every source name: the built-in ones, then those that installed packages
+    declare in the ``contactkit.sources`` entry-point group (a built-in name cannot be
+    taken over; nothing is imported)."""
+    return REGISTRY.names()
+
+
 def source_class(name: str) -> type[Source]:
     """Return the source class registered under ``name``; raise InputError for an unknown
     name or a source that cannot be loaded."""
-    found = registered_sources()
-    if name not in found:
-        raise InputError(f"unknown source {name!r} (available: {', '.join(found)})")
-    return _load(name, found[name])
+    return REGISTRY.get(name)
 
 
 def load_sources() -> tuple[dict[str, type[Source]], dict[str, str]]:
     """Return the loadable sources by name, and the problem of each one that is not (a
     broken plugin must not break the others)."""
-    return load_all(registered_sources(), _load)
+    return REGISTRY.load_all()
 
 
 def open_source(name: str, options: dict, choices: ProtocolChoices) -> Source:
@@ -87,6 +90,6 @@ def open_source(name: str, options: dict, choices: ProtocolChoices) -> Source:
     return cls.from_config(make_config(name, cls.Config, options), choices)
 
 
-__all__ = ["ENTRY_POINT_GROUP", "SOURCES", "ProtocolChoices", "Source",
+__all__ = ["ENTRY_POINT_GROUP", "REGISTRY", "SOURCES", "ProtocolChoices", "Source",
            "load_sources", "open_source", "registered_sources", "source_class",
            "source_options"]

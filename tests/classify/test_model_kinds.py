@@ -75,7 +75,7 @@ def test_a_kind_from_an_entry_point(monkeypatch) -> None:
                                           value=f"{__name__}:TINY")
     monkeypatch.setattr(importlib.metadata, "entry_points",
                         lambda group: [point] if group == "contactkit.models" else [])
-    monkeypatch.setattr(registry, "_entry_points_loaded", False)
+    registry.REGISTRY.refresh()
     try:
         assert "nearest-mean" in registry.kind_names()
         assert registry.get_kind("nearest-mean") is TINY

@@ -172,7 +172,7 @@ def test_listing_model_kinds_imports_no_plugin(monkeypatch) -> None:
                                           value="contactkit_absent_plugin:KIND")
     monkeypatch.setattr(importlib.metadata, "entry_points",
                         lambda group: [point] if group == registry.ENTRY_POINT_GROUP else [])
-    monkeypatch.setattr(registry, "_entry_points_loaded", False)
+    registry.REGISTRY.refresh()
     try:
         assert registry.kind_names()[-1] == "absent-kind"
         assert "contactkit_absent_plugin" not in sys.modules

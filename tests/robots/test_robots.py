@@ -23,6 +23,7 @@ from contactkit.robots import (
     urdf_robot,
 )
 from contactkit.robots.model import RobotModel
+from contactkit.robots.registry import REGISTRY
 from contactkit.robots.surfaces import link_surface, viewer_urdf_file
 from contactkit.schemas import SessionMeta
 
@@ -188,9 +189,13 @@ def test_a_plugin_robot_is_one_module_and_one_entry_point(tmp_path: Path,
 
     monkeypatch.setattr(importlib.metadata, "entry_points", entry_points)
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2]))
-    assert "tinyarm" in robot_names()
-    model = RobotModel(RobotSetup("tinyarm", with_hand=False))
-    assert model.model.nq == 7 and model.end_effector == "panda_link8"
+    REGISTRY.refresh()
+    try:
+        assert "tinyarm" in robot_names()
+        model = RobotModel(RobotSetup("tinyarm", with_hand=False))
+        assert model.model.nq == 7 and model.end_effector == "panda_link8"
+    finally:
+        REGISTRY.refresh()  # the next test sees the real entry points again
 
 
 def test_friction_is_finite_and_silent_at_any_velocity() -> None:
