@@ -650,6 +650,7 @@ def importers_command() -> None:
     """List the import formats: built-in, installed plugins (the contactkit.importers
     entry-point group), with the suffixes each claims and its options."""
     from contactkit.recorder.importers.registry import load_importers, registered_importers
+    from contactkit.util.params import dataclass_params
 
     classes, problems = load_importers()
     for fmt in registered_importers():
@@ -659,10 +660,10 @@ def importers_command() -> None:
         cls = classes[fmt]
         suffixes = f" ({', '.join(cls.suffixes)})" if cls.suffixes else ""
         print(f"{fmt}: {cls.description or cls.__doc__}{suffixes}")
-        for key, text in cls.options.items():
-            flag = (f"--{key.replace('_', '-')}" if key in NAMED_FORMAT_OPTIONS
-                    else f"--option {key}=VALUE")
-            print(f"  {flag}  {text}")
+        for param in dataclass_params(cls.Config):
+            key = param.option.removeprefix("--").replace("-", "_")
+            flag = param.option if key in NAMED_FORMAT_OPTIONS else f"--option {key}=VALUE"
+            print(f"  {flag}  {param.describe()}")
 
 
 @app.command("stats")

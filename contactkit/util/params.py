@@ -7,8 +7,9 @@ options are generated from declarations (:mod:`contactkit.cli.flags`), and
 :func:`check_params` checks values against them, as scikit-learn's
 ``_parameter_constraints`` do, but with one-line :class:`contactkit.errors.InputError`
 messages. Constraints are :class:`Interval` (numbers) and :class:`Choice` (one of
-named values). A source declares its options as the fields of a ``Config`` dataclass;
-:func:`dataclass_params` reads them as declarations.
+named values). A source and an importer declare their options as the fields of a
+``Config`` dataclass; :func:`dataclass_params` reads them as declarations and
+:func:`make_config` builds one from given values.
 
 This module imports nothing beyond the standard library and :mod:`contactkit.errors`,
 so declaring parameters costs no start-up time.
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import pathlib
 import types
 import typing
 from collections.abc import Mapping, Sequence
@@ -245,3 +247,39 @@ def check_names(values: object, name: str, owner: str) -> None:
             and all(isinstance(v, str) for v in values)):
         raise InputError(f"{owner}: {name} must be a non-empty list of names, got "
                          f"{values!r:.80}")
+
+
+def parse_text(param: Param, text: str, owner: str) -> Any:
+    """Return the command-line string ``text`` (``--option NAME=VALUE``'s value) as
+    ``param``'s type: int, float, bool (true/false, yes/no, 1/0) or pathlib.Path; any
+    other type keeps the string, for :meth:`Param.check`. Raises InputError naming
+    ``owner`` when the text is not such a value."""
+    kind = param.type
+    try:
+        if kind is bool:
+            word = text.strip().lower()
+            if word not in ("true", "false", "yes", "no", "1", "0"):
+                raise ValueError(text)
+            return word in ("true", "yes", "1")
+        if kind in (int, float):
+            return kind(text)
+    except ValueError:
+        raise InputError(f"{owner}: {param.name} must be {kind.__name__}, got "
+                         f"{text!r:.80}") from None
+    if kind is pathlib.Path:
+        return pathlib.Path(text)
+    return text
+
+
+def make_config(owner: str, config_cls: type, values: Mapping[str, Any]) -> Any:
+    """Return ``config_cls`` (a ``Config`` dataclass) built from ``values`` keyed by field
+    name (None: not given, the field's default applies), each checked against its
+    field's declaration. Raises InputError naming ``owner`` for a name it does not
+    declare, a missing required option or a value it refuses."""
+    given = {k: v for k, v in values.items() if v is not None}
+    declared = dataclass_params(config_cls)
+    missing = [o.option.removeprefix("--") for o in declared
+               if o.required and o.name not in given]
+    if missing:
+        raise InputError(f"{owner} needs the option(s) {', '.join(missing)}")
+    return config_cls(**check_params([o for o in declared if o.name in given], given, owner))

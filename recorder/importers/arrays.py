@@ -12,9 +12,10 @@ or text values, format 3.0, a truncated file) is read whole with ``np.load``.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
@@ -216,24 +217,28 @@ class ArraysImporter(Importer):
 
     name = "arrays"
     source = "arrays"
-    options: ClassVar[Mapping[str, str]] = {
-        "q": "Joint positions [rad].", "dq": "Joint velocities [rad/s].",
-        "tau": "Measured joint torques [Nm]."}
     description = ("Plain arrays (text, CSV or .npy): FILE holds the time stamps, --q, --dq "
                    "and --tau the joints.")
+
+    @dataclass(frozen=True)
+    class Config:
+        """The joint files beside the time file."""
+
+        q: Path = field(metadata={"help": "Joint positions, 7 values a line or one per line.",
+                                  "unit": "rad"})
+        dq: Path = field(metadata={"help": "Joint velocities, 7 values a line.",
+                                   "unit": "rad/s"})
+        tau: Path = field(metadata={"help": "Measured joint torques, 7 values a line.",
+                                    "unit": "Nm"})
 
     def __init__(self, paths: list[Path], spills: dict[str, RowSpill]) -> None:
         self.paths, self.spills = paths, spills
 
     @classmethod
-    def open(cls, path: Path, options: Mapping[str, Any]) -> ArraysImporter:
-        """Read the time file ``path`` and the joint files ``options["q"]``, ``["dq"]``
-        and ``["tau"]``; InputError naming a file that cannot be used."""
-        missing = [f"--{key}" for key in ("q", "dq", "tau") if options.get(key) is None]
-        if missing:
-            raise InputError(f"plain arrays need {', '.join(missing)} (joint files) besides "
-                             "the time file", path)
-        paths = [Path(p) for p in (path, options["q"], options["dq"], options["tau"])]
+    def open(cls, path: Path, config: Config) -> ArraysImporter:
+        """Read the time file ``path`` and the joint files ``config.q``, ``.dq`` and
+        ``.tau``; InputError naming a file that cannot be used."""
+        paths = [Path(p) for p in (path, config.q, config.dq, config.tau)]
         return cls(paths, spill_joint_arrays(*paths))
 
     def times(self) -> Iterator[np.ndarray]:

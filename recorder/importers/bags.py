@@ -26,11 +26,12 @@ Only the label topic's messages stay in memory.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
+from dataclasses import dataclass, field
 from functools import cache
 from importlib import resources
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
@@ -566,23 +567,29 @@ class BagImporter(Importer):
     name = "bag"
     source = "ros-bag"
     suffixes = BAG_SUFFIXES
-    options: ClassVar[Mapping[str, str]] = {
-        "topic": "Joint-state topic (FrankaState, FrankaRobotState or JointState; default: "
-                 "the usual franka_ros/franka_ros2 topics).",
-        "label_topic": "std_msgs/String or Bool topic of labels or cue events: String "
-                       "events are stored with their times (the first is the planned time), "
-                       "Bool is the ground-truth contact."}
     description = "ROS 1 .bag, ROS 2 bag folders, .mcap and .db3 (franka_ros, franka_ros2, " \
                   "JointState)."
+
+    @dataclass(frozen=True)
+    class Config:
+        """The bag format's options."""
+
+        topic: str | None = field(default=None, metadata={
+            "help": "Joint-state topic (FrankaState, FrankaRobotState or JointState; "
+                    "default: the usual franka_ros/franka_ros2 topics)."})
+        label_topic: str | None = field(default=None, metadata={
+            "help": "std_msgs/String or Bool topic of labels or cue events: String events "
+                    "are stored with their times (the first is the planned time), Bool is "
+                    "the ground-truth contact."})
 
     def __init__(self, path: Path, bag: BagSpill, session: BagSession,
                  stored: dict | None) -> None:
         self.path, self.bag, self.session, self.stored = path, bag, session, stored
 
     @classmethod
-    def open(cls, path: Path, options: Mapping[str, Any]) -> BagImporter:
+    def open(cls, path: Path, config: Config) -> BagImporter:
         """Read the bag at ``path`` (options ``topic``, ``label_topic``; see :meth:`read`)."""
-        return cls.read(path, options.get("topic"), options.get("label_topic"))
+        return cls.read(path, config.topic, config.label_topic)
 
     @classmethod
     def read(cls, path: Path, topic: str | None = None, label_topic: str | None = None

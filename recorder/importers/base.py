@@ -6,13 +6,16 @@ and streams it as session columns:
 * ``name``: the format name ``recorder import --format NAME`` selects it by;
 * ``source``: the ``source`` its sessions' metadata names (``csv``, ``can-log``...);
 * ``suffixes``: the file suffixes it claims when no ``--format`` is given;
-* ``options``: the format options it takes, ``{name: help}`` (``recorder import``
-  offers ``--map``, ``--topic``, ``--label-topic``, ``--q``, ``--dq``, ``--tau``,
-  and ``--option NAME=VALUE`` for any other; an option the format does not take is
-  an error);
-* ``open(path, options)``: reads the file (a :class:`~contactkit.errors.InputError`
-  naming it when it cannot be used); a long file is read in bounded memory, into
-  temporary files where the format decides things only at its end;
+* ``Config``: a dataclass whose fields are the format's options, declared as a
+  source's are (:mod:`contactkit.recorder.sources.options`: type, default, ``help``,
+  ``unit`` and ``name`` in the field's metadata; a field without a default is
+  required). ``recorder import`` offers ``--map``, ``--topic``, ``--label-topic``,
+  ``--q``, ``--dq``, ``--tau``, and ``--option NAME=VALUE`` for any other (the text
+  read as the field's type); an option the format does not take is an error;
+* ``open(path, config)``: reads the file with its checked ``Config`` (a
+  :class:`~contactkit.errors.InputError` naming the file when it cannot be used); a
+  long file is read in bounded memory, into temporary files where the format decides
+  things only at its end;
 * ``times()`` and ``chunks()``: fresh iterators over the recording from its start, of
   the time stamps [s] and of dicts of session columns (``t`` in s, ``q_1`` .. in rad,
   ``dq_*`` in rad/s, ``tau_*`` in Nm, optional columns), a block of samples at a time.
@@ -33,7 +36,8 @@ importers keeps ``recorder --help`` fast.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -43,6 +47,11 @@ if TYPE_CHECKING:
     from contactkit.schemas import SessionMeta
 
 
+@dataclass(frozen=True)
+class NoOptions:
+    """The ``Config`` of a format that takes no option."""
+
+
 class Importer(ABC):
     """One opened recording of a file format, streamed as session columns (see the
     module docstring for what a subclass declares)."""
@@ -50,15 +59,15 @@ class Importer(ABC):
     name: ClassVar[str]
     source: ClassVar[str]
     suffixes: ClassVar[tuple[str, ...]] = ()
-    options: ClassVar[Mapping[str, str]] = {}
+    Config: ClassVar[type] = NoOptions
     description: ClassVar[str] = ""
 
     @classmethod
     @abstractmethod
-    def open(cls, path: Path, options: Mapping[str, Any]) -> Importer:
-        """Read the recording at ``path`` with the given format ``options`` (only names
-        from ``options``; absent ones take their defaults); return the opened importer.
-        Raises InputError naming the file when it cannot be used."""
+    def open(cls, path: Path, config: Any) -> Importer:
+        """Read the recording at ``path`` with the format's options ``config`` (an
+        instance of :attr:`Config`, checked); return the opened importer. Raises
+        InputError naming the file when it cannot be used."""
 
     @abstractmethod
     def times(self) -> Iterator[np.ndarray]:

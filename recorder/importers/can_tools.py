@@ -10,9 +10,10 @@ bus, to a log file with python-can's writers.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import can
 import numpy as np
@@ -49,19 +50,25 @@ class CanLogImporter(Importer):
     name = "can"
     source = "can-log"
     suffixes = tuple(s for s in LOG_SUFFIXES if s != ".csv")  # .csv: a CSV export
-    options: ClassVar[Mapping[str, str]] = {"map": "Frame map TOML (default: CANopen CiA 402)."}
     description = ("CAN logs python-can reads: ASC, BLF, TRC, CSV (with --format can), "
                    "candump .log, SQLite .db, MF4 with asammdf.")
+
+    @dataclass(frozen=True)
+    class Config:
+        """The CAN log format's option."""
+
+        map_file: Path | None = field(default=None, metadata={
+            "name": "map", "help": "Frame map TOML (default: CANopen CiA 402)."})
 
     def __init__(self, path: Path, fmap: FrameMap, rows: RowSpill,
                  stats: dict[str, int]) -> None:
         self.path, self.fmap, self.rows, self.stats = path, fmap, rows, stats
 
     @classmethod
-    def open(cls, path: Path, options: Mapping[str, Any]) -> CanLogImporter:
-        """Decode the log at ``path`` with the frame map ``options["map"]`` (default:
+    def open(cls, path: Path, config: Config) -> CanLogImporter:
+        """Decode the log at ``path`` with the frame map ``config.map_file`` (None:
         CANopen CiA 402); see :meth:`read`."""
-        return cls.read(path, load_map(options.get("map")))
+        return cls.read(path, load_map(config.map_file))
 
     @classmethod
     def read(cls, path: Path, fmap: FrameMap) -> CanLogImporter:

@@ -17,9 +17,10 @@ written from them a row group at a time.
 from __future__ import annotations
 
 import io
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 import polars as pl
@@ -260,20 +261,23 @@ class CsvImporter(Importer):
     name = "csv"
     source = "csv"
     suffixes = (".csv",)
-    options: ClassVar[Mapping[str, str]] = {
-        "map": "Column map TOML (required; e.g. recorder/data/mindlab_csv_map.toml)."}
     description = "CSV exports, read per a column map (--map)."
+
+    @dataclass(frozen=True)
+    class Config:
+        """The CSV format's option."""
+
+        map_file: Path = field(metadata={
+            "name": "map",
+            "help": "Column map TOML (e.g. recorder/data/mindlab_csv_map.toml)."})
 
     def __init__(self, path: Path, cmap: CsvMap, spill: CsvSpill) -> None:
         self.path, self.cmap, self.spill = path, cmap, spill
 
     @classmethod
-    def open(cls, path: Path, options: Mapping[str, Any]) -> CsvImporter:
-        """Read the CSV file at ``path`` per the column map ``options["map"]``."""
-        if options.get("map") is None:
-            raise InputError("a CSV import needs --map, the column map (TOML; example: "
-                             "recorder/data/mindlab_csv_map.toml)")
-        return cls.read(path, load_csv_map(options["map"]))
+    def open(cls, path: Path, config: Config) -> CsvImporter:
+        """Read the CSV file at ``path`` per the column map ``config.map_file``."""
+        return cls.read(path, load_csv_map(config.map_file))
 
     @classmethod
     def read(cls, path: Path, cmap: CsvMap) -> CsvImporter:

@@ -22,6 +22,7 @@ from contactkit.recorder.importers.writer import output_name, parse_meta, write_
 from contactkit.recorder.metadata import session_meta
 from contactkit.schemas import InputError, SessionMeta
 from contactkit.util.parallel import map_ordered, split_problems
+from contactkit.util.params import dataclass_params, make_config, parse_text
 from contactkit.util.progress import ProgressCallback
 from contactkit.util.text import quote
 
@@ -62,15 +63,23 @@ def importer_of(path: Path, format: str | None = None) -> type[Importer]:
 def open_importer(path: Path, format: str | None = None,
                   options: Mapping[str, Any] | None = None) -> Importer:
     """Open ``path`` with the importer of ``format`` (None: the one its suffix says) and
-    its format ``options``; an option the format does not take is an InputError."""
+    its format ``options``, keyed by option name (``map``, ``label_topic``); a string
+    value (``--option NAME=VALUE``'s) is read as the option's type. An option the
+    format does not take, a required one missing or a value it refuses is an
+    InputError."""
     cls = importer_of(path, format)
-    options = dict(options or {})
-    unknown = sorted(set(options) - set(cls.options))
-    if unknown:
-        takes = ", ".join(cls.options) or "none"
-        raise InputError(f"import format {cls.name!r} takes no option {unknown[0]!r} (its "
-                         f"options: {takes})")
-    return cls.open(path, options)
+    owner = f"import format {cls.name!r}"
+    declared = {p.option.removeprefix("--").replace("-", "_"): p
+                for p in dataclass_params(cls.Config)}
+    values = {}
+    for key, value in (options or {}).items():
+        if key not in declared:
+            raise InputError(f"{owner} takes no option {key!r} (its options: "
+                             f"{', '.join(declared) or 'none'})")
+        param = declared[key]
+        values[param.name] = (parse_text(param, value, owner) if isinstance(value, str)
+                              else value)
+    return cls.open(path, make_config(owner, cls.Config, values))
 
 
 def import_file(job: ImportJob) -> Imported:

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from contactkit.schemas import InputError
-from contactkit.util.params import Param, check_params, dataclass_params
+from contactkit.util.params import Param, dataclass_params
+from contactkit.util.params import make_config as make_dataclass_config
 
 
 def source_options(config_cls: type) -> list[Param]:
@@ -30,12 +30,6 @@ def source_options(config_cls: type) -> list[Param]:
 def make_config(source: str, config_cls: type, values: dict[str, Any]) -> Any:
     """Return ``config_cls`` built from ``values`` (keyed by field name; None: not given,
     the field's default applies), each checked against its field's constraints. Raises
-    InputError naming a missing required option or a value it refuses."""
-    given = {k: v for k, v in values.items() if v is not None}
-    declared = source_options(config_cls)
-    missing = [o.option.removeprefix("--") for o in declared
-               if o.required and o.name not in given]
-    if missing:
-        raise InputError(f"source {source!r} needs the option(s) {', '.join(missing)}")
-    checked = check_params([o for o in declared if o.name in given], given, f"source {source!r}")
-    return config_cls(**checked)
+    InputError naming the source and a missing required option or a value it refuses
+    (:func:`contactkit.util.params.make_config`)."""
+    return make_dataclass_config(f"source {source!r}", config_cls, values)

@@ -32,6 +32,7 @@ PLUGIN = '''
 """Toy text recordings, for contactkit's importer registry."""
 
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -49,21 +50,24 @@ class ToyImporter(Importer):
     name = "toy"
     source = "toy-text"
     suffixes = (".toy",)
-    options = {"scale": "Multiply the torques by this."}
     description = "Toy text, a line per sample."
+
+    @dataclass(frozen=True)
+    class Config:
+        scale: float = field(default=1.0, metadata={"help": "Multiply the torques by this."})
 
     def __init__(self, rows, path, scale):
         self.rows, self.path, self.scale = rows, path, scale
 
     @classmethod
-    def open(cls, path, options):
+    def open(cls, path, config):
         try:
             rows = np.loadtxt(path, ndmin=2)
         except ValueError as err:
             raise InputError("not toy text", path) from err
         if rows.shape[1] != 22:
             raise InputError(f"{rows.shape[1]} values a line, expected 22", path)
-        return cls(rows, path, float(options.get("scale", 1)))
+        return cls(rows, path, config.scale)
 
     def times(self):
         yield self.rows[:, 0]
@@ -142,6 +146,10 @@ def test_plugin_importer_end_to_end(toy_site: Path, tmp_path: Path) -> None:
                                  "line, expected 22"
     wrong = _recorder(toy_site, "import", toy, "--map", toy, "--out", tmp_path / "out")
     assert wrong.returncode == 2 and "format 'toy' takes no option 'map'" in wrong.stderr
+    typed = _recorder(toy_site, "import", toy, "--option", "scale=twice", "--out",
+                      tmp_path / "out")
+    assert typed.returncode == 2 and "Traceback" not in typed.stderr
+    assert "import format 'toy': scale must be float, got 'twice'" in typed.stderr
 
 
 def test_registry_chooses_by_suffix_or_name(tmp_path: Path) -> None:
@@ -251,3 +259,16 @@ def test_one_command_many_files_and_the_aliases(tmp_path: Path,
     assert code == 2 and "--meta pose='D' disagrees" in err
     code, _, err = _recorder_here(capsys, "import", tmp_path, "--out", out)
     assert code == 2 and "give --format" in err
+
+
+def test_format_options_are_typed_and_required_ones_named(tmp_path: Path) -> None:
+    from contactkit.recorder.importers.jobs import open_importer
+
+    with pytest.raises(InputError, match=r"import format 'arrays' needs the option\(s\) "
+                                         "q, dq, tau"):
+        open_importer(tmp_path / "t.txt", "arrays")
+    with pytest.raises(InputError, match="import format 'csv' needs the option"):
+        open_importer(tmp_path / "x.csv")
+    with pytest.raises(InputError, match="import format 'bag' takes no option 'scale' "
+                                         r"\(its options: topic, label_topic\)"):
+        open_importer(tmp_path / "x.bag", options={"scale": "2"})
