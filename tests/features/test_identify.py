@@ -283,6 +283,7 @@ def test_the_detector_is_calibrated_out_of_session(monkeypatch, free_motion) -> 
     """Two sessions or more: each session whole, with the model fitted to the others;
     the final fit uses every session whole. One session: its last 25 %, with the fit."""
     motions = [identification.free_motion(path)[0] for path in free_motion[:3]]
+    monkeypatch.setattr(identification, "PULLS", (1.0,))  # the same pull in every fit
     result, seen, source = _held_out(monkeypatch, motions)
     assert source["held_out"] == identification.LEAVE_ONE_OUT and source["sessions"] == 3
     assert json.loads(result.provenance)["method"]["held_out"] == identification.LEAVE_ONE_OUT
@@ -314,3 +315,31 @@ def test_a_session_the_others_cannot_identify_without(monkeypatch, free_motion) 
     _, seen, source = _held_out(monkeypatch, [long, short])
     assert source["held_out"] == identification.LEAVE_ONE_OUT and source["sessions"] == 1
     assert [m.name for m, _ in seen] == ["short"]
+
+
+def test_the_prior_strength_is_chosen_on_the_left_out_sessions() -> None:
+    """The pull toward the nominal model whose fits of the other sessions predict each
+    left-out session best; 1 (the prior's own scales) on a tie; a session the others do
+    not identify counts for none."""
+
+    class Session:
+        n = 10
+
+        def __init__(self, best: float) -> None:
+            self.best = best
+
+        def rms(self, theta: np.ndarray) -> np.ndarray:
+            return np.full(7, 1.0 + abs(float(theta[0]) - self.best))
+
+    def fit(others, pull: float) -> np.ndarray:
+        if len(others) < 2:
+            raise InputError("the motion determines no parameter")
+        return np.array([pull])
+
+    parts = [(Session(0.25), None), (Session(0.5), None), (Session(0.25), None)]
+    assert identification._choose_pull(parts, fit) == 0.25
+    assert identification._choose_pull([(Session(9.0), None)] * 3, fit) == 2.0
+    flat = [(Session(0.0), None)] * 3
+    assert identification._choose_pull(
+        flat, lambda others, pull: np.array([0.0])) == 1.0
+    assert identification._choose_pull(parts[:2], fit) == 1.0  # no fold identifies
