@@ -8,11 +8,11 @@ arm's name and hand: nothing comes from a simulated session's own parameters.
 Method:
 
 1. Each session is cut at gaps (a single session's last :data:`HOLDOUT`, 25 %, is kept
-   back for the detector, step 5). dq and tau are low-passed without phase (4th-order Butterworth at
-   :data:`CUTOFF_HZ`, forward and backward, ``scipy.signal.sosfiltfilt``) after linear
-   interpolation onto a uniform grid at the median time step (a host's time stamps
-   jitter, and dropped samples leave holes), ddq is the filtered dq differenced on that
-   grid, the filters' ends are cut, and the samples are thinned to about
+   back for the detector, step 5). dq and tau are low-passed without phase (4th-order
+   Butterworth at :data:`CUTOFF_HZ`, forward and backward, ``scipy.signal.sosfiltfilt``)
+   after linear interpolation onto a uniform grid at the median time step (a host's time
+   stamps jitter, and dropped samples leave holes), ddq is the filtered dq differenced
+   on that grid, the filters' ends are cut, and the samples are thinned to about
    :data:`IDENT_RATE_HZ`.
 2. The model is linear in its parameters: tau = Y(q, dq, ddq) theta + F(dq, ddq) phi,
    Y pinocchio's joint-torque regressor (10 parameters per link, their full values),
