@@ -20,7 +20,7 @@ Hand, nobody touching), imported with the shipped CSV map, which names the FR3:
   on both, each half of the Gaz log with the model identified on the other half;
 * simulated FR3 touches (``--robot fr3``) at the thesis poses.
 
-Takes about two minutes on 2 cores once the default model exists.
+Takes about three minutes on 2 cores once the default model exists.
 """
 
 from __future__ import annotations
