@@ -15,9 +15,12 @@ Hand, nobody touching), imported with the shipped CSV map, which names the FR3:
   (the simulator's bump, adjust and shove, on a random link and a random point of
   its collision surface) subtracted from the real recordings' measured torque, the
   way the motors hold the arm against a push;
+* the same synthetic touches with an identified model (``recorder identify``, then
+  ``--dynamics FILE``): each FR3 recording with the model identified on the other and
+  on both, each half of the Gaz log with the model identified on the other half;
 * simulated FR3 touches (``--robot fr3``) at the thesis poses.
 
-Takes about two minutes on 2 cores once the default model exists.
+Takes about three minutes on 2 cores once the default model exists.
 """
 
 from __future__ import annotations
@@ -34,6 +37,8 @@ from contactkit.classify.events.contact_events import session_events
 from contactkit.classify.modelfile.model_file import load_model
 from contactkit.cli.default_model import build_default_model
 from contactkit.features.agreement import session_residual_agreement
+from contactkit.features.detector import dynamics_detector
+from contactkit.features.identification import identify_sessions
 from contactkit.features.timeseries import ChainConfig
 from contactkit.recorder.capture.record import record_session
 from contactkit.recorder.importers.csv_import import CsvImporter
@@ -44,6 +49,7 @@ from contactkit.recorder.metadata import session_meta
 from contactkit.recorder.sim.forces import Contact, add_synthetic_touches
 from contactkit.recorder.sim.simulator import SimConfig, plan_session
 from contactkit.recorder.sources.sim import SimSource
+from contactkit.robots.dynamics import ArmOverride
 from contactkit.schemas import Session, read_session
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -67,21 +73,82 @@ def _overlaps(event, touch: Contact) -> bool:
     return event.onset_s <= end + 0.2 and (event.release_s or np.inf) >= touch.onset_s
 
 
-def synthetic_touches(sessions: list[Session], detector, events_model
+def synthetic_touches(sessions: list[Session], detector, events_model, robot=None
                       ) -> tuple[Counter, Counter, int]:
     """Return the synthetic touches found and missed per link, and the false events, over
-    ``VARIANTS`` draws of touches on each session (seeded)."""
+    ``VARIANTS`` draws of touches on each session (seeded); ``robot`` as
+    :func:`session_events` takes it (an identified arm's ``ArmOverride``)."""
     rng = np.random.default_rng(0)
     found, missed, false = Counter(), Counter(), 0
     for _ in range(VARIANTS):
         for session in sessions:
             with_touches, touches = add_synthetic_touches(session, rng, TOUCH_TIMES_S)
-            events = session_events(with_touches, detector, events_model)
+            events = session_events(with_touches, detector, events_model, robot=robot)
             for touch in touches:
                 hit = any(_overlaps(e, touch) for e in events)
                 (found if hit else missed)[touch.link] += 1
             false += sum(not any(_overlaps(e, touch) for touch in touches) for e in events)
     return found, missed, false
+
+
+def _half(session: Session, second: bool, directory: Path) -> Path:
+    """Write the first or ``second`` half of an imported arm-without-hand session (the
+    Gaz log) as a session of its own, its time starting at 0."""
+    middle = session.t[0] + 0.5 * (session.t[-1] - session.t[0])
+    keep = session.t >= middle if second else session.t < middle
+    directory.mkdir(parents=True, exist_ok=True)
+    files = {}
+    for name, values in (("t", session.t[keep] - session.t[keep][0]), ("q", session.q[keep]),
+                         ("dq", session.dq[keep]), ("tau", session.tau[keep])):
+        files[name] = directory / f"{name}.npy"
+        np.save(files[name], values)
+    return import_file(ImportJob(files.pop("t"), directory, {"with_hand": False}, "arrays",
+                                 files)).session
+
+
+def identified_touches(fr3: list[Path], gaz: Path, work: Path, detector, events_model
+                       ) -> list[str]:
+    """The synthetic touches again with an identified model (``recorder identify``, as
+    ``--dynamics FILE`` gives it: the model and the detector stored in its file): on
+    each FR3 recording with the model identified on the other, on both with the model
+    identified on both (the file's detector from their leave-one-session-out
+    residuals; the touches are on the recordings it was identified on), on each half of
+    the Gaz log with the model identified on the other half; beside them without it."""
+    halves = [_half(read_session(gaz), second, work / f"gaz-half{second + 1}")
+              for second in (False, True)]
+    cases = [("FR3, identified on the other recording", [([fr3[1]], fr3[0]),
+                                                          ([fr3[0]], fr3[1])]),
+             ("FR3, identified on both (the touches on them)", [(fr3, p) for p in fr3]),
+             ("Panda, Gaz log, identified on the other half", [([halves[1]], halves[0]),
+                                                               ([halves[0]], halves[1])])]
+    lines = ["", "With the arm's model identified from free motion (`recorder identify`, "
+             "then `--dynamics FILE`: the identified model and the detector stored in its "
+             "file), against the same recordings without it; free-motion events are the "
+             "contact events on the recordings without touches (none is right):", "",
+             "| recordings | model | found | false events | free-motion events "
+             "| found per link 1-7 |", "|---|---|---|---|---|---|"]
+    for name, pairs in cases:
+        counts: dict[str, list] = {"default": [Counter(), Counter(), 0, 0],
+                                   "identified": [Counter(), Counter(), 0, 0]}
+        for fit, check in pairs:
+            dynamics = identify_sessions(fit).dynamics
+            arm = ArmOverride(None, dynamics)
+            session = read_session(check)
+            for label, chosen, robot in (("default", detector, None),
+                                         ("identified", dynamics_detector(dynamics), arm)):
+                found, missed, false = synthetic_touches([session], chosen, events_model,
+                                                         robot)
+                total = counts[label]
+                total[0].update(found)
+                total[1].update(missed)
+                total[2] += false
+                total[3] += len(session_events(session, chosen, events_model, robot=robot))
+        for label, (found, missed, false, free) in counts.items():
+            total = sum(found.values()) + sum(missed.values())
+            lines.append(f"| {name} | {label} | {sum(found.values())} of {total} | {false} | "
+                         f"{free} | " + " ".join(f"{found[k]}/{found[k] + missed[k]}"
+                                                 for k in range(1, 8)) + " |")
+    return lines
 
 
 def main() -> None:
@@ -145,6 +212,7 @@ def main() -> None:
                      f"({100 * sum(found.values()) / total:.0f} %) | {false} | "
                      + " ".join(f"{found[k]}/{found[k] + missed[k]}" for k in range(1, 8))
                      + " |")
+    lines += identified_touches(paths, gaz, work, detector, events_model)
     lines += ["", "Simulated adjusts (poses A-D, each link, the same seeds on both arms):", "",
               "| arm | found | found per link 1-7 |", "|---|---|---|"]
     for robot in ("fr3", "panda"):

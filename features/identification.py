@@ -7,12 +7,12 @@ arm's name and hand: nothing comes from a simulated session's own parameters.
 
 Method:
 
-1. Each session is cut at gaps, and its last :data:`HOLDOUT` (25 %) is kept back for
-   the detector. dq and tau are low-passed without phase (4th-order Butterworth at
-   :data:`CUTOFF_HZ`, forward and backward, ``scipy.signal.sosfiltfilt``) after linear
-   interpolation onto a uniform grid at the median time step (a host's time stamps
-   jitter, and dropped samples leave holes), ddq is the filtered dq differenced on that
-   grid, the filters' ends are cut, and the samples are thinned to about
+1. Each session is cut at gaps (a single session's last :data:`HOLDOUT`, 25 %, is kept
+   back for the detector, step 5). dq and tau are low-passed without phase (4th-order
+   Butterworth at :data:`CUTOFF_HZ`, forward and backward, ``scipy.signal.sosfiltfilt``)
+   after linear interpolation onto a uniform grid at the median time step (a host's time
+   stamps jitter, and dropped samples leave holes), ddq is the filtered dq differenced
+   on that grid, the filters' ends are cut, and the samples are thinned to about
    :data:`IDENT_RATE_HZ`.
 2. The model is linear in its parameters: tau = Y(q, dq, ddq) theta + F(dq, ddq) phi,
    Y pinocchio's joint-torque regressor (10 parameters per link, their full values),
@@ -29,14 +29,32 @@ Method:
    (two passes). Directions the motion does not excite keep their nominal values; a
    parameter counts as *determined* when the data shrink its prior's variance at
    least four-fold (:data:`DETERMINED`). The condition number of the whitened
-   regressor over the determined directions is reported.
+   regressor over the determined directions is reported. With two sessions or more,
+   the prior's strength is chosen leave-one-session-out (:func:`_choose_pull`): its
+   scales times each factor of :data:`PULLS`, the one whose fits of the other sessions
+   predict each left-out session's fitted samples best (on the two real FR3 recordings
+   and the two halves of the Gaz et al. log, a four-fold stronger pull than the
+   scales' own lowered that out-of-session residual by about a fifth; in simulation,
+   with 2 minutes of motion, it changed nothing). The file records it
+   (``method.prior_pull``). One session keeps the scales' own.
 4. Where the fit leaves a link physically inconsistent (its 4x4 pseudo-inertia not
    positive semi-definite), the fit is solved again under the constraint: the nearest
    consistent parameters in the fit's own quadratic cost, those links parameterised by
    the log-Cholesky factors of their pseudo-inertia (:func:`_consistent_fit`), so the
    result is physically consistent.
-5. The detector is calibrated (:func:`contactkit.features.detector.calibrate`) on the
-   held-out parts, with the identified model's residual.
+5. The detector is calibrated (:func:`contactkit.features.detector.calibrate`, margin
+   1.5) on residuals of motion the fit did not see. With two sessions or more,
+   leave-one-session-out: each session's whole residual with the model identified
+   from the other sessions (same settings); what the detector must absorb on an arm is
+   how a fit carries over to another recording, and a tail of the same recording does
+   not show it (on the real FR3, identified on one ~10 s recording, the tail-calibrated
+   detector gave a false contact on the other). The final fit then uses every session
+   whole. A fold whose other sessions determine nothing leaves its session out of the
+   calibration; when every fold does, the single session's rule applies to each. With
+   one session: its last :data:`HOLDOUT`, with the model fitted to the rest, which is
+   also the model returned (cutting one recording into blocks moved the FR3's false
+   contact from one recording to the other, so it is not done). The file records which
+   (``method.held_out`` in its provenance, ``held_out`` in the detector's source).
 
 Units: t [s], q [rad], dq [rad/s], ddq [rad/s^2], tau [Nm].
 """
@@ -272,6 +290,18 @@ class _Normal:
             self.means.append((rows, tau))
         self._rows, self._tau, self._n = np.zeros_like(self._rows), np.zeros(N_JOINTS), 0
 
+    @staticmethod
+    def merge(parts: Sequence[_Normal]) -> _Normal:
+        """Return the normal equations of the sessions of ``parts`` together."""
+        merged = _Normal(parts[0].a.shape[1])
+        for part in parts:
+            merged.a += part.a
+            merged.b += part.b
+            merged.c += part.c
+            merged.n += part.n
+            merged.means += part.means
+        return merged
+
     def rms(self, theta: np.ndarray) -> np.ndarray:
         """The RMS per joint [Nm] of the residual tau - Y theta, each session's mean
         removed."""
@@ -443,48 +473,34 @@ def _payload(model: RobotModel, nominal: np.ndarray, identified: np.ndarray) -> 
                          ((0, 0), (0, 1), (1, 1), (0, 2), (1, 2), (2, 2))))
 
 
-def identify(motions: Sequence[Motion], setup: RobotSetup, *,
-             provenance: dict | None = None, calibrate_detector: bool = True,
-             progress: Callable[[int, int], None] | None = None) -> Identified:
-    """Identify the dynamics of ``setup``'s arm (its nominal model the prior) from
-    ``motions``, free motion with nobody touching the arm. ``provenance`` is stored with
-    the result (sessions, hashes); ``calibrate_detector`` calibrates the detector on
-    the motions' held-out ends. ``progress(done, total)`` is called per motion.
+def _session_normal(motion: Motion, regress: pin.Model, data: pin.Data, phi2: np.ndarray,
+                    phi3: np.ndarray, size: int) -> tuple[_Normal, np.ndarray]:
+    """Return one motion's normal equations (:class:`_Normal`, one session) and which
+    joints moved in it (7,) bool."""
+    q, dq, ddq, tau = prepare(motion)
+    normal = _Normal(size)
+    for start in range(0, len(q), 2000):
+        chunk = slice(start, start + 2000)
+        normal.add(_rows(regress, data, q[chunk], dq[chunk], ddq[chunk], phi2, phi3),
+                   tau[chunk])
+    normal.end_session()
+    moving = (np.abs(dq).max(axis=0) > MIN_MOTION_RAD_S if len(q)
+              else np.zeros(N_JOINTS, bool))
+    return normal, moving
 
-    Returns the :class:`Identified`. Raises InputError (one line) when the motion
-    determines nothing: no joint moving, or too little of it."""
-    setup = replace(setup, dynamics=None)
-    model = RobotModel(setup)
-    spec = model.spec
-    regress = pin.Model(model.model)
-    regress.armature[:] = 0.0
-    data = regress.createData()
-    phi2, phi3, phi1 = _friction_shape(setup)
-    nominal_links = np.array([regress.inertias[j].toDynamicParameters()
-                              for j in range(1, N_JOINTS + 1)])
-    prior = np.concatenate([nominal_links.ravel(),
-                            np.column_stack([phi1, np.zeros((N_JOINTS, 2))]).ravel()])
-    scales = prior_scales(prior)
-    normal = _Normal(len(prior))
-    held_out: list[Motion] = []
-    moving = np.zeros(N_JOINTS, bool)
-    started = time.perf_counter()
-    for done, motion in enumerate(motions, 1):
-        split = round(len(motion.t) * (1.0 - HOLDOUT))
-        fit = Motion(motion.t[:split], motion.q[:split], motion.dq[:split],
-                     motion.tau[:split], motion.name)
-        held_out.append(Motion(motion.t[split:], motion.q[split:], motion.dq[split:],
-                               motion.tau[split:], motion.name))
-        q, dq, ddq, tau = prepare(fit)
-        if len(q):
-            moving |= np.abs(dq).max(axis=0) > MIN_MOTION_RAD_S
-        for start in range(0, len(q), 2000):
-            chunk = slice(start, start + 2000)
-            normal.add(_rows(regress, data, q[chunk], dq[chunk], ddq[chunk], phi2, phi3),
-                       tau[chunk])
-        normal.end_session()
-        if progress is not None:
-            progress(done, len(motions))
+
+def _fit(parts: Sequence[tuple[_Normal, np.ndarray]], prior: np.ndarray, scales: np.ndarray,
+         nominal_links: np.ndarray, pull: float = 1.0, project: bool = True
+         ) -> tuple[np.ndarray, _Normal, Excitation]:
+    """Fit the sessions ``parts`` (:func:`_session_normal`'s) with the prior's scales
+    ``scales`` times ``pull`` (below 1 a stronger pull toward the nominal model): return
+    the parameters used (armature and viscous friction not negative), the sessions'
+    merged normal equations and the :class:`Excitation` report (what the data determine
+    against the prior's own ``scales``). Raises InputError (one line) when the motion
+    determines nothing. Without ``project`` the fit is not made physically consistent
+    (:func:`_consistent_fit`: the costly step; for :func:`_choose_pull`)."""
+    normal = _Normal.merge([p[0] for p in parts])
+    moving = np.logical_or.reduce([p[1] for p in parts])
     if normal.n < MIN_SAMPLES:
         raise InputError(f"too little free motion to identify from ({normal.n / IDENT_RATE_HZ:.1f}"
                          f" s after filtering; at least {MIN_SAMPLES / IDENT_RATE_HZ:.0f} s of "
@@ -494,10 +510,12 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
                          "needs free motion of the joints (record the arm moving)")
     rms_before = normal.rms(prior)
     weights = np.full(N_JOINTS, 1.0 / NOISE_NM ** 2)
-    theta, _, _ = _solve(normal, weights, prior, scales)
+    theta, _, _ = _solve(normal, weights, prior, pull * scales)
     weights = 1.0 / np.maximum(normal.rms(theta), MIN_NOISE_NM) ** 2
-    theta, cost, information = _solve(normal, weights, prior, scales)
-    theta, projected = _consistent_fit(theta, cost, nominal_links)
+    theta, cost, information = _solve(normal, weights, prior, pull * scales)
+    information = information / pull ** 2  # whitened by the prior's own scales
+    theta, projected = (_consistent_fit(theta, cost, nominal_links) if project
+                        else (theta, []))
     eig = np.linalg.eigvalsh(information)
     variance = np.diag(np.linalg.inv(information + np.eye(len(prior))))
     names = parameter_names()
@@ -507,13 +525,10 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
     if not determined:
         raise InputError("the motion determines no parameter: move more joints, faster and "
                          "over a wider range (an exciting trajectory)")
-    links = theta[:N_JOINTS * N_LINK].reshape(N_JOINTS, N_LINK)
-    joints = theta[N_JOINTS * N_LINK:].reshape(N_JOINTS, N_FRICTION)
-    armature = np.maximum(joints[:, 2], 0.0)
-    viscous = np.maximum(joints[:, 1], 0.0)
     theta_used = theta.copy()
-    theta_used[N_JOINTS * N_LINK + 2::N_FRICTION] = armature
-    theta_used[N_JOINTS * N_LINK + 1::N_FRICTION] = viscous
+    base = N_JOINTS * N_LINK
+    theta_used[base + 1::N_FRICTION] = np.maximum(theta[base + 1::N_FRICTION], 0.0)
+    theta_used[base + 2::N_FRICTION] = np.maximum(theta[base + 2::N_FRICTION], 0.0)
     excitation = Excitation(
         determined=determined, undetermined=[n for n in names if n not in determined],
         directions=int(strong.size), condition=condition, samples=normal.n,
@@ -521,47 +536,178 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
         projected=[i + 1 for i in projected],
         rms_before_nm=rms_before.tolist(),
         rms_after_nm=normal.rms(theta_used).tolist())
+    return theta_used, normal, excitation
+
+
+def _head(motion: Motion) -> Motion:
+    """The motion less its last :data:`HOLDOUT` share (the single session's fit)."""
+    split = round(len(motion.t) * (1.0 - HOLDOUT))
+    return Motion(motion.t[:split], motion.q[:split], motion.dq[:split], motion.tau[:split],
+                  motion.name)
+
+
+def _tail(motion: Motion) -> Motion:
+    """The motion's last :data:`HOLDOUT` share (the single session's held-out part)."""
+    split = round(len(motion.t) * (1.0 - HOLDOUT))
+    return Motion(motion.t[split:], motion.q[split:], motion.dq[split:], motion.tau[split:],
+                  motion.name)
+
+
+def identify(motions: Sequence[Motion], setup: RobotSetup, *,
+             provenance: dict | None = None, calibrate_detector: bool = True,
+             progress: Callable[[int, int], None] | None = None) -> Identified:
+    """Identify the dynamics of ``setup``'s arm (its nominal model the prior) from
+    ``motions``, free motion with nobody touching the arm. ``provenance`` is stored with
+    the result (sessions, hashes); ``calibrate_detector`` calibrates the detector on
+    held-out motion: with two sessions or more, each session's residual with the model
+    identified from the others (leave-one-session-out), and the final fit uses every
+    session whole; with one session, its last :data:`HOLDOUT` with the model fitted to
+    the rest (see the module's docstring). ``progress(done, total)`` is called per
+    motion.
+
+    Returns the :class:`Identified`. Raises InputError (one line) when the motion
+    determines nothing: no joint moving, or too little of it."""
+    setup = replace(setup, dynamics=None)
+    model = RobotModel(setup)
+    regress = pin.Model(model.model)
+    regress.armature[:] = 0.0
+    data = regress.createData()
+    phi2, phi3, phi1 = _friction_shape(setup)
+    nominal_links = np.array([regress.inertias[j].toDynamicParameters()
+                              for j in range(1, N_JOINTS + 1)])
+    prior = np.concatenate([nominal_links.ravel(),
+                            np.column_stack([phi1, np.zeros((N_JOINTS, 2))]).ravel()])
+    scales = prior_scales(prior)
+    started = time.perf_counter()
+
+    def normals(pieces: Sequence[Motion]) -> list[tuple[_Normal, np.ndarray]]:
+        parts = []
+        for done, piece in enumerate(pieces, 1):
+            parts.append(_session_normal(piece, regress, data, phi2, phi3, len(prior)))
+            if progress is not None:
+                progress(done, len(pieces))
+        return parts
+
+    def fit(parts: Sequence[tuple[_Normal, np.ndarray]], pull: float, project: bool = True
+            ) -> tuple[np.ndarray, _Normal, Excitation]:
+        return _fit(parts, prior, scales, nominal_links, pull, project)
+
+    def arm(fitted: tuple[np.ndarray, _Normal, Excitation]) -> ArmDynamics:
+        return _arm_dynamics(fitted[0], fitted[1], model, phi2, phi3, nominal_links)
+
+    whole = len(motions) >= 2
+    parts = normals(motions if whole else [_head(m) for m in motions])
+    folds: list[tuple[Motion, ArmDynamics]] = []
+    pull = 1.0
+    if whole:
+        pull = _choose_pull(parts, lambda others, k: fit(others, k, project=False)[0])
+    if whole and calibrate_detector:
+        for i, motion in enumerate(motions):
+            try:
+                folds.append((motion, arm(fit([*parts[:i], *parts[i + 1:]], pull))))
+            except InputError as err:  # the other sessions alone determine nothing
+                log.info("%s left out of the detector's calibration: %s", motion.name,
+                         err.problem)
+        if not folds:
+            log.info("no session's residual with the others' fit: the detector is "
+                     "calibrated on each session's last %.0f %%", 100 * HOLDOUT)
+            whole, pull = False, 1.0
+            parts = normals([_head(m) for m in motions])
+    final = fit(parts, pull)
+    dynamics, excitation = arm(final), final[2]
+    method = _method(LEAVE_ONE_OUT if whole else TAIL) | {"prior_pull": pull}
     doc = dict(provenance or {})
-    doc.update(excitation=excitation.to_dict(), method=_method(),
+    doc.update(excitation=excitation.to_dict(), method=method,
                fit_seconds=round(time.perf_counter() - started, 3))
-    dynamics = ArmDynamics(
-        robot=spec.name, with_hand=model.with_hand,
-        inertias=tuple(tuple(float(v) for v in link) for link in links),
-        armature_kgm2=tuple(float(v) for v in armature),
-        friction=tuple(tuple(float(v) for v in values) for values in
-                       (joints[:, 0], phi2, phi3, viscous, normal.offset(theta_used))),
-        payload=_payload(model, nominal_links[-1], links[-1]),
-        provenance=json.dumps(doc, sort_keys=True))
+    dynamics = replace(dynamics, provenance=json.dumps(doc, sort_keys=True))
     if calibrate_detector:
-        dynamics = replace(dynamics, detector=_detector(held_out, setup, dynamics))
+        source: dict = {"held_out": method["held_out"]}
+        if whole:
+            held_out = folds
+            source["sessions"] = len(folds)
+        else:
+            held_out = [(_tail(m), dynamics) for m in motions]
+            source["share"] = HOLDOUT
+        dynamics = replace(dynamics, detector=_detector(held_out, setup, source))
     return Identified(dynamics, excitation)
 
 
-def _method() -> dict:
-    return {"cutoff_hz": CUTOFF_HZ, "ident_rate_hz": IDENT_RATE_HZ, "holdout": HOLDOUT,
-            "prior": "nominal model", "determined_variance_ratio": DETERMINED}
+PULLS = (0.125, 0.25, 0.5, 1.0, 2.0)
+"""The prior's strengths tried with two sessions or more: factors on its scales
+(:func:`prior_scales`); below 1 a stronger pull toward the nominal model."""
 
 
-def _detector(held_out: Sequence[Motion], setup: RobotSetup, dynamics: ArmDynamics
-              ) -> str | None:
-    """Return the detector calibrated on the held-out motions with the identified model
-    (its settings' JSON text), or None (with a warning) when they are too short."""
+def _choose_pull(parts: Sequence[tuple[_Normal, np.ndarray]],
+                 fit: Callable[[Sequence[tuple[_Normal, np.ndarray]], float], np.ndarray]
+                 ) -> float:
+    """Return the prior's strength (of :data:`PULLS`) whose leave-one-session-out fits
+    (``fit(sessions, pull)``, the parameters) predict the left-out sessions best: the
+    least squared residual of their fitted samples, summed over sessions and joints (a
+    session the others alone do not identify counts for no pull). A tie goes to 1, the
+    prior's own scales."""
+    errors = np.zeros(len(PULLS))
+    for i, (normal, _) in enumerate(parts):
+        try:
+            row = [float(normal.n * (normal.rms(fit([*parts[:i], *parts[i + 1:]], pull))
+                                     ** 2).sum()) for pull in PULLS]
+        except InputError:
+            continue
+        errors += row
+    tie = np.isclose(errors, errors.min(), rtol=1e-9)
+    return 1.0 if 1.0 in PULLS and tie[PULLS.index(1.0)] else PULLS[int(np.argmin(errors))]
+
+
+def _arm_dynamics(theta: np.ndarray, normal: _Normal, model: RobotModel, phi2: np.ndarray,
+                  phi3: np.ndarray, nominal_links: np.ndarray) -> ArmDynamics:
+    """Return the :class:`ArmDynamics` of fitted parameters ``theta`` (their torque offset
+    from the sessions' means in ``normal``), without provenance."""
+    links = theta[:N_JOINTS * N_LINK].reshape(N_JOINTS, N_LINK)
+    joints = theta[N_JOINTS * N_LINK:].reshape(N_JOINTS, N_FRICTION)
+    return ArmDynamics(
+        robot=model.spec.name, with_hand=model.with_hand,
+        inertias=tuple(tuple(float(v) for v in link) for link in links),
+        armature_kgm2=tuple(float(v) for v in joints[:, 2]),
+        friction=tuple(tuple(float(v) for v in values) for values in
+                       (joints[:, 0], phi2, phi3, joints[:, 1], normal.offset(theta))),
+        payload=_payload(model, nominal_links[-1], links[-1]))
+
+
+LEAVE_ONE_OUT = "leave-one-session-out"
+"""The held-out motion with two sessions or more: each session, with the others' fit."""
+TAIL = "last share of the session"
+"""The held-out motion with one session: its last :data:`HOLDOUT`."""
+
+
+def _method(held_out: str) -> dict:
+    method = {"cutoff_hz": CUTOFF_HZ, "ident_rate_hz": IDENT_RATE_HZ, "held_out": held_out,
+              "prior": "nominal model", "determined_variance_ratio": DETERMINED}
+    if held_out == TAIL:
+        method["holdout"] = HOLDOUT
+    return method
+
+
+def _detector(held_out: Sequence[tuple[Motion, ArmDynamics]], setup: RobotSetup,
+              source: dict) -> str | None:
+    """Return the detector calibrated on the held-out motions, each with the model
+    identified without it (its settings' JSON text, ``source`` recorded in it), or None
+    (with a warning) when they are too short."""
     from contactkit.features.detector import DetectorConfig, calibrate, calibration_samples
     from contactkit.features.timeseries import TimeseriesChain
 
-    chain = TimeseriesChain(robot=replace(setup, dynamics=dynamics), names=["r"])
     parts = []
-    for motion in held_out:
+    for motion, dynamics in held_out:
         if len(motion.t) < 2:
             continue
+        chain = TimeseriesChain(robot=replace(setup, dynamics=dynamics), names=["r"])
         r = chain.compute(motion.t, motion.q, motion.dq, motion.tau)["r"]
         parts.append(calibration_samples(motion.t, r, motion.dq))
     try:
-        config = calibrate(parts, DetectorConfig(), source={"held_out": HOLDOUT})
+        config = calibrate(parts, DetectorConfig(), source=source)
     except InputError as err:
         log.warning("no detector calibrated with the identified model: %s", err.problem)
         return None
-    return json.dumps(replace(config, robot=dynamics.robot).to_dict(), sort_keys=True)
+    robot = held_out[0][1].robot
+    return json.dumps(replace(config, robot=robot).to_dict(), sort_keys=True)
 
 
 def _sha256(path: Path) -> str:

@@ -265,7 +265,9 @@ def identify_command(
     """Identify the arm's own dynamics from free motion with nobody touching it: each
     link's mass, centre of mass and inertia, the payload at the flange, the joints'
     friction (Gaz et al.'s sigmoid, viscous and constant) and armature; then calibrate
-    the contact detector with that model on the sessions' last quarter, held out.
+    the contact detector on motion the fit did not see: with two sessions or more,
+    each session's residual with the model identified from the others (the final fit
+    uses them all); with one, its last quarter, held out.
 
     Only t, q, dq, tau and the arm's name are read. What the motion does not determine
     stays at the robot's nominal model; the output lists which parameters the data
@@ -302,7 +304,8 @@ def identify_command(
     print(f"  payload at the flange: {dynamics.payload.mass_kg:.3f} kg")
     detector = dynamics_detector(dynamics)
     if detector is not None:
-        print(f"  detector: at rest {[round(v, 2) for v in detector.noise]} Nm, per rad/s "
+        held = detector.source.get("held_out", "?")
+        print(f"  detector ({held}): at rest {[round(v, 2) for v in detector.noise]} Nm, per rad/s "
               f"{[round(v, 2) for v in detector.speed]}")
     exit_if_failed(problems)
 

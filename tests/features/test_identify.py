@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from contactkit.errors import InputError
+from contactkit.features import identification
 from contactkit.features.detector import dynamics_detector
 from contactkit.features.identification import Motion, identify, identify_sessions
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain
@@ -230,6 +231,8 @@ def test_identify_cli_refuses_bad_input_in_one_line(tmp_path, free_motion) -> No
                          str(free_motion[1]), "--out", str(out))
     assert out.exists() and "index" in result.stderr
     assert "determined:" in result.stdout
+    assert "detector (leave-one-session-out)" in result.stdout
+    assert load_dynamics(out).provenance_doc["method"]["held_out"] == "leave-one-session-out"
 
 
 def test_write_dynamics_gives_the_simulated_instance(tmp_path) -> None:
@@ -257,3 +260,86 @@ def test_stats_deep_takes_the_dynamics(tmp_path, free_motion, identified) -> Non
     result = run_command("recorder", "stats", str(free_motion[0].parent), "--dynamics",
                          str(path), "--out", str(tmp_path / "r.json"), "--format", "json")
     assert result.returncode == 2 and "needs --deep" in result.stderr
+
+
+def _held_out(monkeypatch, motions: list[Motion]) -> tuple[ArmDynamics, list, dict]:
+    """Identify ``motions`` and return the result, the held-out (motion, dynamics) pairs
+    the detector was calibrated on, and the detector's source."""
+    seen: list = []
+    calibrate = identification._detector
+
+    def spy(held_out, setup, source):
+        seen.extend(held_out)
+        return calibrate(held_out, setup, source)
+
+    monkeypatch.setattr(identification, "_detector", spy)
+    result = identify(motions, RobotSetup()).dynamics
+    detector = dynamics_detector(result)
+    assert detector is not None
+    return result, seen, detector.source
+
+
+def test_the_detector_is_calibrated_out_of_session(monkeypatch, free_motion) -> None:
+    """Two sessions or more: each session whole, with the model fitted to the others;
+    the final fit uses every session whole. One session: its last 25 %, with the fit."""
+    motions = [identification.free_motion(path)[0] for path in free_motion[:3]]
+    monkeypatch.setattr(identification, "PULLS", (1.0,))  # the same pull in every fit
+    result, seen, source = _held_out(monkeypatch, motions)
+    assert source["held_out"] == identification.LEAVE_ONE_OUT and source["sessions"] == 3
+    assert json.loads(result.provenance)["method"]["held_out"] == identification.LEAVE_ONE_OUT
+    assert [len(m.t) for m, _ in seen] == [len(m.t) for m in motions]
+    fits = [d.inertias for _, d in seen]
+    assert len(set(fits)) == 3 and result.inertias not in fits
+    alone = identify([m for m in motions if m is not seen[0][0]], RobotSetup(),
+                     calibrate_detector=False).dynamics
+    assert alone.inertias == seen[0][1].inertias  # the others' fit, same settings
+    samples = json.loads(result.provenance)["excitation"]["samples"]
+
+    monkeypatch.undo()
+    single, seen, source = _held_out(monkeypatch, motions[:1])
+    assert source["held_out"] == identification.TAIL and source["share"] == identification.HOLDOUT
+    assert json.loads(single.provenance)["method"]["held_out"] == identification.TAIL
+    (tail, fitted), = seen
+    assert len(tail.t) == pytest.approx(identification.HOLDOUT * len(motions[0].t), abs=1)
+    assert fitted.inertias == single.inertias
+    assert json.loads(single.provenance)["excitation"]["samples"] < samples / 3
+
+
+def test_a_session_the_others_cannot_identify_without(monkeypatch, free_motion) -> None:
+    """A short session with a long one: the fit of the short one alone determines
+    nothing, so only the short one is held out (the long one's fit); the final fit uses
+    both."""
+    long = identification.free_motion(free_motion[0])[0]
+    s = identification.free_motion(free_motion[1])[0]
+    short = Motion(s.t[:250], s.q[:250], s.dq[:250], s.tau[:250], "short")
+    _, seen, source = _held_out(monkeypatch, [long, short])
+    assert source["held_out"] == identification.LEAVE_ONE_OUT and source["sessions"] == 1
+    assert [m.name for m, _ in seen] == ["short"]
+
+
+def test_the_prior_strength_is_chosen_on_the_left_out_sessions() -> None:
+    """The pull toward the nominal model whose fits of the other sessions predict each
+    left-out session best; 1 (the prior's own scales) on a tie; a session the others do
+    not identify counts for none."""
+
+    class Session:
+        n = 10
+
+        def __init__(self, best: float) -> None:
+            self.best = best
+
+        def rms(self, theta: np.ndarray) -> np.ndarray:
+            return np.full(7, 1.0 + abs(float(theta[0]) - self.best))
+
+    def fit(others, pull: float) -> np.ndarray:
+        if len(others) < 2:
+            raise InputError("the motion determines no parameter")
+        return np.array([pull])
+
+    parts = [(Session(0.25), None), (Session(0.5), None), (Session(0.25), None)]
+    assert identification._choose_pull(parts, fit) == 0.25
+    assert identification._choose_pull([(Session(9.0), None)] * 3, fit) == 2.0
+    flat = [(Session(0.0), None)] * 3
+    assert identification._choose_pull(
+        flat, lambda others, pull: np.array([0.0])) == 1.0
+    assert identification._choose_pull(parts[:2], fit) == 1.0  # no fold identifies
