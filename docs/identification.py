@@ -296,11 +296,23 @@ def real(detector, events_model) -> list[str]:
             "both ways and adds no event; but the robot's own estimate holds the same "
             "velocity-sign component (its model has no such friction either), so the "
             "residual with the friction removed no longer follows it (correlation well "
-            "below 0.98, and below the 0.95 that `tests/test_fr3.py` holds on joints "
-            "1-4). Lowering the residual and agreeing with the robot's estimate conflict "
-            "here; the `fr3` defaults stay the nominal model without friction until "
-            "recordings with known touches, or longer exciting motion, settle which of "
-            "the two is right.", ""]
+            "below 0.98, and below the 0.95 that `tests/recorder/test_fr3.py` holds on "
+            "joints 1-4). Lowering the residual and agreeing with the robot's estimate "
+            "conflict here: the robot's estimate shares the nominal model's error, so any "
+            "model that removes that error from the residual moves it away from the "
+            "estimate. The `fr3` defaults therefore stay the nominal model without "
+            "friction, until recordings with known touches, or longer exciting motion, "
+            "settle which of the two is right; a lab identifies its own FR3 with "
+            "`recorder identify` and `--dynamics FILE`.", "",
+            "**Identified from both recordings** (`recorder identify A B`): with two "
+            "sessions or more, the detector stored in the file is calibrated on each "
+            "session's residual under the model identified from the *other* sessions "
+            "(leave one session out), so its thresholds cover how far a fit carries over "
+            "to a recording it has not seen, not how well it fits its own data; the pull "
+            "toward the nominal model is chosen by the same out-of-session residual. With "
+            "one session the last quarter is held out, which is why A → B above keeps "
+            "an event with the file's detector. The synthetic touches with each of these "
+            "files are in docs/results.md (\"On a real FR3\").", ""]
 
 
 def _write_part(session: Session, keep: np.ndarray, directory: Path) -> Path:
