@@ -545,17 +545,25 @@ def _method() -> dict:
 def _detector(held_out: Sequence[Motion], setup: RobotSetup, dynamics: ArmDynamics
               ) -> str | None:
     """Return the detector calibrated on the held-out motions with the identified model
-    (its settings' JSON text), or None (with a warning) when they are too short."""
-    from contactkit.features.detector import DetectorConfig, calibrate, calibration_samples
+    (its thresholds growing with speed, acceleration and each joint's dynamic torque
+    scale; its settings' JSON text), or None (with a warning) when they are too short."""
+    from contactkit.features.detector import (
+        DYNAMIC_FEATURE,
+        DetectorConfig,
+        calibrate,
+        calibration_samples,
+    )
     from contactkit.features.timeseries import TimeseriesChain
 
-    chain = TimeseriesChain(robot=replace(setup, dynamics=dynamics), names=["r"])
+    chain = TimeseriesChain(robot=replace(setup, dynamics=dynamics),
+                            names=["r", DYNAMIC_FEATURE])
     parts = []
     for motion in held_out:
         if len(motion.t) < 2:
             continue
-        r = chain.compute(motion.t, motion.q, motion.dq, motion.tau)["r"]
-        parts.append(calibration_samples(motion.t, r, motion.dq))
+        features = chain.compute(motion.t, motion.q, motion.dq, motion.tau)
+        parts.append(calibration_samples(motion.t, features["r"], motion.dq,
+                                         dyn=features[DYNAMIC_FEATURE]))
     try:
         config = calibrate(parts, DetectorConfig(), source={"held_out": HOLDOUT})
     except InputError as err:
