@@ -24,6 +24,7 @@ from contactkit.features.timeseries import (
     TimeseriesChain,
     columns_of,
 )
+from contactkit.robots.builtin import FR3
 from contactkit.schemas.session import SampleBatch
 
 
@@ -88,6 +89,9 @@ def test_calibrations_written_before_the_dynamic_term_mean_none() -> None:
     with pytest.raises(ValueError, match="dynamic"):
         DetectorConfig(dynamic=(-1.0,) * 7)
     assert DetectorConfig(dynamic=(0.1,) * 7).chain_features == ["r", DYNAMIC_FEATURE]
+    # on another arm the term grows as the speed and acceleration terms do
+    fr3 = DetectorConfig(dynamic=(0.1,) * 7, robot="panda").for_robot(FR3)
+    assert fr3.dynamic == pytest.approx((0.1 * FR3.detector_motion_scale,) * 7)
 
 
 def _residual(seed: int = 1):
@@ -132,3 +136,18 @@ def test_calibration_fits_the_term_where_the_error_follows_it() -> None:
     assert max(calibrate(plain, template, margin=1.0, floor=0.1).dynamic) == 0.0
     t, r, dq, dyn = _residual(1)  # the envelope covers its samples: no contact
     assert detect(t, r, dq, fitted, dyn).intervals == []
+
+
+def test_the_default_recipe_calibrates_the_term_on_several_instances(tmp_path) -> None:
+    from contactkit.cli.default_model import RECIPE, _instances, recipe_dir
+
+    detector = RECIPE["detector"]
+    assert detector["dynamic"] and len(detector["instances"]["robot_seeds"]) >= 2
+    # the key follows the detector's recipe
+    plain = {**RECIPE, "detector": {k: v for k, v in detector.items()
+                                    if k not in ("dynamic", "instances")}}
+    assert recipe_dir(None, plain) != recipe_dir()
+    spec = {"preset": "free-motion", "robot_seeds": [3], "sessions": 1}
+    (path,) = _instances(spec, 1, None, tmp_path, 0, None)
+    assert path.parent.name == "free-motion-robot3"
+    assert _instances(None, 1, None, tmp_path, 0, None) == []
