@@ -40,7 +40,7 @@ from contactkit.classify.events.contact_events import batch_events
 from contactkit.classify.events.training import SessionEvents
 from contactkit.classify.modelfile.model_file import load_model
 from contactkit.cli.default_model import build_default_model
-from contactkit.features.detector import REST_SPEED, detect
+from contactkit.features.detector import DYNAMIC_FEATURE, REST_SPEED, detect
 from contactkit.features.isolation import robot_isolator
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.recorder.sim.dataset import simulate_dataset
@@ -82,9 +82,11 @@ def score_session(path: str) -> dict | None:
     if not truth:
         return None
     t, q, dq = session.t, session.q, session.dq
-    r = TimeseriesChain.for_session(session.meta).compute(t, q, dq, session.tau,
-                                                                  ["r"])["r"]
-    events = batch_events(t, r, detect(t, r, dq, _detector()), None, 0.15, q,
+    features = TimeseriesChain.for_session(session.meta).compute(
+        t, q, dq, session.tau, _detector().chain_features)
+    r = features["r"]
+    events = batch_events(t, r, detect(t, r, dq, _detector(), features.get(DYNAMIC_FEATURE)),
+                          None, 0.15, q,
                           robot_isolator(session.meta.robot_setup()))
     touched = session.column("contact")
     lo, hi = t[touched][0], t[touched][-1]
@@ -234,12 +236,14 @@ def detected_intent_events(path: str) -> tuple[list, dict | None]:
     meta = session.meta
     chain = TimeseriesChain.for_session(meta, path=path)
     t, q, dq = session.t, session.q, session.dq
-    r = chain.compute(t, q, dq, session.tau, ["r"])["r"]
+    detector = _detector().for_robot(chain.model.spec)
+    features = chain.compute(t, q, dq, session.tau, detector.chain_features)
+    r = features["r"]
     contact = None
     if session.has("contact") and session.column("contact").any():
         touched = np.flatnonzero(session.column("contact"))
         contact = (float(t[touched[0]]), float(t[touched[-1]]))
-    detection = detect(t, r, dq, _detector().for_robot(chain.model.spec))
+    detection = detect(t, r, dq, detector, features.get(DYNAMIC_FEATURE))
     robot = meta.robot_setup()
     events = batch_events(t, r, detection, None, 0.15, q, robot_isolator(robot))
     plain = SessionEvents(str(path), meta.action, meta.target_pose or meta.pose or "",
@@ -347,8 +351,11 @@ def mindlab_figures(directory: Path) -> list[str]:
     for name, path in mindlab.items():
         session = read_session(path)
         t, q, dq = session.t, session.q, session.dq
-        r = TimeseriesChain().compute(t, q, dq, session.tau, ["r"])["r"]
-        events = batch_events(t, r, detect(t, r, dq, _detector()), None, 0.15, q,
+        features = TimeseriesChain().compute(t, q, dq, session.tau,
+                                             _detector().chain_features)
+        r = features["r"]
+        events = batch_events(t, r, detect(t, r, dq, _detector(),
+                                           features.get(DYNAMIC_FEATURE)), None, 0.15, q,
                               robot_isolator(RobotSetup()))
         peaks = [e.contact_at_peak for e in events if e.contact_at_peak is not None
                  and e.contact_at_peak.force is not None]

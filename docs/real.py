@@ -38,7 +38,7 @@ from contactkit.classify.events.training import (
 )
 from contactkit.classify.modelfile.model_file import load_model
 from contactkit.cli.default_model import RECIPE, build_default_model, recipe_dir
-from contactkit.features.detector import REST_SPEED, Detection, detect
+from contactkit.features.detector import DYNAMIC_FEATURE, REST_SPEED, Detection, detect
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.recorder.importers.arrays import load_joint_arrays
 from contactkit.replay.engine import ReplayStream
@@ -327,9 +327,9 @@ def missed_contact_peak(path: str, detector) -> tuple[float, bool]:
     least REST_SPEED)."""
     session = read_session(path).complete()
     t = session.t
-    r = TimeseriesChain.for_session(session.meta).compute(
-        t, session.q, session.dq, session.tau, ["r"])["r"]
-    found = detect(t, r, session.dq, detector)
+    features = TimeseriesChain.for_session(session.meta).compute(
+        t, session.q, session.dq, session.tau, detector.chain_features)
+    found = detect(t, features["r"], session.dq, detector, features.get(DYNAMIC_FEATURE))
     touched = np.flatnonzero(session.column("contact"))
     during = slice(touched[0], int(np.searchsorted(t, t[touched[-1]] + 0.1)))
     return float(np.abs(found.e[during]).max()), bool(found.speed[during].max() >= REST_SPEED)

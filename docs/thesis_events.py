@@ -35,7 +35,7 @@ from contactkit.classify.events.contact_events import UNKNOWN, batch_events
 from contactkit.classify.events.training import MATCH_SLACK_S
 from contactkit.classify.modelfile import load_model
 from contactkit.cli.default_model import build_default_model
-from contactkit.features.detector import DetectorConfig, detect
+from contactkit.features.detector import DYNAMIC_FEATURE, DetectorConfig, detect
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.recorder.sim.dataset import simulate_dataset
 from contactkit.robots.model import RobotModel
@@ -73,8 +73,10 @@ def score_session(path: str, model_path: str) -> dict:
     meta = session.meta
     chain = TimeseriesChain.for_session(meta, path=path)
     t, q, dq = session.t, session.q, session.dq
-    r = chain.compute(t, q, dq, session.tau, ["r"])["r"]
-    detection = detect(t, r, dq, detector.for_robot(chain.model.spec))
+    detector = detector.for_robot(chain.model.spec)
+    features = chain.compute(t, q, dq, session.tau, detector.chain_features)
+    r = features["r"]
+    detection = detect(t, r, dq, detector, features.get(DYNAMIC_FEATURE))
     events = batch_events(t, r, detection, events_model)
     out = {"path": path, "action": meta.action, "link": meta.link,
            "group": meta.target_pose or meta.pose or "",

@@ -8,7 +8,7 @@ fast free motion), while a touch adds 1-15 Nm on joints 1-4 and the held-pose
 noise is ~0.05-0.2 Nm. The detector therefore works on
 
     e_j = rf_j - b_j                   (deviation from a baseline b, Nm)
-    th_j = noise_j + speed_j s + accel_j a      (threshold, Nm)
+    th_j = noise_j + speed_j s + accel_j a + dynamic_j d_j     (threshold, Nm)
     score = max_j |e_j| / th_j
 
 where rf is r low-passed (first order, time constant ``smooth_s``: on the default
@@ -23,7 +23,27 @@ slow 1.5 rad/s move by 2 s piles up more than 1 Nm on joint 2 of the simulated
 Panda. s = |dq| (2-norm, rad/s) and a = |ddq| (2-norm of the joint acceleration
 low-passed with the observer's own 20 ms time constant, rad/s^2) are both held as
 a decaying peak (``motion_hold_s``) because model error reaches r through
-the observer's lag. Contact starts when the score stays above 1 for ``min_on_s``
+the observer's lag. d_j [Nm] is joint j's own dynamic torque scale, the chain's
+``tau_dyn`` (:mod:`contactkit.features.timeseries`): |M(q) ddq_f + C(q, dq) dq|_j +
+0.5 s |dg(q)/dt|_j, held the same way; 0 when not given. A robot instance's masses
+and inertias are off by up to +-15 %, so its model error in motion is about that
+fraction of the model's own dynamic torque on each joint, and of gravity's change
+while the baseline lags it: s and a, norms over all joints, put a threshold too high
+where a joint carries little inertial torque and too low where it carries much.
+Measured with the default model (its recipe calibrates on free motion of robot
+instances 0-8, motion margin 2.5), on instances it never saw (``recorder simulate
+--preset free-motion --sessions 16 --seed 5``, instances 22, 30, 31, 32, 40, 41;
+``mixed-motion`` likewise on 22 and 31): 0 false events, where the detector calibrated
+on instance 0 alone without d gave 11 (6 on free motion of instance 22, in 5 of its 16
+sessions; with d still 5 there: one instance does not show the spread); calibrated on
+instances 0-8 without d (margin 3) it gave 0 but found only 6 of the 16 mixed-motion
+contacts (12 before, 12 with d): s and a must then cover the worst joint of the worst
+instance. On ``thesis-static`` and ``thesis-dynamic`` (48 sessions each; seed 61 on
+instance 27, seed 62 on instance 22) it finds the same contacts on links 3-7 (all but
+3 of 25 on instance 27's dynamic preset, as before) and one contact fewer on links 1-2
+(instance 22, dynamic), with no false event; the real free-motion log's peak score is
+0.74 (0.70 before).
+Contact starts when the score stays above 1 for ``min_on_s``
 and ends when the joints that started it stay below ``release`` for ``min_off_s``
 (hysteresis); the other joints then take their current residual as baseline. That
 rule exists because a touch can leave a lasting offset on a joint it barely loads:
@@ -45,9 +65,10 @@ restarts there too, at r = 0): baseline, filters and motion measures are forgott
 the warm-up runs again. A contact still on before the gap ends at the last sample
 before it (``cut``: known only at the sample after the gap), so no contact spans a gap.
 
-The coefficients noise/speed/accel are calibrated per robot from no-contact data
-(:func:`calibrate`): per joint, the smallest linear envelope over (1, s, a) that
-covers every calibration sample, times a margin. :class:`Detector` is the
+The coefficients noise/speed/accel (and dynamic, when the calibration data carry d)
+are calibrated per robot from no-contact data (:func:`calibrate`): per joint, the
+smallest linear envelope over (1, s, a, d_j) that covers every calibration sample,
+times a margin. :class:`Detector` is the
 streaming form: :meth:`Detector.update` takes one sample (a live robot),
 :meth:`Detector.run` a chunk at once, vectorised (a replay, :func:`detect` on whole
 arrays), with the same onsets, releases and contact flags as sample by sample and the
@@ -81,6 +102,8 @@ FILTER_GAIN = 50.0  # 1/s, the observer's default K_O: a 20 ms low-pass on ddq
 MIN_NOISE = 0.3  # Nm, floor of a calibrated at-rest threshold
 REST_SPEED = 0.05  # rad/s, below this a sample counts as at rest
 CALIBRATION_POINTS = 20000  # samples per fit (evenly thinned)
+DYNAMIC_FEATURE = "tau_dyn"
+"""The chain feature of the dynamic torque scale d (:mod:`contactkit.features.timeseries`)."""
 
 
 def _zeros() -> np.ndarray:
@@ -99,7 +122,9 @@ def _seven(value: object, name: str) -> tuple[float, ...]:
 class DetectorConfig:
     """Detector settings. Per joint (7 values each): ``noise`` [Nm] at rest,
     ``speed`` [Nm per rad/s of |dq|], ``accel`` [Nm per rad/s^2 of |ddq|]. Timing
-    in seconds; ``release`` is the score below which a contact ends (< 1);
+    in seconds; ``dynamic`` [Nm per Nm] per joint of its own dynamic torque scale
+    d_j (the chain's ``tau_dyn``, see the module docstring; 0: not used);
+    ``release`` is the score below which a contact ends (< 1);
     ``reacquire_s`` how long after a release the baseline follows with the time
     constant ``baseline_reacquire_s`` (0: not at all).
     ``robot`` is the registry name of the arm the settings were calibrated on (None:
@@ -108,6 +133,7 @@ class DetectorConfig:
     noise: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 0.5, 0.5, 0.5)
     speed: tuple[float, ...] = (2.0,) * N_JOINTS
     accel: tuple[float, ...] = (0.2,) * N_JOINTS
+    dynamic: tuple[float, ...] = (0.0,) * N_JOINTS
     release: float = 0.7
     min_on_s: float = 0.01
     min_off_s: float = 0.05
@@ -122,7 +148,7 @@ class DetectorConfig:
     source: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
-        for name in ("noise", "speed", "accel"):
+        for name in ("noise", "speed", "accel", "dynamic"):
             object.__setattr__(self, name, _seven(getattr(self, name), name))
         if min(self.noise) <= 0:
             raise ValueError("noise thresholds must be positive")
@@ -138,6 +164,12 @@ class DetectorConfig:
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number of seconds")
 
+    @property
+    def chain_features(self) -> list[str]:
+        """Return the chain features the detector reads: ``r``, and ``tau_dyn`` when a
+        ``dynamic`` coefficient is positive (else its term is 0 without it)."""
+        return ["r", DYNAMIC_FEATURE] if max(self.dynamic) > 0 else ["r"]
+
     def to_dict(self) -> dict:
         """Return the settings as a JSON-ready document (with its format tag)."""
         return {"format": FORMAT, **asdict(self)}
@@ -145,8 +177,8 @@ class DetectorConfig:
     def for_robot(self, robot: RobotSpec) -> DetectorConfig:
         """Return the settings for sessions of ``robot``: these, when they were
         calibrated on it; else with its detector defaults applied (the at-rest
-        thresholds raised to ``robot.detector_floor_nm`` and the growth with speed and
-        acceleration times ``robot.detector_motion_scale``), as when the default
+        thresholds raised to ``robot.detector_floor_nm`` and the growth with speed,
+        acceleration and dynamic torque times ``robot.detector_motion_scale``), as when the default
         model's detector, calibrated on a simulated Panda, runs on a real FR3."""
         if self.robot == robot.name:
             return self
@@ -155,7 +187,8 @@ class DetectorConfig:
         return replace(self, noise=tuple(max(n, f) for n, f in zip(self.noise, floor,
                                                                   strict=True)),
                        speed=tuple(scale * v for v in self.speed),
-                       accel=tuple(scale * v for v in self.accel), robot=robot.name)
+                       accel=tuple(scale * v for v in self.accel),
+                       dynamic=tuple(scale * v for v in self.dynamic), robot=robot.name)
 
     @classmethod
     def from_dict(cls, doc: dict, where: str | Path | None = None) -> DetectorConfig:
@@ -174,6 +207,7 @@ class DetectorConfig:
         settings.setdefault("smooth_s", 0.0)
         settings.setdefault("baseline_moving_s", settings.get("baseline_s", 2.0))
         settings.setdefault("reacquire_s", 0.0)  # and no re-acquisition after a release
+        settings.setdefault("dynamic", (0.0,) * N_JOINTS)  # and no dynamic torque term
         try:
             return cls(**settings)
         except (TypeError, ValueError, ArithmeticError) as err:
@@ -289,8 +323,9 @@ class Detector:
         self._noise = np.array(self.config.noise)
         self._speed = np.array(self.config.speed)
         self._accel = np.array(self.config.accel)
+        self._dynamic = np.array(self.config.dynamic)
         self._coefficients = list(zip(self.config.noise, self.config.speed,
-                                      self.config.accel, strict=True))
+                                      self.config.accel, self.config.dynamic, strict=True))
         self.reset()
 
     def reset(self) -> None:
@@ -301,6 +336,7 @@ class Detector:
         self._ddq_f = [0.0] * N_JOINTS
         self.speed = 0.0
         self.accel = 0.0
+        self._dyn = [0.0] * N_JOINTS
         self._baseline = [0.0] * N_JOINTS
         self._r_f = [0.0] * N_JOINTS
         self.contact = False
@@ -316,15 +352,20 @@ class Detector:
     """The low-passed joint acceleration [rad/s^2] (7,) of the last sample, a copy."""
     dq_prev = _JointFloats("_dq_prev")
     """The joint velocity [rad/s] (7,) of the last sample, a copy."""
+    dyn = _JointFloats("_dyn")
+    """The held dynamic torque scale d [Nm] (7,) of the last sample, a copy."""
 
-    def motion(self, t: float, dq: np.ndarray) -> tuple[float, float]:
+    def motion(self, t: float, dq: np.ndarray, dyn: np.ndarray | None = None
+               ) -> tuple[float, float]:
         """Advance the motion measures to sample ``t`` [s] with joint velocity ``dq``
-        [rad/s] (7,); return (s [rad/s], a [rad/s^2])."""
+        [rad/s] (7,) and dynamic torque scale ``dyn`` [Nm] (7,; None: 0); return (s
+        [rad/s], a [rad/s^2]). The held d is kept in :attr:`dyn`."""
         hold = self.config.motion_hold_s
         floats: list[float] = np.asarray(dq, dtype=float).tolist()  # kept as dq_prev
         speed = math.hypot(*floats)  # |dq|, to rounding as sqrt(dq . dq)
+        dyn_floats = [0.0] * N_JOINTS if dyn is None else np.asarray(dyn, dtype=float).tolist()
         if self.t is None:
-            self.speed, self.accel = speed, 0.0
+            self.speed, self.accel, self._dyn = speed, 0.0, dyn_floats
         else:
             h = t - self.t
             if h > 0:  # the low-pass of ddq = (dq - dq_prev) / h; without a step it holds
@@ -335,12 +376,16 @@ class Detector:
             decay = math.exp(-h / hold) if hold > 0 else 0.0
             self.speed = max(speed, self.speed * decay)
             self.accel = max(math.hypot(*self._ddq_f), self.accel * decay)
+            self._dyn = [max(d, held * decay) for d, held in zip(dyn_floats, self._dyn,
+                                                                 strict=True)]
         self._dq_prev = floats
         return self.speed, self.accel
 
-    def run(self, t: np.ndarray, r: np.ndarray, dq: np.ndarray) -> Detection:
+    def run(self, t: np.ndarray, r: np.ndarray, dq: np.ndarray,
+            dyn: np.ndarray | None = None) -> Detection:
         """Feed a chunk of samples at once: times ``t`` (n,) [s] after the previous
-        sample, residual ``r`` [Nm] and joint velocity ``dq`` [rad/s] (n, 7); return
+        sample, residual ``r`` [Nm], joint velocity ``dq`` [rad/s] and dynamic torque
+        scale ``dyn`` [Nm] (the chain's ``tau_dyn``; None: 0) (n, 7); return
         their :class:`Detection` and carry the state on, as :meth:`update` sample by
         sample would (the same decisions; the filters' values to about 1e-12).
 
@@ -352,9 +397,12 @@ class Detector:
         r = np.asarray(r, dtype=float).reshape(-1, N_JOINTS)
         dq = np.asarray(dq, dtype=float).reshape(-1, N_JOINTS)
         n = len(t)
+        dyn = (np.zeros((n, N_JOINTS)) if dyn is None
+               else np.asarray(dyn, dtype=float).reshape(-1, N_JOINTS))
         out = Detection(np.zeros(n, bool), np.zeros(n), np.zeros((n, N_JOINTS)),
                         np.zeros((n, N_JOINTS)), np.zeros((n, N_JOINTS)), np.zeros(n),
-                        np.zeros(n), [], [], np.zeros(n, bool), np.zeros(n, bool), [])
+                        np.zeros(n), [], [], np.zeros(n, bool), np.zeros(n, bool), [],
+                        np.zeros((n, N_JOINTS)))
         if n == 0:
             return out
         gaps = restarts(t, self.t).tolist()
@@ -368,11 +416,14 @@ class Detector:
                     if out.intervals and out.intervals[-1][1] is None:
                         out.intervals[-1] = (out.intervals[-1][0], start - 1)
                 self.reset()
-            _Run(self, t[start:stop], r[start:stop], dq[start:stop], out, start).run()
+            _Run(self, t[start:stop], r[start:stop], dq[start:stop], dyn[start:stop], out,
+                 start).run()
         return out
 
-    def update(self, t: float, r: np.ndarray, dq: np.ndarray) -> DetectorState:
-        """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,).
+    def update(self, t: float, r: np.ndarray, dq: np.ndarray,
+               dyn: np.ndarray | None = None) -> DetectorState:
+        """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,)
+        and dynamic torque scale [Nm] (7,; the chain's ``tau_dyn``; None: 0).
         After a gap (a step over ``RESTART_STEP_S``) the detector restarts first.
         Returns the detector's :class:`DetectorState` at the sample."""
         t = float(t)  # a NumPy scalar's arithmetic costs several times a float's
@@ -381,7 +432,8 @@ class Detector:
         if self.t is not None and t - self.t > RESTART_STEP_S:
             restarted, cut = True, self.contact
             self.reset()
-        s, a = self.motion(t, dq)
+        s, a = self.motion(t, dq, dyn)
+        d = self._dyn
         first = self.t is None
         h = 0.0 if self.t is None else t - self.t
         self.t = t
@@ -395,13 +447,14 @@ class Detector:
             self._r_f = [f + gain * (x - f) for f, x in zip(self._r_f, r_floats, strict=True)]
         if t - self.t0 < cfg.warmup_s:
             self._baseline = self._r_f
-            return DetectorState(False, 0.0, False, False, _zeros, self._threshold(s, a),
+            return DetectorState(False, 0.0, False, False, _zeros, self._threshold(s, a, d),
                                  restarted, cut)
-        # e = r_f - b and the threshold noise + speed s + accel a, inline, as the
-        # returned state computes them when read
+        # e = r_f - b and the threshold noise + speed s + accel a + dynamic d, inline,
+        # as the returned state computes them when read
         r_f, before = self._r_f, self._baseline
-        ratio = [abs(f - b) / (n + s * v + a * c)
-                 for f, b, (n, v, c) in zip(r_f, before, self._coefficients, strict=True)]
+        ratio = [abs(f - b) / (n + s * v + a * c + x * w)
+                 for f, b, x, (n, v, c, w) in zip(r_f, before, d, self._coefficients,
+                                                   strict=True)]
         score = max(ratio)
         onset = release = False
         if not self.contact:
@@ -429,20 +482,22 @@ class Detector:
         else:
             self._since = None
         return DetectorState(self.contact, score, onset, release,
-                             lambda: np.subtract(r_f, before), self._threshold(s, a),
+                             lambda: np.subtract(r_f, before), self._threshold(s, a, d),
                              restarted, cut)
 
-    def _threshold(self, s: float, a: float) -> Callable[[], np.ndarray]:
+    def _threshold(self, s: float, a: float, d: list[float]) -> Callable[[], np.ndarray]:
         """Return the function that computes the threshold [Nm] (7,) at speed ``s``
-        [rad/s] and acceleration ``a`` [rad/s^2]: noise + speed s + accel a."""
-        return lambda: self._noise + self._speed * s + self._accel * a
+        [rad/s], acceleration ``a`` [rad/s^2] and held dynamic torque scale ``d`` [Nm]
+        (7 floats): noise + speed s + accel a + dynamic d."""
+        return lambda: self._noise + self._speed * s + self._accel * a + self._dynamic * d
 
 
 @dataclass
 class Detection:
     """Batch detector output: per-sample ``contact`` (N,) bool, ``score`` (N,),
     ``e``, ``threshold`` and ``baseline`` (N, 7) [Nm], ``speed`` [rad/s] and
-    ``accel`` [rad/s^2] (N,), the contact intervals as sample indices
+    ``accel`` [rad/s^2] (N,), the held dynamic torque scale ``dynamic`` [Nm] (N, 7)
+    (:meth:`Detector.run` gives it), the contact intervals as sample indices
     (onset, release or None; a contact cut by a gap is released at the last sample
     before it; of a chunk, those that start in it) and the samples at which the
     detector restarted after a gap. :meth:`Detector.run` also gives the per-sample
@@ -461,14 +516,15 @@ class Detection:
     onset: np.ndarray | None = None
     release: np.ndarray | None = None
     cuts: list[int] = field(default_factory=list)
+    dynamic: np.ndarray | None = None
 
 
 def detect(t: np.ndarray, r: np.ndarray, dq: np.ndarray,
-           config: DetectorConfig | None = None) -> Detection:
-    """Run :class:`Detector` over a whole stream (t (N,) [s], r and dq (N, 7)) with
-    :meth:`Detector.run`; return a :class:`Detection` equal to feeding the samples one
-    at a time."""
-    return Detector(config).run(t, r, dq)
+           config: DetectorConfig | None = None, dyn: np.ndarray | None = None) -> Detection:
+    """Run :class:`Detector` over a whole stream (t (N,) [s], r, dq and the dynamic
+    torque scale dyn (N, 7), None: 0) with :meth:`Detector.run`; return a
+    :class:`Detection` equal to feeding the samples one at a time."""
+    return Detector(config).run(t, r, dq, dyn)
 
 
 SWITCH_CHUNK = 256
@@ -479,10 +535,10 @@ few vectorised passes and a switch costs at most this many samples' work."""
 
 class _Run:
     """One :meth:`Detector.run` over a chunk without gaps (``t`` (n,) [s], ``r`` [Nm],
-    ``dq`` [rad/s] (n, 7)), writing rows ``offset`` on of ``out``."""
+    ``dq`` [rad/s], ``dyn`` [Nm] (n, 7)), writing rows ``offset`` on of ``out``."""
 
     def __init__(self, detector: Detector, t: np.ndarray, r: np.ndarray, dq: np.ndarray,
-                 out: Detection, offset: int) -> None:
+                 dyn: np.ndarray, out: Detection, offset: int) -> None:
         self.det, self.cfg, self.out, self.offset = detector, detector.config, out, offset
         self.t, self.r = t, r
         first = detector.t is None
@@ -491,8 +547,10 @@ class _Run:
         if detector.t0 is None:
             detector.t0 = float(t[0])
         self.speed, self.accel, self.ddq_f = self._motion(dq, first, before)
+        self.dynamic = self._held_dynamic(dyn, first, before)
         self.threshold = (detector._noise + detector._speed * self.speed[:, None]
-                          + detector._accel * self.accel[:, None])
+                          + detector._accel * self.accel[:, None]
+                          + detector._dynamic * self.dynamic)
         self.r_f = self._smooth(first)
         detector.dq_prev = dq[-1]
 
@@ -521,6 +579,16 @@ class _Run:
         det.ddq_f, det.speed, det.accel = ddq_f[-1], float(speed[-1]), float(accel[-1])
         return speed, accel, ddq_f
 
+    def _held_dynamic(self, dyn: np.ndarray, first: bool, before: float) -> np.ndarray:
+        """Return the held dynamic torque scale of :meth:`Detector.motion` [Nm] (n, 7)
+        at every sample."""
+        det = self.det
+        elapsed = (self.t - before) / det.config.motion_hold_s \
+            if det.config.motion_hold_s > 0 else None
+        held = _peak_hold(dyn, np.zeros(N_JOINTS) if first else det.dyn, elapsed)
+        det.dyn = held[-1]
+        return held
+
     def _smooth(self, first: bool) -> np.ndarray:
         """Return the low-passed residual r_f [Nm] (n, 7)."""
         det, smooth = self.det, self.cfg.smooth_s
@@ -546,6 +614,8 @@ class _Run:
         out.contact[rows] = contact
         out.threshold[rows] = self.threshold[start:stop]
         out.speed[rows], out.accel[rows] = self.speed[start:stop], self.accel[start:stop]
+        assert out.dynamic is not None  # Detector.run gives it
+        out.dynamic[rows] = self.dynamic[start:stop]
 
     def _ratio(self, start: int, stop: int, baseline: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray]:
@@ -661,39 +731,49 @@ class _Run:
         return k + 1
 
 
-def _peak_hold(values: np.ndarray, before: float, elapsed: np.ndarray | None) -> np.ndarray:
+def _peak_hold(values: np.ndarray, before: float | np.ndarray, elapsed: np.ndarray | None
+               ) -> np.ndarray:
     """Return x_k = max(values_k, x_{k-1} exp(-(T_k - T_{k-1}))) with x_{-1} = ``before``
     and ``elapsed`` T (n,) the time since x_{-1} in units of the hold time (None: no
     hold, x = values), vectorised in the log domain (a sample that sets the peak keeps
-    its value exactly)."""
+    its value exactly). ``values`` (n,) with one ``before``, or (n, k) with k of them,
+    one per column."""
     if elapsed is None:
         return values.copy()
+    if values.ndim == 2:
+        elapsed = elapsed[:, None]
     with np.errstate(divide="ignore"):
         shifted = np.log(values) + elapsed
-        start = math.log(before) if before > 0 else -math.inf
-    peak = np.maximum(np.maximum.accumulate(shifted), start)
+        start = np.log(before)
+    peak = np.maximum(np.maximum.accumulate(shifted, axis=0), start)
     return np.where(shifted >= peak, values, np.exp(peak - elapsed))
 
 
 @dataclass
 class CalibrationData:
     """No-contact samples for :func:`calibrate`: |e| (N, 7) [Nm], speed (N,) [rad/s],
-    accel (N,) [rad/s^2]."""
+    accel (N,) [rad/s^2] and the held dynamic torque scale (N, 7) [Nm] (None: not
+    given, the ``dynamic`` coefficients are not fitted)."""
 
     abs_e: np.ndarray
     speed: np.ndarray
     accel: np.ndarray
+    dynamic: np.ndarray | None = None
 
 
 def calibration_samples(t: np.ndarray, r: np.ndarray, dq: np.ndarray,
-                        template: DetectorConfig | None = None) -> CalibrationData:
+                        template: DetectorConfig | None = None,
+                        dyn: np.ndarray | None = None) -> CalibrationData:
     """Return the deviations and motion measures of one no-contact stream, with the
-    baseline tracked throughout (no detection), after the warm-up."""
+    baseline tracked throughout (no detection), after the warm-up; with the dynamic
+    torque scale ``dyn`` [Nm] (N, 7) (the chain's ``tau_dyn``), its held value too."""
     template = template or DetectorConfig()
     quiet = replace(template, noise=(1e9,) * N_JOINTS)
-    found = detect(t, r, dq, quiet)
+    found = detect(t, r, dq, quiet, dyn)
     keep = t - t[0] >= template.warmup_s
-    return CalibrationData(np.abs(found.e[keep]), found.speed[keep], found.accel[keep])
+    assert found.dynamic is not None  # Detector.run gives it
+    return CalibrationData(np.abs(found.e[keep]), found.speed[keep], found.accel[keep],
+                           None if dyn is None else found.dynamic[keep])
 
 
 def _envelope(y: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -726,9 +806,10 @@ def calibrate(parts: list[CalibrationData], template: DetectorConfig | None = No
     :data:`MIN_NOISE`, 0.3 Nm: the static-friction offsets a real wrist joint keeps
     after being moved: up to 0.5 Nm on the MindLab Panda; the free-motion log's joint 7
     model error is 0.2 Nm);
-    then ``speed`` and ``accel`` are the smallest (by mean) envelope
-    speed s + accel a >= |e| - noise over every sample. ``noise`` is multiplied by
-    ``margin``, speed and accel by ``motion_margin`` (default: ``margin``; wider when
+    then ``speed``, ``accel`` and (when every part carries the dynamic torque scale
+    d, else 0) ``dynamic`` are the smallest (by mean) envelope
+    speed s + accel a + dynamic d_j >= |e_j| - noise_j over every sample. ``noise`` is
+    multiplied by ``margin``, the others by ``motion_margin`` (default: ``margin``; wider when
     the calibration data come from another arm than the one it will run on, such as
     a simulator, whose model error in motion matches the real arm's only roughly).
     Calibration data without motion leave speed and accel at 0, and data without
@@ -740,6 +821,8 @@ def calibrate(parts: list[CalibrationData], template: DetectorConfig | None = No
     abs_e = np.concatenate([p.abs_e for p in parts])
     x = np.column_stack([np.concatenate([p.speed for p in parts]),
                          np.concatenate([p.accel for p in parts])])
+    dynamic = (np.concatenate([p.dynamic for p in parts])
+               if all(p.dynamic is not None for p in parts) else None)
     if len(x) < 100:
         raise InputError(f"too little no-contact data to calibrate on ({len(x)} samples "
                          "after the warm-up)")
@@ -748,15 +831,17 @@ def calibrate(parts: list[CalibrationData], template: DetectorConfig | None = No
     rest = x[:, 0] < REST_SPEED
     noise = abs_e[rest].max(axis=0) if rest.any() else np.array(template.noise) / margin
     noise = np.maximum(noise, np.asarray(floor, dtype=float) / margin)
-    moving = np.zeros((N_JOINTS, 2))
+    moving = np.zeros((N_JOINTS, 3))
     for j in range(N_JOINTS):
         excess = abs_e[:, j] - noise[j]
         if (excess > 0).any():
             idx = _thin(excess, CALIBRATION_POINTS)
             over = excess[idx] > 0
-            moving[j] = _envelope(excess[idx][over], x[idx][over])
+            xj = x if dynamic is None else np.column_stack([x, dynamic[:, j]])
+            moving[j, :xj.shape[1]] = _envelope(excess[idx][over], xj[idx][over])
     return replace(template, noise=tuple(margin * noise),
                    speed=tuple(motion_margin * moving[:, 0]),
                    accel=tuple(motion_margin * moving[:, 1]),
+                   dynamic=tuple(motion_margin * moving[:, 2]),
                    source=dict(source or {}, margin=margin, motion_margin=motion_margin,
                                samples=len(x), rest_samples=int(rest.sum())))

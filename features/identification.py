@@ -689,18 +689,26 @@ def _method(held_out: str) -> dict:
 def _detector(held_out: Sequence[tuple[Motion, ArmDynamics]], setup: RobotSetup,
               source: dict) -> str | None:
     """Return the detector calibrated on the held-out motions, each with the model
-    identified without it (its settings' JSON text, ``source`` recorded in it), or None
-    (with a warning) when they are too short."""
-    from contactkit.features.detector import DetectorConfig, calibrate, calibration_samples
+    identified without it (its thresholds growing with speed, acceleration and each
+    joint's dynamic torque scale; its settings' JSON text, ``source`` recorded in it),
+    or None (with a warning) when they are too short."""
+    from contactkit.features.detector import (
+        DYNAMIC_FEATURE,
+        DetectorConfig,
+        calibrate,
+        calibration_samples,
+    )
     from contactkit.features.timeseries import TimeseriesChain
 
     parts = []
     for motion, dynamics in held_out:
         if len(motion.t) < 2:
             continue
-        chain = TimeseriesChain(robot=replace(setup, dynamics=dynamics), names=["r"])
-        r = chain.compute(motion.t, motion.q, motion.dq, motion.tau)["r"]
-        parts.append(calibration_samples(motion.t, r, motion.dq))
+        chain = TimeseriesChain(robot=replace(setup, dynamics=dynamics),
+                                names=["r", DYNAMIC_FEATURE])
+        features = chain.compute(motion.t, motion.q, motion.dq, motion.tau)
+        parts.append(calibration_samples(motion.t, features["r"], motion.dq,
+                                         dyn=features[DYNAMIC_FEATURE]))
     try:
         config = calibrate(parts, DetectorConfig(), source=source)
     except InputError as err:

@@ -10,3 +10,8 @@ WORKSPACE = ("f", "m", "fm_norm")
 """The external wrench in the base frame."""
 GROUPS = {"sensor": SENSOR, "model": MODEL, "workspace": WORKSPACE}
 ALL_TIMESERIES = SENSOR + MODEL + WORKSPACE
+"""The features of the thesis, a chain's default."""
+DETECTOR = ("tau_dyn",)
+"""Features the contact detector reads besides the residual, computed on request only."""
+KNOWN = ALL_TIMESERIES + DETECTOR
+"""Every timeseries feature a chain computes."""

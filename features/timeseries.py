@@ -29,7 +29,22 @@ f          f_x f_y f_z             N         force of the wrench (J^T)^+ r at th
                                              wrench frame, world axes
 m          m_x m_y m_z             Nm        moment of that wrench
 fm_norm    f_norm m_norm           N, Nm     magnitudes of force and moment
+**detector** (computed when named, not among the chain's default features)
+tau_dyn    tau_dyn_1..tau_dyn_7    Nm        the model's dynamic torque scale
+                                             |M(q) ddq_f + C(q, dq) dq| + T_g |dg/dt|
+                                             per joint (below)
 =========  ======================  ========  =====================================
+
+``tau_dyn`` scales the residual's model error in motion for the contact detector
+(:mod:`contactkit.features.detector`): a mass or inertia off by a fraction d gives an
+error of about d (M ddq + C dq) on each joint, and a gravity torque off by d g(q)
+changes with the pose faster than the detector's baseline follows it, leaving about
+d T_g dg/dt with T_g = :data:`GRAVITY_LAG_S` (the baseline's time constant while the
+arm moves). ddq_f is ddq low-passed with the observer's 20 ms time constant, as the
+detector's acceleration measure (ddq_f_k = (ddq_f_{k-1} + K (dq_k - dq_{k-1})) /
+(1 + K h_k), K = 50 1/s, 0 at a stream's first sample), M ddq_f + C dq is
+rnea(q, dq, ddq_f) - g(q), and dg/dt = (dg/dq) dq exactly (pinocchio's gravity
+derivatives).
 
 The wrench solves J^T w = r in the damped least-squares sense,
 w = (J J^T + lambda^2 I)^-1 J r with lambda = 0.01, J the 6x7 Jacobian of the end
@@ -62,7 +77,7 @@ import pinocchio as pin
 
 from contactkit.errors import InputError, input_error_about
 from contactkit.features.kinematics import FrameKinematics
-from contactkit.features.names import ALL_TIMESERIES, GROUPS
+from contactkit.features.names import ALL_TIMESERIES, GROUPS, KNOWN
 from contactkit.features.names import MODEL as MODEL  # re-exported: chain_cache's names
 from contactkit.features.names import SENSOR as SENSOR
 from contactkit.features.names import WORKSPACE as WORKSPACE
@@ -79,7 +94,13 @@ from contactkit.schemas.metadata import SessionMeta
 from contactkit.schemas.session import SampleBatch
 
 UNITS = {"q": "rad", "dq": "rad/s", "tau": "Nm", "ddq": "rad/s^2", "p_int": "W", "r": "Nm",
-         "g": "Nm", "tau_inv": "Nm", "p_ext": "W", "f": "N", "m": "Nm", "fm_norm": "N, Nm"}
+         "g": "Nm", "tau_inv": "Nm", "p_ext": "W", "f": "N", "m": "Nm", "fm_norm": "N, Nm",
+         "tau_dyn": "Nm"}
+DDQ_FILTER_GAIN = 50.0
+"""1/s: the low-pass of ddq in ``tau_dyn``, the observer's default K_O (20 ms)."""
+GRAVITY_LAG_S = 0.5
+"""s: the lag that turns the rate of a gravity error into a residual error in
+``tau_dyn``: the detector's baseline time constant while the arm moves."""
 DAMPING = 0.01
 _DAMPED = DAMPING**2 * np.eye(6)
 _WRENCH = frozenset(("f", "m", "fm_norm"))
@@ -99,7 +120,7 @@ def columns_of(name: str) -> list[str]:
         return ["m_x", "m_y", "m_z"]
     if name == "fm_norm":
         return ["f_norm", "m_norm"]
-    if name not in ALL_TIMESERIES:
+    if name not in KNOWN:
         raise KeyError(name)
     return [f"{name}_{i}" for i in range(1, 8)]
 
@@ -109,7 +130,7 @@ def expand(names: tuple[str, ...] | list[str]) -> list[str]:
     out: list[str] = []
     for name in names:
         for item in GROUPS.get(name, (name,)):
-            if item not in ALL_TIMESERIES:
+            if item not in KNOWN:
                 raise KeyError(item)
             if item not in out:
                 out.append(item)
@@ -165,15 +186,17 @@ class _Needs:
     r: bool
     p_ext: bool
     wrench: bool
+    tau_dyn: bool
 
     @classmethod
     def of(cls, names: list[str]) -> _Needs:
         """Return what the features ``names`` need."""
         wrench = not _WRENCH.isdisjoint(names)
         r = wrench or not _RESIDUAL.isdisjoint(names)
-        return cls(g=r or "g" in names, ddq="ddq" in names or "tau_inv" in names,
+        tau_dyn = "tau_dyn" in names
+        return cls(g=r or tau_dyn or "g" in names, ddq="ddq" in names or "tau_inv" in names,
                    tau_inv="tau_inv" in names, p_int="p_int" in names, r=r,
-                   p_ext="p_ext" in names, wrench=wrench)
+                   p_ext="p_ext" in names, wrench=wrench, tau_dyn=tau_dyn)
 
 
 def _frame_id(model: RobotModel, wrench_frame: str | int) -> int:
@@ -202,7 +225,8 @@ class ChainState(NamedTuple):
     """What the chain carries from one chunk of a stream to the next: the last sample's
     time ``t`` [s], velocity ``dq`` [rad/s] (for ddq), momentum ``p`` [Nm s] and
     residual ``r`` [Nm] (for the observer; None when the chain computed no residual),
-    each (7,): an array after a chunk, seven Python floats after a live sample (the
+    low-passed acceleration ``ddq_f`` [rad/s^2] (for ``tau_dyn``; None when not
+    computed), each (7,): an array after a chunk, seven Python floats after a live sample (the
     per-sample step's own numbers, kept without a copy into an array). A named tuple:
     immutable, and built on every live sample at a third of a frozen dataclass's
     cost."""
@@ -211,6 +235,7 @@ class ChainState(NamedTuple):
     dq: np.ndarray | list[float]
     p: np.ndarray | list[float] | None = None
     r: np.ndarray | list[float] | None = None
+    ddq_f: np.ndarray | list[float] | None = None
 
 
 class TimeseriesChain:
@@ -301,6 +326,15 @@ class TimeseriesChain:
         if need.p_int:
             out["p_int"] = dq * tau
         dq_floats = dq.tolist()
+        ddq_f = None
+        if need.tau_dyn:
+            assert g is not None  # tau_dyn needs g (_Needs)
+            ddq_f = (_ZEROS if before is None else
+                     (np.asarray(before.ddq_f) + DDQ_FILTER_GAIN * (dq - np.asarray(before.dq)))
+                     / (1.0 + DDQ_FILTER_GAIN * h))
+            out["tau_dyn"] = (np.abs(pin.rnea(model, data, q, dq, ddq_f) - g) + GRAVITY_LAG_S
+                              * np.abs(pin.computeGeneralizedGravityDerivatives(
+                                  model, data, q) @ dq))
         p = r = None
         if need.r:
             p = pin.rnea(self._inertial, self._inertial_data, q, _ZEROS, dq).tolist()
@@ -317,7 +351,7 @@ class TimeseriesChain:
                 jac = pin.getFrameJacobian(model, data, self._fid, pin.LOCAL_WORLD_ALIGNED)
                 out.update(_wrench_features(np.linalg.solve(jac @ jac.T + _DAMPED,
                                                             jac @ r_array)))
-        self._state = ChainState(t, dq_floats, p, r)
+        self._state = ChainState(t, dq_floats, p, r, ddq_f)
         return {name: out[name] for name in self.names}
 
     def _observer_step(self, h: float, before: ChainState, p: list[float], tau: np.ndarray,
@@ -381,6 +415,11 @@ class TimeseriesChain:
             out["tau_inv"] = self._rnea(q, dq, out["ddq"])
         if need.p_int:
             out["p_int"] = dq * tau
+        ddq_f = None
+        if need.tau_dyn:
+            assert g is not None  # tau_dyn needs g (_Needs)
+            ddq_f = self._ddq_filtered(t, dq, gaps, before)
+            out["tau_dyn"] = self._dynamic_scale(q, dq, ddq_f, g)
         p = r = None
         if need.r:
             p = self._rnea(q, zeros, dq, inertial=True)
@@ -409,8 +448,43 @@ class TimeseriesChain:
                     wrench = _cholesky_wrench(self._kinematics.jacobian_rows(q), r)
                 out.update(_wrench_features(wrench))
         after = ChainState(float(t[-1]), dq[-1].copy(), None if p is None else p[-1].copy(),
-                           None if r is None else r[-1].copy())
+                           None if r is None else r[-1].copy(),
+                           None if ddq_f is None else ddq_f[-1].copy())
         return {name: out[name] for name in names}, after
+
+    def _ddq_filtered(self, t: np.ndarray, dq: np.ndarray, gaps: np.ndarray,
+                      before: ChainState | None) -> np.ndarray:
+        """Return ddq low-passed with :data:`DDQ_FILTER_GAIN` [rad/s^2] (n, 7) at samples
+        with times ``t`` [s] and velocities ``dq`` [rad/s] that follow ``before`` (None:
+        the first sample starts the stream, at 0), restarted (0) at the samples ``gaps``
+        (> 0) that follow a gap."""
+        out = np.zeros_like(dq)
+        for start, stop in itertools.pairwise([0, *gaps.tolist(), len(t)]):
+            carried = before if start == 0 else None
+            lo = start if carried is not None else start + 1  # a fresh stream's first: 0
+            if stop <= lo:
+                continue
+            if carried is None:
+                t_prev, dq_prev, f_prev = t[lo - 1], dq[lo - 1], None
+            else:
+                t_prev, dq_prev, f_prev = carried.t, np.asarray(carried.dq), carried.ddq_f
+            h = np.diff(t[lo - 1:stop] if lo > start else np.r_[t_prev, t[lo:stop]])[:, None]
+            velocity = np.concatenate((np.asarray(dq_prev, dtype=float)[None], dq[lo:stop]))
+            a = 1.0 / (1.0 + DDQ_FILTER_GAIN * h)
+            out[lo:stop] = solve_recurrence(np.broadcast_to(a, (len(h), 7)),
+                                            DDQ_FILTER_GAIN * np.diff(velocity, axis=0) * a,
+                                            f_prev)
+        return out
+
+    def _dynamic_scale(self, q: np.ndarray, dq: np.ndarray, ddq_f: np.ndarray,
+                       g: np.ndarray) -> np.ndarray:
+        """Return ``tau_dyn`` [Nm] (n, 7): |M ddq_f + C dq| + T_g |(dg/dq) dq| of each
+        sample (see the module docstring), from q [rad], dq [rad/s], the low-passed
+        ddq_f [rad/s^2] and gravity g [Nm] (n, 7)."""
+        model, data = self.model.model, self.model.data
+        rate = np.array([pin.computeGeneralizedGravityDerivatives(model, data, q[k]) @ dq[k]
+                         for k in range(len(q))]).reshape(len(q), 7)
+        return np.abs(self._rnea(q, dq, ddq_f) - g) + GRAVITY_LAG_S * np.abs(rate)
 
     def _residual(self, t: np.ndarray, p: np.ndarray, u: np.ndarray, gaps: np.ndarray,
                   before: ChainState | None) -> np.ndarray:

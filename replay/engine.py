@@ -49,7 +49,7 @@ from contactkit.classify.events.contact_events import NONE, ContactEvent, EventP
 from contactkit.classify.modelfile.model_file import ModelFile
 from contactkit.errors import input_error_about
 from contactkit.features.agreement import ResidualAgreement
-from contactkit.features.detector import DetectorConfig, dynamics_detector
+from contactkit.features.detector import DYNAMIC_FEATURE, DetectorConfig, dynamics_detector
 from contactkit.features.isolation import ContactEstimate, robot_isolator
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain, columns_of, expand
 from contactkit.features.timing import restarts
@@ -286,9 +286,10 @@ class ReplayStream:
         """Stream the session; yield a :class:`Block` per batch read, or with
         ``every_hop`` after every prediction (and at the end of each batch)."""
         robot = self.chain_config.robot_setup(self.meta, self.path)
+        detector = [] if self.detector is None else self.detector.chain_features
         chain = TimeseriesChain(self.chain_config, robot,
                                 list(dict.fromkeys([*self.names, "r", "f", "m", "fm_norm",
-                                                    self.window_spec.signal])))
+                                                    self.window_spec.signal, *detector])))
         self.model.check_robot(robot.robot, self.path)  # once its model is built
         history_t, history_v = np.zeros(0), np.zeros((0, len(self.channels)))
         next_hop = last_t = None
@@ -316,7 +317,8 @@ class ReplayStream:
             labels = scores = None
             estimates: list[tuple[int, ContactEstimate]] = []
             if self.pipeline is not None:
-                labels, scores, estimates = self._events(t, out["r"], dq, q, start)
+                labels, scores, estimates = self._events(t, out["r"], dq, q, start,
+                                                         out.get(DYNAMIC_FEATURE))
             truth, contact = batch.f_ext, batch.contact
             estimate = None if batch.tau_ext_hat is None else -batch.tau_ext_hat
             if estimate is not None:
@@ -345,14 +347,15 @@ class ReplayStream:
         self.event_samples[last_t] = start - 1
 
     def _events(self, t: np.ndarray, r: np.ndarray, dq: np.ndarray, q: np.ndarray,
-                start: int
+                start: int, dyn: np.ndarray | None
                 ) -> tuple[np.ndarray, np.ndarray, list[tuple[int, ContactEstimate]]]:
-        """Feed a batch (first session sample ``start``) to the event pipeline in one go;
+        """Feed a batch (first session sample ``start``; the dynamic torque scale
+        ``dyn`` [Nm] when the detector reads it) to the event pipeline in one go;
         note the samples where events begin, are decided or end. Return the per-sample
         labels and detector scores, and the contact estimates of the events' tracks
         made in the batch as (session sample, estimate)."""
         assert self.pipeline is not None  # called with a pipeline only
-        found = self.pipeline.update_block(t, r, dq, q)
+        found = self.pipeline.update_block(t, r, dq, q, dyn)
         estimates = []
         for k, state in found.steps:
             at, sample = float(t[k]), start + k

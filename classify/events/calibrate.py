@@ -19,6 +19,7 @@ import numpy as np
 
 from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.detector import (
+    DYNAMIC_FEATURE,
     MIN_NOISE,
     CalibrationData,
     DetectorConfig,
@@ -58,9 +59,11 @@ def no_contact_stretches(session: Session) -> list[np.ndarray]:
 
 
 def session_calibration_data(path: str | Path, template: DetectorConfig | None = None,
-                             robot: RobotChoice = None) -> list[CalibrationData]:
+                             robot: RobotChoice = None, dynamic: bool = False
+                             ) -> list[CalibrationData]:
     """Read one session and return the detector's calibration samples of each of its
-    no-contact stretches (the observer restarts on each stretch); ``robot`` names the
+    no-contact stretches (the observer restarts on each stretch), with the dynamic
+    torque scale (``tau_dyn``) when ``dynamic``; ``robot`` names the
     arm's model instead of the session's own. A session with a sample beyond the robot's
     limits raises InputError: its thresholds would be meaningless."""
     session = read_session(path).complete()
@@ -69,9 +72,12 @@ def session_calibration_data(path: str | Path, template: DetectorConfig | None =
         raise InputError(beyond, path)
     template = template or DetectorConfig()
     chain = TimeseriesChain.for_session(session.meta, ChainConfig(robot=robot), path)
-    r = chain.compute(session.t, session.q, session.dq, session.tau, ["r"])["r"]
+    names = ["r", DYNAMIC_FEATURE] if dynamic else ["r"]
+    features = chain.compute(session.t, session.q, session.dq, session.tau, names)
+    r, dyn = features["r"], features.get(DYNAMIC_FEATURE)
     t, dq = session.t, session.dq
-    return [calibration_samples(t[run], r[run], dq[run], template)
+    return [calibration_samples(t[run], r[run], dq[run], template,
+                                None if dyn is None else dyn[run])
             for run in no_contact_stretches(session)]
 
 
@@ -82,10 +88,13 @@ def calibrate_sessions(paths: Sequence[str | Path], template: DetectorConfig | N
                        robot: RobotChoice = None,
                        problems: list[tuple[str, str]] | None = None,
                        scheduler: str | None = None,
-                       floor: float | tuple[float, ...] = MIN_NOISE) -> DetectorConfig:
+                       floor: float | tuple[float, ...] = MIN_NOISE,
+                       dynamic: bool = False) -> DetectorConfig:
     """Calibrate the detector on the no-contact samples of ``paths`` (``margin``,
     ``motion_margin`` and the at-rest ``floor`` [Nm] as in
-    :func:`~contactkit.features.detector.calibrate`; ``robot``
+    :func:`~contactkit.features.detector.calibrate`; with ``dynamic`` the thresholds
+    also grow with each joint's dynamic torque scale, else its coefficients are 0;
+    ``robot``
     the arm's model instead of each session's own); return its settings, with the
     session count in ``source`` and, when every session is of one arm, its name in
     ``robot`` (the settings then apply to that arm as they are). A session that cannot
@@ -93,7 +102,7 @@ def calibrate_sessions(paths: Sequence[str | Path], template: DetectorConfig | N
     problem)`` (without it, the first such session raises its InputError). Sessions are
     read in ``workers`` processes or on the Dask ``scheduler``."""
     template = template or DetectorConfig()
-    results = list(map_ordered(_job, [(str(p), template, robot) for p in paths],
+    results = list(map_ordered(_job, [(str(p), template, robot, dynamic) for p in paths],
                                workers=workers, progress=progress, scheduler=scheduler))
     bad = [(name, problem) for name, _, problem in results if problem is not None]
     if bad and problems is None:
@@ -114,7 +123,7 @@ def calibrate_sessions(paths: Sequence[str | Path], template: DetectorConfig | N
     return replace(config, robot=robots.pop() if len(robots) == 1 else None)
 
 
-def _job(item: tuple[str, DetectorConfig, str | None]
+def _job(item: tuple[str, DetectorConfig, RobotChoice, bool]
          ) -> tuple[str, list[CalibrationData], str | None]:
     try:
         return item[0], session_calibration_data(*item), None

@@ -63,6 +63,7 @@ import numpy as np
 from contactkit.classify.kinds.fast import fast_predictor
 from contactkit.errors import InputError
 from contactkit.features.detector import (
+    DYNAMIC_FEATURE,
     N_JOINTS,
     Detection,
     Detector,
@@ -370,23 +371,25 @@ class EventPipeline:
         return made
 
     def update(self, t: float, r: np.ndarray, dq: np.ndarray,
-               q: np.ndarray | None = None) -> EventOutput:
-        """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,)
-        and, for contact isolation, joint position q [rad] (7,)."""
+               q: np.ndarray | None = None, dyn: np.ndarray | None = None) -> EventOutput:
+        """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,),
+        for contact isolation joint position q [rad] (7,), and the chain's dynamic
+        torque scale ``tau_dyn`` [Nm] (7,) when the detector reads it (None: 0)."""
         t = float(t)  # a NumPy scalar's arithmetic costs several times a float's
-        state = self.detector.update(t, r, dq)
+        state = self.detector.update(t, r, dq, dyn)
         return self._step(t, np.array(r, dtype=float), q, state,
                           self.detector.baseline if state.onset else None)
 
     def update_block(self, t: np.ndarray, r: np.ndarray, dq: np.ndarray,
-                     q: np.ndarray | None = None) -> BlockEvents:
+                     q: np.ndarray | None = None, dyn: np.ndarray | None = None
+                     ) -> BlockEvents:
         """Feed a chunk of samples at once: times ``t`` (n,) [s], residual ``r`` [Nm],
-        joint velocity ``dq`` [rad/s] and, for contact isolation, joint position ``q``
-        [rad] (n, 7). The same as :meth:`update` sample by sample, with the detector run
-        vectorised over the chunk (:meth:`Detector.run`) and per-sample work only on
-        the samples of an event."""
+        joint velocity ``dq`` [rad/s], for contact isolation joint position ``q``
+        [rad], and the dynamic torque scale ``dyn`` [Nm] (None: 0) (n, 7). The same as
+        :meth:`update` sample by sample, with the detector run vectorised over the chunk
+        (:meth:`Detector.run`) and per-sample work only on the samples of an event."""
         n = len(t)
-        found = self.detector.run(t, r, dq)
+        found = self.detector.run(t, r, dq, dyn)
         assert found.onset is not None and found.release is not None  # run gives them
         out = BlockEvents(np.full(n, NONE, dtype=object), found.score, found.contact)
         onsets = np.flatnonzero(found.onset)
@@ -537,13 +540,15 @@ def batch_events(t: np.ndarray, r: np.ndarray, detection: Detection,
 def stream_events(t: np.ndarray, r: np.ndarray, dq: np.ndarray,
                   detector: DetectorConfig | None = None, model: EventModel | None = None,
                   decide_after_s: float | None = None, q: np.ndarray | None = None,
-                  isolator: ContactIsolator | None = None
+                  isolator: ContactIsolator | None = None, dyn: np.ndarray | None = None
                   ) -> tuple[list[ContactEvent], list[str]]:
-    """Run the pipeline over whole arrays (t (N,) [s], r and dq (N, 7), and for contact
-    isolation q (N, 7) [rad] and an isolator); return the events and the per-sample
-    label, exactly as the streaming path gives them."""
+    """Run the pipeline over whole arrays (t (N,) [s], r and dq (N, 7), for contact
+    isolation q (N, 7) [rad] and an isolator, and the dynamic torque scale dyn (N, 7)
+    [Nm]); return the events and the per-sample label, exactly as the streaming path
+    gives them."""
     pipeline = EventPipeline(detector, model, decide_after_s, isolator)
-    labels = [pipeline.update(float(t[k]), r[k], dq[k], None if q is None else q[k]).label
+    labels = [pipeline.update(float(t[k]), r[k], dq[k], None if q is None else q[k],
+                              None if dyn is None else dyn[k]).label
               for k in range(len(t))]
     return pipeline.finish(), labels
 
@@ -559,7 +564,9 @@ def session_events(session: Session, detector: DetectorConfig, model: EventModel
     session = session.complete()
     t, dq, q = session.t, session.dq, session.q
     chain = TimeseriesChain.for_session(session.meta, ChainConfig(robot=robot), session.path)
-    r = chain.compute(t, q, dq, session.tau, ["r"])["r"]
     detector = detector.for_robot(chain.model.spec)
+    features = chain.compute(t, q, dq, session.tau, detector.chain_features)
+    r = features["r"]
     isolator = robot_isolator(chain.model.setup) if isolate else None
-    return batch_events(t, r, detect(t, r, dq, detector), model, decide_after_s, q, isolator)
+    return batch_events(t, r, detect(t, r, dq, detector, features.get(DYNAMIC_FEATURE)),
+                        model, decide_after_s, q, isolator)

@@ -19,7 +19,7 @@ from collections.abc import Callable
 import numpy as np
 
 from contactkit.classify.events.contact_events import ContactEvent, EventModel, EventPipeline
-from contactkit.features.detector import DetectorConfig
+from contactkit.features.detector import DYNAMIC_FEATURE, DetectorConfig
 from contactkit.features.isolation import OK, ContactEstimate, ContactIsolator
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain
 from contactkit.robots import RobotSetup
@@ -83,7 +83,7 @@ class LiveEvents:
                  model: EventModel | None = None, decide_after_s: float | None = None,
                  report: Report | None = None,
                  isolator: ContactIsolator | None = None, keep_track: bool = False) -> None:
-        self.chain = TimeseriesChain(chain, robot, ["r"])
+        self.chain = TimeseriesChain(chain, robot, detector.chain_features)
         self.pipeline = EventPipeline(detector.for_robot(self.chain.model.spec), model,
                                       decide_after_s, isolator, keep_track)
         self.report = report
@@ -92,9 +92,11 @@ class LiveEvents:
     def on_chunk(self, chunk: dict[str, np.ndarray]) -> None:
         """Feed one chunk of recorded rows (``t`` [s] and the joint columns)."""
         batch = SampleBatch.from_columns(chunk).complete()
-        r = self.chain.feed(batch)["r"]
+        features = self.chain.feed(batch)
+        r, dyn = features["r"], features.get(DYNAMIC_FEATURE)
         for k in range(len(batch)):
-            state = self.pipeline.update(float(batch.t[k]), r[k], batch.dq[k], batch.q[k])
+            state = self.pipeline.update(float(batch.t[k]), r[k], batch.dq[k], batch.q[k],
+                                         None if dyn is None else dyn[k])
             self.samples += 1
             if self.report is None:
                 continue

@@ -32,7 +32,7 @@ from contactkit.classify.events.contact_events import (
 from contactkit.classify.kinds.kind import ModelOptions
 from contactkit.classify.kinds.svm import SVM
 from contactkit.classify.schemes import check_two_classes
-from contactkit.features.detector import DetectorConfig, detect
+from contactkit.features.detector import DYNAMIC_FEATURE, DetectorConfig, detect
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.schemas import read_session
 from contactkit.util.parallel import map_ordered
@@ -83,12 +83,14 @@ def session_events(path: str | Path, detector: DetectorConfig,
     meta = session.meta
     chain = TimeseriesChain.for_session(meta, path=path)
     t, dq = session.t, session.dq
-    r = chain.compute(t, session.q, dq, session.tau, ["r"])["r"]
+    detector = detector.for_robot(chain.model.spec)
+    features = chain.compute(t, session.q, dq, session.tau, detector.chain_features)
+    r = features["r"]
     contact = None
     if session.has("contact") and session.column("contact").any():
         touched = np.flatnonzero(session.column("contact"))
         contact = (float(t[touched[0]]), float(t[touched[-1]]))
-    detection = detect(t, r, dq, detector.for_robot(chain.model.spec))
+    detection = detect(t, r, dq, detector, features.get(DYNAMIC_FEATURE))
     group = meta.target_pose or meta.pose or ""
     return [SessionEvents(str(path), meta.action, group, contact,
                           batch_events(t, r, detection, None, delay))

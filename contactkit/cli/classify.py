@@ -394,6 +394,11 @@ def calibrate_command(
         help="Factor on the thresholds' growth with speed and acceleration (default: "
              "--margin). Wider when calibrating on another arm than the one it runs on, "
              "such as a simulated one.")] = None,
+    dynamic: Annotated[bool, typer.Option(
+        help="Let each joint's threshold also grow with its own dynamic torque "
+             "|M ddq + C dq| + 0.5 s |dg/dt| (the chain's tau_dyn), fitted with the "
+             "speed and acceleration terms: for data from several arms of one type.")
+    ] = False,
     workers: Annotated[int, typer.Option(help="Parallel worker processes.")] = 1,
     robot: RobotOpt = None,
     dynamics: DynamicsOpt = None,
@@ -418,12 +423,15 @@ def calibrate_command(
                                     progress=bar_callback(bar, "sessions"),
                                     motion_margin=motion_margin,
                                     robot=arm_override(robot, identified),
-                                    problems=problems, scheduler=scheduler_of(ctx))
+                                    problems=problems, scheduler=scheduler_of(ctx),
+                                    dynamic=dynamic)
     print_problems(problems)
     save_calibration(out, config, overwrite=overwrite)
     print(f"{printable(out)}: thresholds at rest {[round(v, 2) for v in config.noise]} Nm, "
           f"per rad/s {[round(v, 2) for v in config.speed]}, "
-          f"per rad/s^2 {[round(v, 3) for v in config.accel]}")
+          f"per rad/s^2 {[round(v, 3) for v in config.accel]}"
+          + (f", per Nm of dynamic torque {[round(v, 3) for v in config.dynamic]}"
+             if dynamic else ""))
     exit_if_failed(problems)
 
 

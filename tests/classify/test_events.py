@@ -115,3 +115,31 @@ def test_without_classifier_events_say_contact(shove) -> None:
 def test_bad_decision_delay(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="decision delay"):
         EventPipeline(DETECTOR, None, -1.0)
+
+
+def test_with_the_dynamic_term_streaming_chunked_and_batch_agree(shove, model) -> None:
+    detector = DetectorConfig(noise=(0.5,) * 7, speed=(0.2,) * 7, accel=(0.01,) * 7,
+                              dynamic=(0.05,) * 7)
+    assert detector.chain_features == ["r", "tau_dyn"]
+    t, q, dq, tau = shove["t"], shove["q"], shove["dq"], shove["tau"]
+    chain = TimeseriesChain(names=detector.chain_features)
+    pipeline = EventPipeline(detector, model)
+    labels = []
+    for k in range(len(t)):
+        out = chain.update(t[k], q[k], dq[k], tau[k])
+        labels.append(pipeline.update(t[k], out["r"], dq[k], None, out["tau_dyn"]).label)
+    streamed = pipeline.finish()
+    assert len(streamed) >= 1
+    whole = TimeseriesChain(names=detector.chain_features).compute(t, q, dq, tau)
+    r, dyn = whole["r"], whole["tau_dyn"]
+    _same(batch_events(t, r, detect(t, r, dq, detector, dyn), model, 0.15), streamed)
+    arrays, array_labels = stream_events(t, r, dq, detector, model, dyn=dyn)
+    _same(arrays, streamed)
+    assert array_labels == labels
+    chunked = EventPipeline(detector, model)
+    block_labels = [label for i in range(0, len(t), 250)
+                    for label in chunked.update_block(t[i:i + 250], r[i:i + 250],
+                                                      dq[i:i + 250], None,
+                                                      dyn[i:i + 250]).labels]
+    _same(chunked.finish(), streamed)
+    assert block_labels == labels

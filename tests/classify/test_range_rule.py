@@ -143,7 +143,7 @@ def test_the_default_model_keeps_a_shove_harder_than_any_it_saw_and_refuses_host
     from dataclasses import replace
 
     from contactkit.classify.events.contact_events import PRE_S, session_events
-    from contactkit.features.detector import detect
+    from contactkit.features.detector import DYNAMIC_FEATURE, detect
     from contactkit.features.timeseries import TimeseriesChain
     from contactkit.recorder.sim.dataset import simulate_specs
     from contactkit.recorder.sim.simulator import SimConfig, plan_session
@@ -164,8 +164,10 @@ def test_the_default_model_keeps_a_shove_harder_than_any_it_saw_and_refuses_host
     session = session.complete()
     chain = TimeseriesChain.for_session(session.meta)
     t = session.t
-    r = chain.compute(t, session.q, session.dq, session.tau, ["r"])["r"]
-    found = detect(t, r, session.dq, detector.for_robot(chain.model.spec))
+    features = chain.compute(t, session.q, session.dq, session.tau, detector.chain_features)
+    r = features["r"]
+    found = detect(t, r, session.dq, detector.for_robot(chain.model.spec),
+                   features.get(DYNAMIC_FEATURE))
     onset = found.intervals[0][0]
     keep = (t >= t[onset] - PRE_S) & (t <= event.decision_s)
     e = r[keep] - found.baseline[onset]

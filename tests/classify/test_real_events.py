@@ -12,7 +12,7 @@ from contactkit.classify.events.contact_events import batch_events
 from contactkit.classify.events.metrics import EventScore, score_events
 from contactkit.classify.modelfile.model_file import load_model
 from contactkit.cli.default_model import build_default_model
-from contactkit.features.detector import detect
+from contactkit.features.detector import DYNAMIC_FEATURE, detect
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.recorder.importers.arrays import load_joint_arrays
 from contactkit.replay.engine import ReplayStream
@@ -30,8 +30,11 @@ def default_model():
 
 
 def _events(model, t, q, dq, tau, with_hand: bool):
-    r = TimeseriesChain(robot=RobotSetup(with_hand=with_hand)).compute(t, q, dq, tau, ["r"])["r"]
-    detection = detect(t, r, dq, model.detector_config())
+    detector = model.detector_config()
+    features = TimeseriesChain(robot=RobotSetup(with_hand=with_hand)).compute(
+        t, q, dq, tau, detector.chain_features)
+    r = features["r"]
+    detection = detect(t, r, dq, detector, features.get(DYNAMIC_FEATURE))
     return batch_events(t, r, detection, model.event_model())
 
 

@@ -64,6 +64,12 @@ def test_calibrate_round_trip_through_the_cli(tmp_path, sessions) -> None:
     config = load_calibration(out)
     assert config.source["sessions"] == 2
     assert len(config.noise) == 7
+    assert config.dynamic == (0.0,) * 7  # fitted only when asked
+    result = run_command("classify", "calibrate", str(sessions["none"]), "--dynamic",
+                         "--out", str(out), "--overwrite")
+    assert result.returncode == 0, result.stderr
+    assert "per Nm of dynamic torque" in result.stdout
+    assert len(load_calibration(out).dynamic) == 7
 
 
 def test_predict_events_with_the_models_detector(model_path, sessions) -> None:
