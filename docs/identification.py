@@ -1,9 +1,9 @@
 """Write docs/identification.md: identifying the arm's own dynamics (issue 37), measured.
 
-    nice -n 10 .venv/bin/python docs/identification.py [--work DIR] [--seeds 21 22 23]
+    nice -n 10 .venv/bin/python docs/identification.py [--work DIR] [--seeds 35 36 37]
                                                        [--sessions 64]
 
-Simulation, per robot instance (``--robot-seed``; 21-23 by default, seeds no tuning
+Simulation, per robot instance (``--robot-seed``; 35-37 by default, seeds no tuning
 used): 20 sessions of the ``free-motion`` preset (8 s each), the first 15 (2 minutes)
 identified (:func:`contactkit.features.identification.identify_sessions`), the other 5
 held out; ``--sessions`` sessions each of ``thesis-dynamic`` and ``thesis-static``.
@@ -339,7 +339,7 @@ def main() -> None:
     """Compute the figures and write docs/identification.md."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, default=None)
-    parser.add_argument("--seeds", type=int, nargs="+", default=[21, 22, 23])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[35, 36, 37])
     parser.add_argument("--sessions", type=int, default=64)
     args = parser.parse_args()
     work = args.work or Path(tempfile.mkdtemp())
