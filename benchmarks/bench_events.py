@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import os
 import time
+from dataclasses import replace
 from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -42,7 +43,7 @@ from contactkit.classify.events.contact_events import (
 )
 from contactkit.classify.kinds.fast import fast_predictor
 from contactkit.classify.kinds.svm_estimators import svm_pipeline
-from contactkit.features.detector import DetectorConfig
+from contactkit.features.detector import DYNAMIC_FEATURE, DetectorConfig
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.recorder.importers.arrays import load_joint_arrays
 from contactkit.robots import RobotSetup
@@ -106,15 +107,16 @@ def main() -> None:
     pipeline = EventPipeline(detector)
     per_sample = timed(lambda k: pipeline.update(t[k], r[k], dq[k]), n)
 
-    def live_pass() -> tuple[np.ndarray, np.ndarray, int]:
-        """One pass of a live robot over the log, from a fresh chain and pipeline: wall
-        and CPU time [us] per sample, and the number of events found."""
-        chain = TimeseriesChain(robot=robot, names=["r"])
-        pipeline = EventPipeline(detector)
+    def live_pass(config: DetectorConfig = detector) -> tuple[np.ndarray, np.ndarray, int]:
+        """One pass of a live robot over the log, from a fresh chain and pipeline with the
+        detector settings ``config``: wall and CPU time [us] per sample, and the number
+        of events found."""
+        chain = TimeseriesChain(robot=robot, names=config.chain_features)
+        pipeline = EventPipeline(config)
 
         def both(k: int) -> None:
             out = chain.update(t[k], q[k], dq[k], tau[k])
-            pipeline.update(t[k], out["r"], dq[k])
+            pipeline.update(t[k], out["r"], dq[k], dyn=out.get(DYNAMIC_FEATURE))
 
         return *cpu_timed(both, n), len(pipeline.finish())
 
@@ -128,6 +130,8 @@ def main() -> None:
         EventPipeline(detector).update_block(t, r, dq)
 
     batch = timed(whole_log, 3) / n
+    # the default model's detector also reads the chain's dynamic torque scale
+    dynamic, _, _ = live_pass(replace(detector, dynamic=(0.3,) * 7))
     rng = np.random.default_rng(0)
     X = np.abs(rng.normal(2.0, 1.0, (400, len(EVENT_FEATURES))))
     y = np.array(["bump", "adjust", "shove", "none"] * 100)
@@ -147,6 +151,8 @@ def main() -> None:
     print(row("event pipeline per sample", per_sample, base))
     print(row("chain + detector + event pipeline per sample", with_chain, base, AIM_SAMPLE_US))
     print(row("the same, CPU time", with_chain_cpu, base, AIM_SAMPLE_US))
+    print(row("the same, with the dynamic term (tau_dyn)", dynamic, base,
+              AIM_SAMPLE_US))
     print(row(f"the same, each sample's fastest of {PASSES} passes", fastest, base,
               AIM_SAMPLE_US))
     print(row("decision (features + SVM, 0.15 s)", decision, base, AIM_DECISION_US))

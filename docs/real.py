@@ -102,9 +102,10 @@ def run_events(path: Path, detector, model, decide_after_s=None):
     """Return a session's events and per-sample labels (streaming pipeline)."""
     session = read_session(path)
     t, dq = session.t, session.dq
-    r = TimeseriesChain.for_session(session.meta).compute(t, session.q, dq,
-                                                                  session.tau, ["r"])["r"]
-    return stream_events(t, r, dq, detector, model, decide_after_s)
+    features = TimeseriesChain.for_session(session.meta).compute(
+        t, session.q, dq, session.tau, detector.chain_features)
+    return stream_events(t, features["r"], dq, detector, model, decide_after_s,
+                         dyn=features.get(DYNAMIC_FEATURE))
 
 
 def score_file(path: Path, events) -> EventScore:

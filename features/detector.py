@@ -326,7 +326,17 @@ class Detector:
         self._dynamic = np.array(self.config.dynamic)
         self._coefficients = list(zip(self.config.noise, self.config.speed,
                                       self.config.accel, self.config.dynamic, strict=True))
+        self._reads_dynamic = max(self.config.dynamic) > 0
         self.reset()
+
+    def _check_dynamic(self, dyn: object) -> None:
+        """Refuse a stream without the dynamic torque scale when these settings grow with
+        it: a caller that leaves it out would get thresholds too low in motion (false
+        events), silently."""
+        if dyn is None and self._reads_dynamic:
+            raise ValueError(f"these detector settings read the chain's {DYNAMIC_FEATURE!r} "
+                             "(a positive dynamic coefficient): compute it with the chain "
+                             "(DetectorConfig.chain_features) and pass it as dyn")
 
     def reset(self) -> None:
         """Forget the past: the next sample starts a new stream."""
@@ -385,7 +395,8 @@ class Detector:
             dyn: np.ndarray | None = None) -> Detection:
         """Feed a chunk of samples at once: times ``t`` (n,) [s] after the previous
         sample, residual ``r`` [Nm], joint velocity ``dq`` [rad/s] and dynamic torque
-        scale ``dyn`` [Nm] (the chain's ``tau_dyn``; None: 0) (n, 7); return
+        scale ``dyn`` [Nm] (the chain's ``tau_dyn``; None only for settings without
+        the term, else ValueError) (n, 7); return
         their :class:`Detection` and carry the state on, as :meth:`update` sample by
         sample would (the same decisions; the filters' values to about 1e-12).
 
@@ -397,6 +408,7 @@ class Detector:
         r = np.asarray(r, dtype=float).reshape(-1, N_JOINTS)
         dq = np.asarray(dq, dtype=float).reshape(-1, N_JOINTS)
         n = len(t)
+        self._check_dynamic(dyn)
         dyn = (np.zeros((n, N_JOINTS)) if dyn is None
                else np.asarray(dyn, dtype=float).reshape(-1, N_JOINTS))
         out = Detection(np.zeros(n, bool), np.zeros(n), np.zeros((n, N_JOINTS)),
@@ -423,11 +435,13 @@ class Detector:
     def update(self, t: float, r: np.ndarray, dq: np.ndarray,
                dyn: np.ndarray | None = None) -> DetectorState:
         """Feed one sample: time [s], residual r [Nm] (7,), joint velocity [rad/s] (7,)
-        and dynamic torque scale [Nm] (7,; the chain's ``tau_dyn``; None: 0).
+        and dynamic torque scale [Nm] (7,; the chain's ``tau_dyn``; None only for
+        settings without the term, else ValueError).
         After a gap (a step over ``RESTART_STEP_S``) the detector restarts first.
         Returns the detector's :class:`DetectorState` at the sample."""
         t = float(t)  # a NumPy scalar's arithmetic costs several times a float's
         cfg = self.config
+        self._check_dynamic(dyn)
         restarted = cut = False
         if self.t is not None and t - self.t > RESTART_STEP_S:
             restarted, cut = True, self.contact
@@ -522,7 +536,8 @@ class Detection:
 def detect(t: np.ndarray, r: np.ndarray, dq: np.ndarray,
            config: DetectorConfig | None = None, dyn: np.ndarray | None = None) -> Detection:
     """Run :class:`Detector` over a whole stream (t (N,) [s], r, dq and the dynamic
-    torque scale dyn (N, 7), None: 0) with :meth:`Detector.run`; return a
+    torque scale dyn (N, 7); None only for settings without the term) with
+    :meth:`Detector.run`; return a
     :class:`Detection` equal to feeding the samples one at a time."""
     return Detector(config).run(t, r, dq, dyn)
 

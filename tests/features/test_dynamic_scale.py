@@ -116,9 +116,14 @@ def test_the_detector_with_the_term_streams_as_it_runs() -> None:
     assert np.abs(batch.threshold - [s.threshold for s in states]).max() < 1e-9
     assert batch.dynamic is not None and (batch.dynamic >= dyn - 1e-12).all()  # held
     assert len(batch.intervals) == 1 and 2.5 <= t[batch.intervals[0][0]] <= 2.53
-    # without the input the term is 0: the same as a detector without it
+    # settings with the term refuse a stream without its input (a caller that forgot it
+    # would get thresholds too low in motion), batch and live alike
+    with pytest.raises(ValueError, match="read the chain's 'tau_dyn'"):
+        detect(t, r, dq, config)
+    with pytest.raises(ValueError, match="read the chain's 'tau_dyn'"):
+        Detector(config).update(t[0], r[0], dq[0])
     plain = replace(config, dynamic=(0.0,) * 7)
-    assert np.array_equal(detect(t, r, dq, config).score, detect(t, r, dq, plain).score)
+    assert detect(t, r, dq, plain).intervals  # without the term, no input is needed
 
 
 
