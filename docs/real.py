@@ -159,6 +159,7 @@ def real_figures(model, gaz, gaz_first, gaz_second, mindlab, workers: int) -> li
                 f"{s.delay_ms(95):.0f} |")
 
     d = detector
+    instances = RECIPE["detector"]["instances"]
     return [
         "### Real recordings", "",
         f"Free motion: the log of Gaz et al. ({duration:.0f} s at 1 kHz, joints up to "
@@ -185,14 +186,18 @@ def real_figures(model, gaz, gaz_first, gaz_second, mindlab, workers: int) -> li
         "shows is gated by the detector (none without a detected contact): "
         f"{hop_contact} of {len(hop.pred_label)} hops say contact.", "",
         "Default detector (calibrated on the no-contact stretches of the recipe's "
-        f"simulated free-motion presets ({', '.join(RECIPE['event_presets'])}), margin "
+        f"simulated free-motion presets ({', '.join(RECIPE['event_presets'])}) and of "
+        f"{instances['sessions']} `{instances['preset']}` sessions on each of the robot "
+        f"instances {instances['robot_seeds'][0]}-{instances['robot_seeds'][-1]}, margin "
         f"{RECIPE['detector']['margin']} at rest and {RECIPE['detector']['motion_margin']} "
         f"on the growth with motion; residual low-passed with {1000 * d.smooth_s:.0f} ms, "
         f"baseline time constant {d.baseline_s:.1f} s at rest and "
         f"{d.baseline_moving_s:.1f} s while moving, {1000 * d.baseline_reacquire_s:.0f} ms "
         f"for {d.reacquire_s:.1f} s after a release): thresholds at rest "
         f"{[round(v, 2) for v in d.noise]} Nm, growth per rad/s "
-        f"{[round(v, 2) for v in d.speed]}, per rad/s^2 {[round(v, 3) for v in d.accel]}. "
+        f"{[round(v, 2) for v in d.speed]}, per rad/s^2 {[round(v, 3) for v in d.accel]}, "
+        f"per Nm of each joint's dynamic torque scale (`tau_dyn`) "
+        f"{[round(v, 2) for v in d.dynamic]}. "
         "The simulator's held-pose noise and free-motion model error are calibrated "
         "against these real recordings (tests/recorder/test_sim_calibration.py: within +-50 % per "
         "joint at rest); the 0.3 Nm floor on the thresholds at rest covers what it still "
