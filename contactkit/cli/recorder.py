@@ -301,7 +301,9 @@ def identify_command(
         print(f"  links projected to be physically consistent: {report.projected}")
     print(f"  residual RMS [Nm] nominal {[round(v, 3) for v in report.rms_before_nm]}, "
           f"identified {[round(v, 3) for v in report.rms_after_nm]}")
-    print(f"  payload at the flange: {dynamics.payload.mass_kg:.3f} kg")
+    mass, hand = dynamics.payload.mass_kg, " and hand" if dynamics.with_hand else ""
+    print(f"  payload at the flange (identified minus nominal link 7{hand}): {mass:+.3f} kg"
+          + (" (lighter than its model)" if mass < 0 else ""))
     detector = dynamics_detector(dynamics)
     if detector is not None:
         held = detector.source.get("held_out", "?")
