@@ -308,7 +308,8 @@ def identify_command(
     if detector is not None:
         held = detector.source.get("held_out", "?")
         print(f"  detector ({held}): at rest {[round(v, 2) for v in detector.noise]} Nm, per rad/s "
-              f"{[round(v, 2) for v in detector.speed]}")
+              f"{[round(v, 2) for v in detector.speed]}, per Nm of dynamic torque "
+              f"{[round(v, 2) for v in detector.dynamic]}")
     exit_if_failed(problems)
 
 
