@@ -391,9 +391,9 @@ def calibrate_command(
     margin: Annotated[float, typer.Option(
         help="Factor on the fitted thresholds.")] = 1.5,
     motion_margin: Annotated[float | None, typer.Option(
-        help="Factor on the thresholds' growth with speed and acceleration (default: "
-             "--margin). Wider when calibrating on another arm than the one it runs on, "
-             "such as a simulated one.")] = None,
+        help="Factor on the thresholds' growth with speed, acceleration and dynamic "
+             "torque (default: --margin). Wider when calibrating on another arm than the "
+             "one it runs on, such as a simulated one.")] = None,
     dynamic: Annotated[bool, typer.Option(
         help="Let each joint's threshold also grow with its own dynamic torque "
              "|M ddq + C dq| + 0.5 s |dg/dt| (the chain's tau_dyn), fitted with the "
