@@ -89,7 +89,7 @@ from typing import overload
 import numpy as np
 
 from contactkit.errors import InputError
-from contactkit.features.observer import reduce_rows, solve_recurrence
+from contactkit.features.observer import DDQ_FILTER_GAIN, reduce_rows, solve_recurrence
 from contactkit.features.timing import RESTART_STEP_S, restarts
 from contactkit.robots import RobotSpec
 from contactkit.robots.dynamics import ArmDynamics
@@ -98,7 +98,6 @@ from contactkit.util.atomic import write_text
 from contactkit.util.safe_open import read_json
 
 FORMAT = "contactkit-detector/1"
-FILTER_GAIN = 50.0  # 1/s, the observer's default K_O: a 20 ms low-pass on ddq
 MIN_NOISE = 0.3  # Nm, floor of a calibrated at-rest threshold
 REST_SPEED = 0.05  # rad/s, below this a sample counts as at rest
 CALIBRATION_POINTS = 20000  # samples per fit (evenly thinned)
@@ -379,8 +378,8 @@ class Detector:
         else:
             h = t - self.t
             if h > 0:  # the low-pass of ddq = (dq - dq_prev) / h; without a step it holds
-                denominator = 1.0 + FILTER_GAIN * h
-                self._ddq_f = [(f + FILTER_GAIN * (v - v0)) / denominator
+                denominator = 1.0 + DDQ_FILTER_GAIN * h
+                self._ddq_f = [(f + DDQ_FILTER_GAIN * (v - v0)) / denominator
                                for f, v, v0 in zip(self._ddq_f, floats, self._dq_prev,
                                                    strict=True)]
             decay = math.exp(-h / hold) if hold > 0 else 0.0
@@ -580,7 +579,7 @@ class _Run:
         if n > lo:
             h = self.h[lo:, None]
             previous = np.concatenate((dq[:1] if first else det.dq_prev[None], dq[:-1]))
-            gain = FILTER_GAIN * h
+            gain = DDQ_FILTER_GAIN * h
             a = np.broadcast_to(1.0 / (1.0 + gain), (n - lo, N_JOINTS))
             ddq_f[lo:] = solve_recurrence(a, gain * ((dq[lo:] - previous[lo:]) / h) * a,
                                           ddq_f[0] if first else det.ddq_f)

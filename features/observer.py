@@ -39,6 +39,10 @@ if TYPE_CHECKING:
     from contactkit.robots.model import RobotModel
 
 DEFAULT_GAIN = 50.0
+DDQ_FILTER_GAIN = DEFAULT_GAIN
+"""1/s: the first-order low-pass of ddq (20 ms) that the detector's acceleration measure
+and the chain's ``tau_dyn`` share, the observer's default K_O: the model error it scales
+reaches the residual through the observer's own lag."""
 BLOCK_DECAY = np.log(1e-3)
 
 

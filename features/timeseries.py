@@ -82,6 +82,7 @@ from contactkit.features.names import MODEL as MODEL  # re-exported: chain_cache
 from contactkit.features.names import SENSOR as SENSOR
 from contactkit.features.names import WORKSPACE as WORKSPACE
 from contactkit.features.observer import (
+    DDQ_FILTER_GAIN,
     ObserverConfig,
     observer_coefficients,
     solve_recurrence,
@@ -96,8 +97,6 @@ from contactkit.schemas.session import SampleBatch
 UNITS = {"q": "rad", "dq": "rad/s", "tau": "Nm", "ddq": "rad/s^2", "p_int": "W", "r": "Nm",
          "g": "Nm", "tau_inv": "Nm", "p_ext": "W", "f": "N", "m": "Nm", "fm_norm": "N, Nm",
          "tau_dyn": "Nm"}
-DDQ_FILTER_GAIN = 50.0
-"""1/s: the low-pass of ddq in ``tau_dyn``, the observer's default K_O (20 ms)."""
 GRAVITY_LAG_S = 0.5
 """s: the lag that turns the rate of a gravity error into a residual error in
 ``tau_dyn``: the detector's baseline time constant while the arm moves."""

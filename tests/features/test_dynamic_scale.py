@@ -18,8 +18,8 @@ from contactkit.features.detector import (
     calibration_samples,
     detect,
 )
+from contactkit.features.observer import DDQ_FILTER_GAIN
 from contactkit.features.timeseries import (
-    DDQ_FILTER_GAIN,
     GRAVITY_LAG_S,
     TimeseriesChain,
     columns_of,
