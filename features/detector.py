@@ -89,7 +89,12 @@ from typing import overload
 import numpy as np
 
 from contactkit.errors import InputError
-from contactkit.features.observer import DDQ_FILTER_GAIN, reduce_rows, solve_recurrence
+from contactkit.features.observer import (
+    DDQ_FILTER_GAIN,
+    filtered_rate,
+    reduce_rows,
+    solve_recurrence,
+)
 from contactkit.features.timing import RESTART_STEP_S, restarts
 from contactkit.robots import RobotSpec
 from contactkit.robots.dynamics import ArmDynamics
@@ -577,12 +582,9 @@ class _Run:
         ddq_f = np.empty((n, N_JOINTS))
         ddq_f[:lo] = det.ddq_f
         if n > lo:
-            h = self.h[lo:, None]
             previous = np.concatenate((dq[:1] if first else det.dq_prev[None], dq[:-1]))
-            gain = DDQ_FILTER_GAIN * h
-            a = np.broadcast_to(1.0 / (1.0 + gain), (n - lo, N_JOINTS))
-            ddq_f[lo:] = solve_recurrence(a, gain * ((dq[lo:] - previous[lo:]) / h) * a,
-                                          ddq_f[0] if first else det.ddq_f)
+            ddq_f[lo:] = filtered_rate(self.h[lo:, None], dq[lo:] - previous[lo:],
+                                       ddq_f[0] if first else det.ddq_f)
         speed = np.sqrt(np.einsum("ij,ij->i", dq, dq))
         accel = np.sqrt(np.einsum("ij,ij->i", ddq_f, ddq_f))
         accel[:lo] = 0.0

@@ -114,6 +114,19 @@ def solve_recurrence(a: np.ndarray, b: np.ndarray,
     return _solve_blocks(a, b, r_prev, edges)
 
 
+def filtered_rate(h: np.ndarray, step: np.ndarray,
+                  before: np.ndarray | list[float] | None = None) -> np.ndarray:
+    """Return the rate of change of a signal low-passed with :data:`DDQ_FILTER_GAIN` K:
+    f_k = (f_{k-1} + K step_k) / (1 + K h_k), for time steps ``h`` (N, 1) [s] and the
+    signal's steps ``step`` (N, 7) between consecutive samples, from f_{-1} = ``before``
+    (zero when omitted), vectorised (:func:`solve_recurrence`). With dq's steps it is
+    the low-passed ddq [rad/s^2] of the detector's acceleration measure and the chain's
+    ``tau_dyn``."""
+    a = 1.0 / (1.0 + DDQ_FILTER_GAIN * h)
+    return solve_recurrence(np.broadcast_to(a, step.shape), DDQ_FILTER_GAIN * step * a,
+                            before)
+
+
 def reduce_rows(ufunc: np.ufunc, x: np.ndarray) -> np.ndarray:
     """Return ``ufunc`` (``np.maximum``, ``np.minimum``) reduced along each row of ``x``
     (n, k >= 1), as (n,), NaN where a row holds one: taken column by column, which for

@@ -84,6 +84,7 @@ from contactkit.features.names import WORKSPACE as WORKSPACE
 from contactkit.features.observer import (
     DDQ_FILTER_GAIN,
     ObserverConfig,
+    filtered_rate,
     observer_coefficients,
     solve_recurrence,
 )
@@ -469,10 +470,7 @@ class TimeseriesChain:
                 t_prev, dq_prev, f_prev = carried.t, np.asarray(carried.dq), carried.ddq_f
             h = np.diff(t[lo - 1:stop] if lo > start else np.r_[t_prev, t[lo:stop]])[:, None]
             velocity = np.concatenate((np.asarray(dq_prev, dtype=float)[None], dq[lo:stop]))
-            a = 1.0 / (1.0 + DDQ_FILTER_GAIN * h)
-            out[lo:stop] = solve_recurrence(np.broadcast_to(a, (len(h), 7)),
-                                            DDQ_FILTER_GAIN * np.diff(velocity, axis=0) * a,
-                                            f_prev)
+            out[lo:stop] = filtered_rate(h, np.diff(velocity, axis=0), f_prev)
         return out
 
     def _dynamic_scale(self, q: np.ndarray, dq: np.ndarray, ddq_f: np.ndarray,
