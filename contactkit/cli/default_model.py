@@ -28,11 +28,13 @@ a progress bar, the first time replay needs the model):
    missed three more touches on links 1-2 of thesis presets on instance 22); after a
    release its baseline re-acquires the residual for 0.5 s with a 0.1 s time constant
    (``DetectorConfig.reacquire_s``), which removed the false events that followed
-   contacts on a moving arm; and the thresholds grow with each joint's own dynamic
-   torque scale (``DetectorConfig.dynamic`` on the chain's ``tau_dyn``), which follows
-   the model error of every instance where the 2-norms of dq and ddq, calibrated on
-   several instances, would have to cover the worst joint's (see
-   :mod:`contactkit.features.detector`);
+   contacts on a moving arm, and for 2 s a joint whose deviation turns against the
+   contact's does not start a new one (``DetectorConfig.reversal_s``: the contact's own
+   end, measured against a baseline that took in part of it); and the thresholds grow
+   with each joint's own dynamic torque scale (``DetectorConfig.dynamic`` on the
+   chain's ``tau_dyn``), which follows the model error of every instance where the
+   2-norms of dq and ddq, calibrated on several instances, would have to cover the
+   worst joint's (see :mod:`contactkit.features.detector`);
 4. the per-event intent classifier (:mod:`contactkit.classify.events.training`): SVM
    (C = 10) on the events the detector finds, decided 0.15 s after onset, from
    residual-only event features, in the free-motion presets, the thesis-protocol
@@ -94,6 +96,7 @@ RECIPE: dict[str, Any] = {
                  "baseline_moving_s": DetectorConfig().baseline_moving_s,
                  "reacquire_s": DetectorConfig().reacquire_s,
                  "baseline_reacquire_s": DetectorConfig().baseline_reacquire_s,
+                 "reversal_s": DetectorConfig().reversal_s,
                  "dynamic": True,
                  "instances": {"preset": "free-motion", "robot_seeds": list(range(1, 9)),
                                "sessions": 8}},

@@ -172,6 +172,39 @@ def test_the_baseline_reacquires_quickly_after_a_release() -> None:
     assert np.abs(quick.score - [s.score for s in states]).max() < 1e-9
 
 
+def _push_ending_after_its_release():
+    """A push of 3 Nm on joint 1 (1.5-2.0 s) that also loads joint 4 by 1.2 Nm, which
+    stays on 1 s longer: the release, decided on joint 1, takes joint 4's 1.2 Nm into
+    its baseline, and joint 4's drop at 3.0 s turns its deviation against the push."""
+    t, r, dq = _synthetic(8000)
+    r[(t > 1.5) & (t < 2.0), 0] += 3.0
+    r[(t > 1.5) & (t < 3.0), 3] += 1.2
+    return t, r, dq
+
+
+def test_a_contact_s_own_end_after_its_release_starts_no_contact() -> None:
+    t, r, dq = _push_ending_after_its_release()
+    config = DetectorConfig()
+    found, before = detect(t, r, dq, config), detect(t, r, dq, replace(config, reversal_s=0.0))
+    assert [t[on] for on, _ in found.intervals] == pytest.approx([1.52], abs=0.01)
+    assert len(before.intervals) == 2 and t[before.intervals[1][0]] > 3.0
+    # the turned joint does not count in the score; its baseline takes the drop in
+    late = np.searchsorted(t, 3.1)
+    assert found.score[late] < 1.0 < abs(found.e[late, 3]) / found.threshold[late, 3]
+    assert abs(found.e[-1, 3]) < 0.3
+    # a push the same way within reversal_s is a contact
+    r[(t > 3.5) & (t < 3.9), 0] += 3.0
+    again = detect(t, r, dq, config)
+    assert [t[on] for on, _ in again.intervals] == pytest.approx([1.52, 3.52], abs=0.01)
+    detector = Detector(config)
+    states = [detector.update(t[k], r[k], dq[k]) for k in range(len(t))]
+    assert np.array_equal(again.contact, [s.contact for s in states])
+    assert np.abs(again.score - [s.score for s in states]).max() < 1e-9
+    # calibrations written before the rule keep their meaning
+    old = {k: v for k, v in config.to_dict().items() if k != "reversal_s"}
+    assert DetectorConfig.from_dict(old).reversal_s == 0.0
+
+
 def test_calibrations_from_before_reacquisition_keep_their_meaning() -> None:
     doc = DetectorConfig().to_dict()
     del doc["reacquire_s"], doc["baseline_reacquire_s"]
