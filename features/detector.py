@@ -57,15 +57,18 @@ contact's own jolt leaves the motion measures, gave a second, false contact righ
 after a contact (simulated thesis-dynamic sessions, robot instances 22 and 25). For
 ``reversal_s`` after a release, a joint the contact loaded (a score above
 :data:`REVERSAL_LOAD` in it) whose deviation has the opposite sign of its deviation at
-its largest score there does not count toward a new onset (and not in the score), while
-its baseline takes the deviation in: a push keeps its direction, and a deviation turned
-against it is the contact's own end measured against a baseline that took part of it in
-(a release decided on the onset joints while the push still loads others, which then
-take the residual as baseline) or that went stale while the arm moved. Without the rule
-such ends gave contacts that never released once the arm stopped (2 false events in 384
-simulated ``thesis-dynamic`` sessions on robot instances 51, 53, 55 and 57; none with
-it, and no contact lost). The cost: a push the other way on the same joints within
-``reversal_s`` of a release is seen only on the joints it loads the same way. Onset and
+its largest score there, and is at most :data:`REVERSAL_SPAN` times as large, does not
+count toward a new onset (and not in the score), while its baseline takes the deviation
+in: a push keeps its direction, and a deviation turned against it is the contact's own
+end measured against a baseline that took part of it in (a release decided on the onset
+joints while the push still loads others, which then take the residual as baseline) or
+that went stale while the arm moved. Without the rule such ends gave contacts that never
+released once the arm stopped (2 false events in 384 simulated ``thesis-dynamic``
+sessions on robot instances 51, 53, 55 and 57; none with it, and no contact lost). The
+cost: a push the other way on the same joints, within ``reversal_s`` of a release and
+no stronger than the contact was, is seen only on the joints it loads the same way
+(synthetic touches 2.5 s apart on the real Gaz free-motion log: a shove that reversed a
+push released 0.85 s before was missed, 1 of 40 touches). Onset and
 release are stamped with the sample at which the detector *decides*, so they are
 what an online consumer sees. The first ``warmup_s`` of a stream only sets the
 baseline (the observer starts at r = 0).
@@ -119,6 +122,9 @@ REST_SPEED = 0.05  # rad/s, below this a sample counts as at rest
 REVERSAL_LOAD = 0.5
 """The score a joint must have reached in a contact for its deviation's turn against the
 contact's, after the release, not to start one (``DetectorConfig.reversal_s``)."""
+REVERSAL_SPAN = 1.5
+"""How much larger than the contact's own deviation on a joint (at its largest score) a
+turned deviation may be and still count as the contact's end (the rest is a new push)."""
 CALIBRATION_POINTS = 20000  # samples per fit (evenly thinned)
 DYNAMIC_FEATURE = "tau_dyn"
 """The chain feature of the dynamic torque scale d (:mod:`contactkit.features.timeseries`)."""
@@ -375,11 +381,10 @@ class Detector:
         self._since: float | None = None  # time the pending switch started
         self._released: float | None = None  # time of the last release
         self._onset_joints = np.ones(N_JOINTS, bool)
-        # per joint, the largest score in the current contact and the sign of e there;
-        # after a release, the signs of the joints it loaded (score > REVERSAL_LOAD;
-        # else 0)
+        # per joint, the largest score in the current contact and e there; after a
+        # release, that e of the joints it loaded (score > REVERSAL_LOAD; else 0)
         self._peak = [0.0] * N_JOINTS
-        self._sign = [0.0] * N_JOINTS
+        self._peak_e = [0.0] * N_JOINTS
         self._reversal = [0.0] * N_JOINTS
 
     baseline = _JointFloats("_baseline")
@@ -394,12 +399,12 @@ class Detector:
     """The held dynamic torque scale d [Nm] (7,) of the last sample, a copy."""
     peak = _JointFloats("_peak")
     """Each joint's largest score in the current (or last) contact (7,), a copy."""
-    sign = _JointFloats("_sign")
-    """The sign (+-1) of each joint's deviation where :attr:`peak` was reached (7,)."""
+    peak_e = _JointFloats("_peak_e")
+    """Each joint's deviation e [Nm] where :attr:`peak` was reached (7,), a copy."""
     reversal = _JointFloats("_reversal")
-    """After a release, the sign of the deviation of each joint the contact loaded (0:
-    one it did not) (7,), a copy: a deviation of the other sign does not start a contact
-    for ``reversal_s``."""
+    """After a release, :attr:`peak_e` [Nm] of each joint the contact loaded (0: one it
+    did not) (7,), a copy: for ``reversal_s``, a deviation of the other sign and at most
+    :data:`REVERSAL_SPAN` times as large does not start a contact."""
 
     def motion(self, t: float, dq: np.ndarray, dyn: np.ndarray | None = None
                ) -> tuple[float, float]:
@@ -508,8 +513,9 @@ class Detector:
         onset = release = False
         if not self.contact:
             if self._released is not None and t - self._released < cfg.reversal_s:
-                ratio = [0.0 if (f - b) * sign < 0.0 else x for x, f, b, sign in zip(
-                    ratio, r_f, before, self._reversal, strict=True)]
+                ratio = [0.0 if -REVERSAL_SPAN * y * y < (f - b) * y < 0.0 else x
+                         for x, f, b, y in zip(ratio, r_f, before, self._reversal,
+                                               strict=True)]
             score = max(ratio)
             if score > 1.0:
                 self._since = t if self._since is None else self._since
@@ -517,8 +523,7 @@ class Detector:
                     self.contact, onset, self._since = True, True, None
                     self._onset_joints = np.array(ratio) > 1.0
                     self._peak = ratio
-                    self._sign = [math.copysign(1.0, f - b) for f, b in zip(r_f, before,
-                                                                            strict=True)]
+                    self._peak_e = [f - b for f, b in zip(r_f, before, strict=True)]
             else:
                 self._since = None
                 tau = cfg.baseline_moving_s if s >= REST_SPEED else cfg.baseline_s
@@ -532,14 +537,14 @@ class Detector:
             score = max(ratio)
             for j, x in enumerate(ratio):
                 if x > self._peak[j]:
-                    self._peak[j], self._sign[j] = x, math.copysign(1.0, r_f[j] - before[j])
+                    self._peak[j], self._peak_e[j] = x, r_f[j] - before[j]
             if max(itertools.compress(ratio, self._onset_joints.tolist())) < cfg.release:
                 self._since = t if self._since is None else self._since
                 if t - self._since >= cfg.min_off_s - 1e-12:
                     self.contact, release, self._since = False, True, None
                     self._released = t
-                    self._reversal = [sign if peak > REVERSAL_LOAD else 0.0
-                                      for sign, peak in zip(self._sign, self._peak,
+                    self._reversal = [e if peak > REVERSAL_LOAD else 0.0
+                                      for e, peak in zip(self._peak_e, self._peak,
                                                             strict=True)]
                     self._baseline = [b if held else f for b, f, held in zip(
                         self._baseline, self._r_f, self._onset_joints.tolist(),
@@ -696,11 +701,14 @@ class _Run:
         window = self.t[start:stop] - det._released < self.cfg.reversal_s
         if not window.any():
             return ratio
-        return np.where(window[:, None] & (e * det.reversal < 0.0), 0.0, ratio)
+        reversal = det.reversal
+        turned = e * reversal
+        return np.where(window[:, None] & (turned < 0.0)
+                        & (turned > -REVERSAL_SPAN * reversal * reversal), 0.0, ratio)
 
     def _peaks(self, e: np.ndarray, ratio: np.ndarray) -> None:
         """Raise each joint's :attr:`Detector.peak` to its largest ``ratio`` among these
-        contact rows (the first where it ties), with the sign of ``e`` there."""
+        contact rows (the first where it ties), with ``e`` there [Nm]."""
         if not len(ratio):
             return
         det = self.det
@@ -708,7 +716,7 @@ class _Run:
         best = ratio[rows, np.arange(N_JOINTS)]
         higher = best > det.peak
         det.peak = np.where(higher, best, det.peak)
-        det.sign = np.where(higher, np.copysign(1.0, e[rows, np.arange(N_JOINTS)]), det.sign)
+        det.peak_e = np.where(higher, e[rows, np.arange(N_JOINTS)], det.peak_e)
 
     def run(self) -> None:
         """Run the state machine over the chunk; leave the detector's state after it."""
@@ -778,7 +786,7 @@ class _Run:
         self.out.intervals.append((self.offset + i + onset, None))
         det.contact, det._since = True, None
         det._onset_joints = ratio[onset] > 1.0
-        det.peak, det.sign = ratio[onset], np.copysign(1.0, e[onset])
+        det.peak, det.peak_e = ratio[onset], e[onset]
         return i + onset + 1
 
     def _contact(self, i: int, stop: int) -> int:
@@ -810,7 +818,7 @@ class _Run:
             return i + k
         self._write(i, i + release, e[:release], score[:release], det.baseline, True)
         self._peaks(e[:release + 1], ratio[:release + 1])
-        det.reversal = np.where(det.peak > REVERSAL_LOAD, det.sign, 0.0)
+        det.reversal = np.where(det.peak > REVERSAL_LOAD, det.peak_e, 0.0)
         k = i + release
         others = ~det._onset_joints
         baseline = det.baseline

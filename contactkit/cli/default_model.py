@@ -72,7 +72,12 @@ from contactkit.classify.kinds.kind import ModelOptions
 from contactkit.classify.kinds.registry import DEFAULT_KIND
 from contactkit.classify.modelfile.model_file import FORMAT as MODEL_FORMAT
 from contactkit.classify.modelfile.model_file import ModelFile, load_model
-from contactkit.features.detector import MIN_NOISE, DetectorConfig
+from contactkit.features.detector import (
+    MIN_NOISE,
+    REVERSAL_LOAD,
+    REVERSAL_SPAN,
+    DetectorConfig,
+)
 from contactkit.recorder.sim.simulator import SimConfig, simulated_dynamics
 from contactkit.robots.dynamics import ArmDynamics
 from contactkit.util.cache import cache_dir
@@ -97,6 +102,7 @@ RECIPE: dict[str, Any] = {
                  "reacquire_s": DetectorConfig().reacquire_s,
                  "baseline_reacquire_s": DetectorConfig().baseline_reacquire_s,
                  "reversal_s": DetectorConfig().reversal_s,
+                 "reversal_load": REVERSAL_LOAD, "reversal_span": REVERSAL_SPAN,
                  "dynamic": True,
                  "instances": {"preset": "free-motion", "robot_seeds": list(range(1, 9)),
                                "sessions": 8}},

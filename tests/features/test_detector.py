@@ -192,7 +192,12 @@ def test_a_contact_s_own_end_after_its_release_starts_no_contact() -> None:
     late = np.searchsorted(t, 3.1)
     assert found.score[late] < 1.0 < abs(found.e[late, 3]) / found.threshold[late, 3]
     assert abs(found.e[-1, 3]) < 0.3
-    # a push the same way within reversal_s is a contact
+    # a push the other way, larger than REVERSAL_SPAN times the contact's, is a contact
+    other = r.copy()
+    other[(t > 3.5) & (t < 3.9), 3] -= 3.0
+    assert [t[on] for on, _ in detect(t, other, dq, config).intervals] == pytest.approx(
+        [1.52, 3.52], abs=0.01)
+    # and so is a push the same way
     r[(t > 3.5) & (t < 3.9), 0] += 3.0
     again = detect(t, r, dq, config)
     assert [t[on] for on, _ in again.intervals] == pytest.approx([1.52, 3.52], abs=0.01)
