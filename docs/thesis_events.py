@@ -203,8 +203,9 @@ def spread(more: list[tuple[dict[str, tuple[int, int]], dict[str, list[dict]]]]
              "robot instance of its own and with as many sessions: how much the figures "
              "vary from one robot to the next.", "",
              "| preset | seed | robot | contacts detected | links 3-7 detected | shove "
-             "recall | intent of detected, balanced | false events |",
-             "|---|---|---|---|---|---|---|---|"]
+             "recall | intent of detected, balanced | `unknown` with p >= 0.5 for the true "
+             "class | false events |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for datasets, per_preset in more:
         for preset, records in per_preset.items():
             value = figures(records)
@@ -213,8 +214,22 @@ def spread(more: list[tuple[dict[str, tuple[int, int]], dict[str, list[dict]]]]
                          + " | ".join(f"{100 * value[name]:.1f} %" for name in (
                              "detected", "detected_links_3_7", "shove_recall",
                              "intent_detected"))
-                         + f" | {sum(r['false_events'] for r in records)} |")
+                         + f" | {refused_clear(records)} | "
+                         f"{sum(r['false_events'] for r in records)} |")
+    every = [records for _, per_preset in more for records in per_preset.values()]
+    lines.append("| lowest (highest: the counts) | | | " + " | ".join(
+        f"{100 * min(figures(records)[name] for records in every):.1f} %" for name in (
+            "detected", "detected_links_3_7", "shove_recall", "intent_detected"))
+        + f" | {max(refused_clear(records) for records in every)} | "
+        f"{max(sum(r['false_events'] for r in records) for records in every)} |")
     return lines
+
+
+def refused_clear(records: list[dict]) -> int:
+    """Return how many matched contacts are labelled ``unknown`` although the classifier
+    gives their true class a probability of at least 0.5."""
+    return sum(1 for r in records if r["matched"] and r["matched"]["label"] == UNKNOWN
+               and r["matched"]["probabilities"].get(r["action"], 0.0) >= 0.5)
 
 
 def report(per_preset: dict[str, list[dict]], model_name: str,
@@ -246,9 +261,8 @@ def report(per_preset: dict[str, list[dict]], model_name: str,
              f"({len(rs)})"),
             ("missed contacts", lambda rs: str(sum(r["action"] != "none" and
                                                   r["matched"] is None for r in rs))),
-            ("`unknown` with p >= 0.5 for the true class", lambda rs: str(sum(
-                1 for r in rs if r["matched"] and r["matched"]["label"] == UNKNOWN
-                and r["matched"]["probabilities"].get(r["action"], 0.0) >= 0.5))),
+            ("`unknown` with p >= 0.5 for the true class",
+             lambda rs: str(refused_clear(rs))),
             ("kept beyond the training range", lambda rs: str(sum(
                 1 for r in rs if r["matched"] and r["matched"].get("beyond_range")))),
             ("sessions stopped by the reflex", lambda rs: str(sum(r["reflex"] for r in rs))),

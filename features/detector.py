@@ -270,10 +270,11 @@ def dynamics_detector(dynamics: ArmDynamics | None) -> DetectorConfig | None:
 
 class DetectorState:
     """What the detector reports for one sample: ``contact`` (bool), ``score`` (max of
-    |e|/threshold), ``onset`` / ``release`` (True at the sample where a contact is
-    confirmed / ends), ``e`` (7,) deviation from the baseline [Nm] and
-    ``threshold`` (7,) [Nm]; ``restarted`` at the first sample after a gap, and ``cut``
-    when that gap closed a contact: it ended at the sample before this one.
+    |e|/threshold over the joints that count: see ``DetectorConfig.reversal_s``),
+    ``onset`` / ``release`` (True at the sample where a contact is confirmed / ends),
+    ``e`` (7,) deviation from the baseline [Nm] and ``threshold`` (7,) [Nm];
+    ``restarted`` at the first sample after a gap, and ``cut`` when that gap closed a
+    contact: it ended at the sample before this one.
 
     ``e`` and ``threshold`` are given as arrays, or as functions that return them (a
     live sample's, where most consumers read neither: two 7-vectors cost ~2.5 us), then
