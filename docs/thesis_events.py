@@ -206,22 +206,20 @@ def spread(more: list[tuple[dict[str, tuple[int, int]], dict[str, list[dict]]]]
              "recall | intent of detected, balanced | `unknown` with p >= 0.5 for the true "
              "class | false events |",
              "|---|---|---|---|---|---|---|---|---|"]
+    shown = ("detected", "detected_links_3_7", "shove_recall", "intent_detected")
+    rows = []  # per dataset: its figures, refused clear cases and false events
     for datasets, per_preset in more:
         for preset, records in per_preset.items():
             value = figures(records)
+            counts = (refused_clear(records), sum(r["false_events"] for r in records))
+            rows.append((value, counts))
             seed, robot = datasets[preset]
             lines.append(f"| `{preset}` | {seed} | {robot} | "
-                         + " | ".join(f"{100 * value[name]:.1f} %" for name in (
-                             "detected", "detected_links_3_7", "shove_recall",
-                             "intent_detected"))
-                         + f" | {refused_clear(records)} | "
-                         f"{sum(r['false_events'] for r in records)} |")
-    every = [records for _, per_preset in more for records in per_preset.values()]
+                         + " | ".join(f"{100 * value[name]:.1f} %" for name in shown)
+                         + f" | {counts[0]} | {counts[1]} |")
     lines.append("| lowest (highest: the counts) | | | " + " | ".join(
-        f"{100 * min(figures(records)[name] for records in every):.1f} %" for name in (
-            "detected", "detected_links_3_7", "shove_recall", "intent_detected"))
-        + f" | {max(refused_clear(records) for records in every)} | "
-        f"{max(sum(r['false_events'] for r in records) for records in every)} |")
+        f"{100 * min(value[name] for value, _ in rows):.1f} %" for name in shown)
+        + f" | {max(c[0] for _, c in rows)} | {max(c[1] for _, c in rows)} |")
     return lines
 
 
