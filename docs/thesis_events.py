@@ -159,6 +159,7 @@ def figures(records: list[dict]) -> dict[str, float]:
     found = [r for r in contacts if r["matched"] is not None]
     distal = [r for r in contacts if r["link"] >= 3]
     shoves = [r for r in contacts if r["action"] == "shove"]
+    distal_shoves = [r for r in shoves if r["link"] >= 3]
     truth = np.array([r["action"] for r in records])
     answer = np.array([predicted(r) for r in records])
     found_truth = np.array([r["action"] for r in found])
@@ -168,6 +169,8 @@ def figures(records: list[dict]) -> dict[str, float]:
         "detected_links_3_7": sum(r["matched"] is not None for r in distal)
         / max(len(distal), 1),
         "shove_recall": sum(predicted(r) == "shove" for r in shoves) / max(len(shoves), 1),
+        "shove_recall_links_3_7": sum(predicted(r) == "shove" for r in distal_shoves)
+        / max(len(distal_shoves), 1),
         "intent_detected": balanced(found_truth, found_answer, INTENTS) if found else 0.0,
         "event_level": balanced(truth, answer, CLASSES),
     }
@@ -189,6 +192,7 @@ def interval(records: list[dict], name: str, rng: np.random.Generator) -> tuple[
 NAMES = (("detected", "contacts detected"),
          ("detected_links_3_7", "contacts on links 3-7 detected"),
          ("shove_recall", "shove recall (a missed shove counts as wrong)"),
+         ("shove_recall_links_3_7", "shove recall on links 3-7"),
          ("intent_detected", "intent of detected contacts, balanced (bump/adjust/shove)"),
          ("event_level", "event-level intent, balanced (none/bump/adjust/shove per session)"))
 
@@ -203,10 +207,11 @@ def spread(more: list[tuple[dict[str, tuple[int, int]], dict[str, list[dict]]]]
              "robot instance of its own and with as many sessions: how much the figures "
              "vary from one robot to the next.", "",
              "| preset | seed | robot | contacts detected | links 3-7 detected | shove "
-             "recall | intent of detected, balanced | `unknown` with p >= 0.5 for the true "
-             "class | false events |",
-             "|---|---|---|---|---|---|---|---|---|"]
-    shown = ("detected", "detected_links_3_7", "shove_recall", "intent_detected")
+             "recall | shove recall, links 3-7 | intent of detected, balanced | `unknown` "
+             "with p >= 0.5 for the true class | false events |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    shown = ("detected", "detected_links_3_7", "shove_recall", "shove_recall_links_3_7",
+             "intent_detected")
     rows = []  # per dataset: its figures, refused clear cases and false events
     for datasets, per_preset in more:
         for preset, records in per_preset.items():
@@ -221,6 +226,28 @@ def spread(more: list[tuple[dict[str, tuple[int, int]], dict[str, list[dict]]]]
         f"{100 * min(value[name] for value, _ in rows):.1f} %" for name in shown)
         + f" | {max(c[0] for _, c in rows)} | {max(c[1] for _, c in rows)} |")
     return lines
+
+
+def wrong_shoves(records: list[dict], datasets: int) -> list[str]:
+    """Return a paragraph on the shoves missed or labelled otherwise in ``records`` (from
+    ``datasets`` datasets): how many, on which links, and their moment arms."""
+    shoves = [r for r in records if r["action"] == "shove"]
+    wrong = [r for r in shoves if predicted(r) != "shove"]
+    if not wrong:
+        return ["", f"Every shove on the {datasets} datasets is found and labelled shove."]
+    links = Counter(r["link"] for r in wrong)
+    missed = sum(r["matched"] is None for r in wrong)
+    arms = [1000 * r["arm_m"] for r in wrong]
+    return ["", f"Shoves missed or labelled otherwise, all {datasets} datasets: "
+            f"{len(wrong)} of {len(shoves)} ({missed} missed, {len(wrong) - missed} "
+            "labelled otherwise); by link: "
+            + ", ".join(f"link {k} {links[k]}" for k in sorted(links))
+            + f"; their largest moment arm about any joint {min(arms):.0f}-"
+            f"{max(arms):.0f} mm." + (
+                " A push on link 1 or 2 loads only joints 1-2, and pushed into the "
+                "link's surface it passes close to their axes: a shove there reaches the "
+                "sensors as a torque no larger than an adjust's, and the intent has to "
+                "come from the rise's shape alone." if max(links) <= 2 else "")]
 
 
 def refused_clear(records: list[dict]) -> int:
@@ -305,6 +332,9 @@ def report(per_preset: dict[str, list[dict]], model_name: str,
     else:
         lines.append("None.")
     lines += spread(more or [])
+    everything = [r for rs in per_preset.values() for r in rs] + [
+        r for _, further in more or [] for rs in further.values() for r in rs]
+    lines += wrong_shoves(everything, len(per_preset) * (1 + len(more or [])))
     lines.append(END)
     return "\n".join(lines)
 
