@@ -394,7 +394,7 @@ def main() -> None:
         "calibrated row below is a comparison). Intent classifier: RBF SVM on event "
         "features of the residual relative to the detector's baseline at onset (per-joint "
         "peak and final |e|, norm peak/mean/final, decay, time to peak, rate, and the "
-        "norm every 25 ms from 25 ms before to 150 ms after onset, as it is and relative "
+        "norm every 25 ms from 50 ms before to 150 ms after onset, as it is and relative "
         "to its largest value), from 0.05 s "
         f"before onset to the decision, {1000 * events['decide_after_s']:.0f} ms after "
         f"onset; classes {events['classes']}.", "",
