@@ -152,6 +152,12 @@ def real_figures(model, gaz, gaz_first, gaz_second, mindlab, workers: int) -> li
         cal_total = cal_total + score_file(mindlab[held_out],
                                            run_events(mindlab[held_out], config, None)[0])
     duration = read_session(gaz).duration_s
+    weak = events_model.weak
+    later = weak is not None and weak.decide_after_s > events_model.decide_after_s
+    waited = sum(later and w > events_model.decide_after_s + 0.05 for w in latencies)
+    weak_ms = (f"{1000 * weak.decide_after_s:.0f} ms after onset, those whose detector "
+               f"score had not reached {weak.score:g}" if weak is not None and later
+               else "the model has no such rule")
 
     def row(name: str, gaz_text: str, s: EventScore) -> str:
         return (f"| {name} | {gaz_text} | {s.detected} of {s.touches} | "
@@ -177,8 +183,9 @@ def real_figures(model, gaz, gaz_first, gaz_second, mindlab, workers: int) -> li
             f"{cal_gaz} in the second half", cal_total), "",
         f"Default model's events on MindLab: labels {dict(sorted(labels.items()))}, "
         f"{out_of_range} flagged out of range; decision "
-        f"{1000 * float(np.median(latencies)):.0f} ms after onset (median; earlier only "
-        f"when the contact ended first); label changes after the decision: {changes}. "
+        f"{1000 * float(np.median(latencies)):.0f} ms after onset (median; earlier when "
+        f"the contact ended first; {waited} weak contacts waited for the later delay, "
+        f"{weak_ms}); label changes after the decision: {changes}. "
         f"The per-hop window classifier (range and Hjorth of dq, tau and r) on its own "
         f"calls {window_contact} of {len(hop.pred_label)} hops of the free-motion log a "
         "contact: inputs that grow with motion (dq, tau) do not transfer from the "

@@ -27,6 +27,7 @@ from contactkit.classify.events.contact_events import (
     UNKNOWN,
     ContactEvent,
     EventModel,
+    WeakDecision,
     batch_events,
 )
 from contactkit.classify.kinds.kind import ModelOptions
@@ -76,9 +77,11 @@ class SessionEvents:
 
 
 def session_events(path: str | Path, detector: DetectorConfig,
-                   decide_after_s: Sequence[float]) -> list[SessionEvents]:
-    """Run one session through the observer and the pipeline once per decision delay;
-    return one :class:`SessionEvents` per delay."""
+                   decide_after_s: Sequence[float],
+                   weak: WeakDecision | None = None) -> list[SessionEvents]:
+    """Run one session through the observer and the pipeline once per decision delay
+    (and ``weak``, when a weak contact is decided: None, at the delay); return one
+    :class:`SessionEvents` per delay."""
     session = read_session(path).complete()
     meta = session.meta
     chain = TimeseriesChain.for_session(meta, path=path)
@@ -93,32 +96,37 @@ def session_events(path: str | Path, detector: DetectorConfig,
     detection = detect(t, r, dq, detector, features.get(DYNAMIC_FEATURE))
     group = meta.target_pose or meta.pose or ""
     return [SessionEvents(str(path), meta.action, group, contact,
-                          batch_events(t, r, detection, None, delay))
+                          batch_events(t, r, detection, None, delay, weak=weak))
             for delay in decide_after_s]
 
 
-def _job(item: tuple[str, DetectorConfig, tuple[float, ...]]) -> list[SessionEvents]:
+def _job(item: tuple[str, DetectorConfig, tuple[float, ...], WeakDecision | None]
+         ) -> list[SessionEvents]:
     return session_events(*item)
 
 
 def load_session_events(paths: Sequence[str | Path], detector: DetectorConfig,
                         decide_after_s: Sequence[float], workers: int = 1,
                         progress: ProgressCallback | None = None, *,
-                        scheduler: str | None = None) -> dict[float, list[SessionEvents]]:
+                        scheduler: str | None = None,
+                        weak: WeakDecision | None = None) -> dict[float, list[SessionEvents]]:
     """Return, per decision delay, every session's events (in the order of ``paths``),
-    found in ``workers`` processes or on the Dask ``scheduler``."""
+    found in ``workers`` processes or on the Dask ``scheduler``, a weak contact decided
+    as ``weak`` says (None: at the delay)."""
     delays = tuple(float(d) for d in decide_after_s)
-    per_session = list(map_ordered(_job, [(str(p), detector, delays) for p in paths],
+    per_session = list(map_ordered(_job, [(str(p), detector, delays, weak) for p in paths],
                                    workers=workers, progress=progress,
                                    scheduler=scheduler))
     return {d: [s[i] for s in per_session] for i, d in enumerate(delays)}
 
 
 def fit_event_model(sessions: Sequence[SessionEvents], decide_after_s: float,
-                    c: float = 10.0, seed: int = 0) -> EventModel:
+                    c: float = 10.0, seed: int = 0,
+                    weak: WeakDecision | None = None) -> EventModel:
     """Fit the intent classifier (scaled RBF SVM, Platt probabilities) on the
     sessions' event rows (a class with a single row is left out); return the
-    :class:`EventModel` with its training range, overall and per class."""
+    :class:`EventModel` with its training range, overall and per class, and ``weak``,
+    the rule the sessions' events were decided by (None: all at the delay)."""
     xs, ys = [], []
     for session in sessions:
         rows, labels = session.rows()
@@ -134,7 +142,7 @@ def fit_event_model(sessions: Sequence[SessionEvents], decide_after_s: float,
     classes = [str(name) for name in estimator.classes_]
     return EventModel(estimator, classes, decide_after_s, X.min(axis=0), X.max(axis=0),
                       {name: X[y == name].min(axis=0) for name in classes},
-                      {name: X[y == name].max(axis=0) for name in classes})
+                      {name: X[y == name].max(axis=0) for name in classes}, weak)
 
 
 def session_outcome(session: SessionEvents, model: EventModel) -> tuple[str, int]:

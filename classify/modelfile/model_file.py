@@ -431,6 +431,24 @@ def _check_event_meta(doc: object, path: Path) -> None:
                              f"{len(EVENT_FEATURES)} numbers", path)
     if ("class_low" in doc) != ("class_high" in doc):
         raise InputError("model file's event class_low and class_high come together", path)
+    if "weak" in doc:  # absent in files written before it
+        _check_weak(doc["weak"], path)
+
+
+def _check_weak(doc: object, path: Path) -> None:
+    """Raise InputError naming ``path`` unless ``doc`` is a weak-contact rule's settings
+    (:meth:`contactkit.classify.events.contact_events.WeakDecision.to_dict`)."""
+    from contactkit.classify.events.contact_events import WeakDecision
+
+    if not (isinstance(doc, dict) and set(doc) == {"score", "decide_after_s"}
+            and all(isinstance(v, int | float) and not isinstance(v, bool)
+                    for v in doc.values())):
+        raise InputError("model file's event weak must be an object of a score and a "
+                         "decide_after_s", path)
+    try:
+        WeakDecision.from_dict(doc)
+    except InputError as err:
+        raise InputError(f"model file's event weak: {err.problem}", path) from err
 
 
 def _check_classes(estimator: object | None, classes: list[str] | None, path: Path,

@@ -301,7 +301,8 @@ def predict_command(
     calibration: Annotated[Path | None, typer.Option(
         help="Contact detector calibration (overrides the model's detector).")] = None,
     decide_after: Annotated[float | None, typer.Option(
-        help="Time after onset at which an event's intent is decided [s].")] = None,
+        help="Time after onset at which an event's intent is decided [s] (default: "
+             "the model's); a weak contact waits for the model's later delay.")] = None,
     robot: RobotOpt = None,
     dynamics: DynamicsOpt = None,
 ) -> None:

@@ -67,7 +67,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from contactkit.classify.events.contact_events import DEFAULT_DECIDE_AFTER_S, EVENT_FEATURES
+from contactkit.classify.events.contact_events import (
+    DEFAULT_DECIDE_AFTER_S,
+    EVENT_FEATURES,
+    WeakDecision,
+)
 from contactkit.classify.kinds.kind import ModelOptions
 from contactkit.classify.kinds.registry import DEFAULT_KIND
 from contactkit.classify.modelfile.model_file import FORMAT as MODEL_FORMAT
@@ -106,7 +110,8 @@ RECIPE: dict[str, Any] = {
                  "dynamic": True,
                  "instances": {"preset": "free-motion", "robot_seeds": list(range(1, 9)),
                                "sessions": 8}},
-    "events": {"decide_after_s": DEFAULT_DECIDE_AFTER_S, "C": 10.0},
+    "events": {"decide_after_s": DEFAULT_DECIDE_AFTER_S, "C": 10.0,
+               "weak": WeakDecision().to_dict()},
 }
 Progress = Callable[[str, int, int], None]
 
@@ -216,11 +221,13 @@ def build_default_model(workers: int = 2, progress: Progress | None = None,
                                   floor=tuple(recipe["detector"]["min_noise"]),
                                   dynamic=recipe["detector"].get("dynamic", False))
     delay = recipe["events"]["decide_after_s"]
+    weak = WeakDecision.from_dict(recipe["events"]["weak"]) if "weak" in recipe["events"] \
+        else None
     contacts = [p for d in [*sources, *simulated(recipe["range_presets"])]
                 for p in session_files(d)]
     events = load_session_events(moving + contacts, detector, [delay], workers,
-                                 _labelled(progress, "events"))[delay]
-    event_model = fit_event_model(events, delay, recipe["events"]["C"], recipe["seed"])
+                                 _labelled(progress, "events"), weak=weak)[delay]
+    event_model = fit_event_model(events, delay, recipe["events"]["C"], recipe["seed"], weak)
     features = recipe["features"]
     options = ModelOptions(kind=recipe["model"], timeseries=tuple(features["timeseries"]),
                            scalars=tuple(features["scalars"]), window=features["window"],

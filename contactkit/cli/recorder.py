@@ -131,7 +131,8 @@ EVENTS = CaptureExtension((
     Param("calibration", Path, None, "Events: contact detector calibration from `classify "
           "calibrate` (overrides the model's detector settings)."),
     Param("decide_after", float, None, "Events: time after a contact's onset at which its "
-          "intent is decided (default: the model's).", unit="s"),
+          "intent is decided (default: the model's); a weak contact waits for the "
+          "model's later delay.", unit="s"),
     Param("dynamics", Path, None, "The arm's identified dynamics (`recorder identify`), "
           "stored with the session as values; --source sim simulates that arm (its "
           "links, friction and armature, unperturbed); with --events, the observer, the "

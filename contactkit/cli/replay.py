@@ -88,7 +88,7 @@ def replay_command(
              "model's detector settings).")] = None,
     decide_after: Annotated[float | None, typer.Option(
         help="Time after a contact's onset at which its intent is decided [s] (default: "
-             "the model's).")] = None,
+             "the model's); a weak contact waits for the model's later delay.")] = None,
     robot: RobotOpt = None,
     dynamics: DynamicsOpt = None,
     overwrite: Annotated[bool, typer.Option(

@@ -14,6 +14,7 @@ from contactkit.classify.events.contact_events import (
     UNKNOWN,
     EventModel,
     EventPipeline,
+    WeakDecision,
     batch_events,
     stream_events,
 )
@@ -47,9 +48,9 @@ def shove(tmp_path_factory) -> dict[str, np.ndarray]:
     return {"t": t, "q": q, "dq": dq, "tau": tau, "r": r, "contact": session.column("contact")}
 
 
-def _streamed(data, model, decide_after_s=None, stop=None):
+def _streamed(data, model, decide_after_s=None, stop=None, weak=None):
     chain = TimeseriesChain(names=["r"])
-    pipeline = EventPipeline(DETECTOR, model, decide_after_s)
+    pipeline = EventPipeline(DETECTOR, model, decide_after_s, weak=weak)
     labels = []
     for k in range(len(data["t"]) if stop is None else stop):
         out = chain.update(data["t"][k], data["q"][k], data["dq"][k], data["tau"][k])
@@ -143,3 +144,51 @@ def test_with_the_dynamic_term_streaming_chunked_and_batch_agree(shove, model) -
                                                       dyn[i:i + 250]).labels]
     _same(chunked.finish(), streamed)
     assert block_labels == labels
+
+
+def test_a_weak_contact_waits_for_its_later_decision(shove, model) -> None:
+    t, r, dq = shove["t"], shove["r"], shove["dq"]
+    detection = detect(t, r, dq, DETECTOR)
+    onset, release = detection.intervals[0]
+    due = int(np.searchsorted(t, t[onset] + 0.15 - 1e-12))
+    by_then = float(detection.score[onset:due + 1].max())
+    assert t[release] - t[onset] > 0.22  # the shove outlasts both delays
+    for weak, waits in ((WeakDecision(by_then * 1.01, 0.2), True),
+                        (WeakDecision(by_then * 0.99, 0.2), False),
+                        (WeakDecision(by_then * 1.01, 0.1), False)):  # not later: no rule
+        streamed, labels = _streamed(shove, model, weak=weak)
+        event = streamed[0]
+        assert event.decision_s == pytest.approx(
+            event.onset_s + (0.2 if waits else 0.15), abs=0.003)
+        assert labels[int(np.searchsorted(t, event.decision_s)) - 1] == UNDECIDED
+        # batch, per-sample arrays and chunks agree; so does the model's own rule
+        _same(batch_events(t, r, detection, model, weak=weak), streamed)
+        ruled = EventModel(model.estimator, model.classes, 0.15, model.low, model.high,
+                           weak=weak)
+        _same(batch_events(t, r, detection, ruled), streamed)
+        arrays, array_labels = stream_events(t, r, dq, DETECTOR, ruled)
+        _same(arrays, streamed)
+        assert array_labels == labels
+        chunked = EventPipeline(DETECTOR, ruled)
+        block_labels = [label for i in range(0, len(t), 97)
+                        for label in chunked.update_block(t[i:i + 97], r[i:i + 97],
+                                                          dq[i:i + 97]).labels]
+        _same(chunked.finish(), streamed)
+        assert block_labels == labels
+    # a release before the later delay decides it there
+    streamed, _ = _streamed(shove, model, weak=WeakDecision(by_then * 1.01, 5.0))
+    assert streamed[0].decision_s == streamed[0].release_s
+    _same(batch_events(t, r, detection, model, weak=WeakDecision(by_then * 1.01, 5.0)),
+          streamed)
+    # the rule travels with the model's settings
+    ruled = EventModel(model.estimator, model.classes, 0.15, model.low, model.high,
+                       weak=WeakDecision(2.0, 0.3))
+    assert EventModel.from_meta(model.estimator, ruled.meta()).weak == WeakDecision(2.0, 0.3)
+    assert EventModel.from_meta(model.estimator, model.meta()).weak is None
+
+
+@pytest.mark.parametrize("score, delay", [(-1.0, 0.35), (float("nan"), 0.35), (3.0, -0.1),
+                                          (3.0, 5.5)])
+def test_bad_weak_rule(score: float, delay: float) -> None:
+    with pytest.raises(InputError, match="weak contact"):
+        WeakDecision(score, delay)

@@ -126,6 +126,13 @@ EVENT_CASES = {
     "events-low-strings": lambda meta: meta["events"].__setitem__(
         "low", ["x"] * len(meta["events"]["low"])),
     "events-high-missing": _drop("events", "high"),
+    "events-weak-list": _set("events", "weak", value=[3.0, 0.35]),
+    "events-weak-negative": _set("events", "weak", value={"score": -1.0,
+                                                          "decide_after_s": 0.35}),
+    "events-weak-late": _set("events", "weak", value={"score": 3.0, "decide_after_s": 60.0}),
+    "events-weak-string": _set("events", "weak", value={"score": "x",
+                                                        "decide_after_s": 0.35}),
+    "events-weak-missing-delay": _set("events", "weak", value={"score": 3.0}),
     "detector-string": _set("detector", value="default"),
 }
 
