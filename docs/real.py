@@ -394,6 +394,10 @@ def main() -> None:
         real = real_figures(model, gaz, first, second, mindlab, args.workers)
     simulated = simulated_figures(model.detector_config(), args.workers)
     events = model.meta["events"]
+    weak = events.get("weak")
+    weak_text = ("" if weak is None else
+                 f" ({1000 * weak['decide_after_s']:.0f} ms for a weak contact, one whose "
+                 f"detector score had not reached {weak['score']:g} by then)")
     text = "\n".join([
         BEGIN, "## On a real Panda", "",
         "`docs/real.py`: contact events (detect, decide once, hold until release) of the "
@@ -404,7 +408,7 @@ def main() -> None:
         "norm every 25 ms from 50 ms before to 150 ms after onset, as it is and relative "
         "to its largest value), from 0.05 s "
         f"before onset to the decision, {1000 * events['decide_after_s']:.0f} ms after "
-        f"onset; classes {events['classes']}.", "",
+        f"onset{weak_text}; classes {events['classes']}.", "",
         *real, *simulated, END])
     page = args.out.read_text() if args.out.exists() else ""
     page = SECTION.sub(lambda _: text, page) if SECTION.search(page) else \
