@@ -36,7 +36,9 @@ a progress bar, the first time replay needs the model):
    2-norms of dq and ddq, calibrated on several instances, would have to cover the
    worst joint's (see :mod:`contactkit.features.detector`);
 4. the per-event intent classifier (:mod:`contactkit.classify.events.training`): SVM
-   (C = 10) on the events the detector finds, decided 0.15 s after onset, from
+   (C = 10) on the events the detector finds, decided 0.15 s after onset (a weak
+   contact, one whose detector score has not reached 3 by then, 0.35 s after it:
+   :class:`~contactkit.classify.events.contact_events.WeakDecision`), from
    residual-only event features, in the free-motion presets, the thesis-protocol
    presets of step 1 and the first sessions of ``thesis-static``, ``thesis-dynamic``
    and ``aug-real`` (``range_presets``): so its training range spans every preset's
