@@ -70,7 +70,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import cast
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 import pinocchio as pin
@@ -86,6 +86,9 @@ from contactkit.robots.dynamics import (
     pseudo_inertia,
 )
 from contactkit.robots.model import RobotModel
+
+if TYPE_CHECKING:
+    from contactkit.features.detector import DetectorConfig
 
 log = logging.getLogger(__name__)
 
@@ -555,6 +558,7 @@ def _tail(motion: Motion) -> Motion:
 
 def identify(motions: Sequence[Motion], setup: RobotSetup, *,
              provenance: dict | None = None, calibrate_detector: bool = True,
+             outliers: bool = False,
              progress: Callable[[int, int], None] | None = None) -> Identified:
     """Identify the dynamics of ``setup``'s arm (its nominal model the prior) from
     ``motions``, free motion with nobody touching the arm. ``provenance`` is stored with
@@ -562,8 +566,11 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
     held-out motion: with two sessions or more, each session's residual with the model
     identified from the others (leave-one-session-out), and the final fit uses every
     session whole; with one session, its last :data:`HOLDOUT` with the model fitted to
-    the rest (see the module's docstring). ``progress(done, total)`` is called per
-    motion.
+    the rest (see the module's docstring); with ``outliers``, what stands out of the
+    held-out residuals is left out of that calibration
+    (:func:`~contactkit.features.detector.drop_outliers`: for motion cut out of sessions
+    with contact, which may hold a touch the detector missed). ``progress(done,
+    total)`` is called per motion.
 
     Returns the :class:`Identified`. Raises InputError (one line) when the motion
     determines nothing: no joint moving, or too little of it."""
@@ -628,7 +635,7 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
         else:
             held_out = [(_tail(m), dynamics) for m in motions]
             source["share"] = HOLDOUT
-        dynamics = replace(dynamics, detector=_detector(held_out, setup, source))
+        dynamics = replace(dynamics, detector=_detector(held_out, setup, source, outliers))
     return Identified(dynamics, excitation)
 
 
@@ -687,16 +694,21 @@ def _method(held_out: str) -> dict:
 
 
 def _detector(held_out: Sequence[tuple[Motion, ArmDynamics]], setup: RobotSetup,
-              source: dict) -> str | None:
+              source: dict, outliers: bool = False) -> str | None:
     """Return the detector calibrated on the held-out motions, each with the model
     identified without it (its thresholds growing with speed, acceleration and each
     joint's dynamic torque scale; its settings' JSON text, ``source`` recorded in it),
-    or None (with a warning) when they are too short."""
+    or None (with a warning) when they are too short. With ``outliers``, the samples
+    that stand out are left out first (:func:`~contactkit.features.detector.drop_outliers`;
+    the share dropped is recorded)."""
     from contactkit.features.detector import (
         DYNAMIC_FEATURE,
+        OUTLIER_FACTOR,
+        OUTLIER_WINDOW_S,
         DetectorConfig,
         calibrate,
         calibration_samples,
+        drop_outliers,
     )
     from contactkit.features.timeseries import TimeseriesChain
 
@@ -709,6 +721,10 @@ def _detector(held_out: Sequence[tuple[Motion, ArmDynamics]], setup: RobotSetup,
         features = chain.compute(motion.t, motion.q, motion.dq, motion.tau)
         parts.append(calibration_samples(motion.t, features["r"], motion.dq,
                                          dyn=features[DYNAMIC_FEATURE]))
+    if outliers:
+        parts, dropped = drop_outliers(parts)
+        source = source | {"outliers": {"factor": OUTLIER_FACTOR, "window_s": OUTLIER_WINDOW_S,
+                                        "dropped_share": round(dropped, 4)}}
     try:
         config = calibrate(parts, DetectorConfig(), source=source)
     except InputError as err:
@@ -770,17 +786,69 @@ def free_motion(path: Path, robot: str | None = None) -> tuple[Motion, RobotSetu
     return Motion(session.t, session.q, session.dq, session.tau, str(path)), setup
 
 
+AROUND_BEFORE_S = 0.5
+"""Motion left out before each contact the detector finds (:func:`motion_around_contacts`)
+[s]: the detector decides an onset once the touch has built up over its threshold."""
+AROUND_AFTER_S = 1.0
+"""Motion left out after each contact's release [s]: the arm settles after a shove, and
+a hand leaves slowly."""
+
+
+def motion_around_contacts(path: Path, detector: DetectorConfig, robot: str | None = None
+                           ) -> tuple[Motion, RobotSetup]:
+    """Read one session's motion outside its contacts (t, q, dq, tau) and the arm it
+    names (or ``robot``): every contact ``detector`` finds with the arm's nominal model
+    is cut out, from :data:`AROUND_BEFORE_S` before its onset to :data:`AROUND_AFTER_S`
+    after its release (to the end when it is not released). The session's labels and
+    contact column are not read: this is for recordings whose touches nobody marked, or
+    to identify the arm a dataset was recorded on from the dataset itself. InputError
+    naming the file for a file that is not a session, or when no motion is left."""
+    from contactkit.features.detector import DYNAMIC_FEATURE, detect
+    from contactkit.features.timeseries import TimeseriesChain
+    from contactkit.schemas import read_session
+    from contactkit.schemas.dataset import INDEX_NAME
+
+    if path.name == INDEX_NAME:
+        raise InputError("a dataset's index, not a session", path)
+    session = read_session(path).complete()
+    setup = replace(session.meta.with_robot(robot).robot_setup(path), dynamics=None)
+    chain = TimeseriesChain(robot=setup)
+    config = detector.for_robot(chain.model.spec)
+    features = chain.compute(session.t, session.q, session.dq, session.tau,
+                             config.chain_features)
+    found = detect(session.t, features["r"], session.dq, config,
+                   features.get(DYNAMIC_FEATURE))
+    t = session.t
+    keep = np.ones(len(t), dtype=bool)
+    flagged = np.flatnonzero(found.contact)
+    if flagged.size:
+        starts = flagged[np.r_[True, np.diff(flagged) > 1]]
+        ends = flagged[np.r_[np.diff(flagged) > 1, True]]
+        for start, end in zip(starts, ends, strict=True):
+            keep &= (t < t[start] - AROUND_BEFORE_S) | (t > t[end] + AROUND_AFTER_S)
+    if not keep.any():
+        raise InputError("no motion outside the contacts the detector found", path)
+    return Motion(t[keep], session.q[keep], session.dq[keep], session.tau[keep],
+                  str(path)), setup
+
+
 def identify_sessions(paths: Sequence[str | Path], robot: str | None = None, *,
+                      around_contacts: DetectorConfig | None = None,
                       problems: list[tuple[str, str]] | None = None,
                       progress: Callable[[int, int], None] | None = None) -> Identified:
     """Identify the arm of the free-motion sessions ``paths`` (:func:`identify`), with
-    the arm ``robot`` names instead of the sessions' own when given.
+    the arm ``robot`` names instead of the sessions' own when given. With
+    ``around_contacts`` (a detector's settings), every session is used, outside the
+    contacts that detector finds (:func:`motion_around_contacts`), and samples that
+    stand out of the held-out residuals are left out of the detector's calibration
+    (``identify(outliers=True)``).
 
-    A file that is not a session, or a session with contact, is left out and appended
-    to ``problems`` as ``(file, why)`` (without ``problems`` its InputError is raised).
-    Raises InputError (one line) when no session is left, when the sessions are of
-    different arms (or with and without the hand), or when the motion determines
-    nothing. The provenance names each session with its SHA-256 and samples."""
+    A file that is not a session, or (without ``around_contacts``) a session with
+    contact, is left out and appended to ``problems`` as ``(file, why)`` (without
+    ``problems`` its InputError is raised). Raises InputError (one line) when no session
+    is left, when the sessions are of different arms (or with and without the hand), or
+    when the motion determines nothing. The provenance names each session with its
+    SHA-256 and samples."""
     from contactkit import __version__
 
     motions: list[Motion] = []
@@ -789,7 +857,10 @@ def identify_sessions(paths: Sequence[str | Path], robot: str | None = None, *,
     for name in paths:
         path = Path(name)
         try:
-            motion, setup = free_motion(path, robot)
+            if around_contacts is None:
+                motion, setup = free_motion(path, robot)
+            else:
+                motion, setup = motion_around_contacts(path, around_contacts, robot)
         except DATA_ERRORS as err:
             if problems is None:
                 raise
@@ -802,6 +873,8 @@ def identify_sessions(paths: Sequence[str | Path], robot: str | None = None, *,
     if not motions:
         why = "" if not problems else f": {Path(problems[0][0]).name}: {problems[0][1]}" + (
             f" (and {len(problems) - 1} more)" if len(problems) > 1 else "")
+        if around_contacts is not None:
+            raise InputError(f"no session to identify from{why}")
         raise InputError("no free-motion session to identify from (sessions with action "
                          f"none, or a contact column that is all false){why}")
     if len(setups) > 1:
@@ -809,9 +882,15 @@ def identify_sessions(paths: Sequence[str | Path], robot: str | None = None, *,
         raise InputError(f"sessions of different arms: {a} is {_arm(first)}, {b} is "
                          f"{_arm(second)}: identify each arm on its own")
     setup = next(iter(setups))
-    provenance = {"sessions": used, "tool": f"contactkit {__version__}",
-                  "created_utc": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")}
-    return identify(motions, setup, provenance=provenance, progress=progress)
+    provenance: dict[str, object] = {
+        "sessions": used, "tool": f"contactkit {__version__}",
+        "created_utc": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")}
+    if around_contacts is not None:
+        provenance["around_contacts"] = {"before_s": AROUND_BEFORE_S,
+                                         "after_s": AROUND_AFTER_S,
+                                         "detector": around_contacts.source}
+    return identify(motions, setup, provenance=provenance, outliers=around_contacts is not None,
+                    progress=progress)
 
 
 def _arm(setup: RobotSetup) -> str:

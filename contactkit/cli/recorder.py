@@ -261,6 +261,15 @@ def identify_command(
              "files or directories.")],
     out: Annotated[Path, typer.Option(help="Dynamics file to write (JSON).")],
     robot: RobotOpt = None,
+    around_contacts: Annotated[bool, typer.Option(
+        help="Use every session, with contact or not, outside the contacts the detector "
+             "of --model finds with the nominal model (0.5 s before each to 1 s after "
+             "it); what stands out of the held-out residuals (a touch it missed) is left "
+             "out of the detector's calibration. For a dataset without free-motion "
+             "recordings: identify its arm from the dataset itself.")] = False,
+    model: Annotated[Path | None, typer.Option(
+        help="With --around-contacts: the model file whose detector finds the contacts "
+             "(default: the default model, built once when missing).")] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing --out file.")] = False,
 ) -> None:
     """Identify the arm's own dynamics from free motion with nobody touching it: each
@@ -268,9 +277,11 @@ def identify_command(
     friction (Gaz et al.'s sigmoid, viscous and constant) and armature; then calibrate
     the contact detector on motion the fit did not see: with two sessions or more,
     each session's residual with the model identified from the others (the final fit
-    uses them all); with one, its last quarter, held out.
+    uses them all); with one, its last quarter, held out. With --around-contacts, the
+    free motion is what lies outside the contacts a detector finds in any session.
 
-    Only t, q, dq, tau and the arm's name are read. What the motion does not determine
+    Only t, q, dq, tau and the arm's name are read (never a session's labels or contact
+    column with --around-contacts). What the motion does not determine
     stays at the robot's nominal model; the output lists which parameters the data
     determine (exit 0). Exit 2, nothing written, when the motion determines nothing
     (too short, no joint moving), no session is free motion, or the sessions are of
@@ -284,10 +295,25 @@ def identify_command(
     from contactkit.robots.dynamics import save_dynamics
 
     check_target(out, overwrite=overwrite)
+    if model is not None and not around_contacts:
+        raise InputError("--model is for --around-contacts: without it, identification "
+                         "uses free-motion sessions only and finds no contact")
     paths = session_inputs(sessions)
     problems: list[tuple[str, str]] = []
+    detector = None
+    if around_contacts:
+        from contactkit.cli.default_model import default_model_missing, model_or_default
+
+        if model is None and default_model_missing():
+            err_console.print("No --model given: building the default model once (its "
+                              "detector finds the contacts); it is cached for next time.")
+        with progress_bar() as bar:
+            detector = model_or_default(model, labelled_progress(bar)).detector_config()
+        if detector is None:
+            raise InputError("the model carries no contact detector to find the contacts "
+                             "with (train it with events)", model)
     with progress_bar("identifying") as bar:
-        result = identify_sessions(paths, robot, problems=problems,
+        result = identify_sessions(paths, robot, around_contacts=detector, problems=problems,
                                    progress=bar_callback(bar, "sessions"))
     print_problems(problems)
     save_dynamics(out, result.dynamics, overwrite=overwrite)
@@ -308,6 +334,9 @@ def identify_command(
     detector = dynamics_detector(dynamics)
     if detector is not None:
         held = detector.source.get("held_out", "?")
+        dropped = detector.source.get("outliers", {}).get("dropped_share")
+        if dropped is not None:
+            held += f", {100 * dropped:.1f} % of its samples left out as outliers"
         print(f"  detector ({held}): at rest {[round(v, 2) for v in detector.noise]} Nm, per rad/s "
               f"{[round(v, 2) for v in detector.speed]}, per Nm of dynamic torque "
               f"{[round(v, 2) for v in detector.dynamic]}")

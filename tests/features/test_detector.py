@@ -18,6 +18,7 @@ from contactkit.features.detector import (
     calibrate,
     calibration_samples,
     detect,
+    drop_outliers,
     load_calibration,
     save_calibration,
 )
@@ -228,6 +229,52 @@ def test_motion_margin_widens_only_the_growth_with_motion() -> None:
     assert max(narrow.speed) > 0
     np.testing.assert_allclose(np.array(wide.speed), 2.0 * np.array(narrow.speed))
     assert wide.source["motion_margin"] == 3.0 and narrow.source["motion_margin"] == 1.5
+
+
+def test_calibration_skips_the_warm_up_after_every_gap() -> None:
+    """The detector restarts after a gap (observer at r = 0, baseline set again): those
+    samples are its own settling, not model error, so calibration leaves them out as it
+    leaves out the stream's start."""
+    t, r, dq = _synthetic()
+    quiet = (t < 1.2) | (t > 2.2)  # a gap of 1 s where the push was
+    template = DetectorConfig()
+    part = calibration_samples(t[quiet], r[quiet], dq[quiet], template)
+    assert part.t is not None and len(part.t) == len(part.abs_e)
+    after_gap = part.t[part.t > 2.2]
+    assert after_gap[0] >= 2.2 + template.warmup_s - 1e-9
+    assert part.t[0] >= template.warmup_s - 1e-9
+    whole = calibration_samples(t, r, dq, template)
+    assert len(whole.t) - len(part.t) > (t[~quiet].size + template.warmup_s * 1000) * 0.99
+
+
+def _part_with_spike(seed: int, spike_at: float | None) -> CalibrationData:
+    rng = np.random.default_rng(seed)
+    t = np.arange(2000) / 500.0
+    abs_e = np.abs(rng.normal(0.0, 0.1, (len(t), 7)))
+    if spike_at is not None:
+        abs_e[np.abs(t - spike_at) < 0.05, 1] = 2.0  # a missed touch on joint 2
+    speed = np.where(t < 1.0, 0.0, 0.5)  # held, then moving
+    return CalibrationData(abs_e, speed, speed.copy(), np.ones((len(t), 7)), t)
+
+
+def test_outliers_are_dropped_with_their_surroundings() -> None:
+    """A sample far above what every stream shows is dropped with 0.5 s on each side;
+    streams without one keep every sample, and the thresholds then follow them."""
+    parts = [_part_with_spike(k, 2.0 if k == 3 else None) for k in range(6)]
+    kept, share = drop_outliers(parts)
+    assert [len(p.t) for p in kept[:3]] == [2000] * 3
+    dropped = kept[3].t
+    assert not ((dropped > 1.45) & (dropped < 2.55)).any()
+    assert ((dropped > 1.3) & (dropped < 1.4)).any() and ((dropped > 2.6) & (dropped < 2.7)).any()
+    assert share == pytest.approx((2000 - len(dropped)) / 12000)
+
+    def threshold(config: DetectorConfig) -> float:  # joint 2's, at these samples
+        return config.noise[1] + 0.5 * (config.speed[1] + config.accel[1]) + config.dynamic[1]
+
+    assert threshold(calibrate(kept)) < 1.0 < 2.0 < threshold(calibrate(parts))
+    with pytest.raises(ValueError, match="time stamps"):
+        drop_outliers([replace(parts[0], t=None)])
+    assert drop_outliers([]) == ([], 0.0)
 
 
 # --- real recordings ---------------------------------------------------------------

@@ -11,10 +11,11 @@ import pytest
 
 from contactkit.errors import InputError
 from contactkit.features import identification
-from contactkit.features.detector import dynamics_detector
+from contactkit.features.detector import DetectorConfig, dynamics_detector
 from contactkit.features.identification import Motion, identify, identify_sessions
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain
-from contactkit.recorder.sim.dataset import simulate_dataset
+from contactkit.recorder.sim.dataset import preset_specs, simulate_dataset, simulate_specs
+from contactkit.recorder.sim.presets import PRESETS
 from contactkit.recorder.sim.simulator import ArmSimulator, SimConfig
 from contactkit.robots import RobotSetup
 from contactkit.robots.dynamics import (
@@ -40,6 +41,17 @@ def free_motion(tmp_path_factory) -> list[Path]:
     out = tmp_path_factory.mktemp("free")
     config = SimConfig(rate_hz=RATE_HZ, robot_seed=ROBOT_SEED)
     simulate_dataset(out, "free-motion", 8, 3, 1, config)
+    return session_files(out)
+
+
+@pytest.fixture(scope="module")
+def mixed_motion(tmp_path_factory) -> list[Path]:
+    """Eight 8 s sessions of the same instance, moving: two without contact, then a
+    bump, an adjust and a shove on the way, each at two poses."""
+    out = tmp_path_factory.mktemp("mixed")
+    specs = preset_specs(PRESETS["mixed-motion"], 32, 3)
+    simulate_specs([specs[k] for k in (0, 1, 8, 9, 16, 17, 24, 25)],
+                   SimConfig(rate_hz=RATE_HZ, robot_seed=ROBOT_SEED), out)
     return session_files(out)
 
 
@@ -268,9 +280,9 @@ def _held_out(monkeypatch, motions: list[Motion]) -> tuple[ArmDynamics, list, di
     seen: list = []
     calibrate = identification._detector
 
-    def spy(held_out, setup, source):
+    def spy(held_out, setup, source, outliers=False):
         seen.extend(held_out)
-        return calibrate(held_out, setup, source)
+        return calibrate(held_out, setup, source, outliers)
 
     monkeypatch.setattr(identification, "_detector", spy)
     result = identify(motions, RobotSetup()).dynamics
@@ -343,3 +355,42 @@ def test_the_prior_strength_is_chosen_on_the_left_out_sessions() -> None:
     assert identification._choose_pull(
         flat, lambda others, pull: np.array([0.0])) == 1.0
     assert identification._choose_pull(parts[:2], fit) == 1.0  # no fold identifies
+
+
+def test_identified_around_the_contacts_of_a_dataset(free_motion, mixed_motion) -> None:
+    """Sessions with touches, cut around the contacts a detector finds (their labels are
+    not read): the fit reaches the instance's floor on free motion it never saw, as
+    from free motion, and the file says how it was made."""
+    touched = [p for p in mixed_motion if read_session(p).meta.action != "none"]
+    assert len(touched) == 6
+    result = identify_sessions(mixed_motion, around_contacts=DetectorConfig())
+    setup = RobotSetup("panda", True)
+    truth = ArmSimulator(SimConfig(rate_hz=RATE_HZ, robot_seed=ROBOT_SEED)).true_dynamics()
+    before = _rms(free_motion, setup)
+    after = _rms(free_motion, replace(setup, dynamics=result.dynamics))
+    floor = _rms(free_motion, replace(setup, dynamics=truth))
+    assert (after < before).all() and (after <= 1.5 * floor + 0.01).all(), (after, floor)
+    doc = result.dynamics.provenance_doc
+    assert doc["around_contacts"]["before_s"] == identification.AROUND_BEFORE_S
+    assert len(doc["sessions"]) == len(mixed_motion)
+    detector = dynamics_detector(result.dynamics)
+    assert detector is not None and "dropped_share" in detector.source["outliers"]
+    session = read_session(touched[0])
+    motion, _ = identification.motion_around_contacts(touched[0], DetectorConfig())
+    assert 0 < len(motion.t) < len(session.t)
+    contact = session.t[session.column("contact").astype(bool)]
+    assert not ((motion.t >= contact[0]) & (motion.t <= contact[-1])).all()
+
+
+def test_identify_cli_around_contacts(tmp_path, mixed_motion, quick_model) -> None:
+    out = tmp_path / "arm.json"
+    directory = str(mixed_motion[0].parent)
+    result = run_command("recorder", "identify", directory, "--out", str(out),
+                         "--model", str(quick_model))
+    assert result.returncode == 2 and "--model is for --around-contacts" in result.stderr
+    assert "Traceback" not in result.stderr and not out.exists()
+    result = run_command("recorder", "identify", directory, "--out", str(out),
+                         "--around-contacts", "--model", str(quick_model))
+    assert result.returncode == 0, result.stderr
+    assert "left out as outliers" in result.stdout and "has contact" not in result.stderr
+    assert load_dynamics(out).provenance_doc["around_contacts"]["after_s"] == 1.0
