@@ -56,6 +56,16 @@ Method:
    contact from one recording to the other, so it is not done). The file records which
    (``method.held_out`` in its provenance, ``held_out`` in the detector's source).
 
+6. Around contacts (``identify_sessions(around_contacts=...)``, ``recorder identify
+   --around-contacts``): for a dataset without free-motion recordings, every session is
+   used outside the contacts a detector finds with the nominal model
+   (:func:`motion_around_contacts`; labels and contact columns are not read), and the
+   detector's calibration leaves out what stands out of the held-out residuals
+   (:func:`contactkit.features.detector.drop_outliers`), a touch that detector missed.
+   On simulated ``thesis-dynamic`` datasets of robot instances the default model never
+   saw, cross-fitted over poses, it found more of their contacts than the nominal model
+   (docs/results.md, "With the arm identified from the dataset itself").
+
 Units: t [s], q [rad], dq [rad/s], ddq [rad/s^2], tau [Nm].
 """
 
