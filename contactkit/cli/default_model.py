@@ -79,6 +79,7 @@ from contactkit.classify.kinds.registry import DEFAULT_KIND
 from contactkit.classify.modelfile.model_file import FORMAT as MODEL_FORMAT
 from contactkit.classify.modelfile.model_file import ModelFile, load_model
 from contactkit.features.detector import (
+    HOLD_LOAD,
     MIN_NOISE,
     REVERSAL_LOAD,
     REVERSAL_SPAN,
@@ -109,6 +110,7 @@ RECIPE: dict[str, Any] = {
                  "baseline_reacquire_s": DetectorConfig().baseline_reacquire_s,
                  "reversal_s": DetectorConfig().reversal_s,
                  "reversal_load": REVERSAL_LOAD, "reversal_span": REVERSAL_SPAN,
+                 "hold_load": HOLD_LOAD,
                  "dynamic": True,
                  "instances": {"preset": "free-motion", "robot_seeds": list(range(1, 9)),
                                "sessions": 8}},

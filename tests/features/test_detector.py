@@ -211,6 +211,26 @@ def test_a_contact_s_own_end_after_its_release_starts_no_contact() -> None:
     assert DetectorConfig.from_dict(old).reversal_s == 0.0
 
 
+def test_a_heavily_loaded_joint_holds_the_contact_it_did_not_start() -> None:
+    """A slow push crosses the threshold first on joint 2, barely, then loads joint 1
+    ten times over while joint 2 falls back: one contact, held until joint 1 lets go
+    (released on joint 2 alone, the push's end came 2 s later as a second contact)."""
+    rng = np.random.default_rng(3)
+    t = np.arange(5000) / 1000.0
+    r = rng.normal(0.0, 0.02, (len(t), 7))
+    r[:, 1] += 0.6 * np.clip((t - 1.5) / 0.1, 0, 1) * np.clip((2.0 - t) / 0.1, 0, 1)
+    r[:, 0] -= 3.0 * np.clip((t - 1.6) / 0.3, 0, 1) * np.clip((3.5 - t) / 0.1, 0, 1)
+    dq = np.zeros((len(t), 7))
+    config = DetectorConfig(noise=(0.3,) * 7)
+    found = detect(t, r, dq, config)
+    assert len(found.intervals) == 1
+    onset, release = found.intervals[0]
+    assert 1.5 < t[onset] < 1.6 and 3.4 < t[release] < 3.6
+    detector = Detector(config)
+    states = [detector.update(t[k], r[k], dq[k]) for k in range(len(t))]
+    assert np.array_equal(found.contact, [s.contact for s in states])
+
+
 def test_calibrations_from_before_reacquisition_keep_their_meaning() -> None:
     doc = DetectorConfig().to_dict()
     del doc["reacquire_s"], doc["baseline_reacquire_s"]
