@@ -16,8 +16,11 @@ force about a joint (|J_j^T f| / |f|, nominal model, at the peak), and the peak
 detector score in the contact against its threshold of 1 (``--misses`` prints them
 all). Then the same on ``--more`` (4) further pairs of datasets, each on robot
 instances of their own (:func:`more_datasets`), for a table of how the figures vary
-from one robot to the next. About 1 minute on 2 cores per pair of 96 sessions per
-preset, once the default model exists. ``--model`` scores another model file instead;
+from one robot to the next. Each ``thesis-dynamic`` dataset is then scored again with
+its arm identified from its own sessions (``recorder identify --around-contacts``),
+cross-fitted over poses (:func:`scored_identified`; ``--no-identified`` leaves it out).
+About 2.5 minutes on 2 cores per pair of 96 sessions per preset (1 without the
+identification), once the default model exists. ``--model`` scores another model file instead;
 ``--seeds`` and ``--robot-seeds`` other datasets (give each its own ``--data``).
 """
 
