@@ -897,7 +897,7 @@ def calibration_samples(t: np.ndarray, r: np.ndarray, dq: np.ndarray,
     template = template or DetectorConfig()
     quiet = replace(template, noise=(1e9,) * N_JOINTS)
     found = detect(t, r, dq, quiet, dyn)
-    starts = np.concatenate(([0], restarts(t)))
+    starts = np.concatenate(([0], found.restarts)).astype(int)
     since = t - t[starts[np.searchsorted(starts, np.arange(len(t)), side="right") - 1]]
     keep = since >= template.warmup_s
     assert found.dynamic is not None  # Detector.run gives it

@@ -830,12 +830,9 @@ def motion_around_contacts(path: Path, detector: DetectorConfig, robot: str | No
                    features.get(DYNAMIC_FEATURE))
     t = session.t
     keep = np.ones(len(t), dtype=bool)
-    flagged = np.flatnonzero(found.contact)
-    if flagged.size:
-        starts = flagged[np.r_[True, np.diff(flagged) > 1]]
-        ends = flagged[np.r_[np.diff(flagged) > 1, True]]
-        for start, end in zip(starts, ends, strict=True):
-            keep &= (t < t[start] - AROUND_BEFORE_S) | (t > t[end] + AROUND_AFTER_S)
+    for onset, release in found.intervals:  # the release sample is the first without
+        last = len(t) - 1 if release is None else release - 1
+        keep &= (t < t[onset] - AROUND_BEFORE_S) | (t > t[last] + AROUND_AFTER_S)
     if not keep.any():
         raise InputError("no motion outside the contacts the detector found", path)
     return Motion(t[keep], session.q[keep], session.dq[keep], session.tau[keep],

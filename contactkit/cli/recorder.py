@@ -300,7 +300,7 @@ def identify_command(
                          "uses free-motion sessions only and finds no contact")
     paths = session_inputs(sessions)
     problems: list[tuple[str, str]] = []
-    detector = None
+    finder = None  # the detector that finds the contacts to cut out
     if around_contacts:
         from contactkit.cli.default_model import default_model_missing, model_or_default
 
@@ -308,12 +308,12 @@ def identify_command(
             err_console.print("No --model given: building the default model once (its "
                               "detector finds the contacts); it is cached for next time.")
         with progress_bar() as bar:
-            detector = model_or_default(model, labelled_progress(bar)).detector_config()
-        if detector is None:
+            finder = model_or_default(model, labelled_progress(bar)).detector_config()
+        if finder is None:
             raise InputError("the model carries no contact detector to find the contacts "
                              "with (train it with events)", model)
     with progress_bar("identifying") as bar:
-        result = identify_sessions(paths, robot, around_contacts=detector, problems=problems,
+        result = identify_sessions(paths, robot, around_contacts=finder, problems=problems,
                                    progress=bar_callback(bar, "sessions"))
     print_problems(problems)
     save_dynamics(out, result.dynamics, overwrite=overwrite)
