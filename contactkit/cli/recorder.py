@@ -258,7 +258,7 @@ def _write_true_dynamics(path: Path, dynamics: Any) -> None:
 def identify_command(
     sessions: Annotated[list[Path], typer.Argument(
         help="Free-motion sessions (action none, or a contact column that is all false), "
-             "files or directories.")],
+             "files or directories; with --around-contacts, any sessions.")],
     out: Annotated[Path, typer.Option(help="Dynamics file to write (JSON).")],
     robot: RobotOpt = None,
     around_contacts: Annotated[bool, typer.Option(
@@ -284,9 +284,10 @@ def identify_command(
     column with --around-contacts). What the motion does not determine
     stays at the robot's nominal model; the output lists which parameters the data
     determine (exit 0). Exit 2, nothing written, when the motion determines nothing
-    (too short, no joint moving), no session is free motion, or the sessions are of
-    different arms. Sessions with contact, index.parquet and files that are not
-    sessions are skipped, each with a line. Pass the file with --dynamics to replay,
+    (too short, no joint moving), no session is free motion (none is usable with
+    --around-contacts), or the sessions are of different arms. Sessions with contact
+    (without --around-contacts), index.parquet and files that are not sessions are
+    skipped, each with a line. Pass the file with --dynamics to replay,
     classify and recorder commands, or store it with sessions (recorder set-robot
     --dynamics).
     """
