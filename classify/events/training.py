@@ -42,6 +42,19 @@ from contactkit.util.progress import ProgressCallback
 MATCH_SLACK_S = 0.1  # s an onset may precede the ground-truth contact
 
 
+def first_overlapping(events: Sequence[ContactEvent], contact: tuple[float, float]
+                      ) -> ContactEvent | None:
+    """Return the first of ``events`` that overlaps the ground-truth ``contact`` (start,
+    end) [s]: its onset no later than the end, its release (None: still on) no earlier
+    than :data:`MATCH_SLACK_S` before the start; None when none does."""
+    start, end = contact
+    for event in events:
+        release = np.inf if event.release_s is None else event.release_s
+        if event.onset_s <= end and release >= start - MATCH_SLACK_S:
+            return event
+    return None
+
+
 @dataclass
 class SessionEvents:
     """One session's events (with feature vectors) and what is known about it: the
@@ -56,14 +69,7 @@ class SessionEvents:
 
     def matched(self) -> ContactEvent | None:
         """Return the first event overlapping the ground-truth contact, if any."""
-        if self.contact is None:
-            return None
-        start, end = self.contact
-        for event in self.events:
-            release = np.inf if event.release_s is None else event.release_s
-            if event.onset_s <= end and release >= start - MATCH_SLACK_S:
-                return event
-        return None
+        return None if self.contact is None else first_overlapping(self.events, self.contact)
 
     def rows(self) -> tuple[list[np.ndarray], list[str]]:
         """Return the training rows (feature vectors) and labels of the decided events."""

@@ -12,12 +12,14 @@ from contactkit.classify.events.contact_events import (
     NONE,
     UNDECIDED,
     UNKNOWN,
+    ContactEvent,
     EventModel,
     EventPipeline,
     WeakDecision,
     batch_events,
     stream_events,
 )
+from contactkit.classify.events.training import MATCH_SLACK_S, SessionEvents, first_overlapping
 from contactkit.classify.kinds.svm_estimators import svm_pipeline
 from contactkit.features.detector import DetectorConfig, detect
 from contactkit.features.timeseries import TimeseriesChain
@@ -192,3 +194,18 @@ def test_a_weak_contact_waits_for_its_later_decision(shove, model) -> None:
 def test_bad_weak_rule(score: float, delay: float) -> None:
     with pytest.raises(InputError, match="weak contact"):
         WeakDecision(score, delay)
+
+
+def test_an_event_matches_a_contact_it_overlaps_with_slack_only_before_the_start() -> None:
+    contact = (2.0, 2.5)
+    early = ContactEvent(onset_s=1.0, release_s=2.0 - 2 * MATCH_SLACK_S)  # ended before
+    slack = ContactEvent(onset_s=1.5, release_s=2.0 - MATCH_SLACK_S / 2)  # within the slack
+    inside = ContactEvent(onset_s=2.1, release_s=2.4)
+    open_ended = ContactEvent(onset_s=2.5)  # still on, decided at the contact's last sample
+    late = ContactEvent(onset_s=2.5 + 1e-3, release_s=3.0)  # decided after the end
+    assert first_overlapping([early, inside, slack], contact) is inside
+    assert first_overlapping([early, slack, inside], contact) is slack
+    assert first_overlapping([open_ended], contact) is open_ended
+    assert first_overlapping([early, late], contact) is None
+    assert SessionEvents("s", "bump", "A", contact, [late, inside]).matched() is inside
+    assert SessionEvents("s", "none", "A", None, [inside]).matched() is None
