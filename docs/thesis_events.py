@@ -113,7 +113,7 @@ def _detected(path: str, model_path: str, dynamics_path: str | None = None
 
 def real_free_motion_peaks(model_path: Path) -> dict[str, tuple[float, int]]:
     """Return the model's peak detector score and event count on the real free-motion
-    recordings, nobody touching: the Panda log (Gaz et al.) and the two FR3 recordings,
+    recordings, nobody touching: the Panda log (Gaz et al.) and the FR3 recordings,
     imported as ``docs/real.py`` and ``docs/fr3.py`` import them."""
     from fr3 import FR3, FR3_MAP  # the sibling docs scripts
     from real import real_sessions
@@ -335,13 +335,14 @@ def distal_misses(records: list[tuple[int, str, dict]],
     below = sum(r["torque_over_threshold"] < 1.0 for _, _, r in missed)
     moving = sum(r["moving"] for _, _, r in missed)
     tried = [r for _, _, r in missed if r["path"] in found]
-    quiet = max(r["session_peak_score"] for _, _, r in records if r["action"] == "none")
     lines += ["", f"{below} of these {len(missed)} load no joint above its threshold at "
               f"the force's peak, and {moving} came while the arm moved, where the "
               "thresholds grow to cover the model error of a robot instance the model was "
               "not identified on."]
     if real:
         (panda_name, (panda, _)), *others = real.items()
+        quiet = max((r["session_peak_score"] for _, _, r in records if r["action"] == "none"),
+                    default=0.0)
         lines[-1] += (
             " What bounds that growth is free motion with nobody touching: the "
             f"detector's peak score there is {panda:.2f} on {panda_name}, "
@@ -521,9 +522,10 @@ def report(per_preset: dict[str, list[dict]], model_name: str,
         r for _, further in more or [] for rs in further.values() for r in rs]
     lines += wrong_shoves(everything, len(per_preset) * (1 + len(more or [])))
     lines += identified_table(identified or [])
-    everywhere = [(robot, preset, r) for chosen, rs_by in [(datasets, per_preset), *(more or [])]
-                  for preset, rs in rs_by.items() for r in rs
-                  for robot in [chosen[preset][1]]]
+    everywhere = []  # (robot instance, preset, record) of every session of every dataset
+    for chosen, records_by_preset in [(datasets, per_preset), *(more or [])]:
+        for preset, records in records_by_preset.items():
+            everywhere += [(chosen[preset][1], preset, r) for r in records]
     lines += distal_misses(everywhere, identified or [], real or {})
     lines.append(END)
     return "\n".join(lines)
