@@ -99,6 +99,7 @@ from contactkit.robots.model import RobotModel
 
 if TYPE_CHECKING:
     from contactkit.features.detector import DetectorConfig
+    from contactkit.schemas import Session
 
 log = logging.getLogger(__name__)
 
@@ -777,12 +778,7 @@ def free_motion(path: Path, robot: str | None = None) -> tuple[Motion, RobotSetu
     ``robot`` in its place, ``--robot``). Raises InputError naming the file for a file
     that is not a session, or a session with contact: an action other than none
     without a contact column, or a contact column that is true anywhere."""
-    from contactkit.schemas import read_session
-    from contactkit.schemas.dataset import INDEX_NAME
-
-    if path.name == INDEX_NAME:
-        raise InputError("a dataset's index, not a session", path)
-    session = read_session(path)
+    session = _read_session(path)
     if session.has("contact"):
         touched = int(session.column("contact").astype(bool).sum())
         if touched:
@@ -791,9 +787,25 @@ def free_motion(path: Path, robot: str | None = None) -> tuple[Motion, RobotSetu
     elif session.meta.action != "none":
         raise InputError(f"session has a {session.meta.action!r} contact and no contact "
                          "column: identification needs free motion", path)
-    # the arm's name and hand only: not the dynamics an earlier identification stored
-    setup = replace(session.meta.with_robot(robot).robot_setup(path), dynamics=None)
-    return Motion(session.t, session.q, session.dq, session.tau, str(path)), setup
+    return (Motion(session.t, session.q, session.dq, session.tau, str(path)),
+            _nominal_arm(session, robot, path))
+
+
+def _read_session(path: Path) -> Session:
+    """Read a session; InputError naming the file for a dataset's index or a file that
+    is not a session."""
+    from contactkit.schemas import read_session
+    from contactkit.schemas.dataset import INDEX_NAME
+
+    if path.name == INDEX_NAME:
+        raise InputError("a dataset's index, not a session", path)
+    return read_session(path)
+
+
+def _nominal_arm(session: Session, robot: str | None, path: Path) -> RobotSetup:
+    """Return the arm a session names (or ``robot`` in its place): its name and hand
+    only, not the dynamics an earlier identification stored."""
+    return replace(session.meta.with_robot(robot).robot_setup(path), dynamics=None)
 
 
 AROUND_BEFORE_S = 0.5
@@ -815,13 +827,9 @@ def motion_around_contacts(path: Path, detector: DetectorConfig, robot: str | No
     naming the file for a file that is not a session, or when no motion is left."""
     from contactkit.features.detector import DYNAMIC_FEATURE, detect
     from contactkit.features.timeseries import TimeseriesChain
-    from contactkit.schemas import read_session
-    from contactkit.schemas.dataset import INDEX_NAME
 
-    if path.name == INDEX_NAME:
-        raise InputError("a dataset's index, not a session", path)
-    session = read_session(path).complete()
-    setup = replace(session.meta.with_robot(robot).robot_setup(path), dynamics=None)
+    session = _read_session(path).complete()
+    setup = _nominal_arm(session, robot, path)
     chain = TimeseriesChain(robot=setup)
     config = detector.for_robot(chain.model.spec)
     features = chain.compute(session.t, session.q, session.dq, session.tau,
