@@ -151,17 +151,24 @@ def identified_touches(fr3: list[Path], gaz: Path, work: Path, detector, events_
     return lines
 
 
-def main() -> None:
-    """Compute the figures and write the section into docs/results.md."""
-    model = load_model(build_default_model())
-    detector, events_model = model.detector_config(), model.event_model()
-    work = Path(tempfile.mkdtemp())
+def imported_recordings(directory: Path) -> list[Path]:
+    """Import the real FR3 recordings with the shipped CSV map (which names the FR3) as
+    sessions into ``directory``; return their paths."""
     cmap = load_csv_map(FR3_MAP)
     paths = []
     for path in sorted(FR3.glob("*.csv")):
         with CsvImporter.read(path, cmap) as csv:
             paths.append(write_importer(csv, session_meta(source="csv", action="none",
-                                                          robot="fr3"), work))
+                                                          robot="fr3"), directory))
+    return paths
+
+
+def main() -> None:
+    """Compute the figures and write the section into docs/results.md."""
+    model = load_model(build_default_model())
+    detector, events_model = model.detector_config(), model.event_model()
+    work = Path(tempfile.mkdtemp())
+    paths = imported_recordings(work)
     sessions = [read_session(p) for p in paths]
     minutes = sum(s.duration_s for s in sessions) / 60.0
     lines = [BEGIN, "## On a real FR3", "",

@@ -54,10 +54,6 @@ from contactkit.features.detector import (
 )
 from contactkit.features.identification import identify_sessions
 from contactkit.features.timeseries import ChainConfig, TimeseriesChain
-from contactkit.recorder.importers.csv_import import CsvImporter
-from contactkit.recorder.importers.csv_map import load_csv_map
-from contactkit.recorder.importers.writer import write_importer
-from contactkit.recorder.metadata import session_meta
 from contactkit.recorder.sim.dataset import simulate_dataset
 from contactkit.robots.dynamics import load_dynamics, save_dynamics
 from contactkit.robots.model import RobotModel
@@ -115,18 +111,13 @@ def real_free_motion_peaks(model_path: Path) -> dict[str, tuple[float, int]]:
     """Return the model's peak detector score and event count on the real free-motion
     recordings, nobody touching: the Panda log (Gaz et al.) and the FR3 recordings,
     imported as ``docs/real.py`` and ``docs/fr3.py`` import them."""
-    from fr3 import FR3, FR3_MAP  # the sibling docs scripts
+    from fr3 import imported_recordings  # the sibling docs scripts
     from real import real_sessions
 
     out = {}
     with tempfile.TemporaryDirectory() as work:
         gaz = real_sessions(Path(work))[0]
-        cmap = load_csv_map(FR3_MAP)
-        fr3 = []
-        for csv_path in sorted(FR3.glob("*.csv")):
-            with CsvImporter.read(csv_path, cmap) as csv:
-                fr3.append(write_importer(csv, session_meta(source="csv", action="none",
-                                                            robot="fr3"), Path(work)))
+        fr3 = imported_recordings(Path(work))
         for name, paths in (("the real Panda log", [gaz]), ("the FR3 recordings", fr3)):
             runs = [_detected(str(p), str(model_path))[1:] for p in paths]
             out[name] = (max(float(d.score.max()) for d, _ in runs),
