@@ -708,7 +708,8 @@ def _detector(held_out: Sequence[tuple[Motion, ArmDynamics]], setup: RobotSetup,
               source: dict, outliers: bool = False) -> str | None:
     """Return the detector calibrated on the held-out motions, each with the model
     identified without it (its thresholds growing with speed, acceleration and each
-    joint's dynamic torque scale; its settings' JSON text, ``source`` recorded in it),
+    joint's dynamic torque scale, and beyond the largest scale the motions reached;
+    its settings' JSON text, ``source`` recorded in it),
     or None (with a warning) when they are too short. With ``outliers``, the samples
     that stand out are left out first (:func:`~contactkit.features.detector.drop_outliers`;
     the share dropped is recorded)."""

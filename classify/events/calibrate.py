@@ -89,9 +89,9 @@ def calibrate_sessions(paths: Sequence[str | Path], template: DetectorConfig | N
                        problems: list[tuple[str, str]] | None = None,
                        scheduler: str | None = None,
                        floor: float | tuple[float, ...] = MIN_NOISE,
-                       dynamic: bool = False) -> DetectorConfig:
+                       dynamic: bool = False, bound_dynamic: bool = True) -> DetectorConfig:
     """Calibrate the detector on the no-contact samples of ``paths`` (``margin``,
-    ``motion_margin`` and the at-rest ``floor`` [Nm] as in
+    ``motion_margin``, the at-rest ``floor`` [Nm] and ``bound_dynamic`` as in
     :func:`~contactkit.features.detector.calibrate`; with ``dynamic`` the thresholds
     also grow with each joint's dynamic torque scale, else its coefficients are 0;
     ``robot``
@@ -119,7 +119,7 @@ def calibrate_sessions(paths: Sequence[str | Path], template: DetectorConfig | N
               if str(p) not in failed}
     config = calibrate(parts, template, margin,
                        source={"sessions": len(paths) - len(bad)}, motion_margin=motion_margin,
-                       floor=floor)
+                       floor=floor, bound_dynamic=bound_dynamic)
     return replace(config, robot=robots.pop() if len(robots) == 1 else None)
 
 

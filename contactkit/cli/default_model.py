@@ -34,7 +34,9 @@ a progress bar, the first time replay needs the model):
    with each joint's own dynamic torque scale (``DetectorConfig.dynamic`` on the
    chain's ``tau_dyn``), which follows the model error of every instance where the
    2-norms of dq and ddq, calibrated on several instances, would have to cover the
-   worst joint's (see :mod:`contactkit.features.detector`);
+   worst joint's (see :mod:`contactkit.features.detector`); beyond each joint's largest
+   dynamic torque scale in these data the thresholds grow with the excess
+   (``DetectorConfig.dynamic_range``);
 4. the per-event intent classifier (:mod:`contactkit.classify.events.training`): SVM
    (C = 10) on the events the detector finds, decided 0.15 s after onset (a weak
    contact, one whose detector score has not reached 3 by then, 0.35 s after it:
@@ -111,7 +113,7 @@ RECIPE: dict[str, Any] = {
                  "reversal_s": DetectorConfig().reversal_s,
                  "reversal_load": REVERSAL_LOAD, "reversal_span": REVERSAL_SPAN,
                  "hold_load": HOLD_LOAD,
-                 "dynamic": True,
+                 "dynamic": True, "dynamic_range": True,
                  "instances": {"preset": "free-motion", "robot_seeds": list(range(1, 9)),
                                "sessions": 8}},
     "events": {"decide_after_s": DEFAULT_DECIDE_AFTER_S, "C": 10.0,
@@ -223,7 +225,8 @@ def build_default_model(workers: int = 2, progress: Progress | None = None,
                                   motion_margin=recipe["detector"]["motion_margin"],
                                   workers=workers, progress=_labelled(progress, "detector"),
                                   floor=tuple(recipe["detector"]["min_noise"]),
-                                  dynamic=recipe["detector"].get("dynamic", False))
+                                  dynamic=recipe["detector"].get("dynamic", False),
+                                  bound_dynamic=recipe["detector"].get("dynamic_range", False))
     delay = recipe["events"]["decide_after_s"]
     weak = WeakDecision.from_dict(recipe["events"]["weak"]) if "weak" in recipe["events"] \
         else None

@@ -12,6 +12,8 @@ import pytest
 
 from contactkit.classify.events.metrics import EventScore, score_events
 from contactkit.features.detector import (
+    BEYOND_RANGE,
+    MIN_DYNAMIC_RANGE,
     CalibrationData,
     Detector,
     DetectorConfig,
@@ -367,3 +369,49 @@ def test_calibrated_on_other_data_real_robot(gaz, mindlab) -> None:
     assert total.detected == total.touches
     assert total.false_per_min <= 1.0
     assert total.delay_ms(50) <= 60.0
+
+
+def _swing(amplitude: float, n: int = 7000, rate: float = 1000.0) -> tuple[np.ndarray, ...]:
+    """A held pose for 1 s, then joint 2 swinging as amplitude sin(2 pi t) [rad/s]; its
+    dynamic torque scale d is 2 Nm per rad/s^2 of its acceleration, and the model error
+    0.05 Nm per rad/s^2 (a mass the model gets slightly wrong). Returns t, r, dq and d."""
+    rng = np.random.default_rng(4)
+    t = np.arange(n) / rate
+    moving = t >= 1.0
+    dq = np.zeros((n, 7))
+    dq[moving, 1] = amplitude * np.sin(2 * np.pi * t[moving])
+    ddq = np.zeros((n, 7))
+    ddq[moving, 1] = amplitude * 2 * np.pi * np.cos(2 * np.pi * t[moving])
+    dyn = 2.0 * np.abs(ddq)
+    r = rng.normal(0.0, 0.01, (n, 7)) + 0.05 * ddq
+    return t, r, dq, dyn
+
+
+def test_beyond_the_calibrated_dynamics_the_thresholds_grow() -> None:
+    """Calibrated on a gentle swing (the error stays under the at-rest floor, so nothing
+    grows with motion), the detector meets the same swing eight times faster, where the
+    error, linear in the acceleration, is eight times larger. Without the range that is
+    a contact; with it, the threshold grows with d beyond the largest d calibrated on."""
+    t, r, dq, dyn = _swing(0.4)
+    gentle = calibration_samples(t, r, dq, dyn=dyn)
+    bounded, unbounded = calibrate([gentle]), calibrate([gentle], bound_dynamic=False)
+    assert max(bounded.dynamic) == 0.0 and max(bounded.accel) == 0.0  # flat thresholds
+    assert bounded.reads_dynamic and not unbounded.reads_dynamic
+    assert unbounded.dynamic_range is None and bounded.dynamic_range is not None
+    assert 4.5 < bounded.dynamic_range[1] <= 2.0 * 0.4 * 2 * np.pi  # the held d's peak
+    assert bounded.dynamic_range[0] == MIN_DYNAMIC_RANGE  # joint 1 never moved
+    t, r, dq, dyn = _swing(3.2)
+    assert len(detect(t, r, dq, unbounded).intervals) >= 1
+    found = detect(t, r, dq, bounded, dyn)
+    assert found.intervals == []
+    grown = BEYOND_RANGE * (found.dynamic[:, 1] - bounded.dynamic_range[1])
+    np.testing.assert_allclose(found.threshold[:, 1], bounded.noise[1] + np.maximum(grown, 0))
+    detector = Detector(bounded)
+    states = [detector.update(t[k], r[k], dq[k], dyn[k]) for k in range(len(t))]
+    assert np.abs(found.score - [s.score for s in states]).max() < 1e-9
+    assert np.abs(found.threshold[-1] - states[-1].threshold).max() < 1e-9
+    assert DetectorConfig.from_dict(json.loads(json.dumps(bounded.to_dict()))) == bounded
+    with pytest.raises(ValueError, match="dynamic_range"):
+        DetectorConfig(dynamic_range=(1.0,) * 6)
+    with pytest.raises(ValueError, match="dynamic"):
+        detect(t, r, dq, bounded)  # it reads d: leaving it out is refused
