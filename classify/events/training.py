@@ -39,18 +39,24 @@ from contactkit.schemas import read_session
 from contactkit.util.parallel import map_ordered
 from contactkit.util.progress import ProgressCallback
 
-MATCH_SLACK_S = 0.1  # s an onset may precede the ground-truth contact
+MATCH_SLACK_S = 0.1
+"""How far [s] an event may lie outside the ground-truth contact and still match it: its
+release this long before the start, its onset this long after the end (the detector
+decides an onset after the low-pass and ``min_on_s``, some 40 ms into a rise, so a bump
+shorter than that is decided after it ended; a 47 ms bump on a moving arm was, 2 ms
+after its end, and counted as missed and as a false event)."""
 
 
 def first_overlapping(events: Sequence[ContactEvent], contact: tuple[float, float]
                       ) -> ContactEvent | None:
     """Return the first of ``events`` that overlaps the ground-truth ``contact`` (start,
-    end) [s]: its onset no later than the end, its release (None: still on) no earlier
-    than :data:`MATCH_SLACK_S` before the start; None when none does."""
+    end) [s] widened by :data:`MATCH_SLACK_S` on both sides: its onset no later than
+    that after the end, its release (None: still on) no earlier than that before the
+    start; None when none does."""
     start, end = contact
     for event in events:
         release = np.inf if event.release_s is None else event.release_s
-        if event.onset_s <= end and release >= start - MATCH_SLACK_S:
+        if event.onset_s <= end + MATCH_SLACK_S and release >= start - MATCH_SLACK_S:
             return event
     return None
 

@@ -76,6 +76,7 @@ from contactkit.classify.events.contact_events import (
     EVENT_FEATURES,
     WeakDecision,
 )
+from contactkit.classify.events.training import MATCH_SLACK_S
 from contactkit.classify.kinds.kind import ModelOptions
 from contactkit.classify.kinds.registry import DEFAULT_KIND
 from contactkit.classify.modelfile.model_file import FORMAT as MODEL_FORMAT
@@ -117,7 +118,7 @@ RECIPE: dict[str, Any] = {
                  "instances": {"preset": "free-motion", "robot_seeds": list(range(1, 9)),
                                "sessions": 8}},
     "events": {"decide_after_s": DEFAULT_DECIDE_AFTER_S, "C": 10.0,
-               "weak": WeakDecision().to_dict()},
+               "weak": WeakDecision().to_dict(), "match_slack_s": MATCH_SLACK_S},
 }
 Progress = Callable[[str, int, int], None]
 

@@ -196,16 +196,18 @@ def test_bad_weak_rule(score: float, delay: float) -> None:
         WeakDecision(score, delay)
 
 
-def test_an_event_matches_a_contact_it_overlaps_with_slack_only_before_the_start() -> None:
+def test_an_event_matches_a_contact_it_overlaps_with_slack_on_both_sides() -> None:
     contact = (2.0, 2.5)
     early = ContactEvent(onset_s=1.0, release_s=2.0 - 2 * MATCH_SLACK_S)  # ended before
     slack = ContactEvent(onset_s=1.5, release_s=2.0 - MATCH_SLACK_S / 2)  # within the slack
     inside = ContactEvent(onset_s=2.1, release_s=2.4)
     open_ended = ContactEvent(onset_s=2.5)  # still on, decided at the contact's last sample
-    late = ContactEvent(onset_s=2.5 + 1e-3, release_s=3.0)  # decided after the end
+    lagging = ContactEvent(onset_s=2.5 + MATCH_SLACK_S / 2, release_s=3.0)  # decided after
+    late = ContactEvent(onset_s=2.5 + 2 * MATCH_SLACK_S, release_s=3.0)  # another event
     assert first_overlapping([early, inside, slack], contact) is inside
     assert first_overlapping([early, slack, inside], contact) is slack
     assert first_overlapping([open_ended], contact) is open_ended
+    assert first_overlapping([early, lagging], contact) is lagging
     assert first_overlapping([early, late], contact) is None
     assert SessionEvents("s", "bump", "A", contact, [late, inside]).matched() is inside
     assert SessionEvents("s", "none", "A", None, [inside]).matched() is None
