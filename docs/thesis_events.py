@@ -8,8 +8,9 @@ default) on dataset seeds and robot instances the default model never saw (it is
 built from seed 0 on robot instance 0), then runs every session through the default
 model's event pipeline (observer, detector, intent decided once; what
 ``classify predict --events`` gives) and scores it per session: a contact is
-*detected* when an event overlaps it, its intent is the label of its first such
-event, every other event is a *false event*. Figures come with a 95 %
+*detected* when an event overlaps it (widened by ``MATCH_SLACK_S`` on each side,
+:func:`contactkit.classify.events.training.first_overlapping`), its intent is the
+label of its first such event, every other event is a *false event*. Figures come with a 95 %
 cluster-bootstrap interval over poses (whole poses resampled). For every missed
 contact it reports the touched link, the peak force, the largest moment arm of the
 force about a joint (|J_j^T f| / |f|, nominal model, at the peak), and the peak
@@ -447,8 +448,10 @@ def report(per_preset: dict[str, list[dict]], model_name: str,
              f"`docs/thesis_events.py`: {model_name} on `thesis-static` and "
              "`thesis-dynamic` sessions from a dataset seed and a robot instance its "
              "recipe never used (what `classify predict --events` gives). A contact is "
-             "detected when an event overlaps it, and its intent is its first such "
-             "event's label; a missed shove counts as a wrong shove, `unknown` as wrong. "
+             "detected when an event overlaps it, widened by 0.1 s on each side "
+             "(`MATCH_SLACK_S`: a short bump's onset is decided after it ended), and its "
+             "intent is its first such event's label; a missed shove counts as a wrong "
+             "shove, `unknown` as wrong. "
              "95 % cluster-bootstrap intervals over poses.", "",
              f"| | {header} |", "|---|" + "---|" * len(per_preset)]
     values = {p: figures(r) for p, r in per_preset.items()}
