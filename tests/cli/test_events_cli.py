@@ -65,11 +65,14 @@ def test_calibrate_round_trip_through_the_cli(tmp_path, sessions) -> None:
     assert config.source["sessions"] == 2
     assert len(config.noise) == 7
     assert config.dynamic == (0.0,) * 7  # fitted only when asked
+    assert config.dynamic_range is None and "beyond a dynamic torque" not in result.stdout
     result = run_command("classify", "calibrate", str(sessions["none"]), "--dynamic",
                          "--out", str(out), "--overwrite")
     assert result.returncode == 0, result.stderr
     assert "per Nm of dynamic torque" in result.stdout
-    assert len(load_calibration(out).dynamic) == 7
+    assert "beyond a dynamic torque of" in result.stdout
+    config = load_calibration(out)
+    assert len(config.dynamic) == 7 and config.dynamic_range is not None
 
 
 def test_predict_events_with_the_models_detector(model_path, sessions) -> None:
