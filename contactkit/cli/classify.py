@@ -30,6 +30,7 @@ from contactkit.classify.schemes import SCHEMES
 from contactkit.cli.common import (
     DynamicsOpt,
     RobotOpt,
+    beyond_range_text,
     exit_if_failed,
     load_dynamics_option,
     new_app,
@@ -432,9 +433,7 @@ def calibrate_command(
           f"per rad/s {[round(v, 2) for v in config.speed]}, "
           f"per rad/s^2 {[round(v, 3) for v in config.accel]}"
           + (f", per Nm of dynamic torque {[round(v, 3) for v in config.dynamic]}"
-             if dynamic else "")
-          + (f"; beyond a dynamic torque of {[round(v, 1) for v in config.dynamic_range]} Nm "
-             "they grow further" if config.dynamic_range is not None else ""))
+             if dynamic else "") + beyond_range_text(config))
     exit_if_failed(problems)
 
 

@@ -17,6 +17,7 @@ from contactkit.util.parallel import SCHEDULER_ENV, resolve_scheduler
 from contactkit.util.text import console_text, printable
 
 if TYPE_CHECKING:
+    from contactkit.features.detector import DetectorConfig
     from contactkit.robots.dynamics import ArmDynamics
 
 SchedulerOpt = Annotated[str | None, typer.Option(
@@ -48,6 +49,15 @@ DynamicsOpt = Annotated[Path | None, typer.Option(
          "carries (`recorder set-robot --dynamics`) or the robot's nominal model. Refused "
          "for another arm or hand (and with a failing check).")]
 """The ``--dynamics`` option, beside ``--robot``: read with :func:`load_dynamics_option`."""
+
+
+def beyond_range_text(detector: DetectorConfig) -> str:
+    """Return the end of a detector summary line: the dynamic torque [Nm] per joint beyond
+    which its thresholds grow further (``dynamic_range``), or nothing without one."""
+    if detector.dynamic_range is None:
+        return ""
+    return (f"; beyond a dynamic torque of {[round(v, 1) for v in detector.dynamic_range]} "
+            "Nm they grow further")
 
 
 def load_dynamics_option(path: Path | None) -> ArmDynamics | None:

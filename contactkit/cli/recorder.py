@@ -22,6 +22,7 @@ from contactkit.cli.common import (
     CommandsBuilder,
     DynamicsOpt,
     RobotOpt,
+    beyond_range_text,
     deferred_commands,
     exit_if_failed,
     load_dynamics_option,
@@ -340,7 +341,7 @@ def identify_command(
             held += f", {100 * dropped:.1f} % of its samples left out as outliers"
         print(f"  detector ({held}): at rest {[round(v, 2) for v in detector.noise]} Nm, per rad/s "
               f"{[round(v, 2) for v in detector.speed]}, per Nm of dynamic torque "
-              f"{[round(v, 2) for v in detector.dynamic]}")
+              f"{[round(v, 2) for v in detector.dynamic]}" + beyond_range_text(detector))
     exit_if_failed(problems)
 
 
