@@ -244,6 +244,7 @@ def test_identify_cli_refuses_bad_input_in_one_line(tmp_path, free_motion) -> No
     assert out.exists() and "index" in result.stderr
     assert "determined:" in result.stdout
     assert "detector (leave-one-session-out)" in result.stdout
+    assert "beyond a dynamic torque of" in result.stdout  # where its thresholds grow more
     assert load_dynamics(out).provenance_doc["method"]["held_out"] == "leave-one-session-out"
 
 
