@@ -391,12 +391,13 @@ class Detector:
         self._speed = np.array(self.config.speed)
         self._accel = np.array(self.config.accel)
         self._dynamic = np.array(self.config.dynamic)
-        self._coefficients = list(zip(self.config.noise, self.config.speed,
-                                      self.config.accel, self.config.dynamic, strict=True))
-        self._reads_dynamic = self.config.reads_dynamic
         self._range = (None if self.config.dynamic_range is None
                        else np.array(self.config.dynamic_range))
-        self._range_floats = self.config.dynamic_range or (math.inf,) * N_JOINTS
+        self._coefficients = list(zip(self.config.noise, self.config.speed,
+                                      self.config.accel, self.config.dynamic,
+                                      self.config.dynamic_range or (math.inf,) * N_JOINTS,
+                                      strict=True))
+        self._reads_dynamic = self.config.reads_dynamic
         self.reset()
 
     def _check_dynamic(self, dyn: object) -> None:
@@ -550,9 +551,10 @@ class Detector:
         # growth beyond the calibrated range of d), inline, as the returned state
         # computes them when read
         r_f, before = self._r_f, self._baseline
-        ratio = [abs(f - b) / (n + s * v + a * c + x * w + BEYOND_RANGE * max(x - m, 0.0))
-                 for f, b, x, m, (n, v, c, w) in zip(r_f, before, d, self._range_floats,
-                                                      self._coefficients, strict=True)]
+        ratio = [abs(f - b) / (n + s * v + a * c + x * w
+                               + (BEYOND_RANGE * (x - m) if x > m else 0.0))
+                 for f, b, x, (n, v, c, w, m) in zip(r_f, before, d, self._coefficients,
+                                                      strict=True)]
         onset = release = False
         if not self.contact:
             if self._released is not None and t - self._released < cfg.reversal_s:
