@@ -399,7 +399,9 @@ def calibrate_command(
     dynamic: Annotated[bool, typer.Option(
         help="Let each joint's threshold also grow with its own dynamic torque "
              "|M ddq + C dq| + 0.5 s |dg/dt| (the chain's tau_dyn), fitted with the "
-             "speed and acceleration terms: for data from several arms of one type.")
+             "speed and acceleration terms: for data from several arms of one type. The "
+             "file then also records each joint's largest dynamic torque in the data; "
+             "beyond it the thresholds grow further.")
     ] = False,
     workers: Annotated[int, typer.Option(help="Parallel worker processes.")] = 1,
     robot: RobotOpt = None,
