@@ -239,6 +239,17 @@ class DetectorConfig:
         """Return the settings as a JSON-ready document (with its format tag)."""
         return {"format": FORMAT, **asdict(self)}
 
+    def scaled(self, factor: float) -> DetectorConfig:
+        """Return these settings with every threshold coefficient (``noise``, ``speed``,
+        ``accel``, ``dynamic``) times ``factor`` (> 0): thresholds ``factor`` times as
+        high [Nm], apart from the growth beyond ``dynamic_range``, which stays."""
+        if not (math.isfinite(factor) and factor > 0):
+            raise ValueError(f"a threshold scale must be a positive number, got {factor}")
+        return replace(self, noise=tuple(factor * v for v in self.noise),
+                       speed=tuple(factor * v for v in self.speed),
+                       accel=tuple(factor * v for v in self.accel),
+                       dynamic=tuple(factor * v for v in self.dynamic))
+
     def for_robot(self, robot: RobotSpec) -> DetectorConfig:
         """Return the settings for sessions of ``robot``: these, when they were
         calibrated on it; else with its detector defaults applied (the at-rest

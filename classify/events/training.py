@@ -5,7 +5,12 @@ without a classifier (:func:`contactkit.classify.events.contact_events.batch_eve
 the streaming pipeline's events), so the classifier learns from exactly what it sees online: windows
 aligned to the detector's onset. An event that overlaps the session's ground-truth
 contact is labelled with the session's action; every other event (in a ``none``
-session, or an after-effect outside the contact) is labelled ``none``.
+session, or an after-effect outside the contact) is labelled ``none``. With
+``threshold_scales``, each contact is also found with the detector's thresholds scaled
+(:meth:`contactkit.features.detector.DetectorConfig.scaled`), and its matched event
+there is one more training row: lower thresholds decide the onset earlier in the rise,
+as an arm identified from its own motion does (its thresholds are lower), and the
+classifier reads the rise from the onset on.
 
 Event-level scoring of a session (:func:`session_outcome`): a contact session is
 right when its first event overlapping the contact carries the session's action
@@ -17,7 +22,7 @@ counted as *false events*.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -64,36 +69,47 @@ def first_overlapping(events: Sequence[ContactEvent], contact: tuple[float, floa
 @dataclass
 class SessionEvents:
     """One session's events (with feature vectors) and what is known about it: the
-    action, the pose group (target pose of a move, else the held pose) and the
-    ground-truth contact interval [s] (None without contact)."""
+    action, the pose group (target pose of a move, else the held pose), the
+    ground-truth contact interval [s] (None without contact) and the contact's events
+    found with scaled thresholds (``rescaled``)."""
 
     path: str
     action: str
     group: str
     contact: tuple[float, float] | None
     events: list[ContactEvent]
+    rescaled: list[ContactEvent] = field(default_factory=list)
+    """The contact's matched event found with the detector's thresholds scaled, once
+    per scale that found one (training rows only; not scored)."""
 
     def matched(self) -> ContactEvent | None:
         """Return the first event overlapping the ground-truth contact, if any."""
         return None if self.contact is None else first_overlapping(self.events, self.contact)
 
     def rows(self) -> tuple[list[np.ndarray], list[str]]:
-        """Return the training rows (feature vectors) and labels of the decided events."""
+        """Return the training rows (feature vectors) and labels of the decided events,
+        those of ``rescaled`` labelled with the session's action."""
         match = self.matched()
         xs, ys = [], []
         for event in self.events:
             if event.features is not None:
                 xs.append(event.features)
                 ys.append(self.action if event is match else NONE)
+        for event in self.rescaled:
+            if event.features is not None:
+                xs.append(event.features)
+                ys.append(self.action)
         return xs, ys
 
 
 def session_events(path: str | Path, detector: DetectorConfig,
                    decide_after_s: Sequence[float],
-                   weak: WeakDecision | None = None) -> list[SessionEvents]:
+                   weak: WeakDecision | None = None,
+                   threshold_scales: Sequence[float] = ()) -> list[SessionEvents]:
     """Run one session through the observer and the pipeline once per decision delay
     (and ``weak``, when a weak contact is decided: None, at the delay); return one
-    :class:`SessionEvents` per delay."""
+    :class:`SessionEvents` per delay, with the contact's matched event found with the
+    detector's thresholds times each of ``threshold_scales`` in its ``rescaled``."""
     session = read_session(path).complete()
     meta = session.meta
     chain = TimeseriesChain.for_session(meta, path=path)
@@ -105,15 +121,28 @@ def session_events(path: str | Path, detector: DetectorConfig,
     if session.has("contact") and session.column("contact").any():
         touched = np.flatnonzero(session.column("contact"))
         contact = (float(t[touched[0]]), float(t[touched[-1]]))
-    detection = detect(t, r, dq, detector, features.get(DYNAMIC_FEATURE))
+    dyn = features.get(DYNAMIC_FEATURE)
+    detection = detect(t, r, dq, detector, dyn)
+    rescaled = [] if contact is None else [
+        detect(t, r, dq, detector.scaled(scale), dyn) for scale in threshold_scales]
     group = meta.target_pose or meta.pose or ""
-    return [SessionEvents(str(path), meta.action, group, contact,
-                          batch_events(t, r, detection, None, delay, weak=weak))
-            for delay in decide_after_s]
+    out = []
+    for delay in decide_after_s:
+        matches = []
+        for found in rescaled:
+            assert contact is not None  # only a contact is found again
+            match = first_overlapping(batch_events(t, r, found, None, delay, weak=weak),
+                                      contact)
+            if match is not None:
+                matches.append(match)
+        out.append(SessionEvents(str(path), meta.action, group, contact,
+                                 batch_events(t, r, detection, None, delay, weak=weak),
+                                 matches))
+    return out
 
 
-def _job(item: tuple[str, DetectorConfig, tuple[float, ...], WeakDecision | None]
-         ) -> list[SessionEvents]:
+def _job(item: tuple[str, DetectorConfig, tuple[float, ...], WeakDecision | None,
+                      tuple[float, ...]]) -> list[SessionEvents]:
     return session_events(*item)
 
 
@@ -121,12 +150,17 @@ def load_session_events(paths: Sequence[str | Path], detector: DetectorConfig,
                         decide_after_s: Sequence[float], workers: int = 1,
                         progress: ProgressCallback | None = None, *,
                         scheduler: str | None = None,
-                        weak: WeakDecision | None = None) -> dict[float, list[SessionEvents]]:
+                        weak: WeakDecision | None = None,
+                        threshold_scales: Sequence[float] = ()
+                        ) -> dict[float, list[SessionEvents]]:
     """Return, per decision delay, every session's events (in the order of ``paths``),
     found in ``workers`` processes or on the Dask ``scheduler``, a weak contact decided
-    as ``weak`` says (None: at the delay)."""
+    as ``weak`` says (None: at the delay), each contact also found with the detector's
+    thresholds times each of ``threshold_scales`` (see :func:`session_events`)."""
     delays = tuple(float(d) for d in decide_after_s)
-    per_session = list(map_ordered(_job, [(str(p), detector, delays, weak) for p in paths],
+    scales = tuple(float(x) for x in threshold_scales)
+    per_session = list(map_ordered(_job, [(str(p), detector, delays, weak, scales)
+                                          for p in paths],
                                    workers=workers, progress=progress,
                                    scheduler=scheduler))
     return {d: [s[i] for s in per_session] for i, d in enumerate(delays)}

@@ -21,7 +21,7 @@ from contactkit.classify.events.contact_events import (
 )
 from contactkit.classify.events.training import MATCH_SLACK_S, SessionEvents, first_overlapping
 from contactkit.classify.kinds.svm_estimators import svm_pipeline
-from contactkit.features.detector import DetectorConfig, detect
+from contactkit.features.detector import BEYOND_RANGE, DetectorConfig, detect
 from contactkit.features.timeseries import TimeseriesChain
 from contactkit.schemas import InputError, read_session
 from tests.conftest import make_session
@@ -211,3 +211,38 @@ def test_an_event_matches_a_contact_it_overlaps_with_slack_on_both_sides() -> No
     assert first_overlapping([early, late], contact) is None
     assert SessionEvents("s", "bump", "A", contact, [late, inside]).matched() is inside
     assert SessionEvents("s", "none", "A", None, [inside]).matched() is None
+
+
+def test_training_finds_each_contact_again_with_scaled_thresholds(tmp_path: Path) -> None:
+    from contactkit.classify.events.training import session_events
+
+    shoved = make_session(tmp_path, action="shove", link=4, duration_s=4.0, planned_at_s=1.5)
+    (plain,) = session_events(shoved, DETECTOR, [0.15])
+    (events,) = session_events(shoved, DETECTOR, [0.15], threshold_scales=(0.6, 0.8))
+    assert plain.rescaled == []
+    assert [e.onset_s for e in events.events] == [e.onset_s for e in plain.events]
+    assert len(events.rescaled) == 2
+    # lower thresholds decide the same contact no later, and each is a training row
+    assert all(e.onset_s <= plain.matched().onset_s for e in events.rescaled)
+    xs, ys = events.rows()
+    assert len(xs) == len(plain.rows()[0]) + 2 and ys[-2:] == ["shove", "shove"]
+    quiet = make_session(tmp_path, action="none", link=None, duration_s=4.0, planned_at_s=1.5)
+    (none,) = session_events(quiet, DETECTOR, [0.15], threshold_scales=(0.6,))
+    assert none.rescaled == []  # nothing to find again without a contact
+
+
+@pytest.mark.parametrize("factor", [0.0, -1.0, float("nan"), float("inf")])
+def test_a_threshold_scale_must_be_positive(factor: float) -> None:
+    with pytest.raises(ValueError, match="threshold scale"):
+        DETECTOR.scaled(factor)
+
+
+def test_scaled_thresholds_are_that_many_times_as_high() -> None:
+    t = np.linspace(0.0, 1.0, 11)
+    dq = np.full((11, 7), 0.3)
+    dyn = np.full((11, 7), 2.0)
+    config = DetectorConfig(dynamic=(0.1,) * 7, dynamic_range=(1.0,) * 7)
+    base = detect(t, np.zeros((11, 7)), dq, config, dyn).threshold
+    scaled = detect(t, np.zeros((11, 7)), dq, config.scaled(0.5), dyn).threshold
+    beyond = BEYOND_RANGE * (2.0 - 1.0)  # the growth beyond the calibrated range stays
+    np.testing.assert_allclose(scaled - beyond, 0.5 * (base - beyond), atol=1e-12)
