@@ -19,7 +19,12 @@ from contactkit.classify.events.contact_events import (
     batch_events,
     stream_events,
 )
-from contactkit.classify.events.training import MATCH_SLACK_S, SessionEvents, first_overlapping
+from contactkit.classify.events.training import (
+    MATCH_SLACK_S,
+    SessionEvents,
+    first_overlapping,
+    session_events,
+)
 from contactkit.classify.kinds.svm_estimators import svm_pipeline
 from contactkit.features.detector import BEYOND_RANGE, DetectorConfig, detect
 from contactkit.features.timeseries import TimeseriesChain
@@ -214,8 +219,6 @@ def test_an_event_matches_a_contact_it_overlaps_with_slack_on_both_sides() -> No
 
 
 def test_training_finds_each_contact_again_with_scaled_thresholds(tmp_path: Path) -> None:
-    from contactkit.classify.events.training import session_events
-
     shoved = make_session(tmp_path, action="shove", link=4, duration_s=4.0, planned_at_s=1.5)
     (plain,) = session_events(shoved, DETECTOR, [0.15])
     (events,) = session_events(shoved, DETECTOR, [0.15], threshold_scales=(0.6, 0.8))
