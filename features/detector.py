@@ -245,8 +245,13 @@ class DetectorConfig:
         high [Nm], apart from the growth beyond ``dynamic_range``, which stays."""
         if not (math.isfinite(factor) and factor > 0):
             raise ValueError(f"a threshold scale must be a positive number, got {factor}")
-        return replace(self, noise=tuple(factor * v for v in self.noise),
-                       speed=tuple(factor * v for v in self.speed),
+        return replace(self._growth_times(factor),
+                       noise=tuple(factor * v for v in self.noise))
+
+    def _growth_times(self, factor: float) -> DetectorConfig:
+        """Return these settings with the threshold's growth coefficients (``speed``,
+        ``accel``, ``dynamic``) times ``factor``."""
+        return replace(self, speed=tuple(factor * v for v in self.speed),
                        accel=tuple(factor * v for v in self.accel),
                        dynamic=tuple(factor * v for v in self.dynamic))
 
@@ -260,11 +265,9 @@ class DetectorConfig:
             return self
         floor = robot.detector_floor_nm or (0.0,) * N_JOINTS
         scale = robot.detector_motion_scale
-        return replace(self, noise=tuple(max(n, f) for n, f in zip(self.noise, floor,
-                                                                  strict=True)),
-                       speed=tuple(scale * v for v in self.speed),
-                       accel=tuple(scale * v for v in self.accel),
-                       dynamic=tuple(scale * v for v in self.dynamic), robot=robot.name)
+        return replace(self._growth_times(scale),
+                       noise=tuple(max(n, f) for n, f in zip(self.noise, floor, strict=True)),
+                       robot=robot.name)
 
     @classmethod
     def from_dict(cls, doc: dict, where: str | Path | None = None) -> DetectorConfig:

@@ -128,13 +128,10 @@ def session_events(path: str | Path, detector: DetectorConfig,
     group = meta.target_pose or meta.pose or ""
     out = []
     for delay in decide_after_s:
-        matches = []
-        for found in rescaled:
-            assert contact is not None  # only a contact is found again
-            match = first_overlapping(batch_events(t, r, found, None, delay, weak=weak),
-                                      contact)
-            if match is not None:
-                matches.append(match)
+        matches = [] if contact is None else [
+            match for found in rescaled
+            if (match := first_overlapping(batch_events(t, r, found, None, delay, weak=weak),
+                                           contact)) is not None]
         out.append(SessionEvents(str(path), meta.action, group, contact,
                                  batch_events(t, r, detection, None, delay, weak=weak),
                                  matches))
