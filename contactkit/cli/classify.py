@@ -58,7 +58,7 @@ from contactkit.util.progress import bar_callback, err_console, labelled_progres
 from contactkit.util.text import printable
 
 if TYPE_CHECKING:
-    from contactkit.robots.dynamics import RobotChoice
+    from contactkit.robots.dynamics import ArmDynamics, RobotChoice
 
 # The commands import the library (scikit-learn, skops, the chain, torch for networks)
 # inside their functions: `classify --help` loads none of it (tests/cli/test_startup.py).
@@ -304,19 +304,34 @@ def predict_command(
     decide_after: Annotated[float | None, typer.Option(
         help="Time after onset at which an event's intent is decided [s] (default: "
              "the model's); a weak contact waits for the model's later delay.")] = None,
+    identify: Annotated[bool | None, typer.Option(
+        "--identify/--no-identify",
+        help="With --events: identify the arm from these sessions themselves first, "
+             "cross-fitted (the sessions of half the poses are scored with the arm "
+             "identified from the other half, around the contacts the model's detector "
+             "finds; labels are never read). Default: so when no --dynamics or "
+             "--calibration is given, no session carries identified dynamics, and each "
+             "half holds at least a minute of motion (a moving arm's dataset); "
+             "--no-identify: the arm's nominal model.")] = None,
     robot: RobotOpt = None,
     dynamics: DynamicsOpt = None,
 ) -> None:
     """Predict the contact class of sessions with a trained model, or (--events) the
     contact events the model's detector finds and the intent decided for each. With
     --dynamics, the detector thresholds stored in the dynamics file are used unless
-    --calibration is given."""
+    --calibration is given. A moving arm's dataset is scored with its arm identified
+    from itself (see --identify), which finds light touches the nominal model's error
+    hides; a line on stderr says so."""
     from contactkit.classify.modelfile.model_file import load_model
-    from contactkit.classify.prediction import predict_sources
-
-    model = load_model(model_path, lazy=True)
+    from contactkit.classify.prediction import predict_sources, session_paths
     from contactkit.robots.dynamics import arm_override
 
+    if identify is not None and not events:
+        raise InputError("--identify/--no-identify is for --events")
+    if identify and (dynamics is not None or calibration is not None):
+        raise InputError("--identify identifies the arm from the sessions themselves: "
+                         "give it without --dynamics and --calibration")
+    model = load_model(model_path, lazy=True)
     identified = load_dynamics_option(dynamics)
     arm = arm_override(robot, identified)
     if events or calibration is not None:
@@ -325,10 +340,11 @@ def predict_command(
         if detector is None and model.detector_config() is None:
             raise InputError("model carries no contact detector; give --calibration",
                              model_path)
-        event_problems = []
-        for source in sessions:
-            event_problems += _print_events(model, source, detector, decide_after, as_json,
-                                            arm)
+        paths = [path for source in sessions for path in session_paths(source)]
+        own = {} if identify is False or dynamics is not None or calibration is not None \
+            else _self_identified(model, paths, robot, forced=bool(identify))
+        event_problems = _print_events(model, paths, detector, decide_after, as_json, arm,
+                                       own)
         print_problems(event_problems)
         exit_if_failed(event_problems)
         return
@@ -348,26 +364,76 @@ def predict_command(
     exit_if_failed(problems)
 
 
-def _print_events(model, source: Path, detector: DetectorConfig | None,
-                  decide_after: float | None, as_json: bool, robot: RobotChoice
-                  ) -> list[tuple[str, str]]:
-    """Print the contact events of each session of ``source``, with the arm's model
-    ``robot`` instead of each session's own when given; return the sessions that failed
-    as ``(path, problem)``. ``detector`` None: the thresholds of the identified dynamics
-    a session carries, else the model's."""
+def _self_identified(model, paths: list[Path], robot: str | None, forced: bool
+                     ) -> dict[Path, ArmDynamics]:
+    """Return the arm each session of ``paths`` is scored with when the sessions
+    identify their own arm (cross-fitted, :mod:`contactkit.features.self_identification`):
+    always when ``forced`` (InputError when they cannot), else when they are a moving
+    arm's dataset, falling back to the nominal model with a line on stderr when the
+    identification fails. Empty: the nominal model (or what each session carries)."""
+    from contactkit.features.self_identification import (
+        cross_fitted_dynamics,
+        dynamics_by_session,
+        moving_dataset,
+        survey,
+    )
+
+    surveyed = survey(paths)
+    if not forced and moving_dataset(surveyed) is not None:
+        return {}
+    finder = model.detector_config()
+    if finder is None:
+        if forced:
+            raise InputError("the model carries no contact detector to find the contacts "
+                             "to identify around")
+        return {}
+    motion = sum(s.motion_s for s in surveyed)
+    err_console.print(f"Identifying the arm from these {len(surveyed)} sessions "
+                      f"({motion:.0f} s of motion), cross-fitted over two halves of their "
+                      "poses (--no-identify: the nominal model).")
+    try:
+        with progress_bar() as bar:
+            folds = cross_fitted_dynamics(surveyed, finder, robot, labelled_progress(bar))
+    except InputError as err:
+        if forced:
+            raise
+        err_console.print(f"Not identified ({err.problem}): the nominal model is used.")
+        return {}
+    for k, fold in enumerate(folds, 1):
+        report = fold.identified.excitation
+        err_console.print(
+            f"  half {k} ({len(fold.scored)} sessions) scored with the arm identified from "
+            f"the other: {len(report.determined)} parameters determined; residual RMS "
+            f"[Nm] nominal {[round(v, 2) for v in report.rms_before_nm]}, identified "
+            f"{[round(v, 2) for v in report.rms_after_nm]}")
+    return dynamics_by_session(folds)
+
+
+def _print_events(model, paths: list[Path], detector: DetectorConfig | None,
+                  decide_after: float | None, as_json: bool, robot: RobotChoice,
+                  own: dict[Path, ArmDynamics]) -> list[tuple[str, str]]:
+    """Print the contact events of each session of ``paths``, with the arm's model
+    ``robot`` instead of each session's own when given, and the arm (and its detector)
+    identified from the dataset itself for the sessions in ``own``; return the sessions
+    that failed as ``(path, problem)``. ``detector`` None: the thresholds of the
+    identified dynamics a session carries, else the model's."""
     from contactkit.classify.events.contact_events import session_events
     from contactkit.classify.events.listener import contact_text
-    from contactkit.classify.prediction import session_paths
     from contactkit.features.timeseries import ChainConfig
+    from contactkit.robots.dynamics import arm_override, override_robot
 
     events_model = model.event_model()
     problems = []
-    for path in session_paths(source):
+    for path in paths:
+        arm, chosen = robot, detector
+        if path in own:
+            arm = arm_override(override_robot(robot), own[path])
+            chosen = dynamics_detector(own[path]) or detector
         try:
             session = read_session(path)
-            setup = ChainConfig(robot=robot).robot_setup(session.meta, path)
-            chosen = detector or dynamics_detector(setup.dynamics) or model.detector_config()
-            found = session_events(session, chosen, events_model, decide_after, robot)
+            setup = ChainConfig(robot=arm).robot_setup(session.meta, path)
+            chosen = chosen or dynamics_detector(setup.dynamics) or model.detector_config()
+            found = session_events(session, chosen, events_model, decide_after, arm)
         except DATA_ERRORS as err:
             problems.append((str(path), problem_text(err)))
             continue

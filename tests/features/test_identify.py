@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from contactkit.classify.modelfile.model_file import load_model
 from contactkit.errors import InputError
 from contactkit.features import identification
 from contactkit.features.detector import DetectorConfig, dynamics_detector
@@ -395,3 +396,56 @@ def test_identify_cli_around_contacts(tmp_path, mixed_motion, quick_model) -> No
     assert result.returncode == 0, result.stderr
     assert "left out as outliers" in result.stdout and "has contact" not in result.stderr
     assert load_dynamics(out).provenance_doc["around_contacts"]["after_s"] == 1.0
+
+
+def _event_lines(stdout: str) -> list[dict]:
+    return [json.loads(line) for line in stdout.splitlines() if line.startswith("{")]
+
+
+def test_predict_events_identifies_a_moving_dataset_from_itself(
+        tmp_path, monkeypatch, mixed_motion, quick_model) -> None:
+    """classify predict --events on a moving arm's dataset scores each half of its poses
+    with the arm identified from the other half: the events are those --dynamics gives
+    with that half's identification; --no-identify, and too little motion, keep the
+    nominal model."""
+    from contactkit.features import self_identification as own
+
+    directory = str(mixed_motion[0].parent)
+    command = ("classify", "predict", str(quick_model), directory, "--events", "--json")
+    nominal = run_command(*command)  # 8 sessions of 8 s: far less than a minute a half
+    assert nominal.returncode == 0, nominal.stderr
+    assert "Identifying" not in nominal.stderr
+    monkeypatch.setattr(own, "MIN_MOTION_S", 5.0)
+    identified = run_command(*command)
+    assert identified.returncode == 0, identified.stderr
+    assert "Identifying the arm from these 8 sessions" in identified.stderr
+    assert identified.stderr.count("scored with the arm identified from the other") == 2
+    assert run_command(*command, "--no-identify").stdout == nominal.stdout
+    detector = load_model(quick_model, lazy=True).detector_config()
+    by_fold = []
+    for k, fold in enumerate(own.cross_fitted_dynamics(own.survey(mixed_motion), detector)):
+        target = tmp_path / f"fold{k}.json"
+        save_dynamics(target, fold.identified.dynamics)
+        done = run_command("classify", "predict", str(quick_model), *map(str, fold.scored),
+                           "--events", "--json", "--dynamics", str(target))
+        assert done.returncode == 0, done.stderr
+        by_fold += _event_lines(done.stdout)
+    assert by_fold and sorted(map(json.dumps, _event_lines(identified.stdout))) == sorted(
+        map(json.dumps, by_fold))
+
+
+def test_predict_identify_options_are_checked_in_one_line(tmp_path, mixed_motion,
+                                                         quick_model, identified) -> None:
+    """--identify needs --events and no --dynamics; forced on sessions whose halves
+    cannot be identified, it stops with one line (the default falls back instead)."""
+    dynamics = tmp_path / "arm.json"
+    save_dynamics(dynamics, identified)
+    model = str(quick_model)
+    for args, why in (((str(mixed_motion[0]), "--identify"), "is for --events"),
+                      ((str(mixed_motion[0]), "--events", "--identify", "--dynamics",
+                        str(dynamics)), "without --dynamics and --calibration"),
+                      ((str(mixed_motion[0]), "--events", "--identify"),
+                       "cross-fitting needs sessions in both halves")):
+        done = run_command("classify", "predict", model, *args)
+        assert done.returncode == 2 and why in done.stderr, done.stderr
+        assert "Traceback" not in done.stderr
