@@ -11,7 +11,7 @@ and gives each session the dynamics identified from the *other* half, with the d
 calibrated alongside. So no contact is judged with a model fitted to the motion around
 it, and what was measured is what is used: on 16 simulated ``thesis-dynamic`` datasets
 of seeds and robot instances the default model never saw, 14 met every event-level bar
-of issue 38 this way and 9 with the nominal model (docs/results.md).
+of issue 38 this way and 9 with the nominal model (docs/howto/identify.md).
 
 :func:`survey` says whether a set of sessions is such a dataset: each half must hold
 :data:`MIN_MOTION_S` of motion, and no session may carry identified dynamics already
@@ -38,8 +38,9 @@ from contactkit.schemas import read_session
 MIN_MOTION_S = 60.0
 """Motion each half must hold for a dataset to identify its own arm [s]: samples with
 joint speed |dq| (2-norm) at least :data:`~contactkit.features.detector.REST_SPEED`.
-A half of a 96-session ``thesis-dynamic`` dataset holds about 250 s; a static dataset
-next to none; the two real FR3 recordings about 20 s in all."""
+A half of a 96-session ``thesis-dynamic`` dataset holds about 350 s; a static dataset
+next to none; the real Panda log 21 s in one session, the two real FR3 recordings 10 s
+each."""
 
 
 @dataclass(frozen=True)
