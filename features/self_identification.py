@@ -13,10 +13,11 @@ it, and what was measured is what is used: on 16 simulated ``thesis-dynamic`` da
 of seeds and robot instances the default model never saw, 14 met every event-level bar
 of issue 38 this way and 9 with the nominal model (docs/howto/identify.md).
 
-:func:`survey` says whether a set of sessions is such a dataset: each half must hold
-:data:`MIN_MOTION_S` of motion, and no session may carry identified dynamics already
-(``recorder set-robot --dynamics``). ``classify predict --events`` identifies by itself
-when it is (``--identify/--no-identify`` decide instead).
+:func:`moving_dataset` says whether the sessions :func:`survey` read are such a
+dataset: each half must hold :data:`MIN_MOTION_S` of motion, and no session may carry
+identified dynamics already (``recorder set-robot --dynamics``). ``classify predict
+--events`` identifies by itself when they are (``--identify/--no-identify`` decide
+instead).
 
 Units: times [s], joint speeds [rad/s].
 """

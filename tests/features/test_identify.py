@@ -437,7 +437,7 @@ def test_predict_events_identifies_a_moving_dataset_from_itself(
 def test_predict_identify_options_are_checked_in_one_line(tmp_path, mixed_motion,
                                                          quick_model, identified) -> None:
     """--identify needs --events and no --dynamics; forced on sessions whose halves
-    cannot be identified, it stops with one line (the default falls back instead)."""
+    cannot be identified, it stops with one line."""
     dynamics = tmp_path / "arm.json"
     save_dynamics(dynamics, identified)
     model = str(quick_model)
@@ -449,3 +449,24 @@ def test_predict_identify_options_are_checked_in_one_line(tmp_path, mixed_motion
         done = run_command("classify", "predict", model, *args)
         assert done.returncode == 2 and why in done.stderr, done.stderr
         assert "Traceback" not in done.stderr
+
+
+def test_a_failed_self_identification_falls_back_to_the_nominal_model(
+        monkeypatch, mixed_motion, quick_model) -> None:
+    """Without --identify, an identification that fails says so in one line and the
+    sessions are scored with the nominal model, as --no-identify scores them."""
+    from contactkit.features import self_identification as own
+
+    def fails(*args, **kwargs):
+        raise InputError("the motion determines nothing")
+
+    command = ("classify", "predict", str(quick_model), str(mixed_motion[0].parent),
+               "--events", "--json")
+    nominal = run_command(*command, "--no-identify")
+    monkeypatch.setattr(own, "MIN_MOTION_S", 5.0)
+    monkeypatch.setattr(own, "cross_fitted_dynamics", fails)
+    done = run_command(*command)
+    assert done.returncode == 0, done.stderr
+    assert "Not identified (the motion determines nothing): the nominal model is used" \
+        in " ".join(done.stderr.split())
+    assert done.stdout == nominal.stdout
