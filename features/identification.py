@@ -365,19 +365,43 @@ def _solve(normal: _Normal, weights: np.ndarray, prior: np.ndarray, scales: np.n
     return theta, lhs, scales[:, None] * a * scales[None, :]
 
 
+_STRICT_LOWER = np.tril_indices(4, -1)
+"""The entries below the diagonal of a 4x4 matrix, in the order of the log-Cholesky
+coordinates' last six."""
+
+
 def _cholesky_factors(link: np.ndarray) -> np.ndarray:
     """Return the 10 log-Cholesky coordinates of a consistent link (its pseudo-inertia,
     nudged to be positive definite, = L L^T: log of L's diagonal, then its lower part)."""
     pseudo = pseudo_inertia(link)
     lower = np.linalg.cholesky(pseudo + 1e-9 * max(np.trace(pseudo), 1e-9) * np.eye(4))
-    return np.concatenate([np.log(np.diag(lower)), lower[np.tril_indices(4, -1)]])
+    return np.concatenate([np.log(np.diag(lower)), lower[_STRICT_LOWER]])
+
+
+def _lower_factor(factors: np.ndarray) -> np.ndarray:
+    """Return the lower-triangular L of log-Cholesky coordinates."""
+    lower = np.diag(np.exp(factors[:4]))
+    lower[_STRICT_LOWER] = factors[4:]
+    return lower
 
 
 def _from_factors(factors: np.ndarray) -> np.ndarray:
     """Return the 10 parameters of log-Cholesky coordinates (always consistent)."""
-    lower = np.diag(np.exp(factors[:4]))
-    lower[np.tril_indices(4, -1)] = factors[4:]
+    lower = _lower_factor(factors)
     return from_pseudo_inertia(lower @ lower.T)
+
+
+def _factors_jacobian(factors: np.ndarray) -> np.ndarray:
+    """Return d(parameters)/d(factors) (10x10) of :func:`_from_factors` at ``factors``,
+    exactly: the parameters are linear in P = L L^T, and dP = dL L^T + L dL^T, where a
+    diagonal coordinate moves L_ii by L_ii and a lower one its entry by 1."""
+    lower = _lower_factor(factors)
+    moves = np.zeros((N_LINK, 4, 4))
+    diagonal = np.arange(4)
+    moves[diagonal, diagonal, diagonal] = np.diag(lower)
+    moves[np.arange(4, N_LINK), *_STRICT_LOWER] = 1.0
+    spread = moves @ lower.T
+    return from_pseudo_inertia(spread + spread.transpose(0, 2, 1)).T
 
 
 def _consistent_fit(theta: np.ndarray, cost: np.ndarray, nominal: np.ndarray
@@ -423,9 +447,8 @@ def _fit_links(theta: np.ndarray, cost: np.ndarray, nominal: np.ndarray, bad: li
     def jacobian(factors: np.ndarray) -> np.ndarray:
         jac = np.zeros((len(factors), len(factors)))
         for k, f in enumerate(factors.reshape(-1, N_LINK)):
-            base, step = _from_factors(f), 1e-7
-            jac[k * N_LINK:(k + 1) * N_LINK, k * N_LINK:(k + 1) * N_LINK] = np.column_stack(
-                [(_from_factors(f + step * e) - base) / step for e in np.eye(N_LINK)])
+            jac[k * N_LINK:(k + 1) * N_LINK, k * N_LINK:(k + 1) * N_LINK] = (
+                _factors_jacobian(f))
         return root @ jac
 
     starts = [nominal[i] if consistent(nominal[i])

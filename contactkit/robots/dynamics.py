@@ -123,11 +123,15 @@ def pseudo_inertia(parameters: np.ndarray) -> np.ndarray:
 
 
 def from_pseudo_inertia(pseudo: np.ndarray) -> np.ndarray:
-    """Return the 10 parameters of a 4x4 pseudo-inertia (inverse of :func:`pseudo_inertia`)."""
-    sigma = pseudo[:3, :3]
-    inertia = np.trace(sigma) * np.eye(3) - sigma
-    return np.array([pseudo[3, 3], *pseudo[:3, 3], inertia[0, 0], inertia[0, 1],
-                     inertia[1, 1], inertia[0, 2], inertia[1, 2], inertia[2, 2]])
+    """Return the 10 parameters of a 4x4 pseudo-inertia (inverse of :func:`pseudo_inertia`);
+    of a stack of them (shape (..., 4, 4)), the stack of their parameters (..., 10). The
+    map is linear."""
+    sigma = pseudo[..., :3, :3]
+    inertia = np.trace(sigma, axis1=-2, axis2=-1)[..., None, None] * np.eye(3) - sigma
+    return np.stack([pseudo[..., 3, 3], pseudo[..., 0, 3], pseudo[..., 1, 3],
+                     pseudo[..., 2, 3], inertia[..., 0, 0], inertia[..., 0, 1],
+                     inertia[..., 1, 1], inertia[..., 0, 2], inertia[..., 1, 2],
+                     inertia[..., 2, 2]], axis=-1)
 
 
 def consistent(parameters: np.ndarray) -> bool:

@@ -25,7 +25,9 @@ from contactkit.robots.dynamics import (
     ArmOverride,
     consistent,
     dynamics_checksum,
+    from_pseudo_inertia,
     load_dynamics,
+    pseudo_inertia,
     save_dynamics,
 )
 from contactkit.schemas import read_session, write_session
@@ -357,6 +359,25 @@ def test_the_prior_strength_is_chosen_on_the_left_out_sessions() -> None:
     assert identification._choose_pull(
         flat, lambda others, pull: np.array([0.0])) == 1.0
     assert identification._choose_pull(parts[:2], fit) == 1.0  # no fold identifies
+
+
+def test_the_consistent_fit_steps_with_the_exact_jacobian() -> None:
+    """The log-Cholesky coordinates' Jacobian (Levenberg-Marquardt's step in the
+    consistent fit) is exact: it matches central differences; and the parameters of a
+    stack of pseudo-inertias are those of each."""
+    rng = np.random.default_rng(3)
+    step = 1e-6
+    for _ in range(4):
+        factors = rng.normal(size=10)
+        numeric = np.column_stack([
+            (identification._from_factors(factors + step * e)
+             - identification._from_factors(factors - step * e)) / (2 * step)
+            for e in np.eye(10)])
+        exact = identification._factors_jacobian(factors)
+        assert np.abs(exact - numeric).max() <= 1e-7 * max(1.0, np.abs(exact).max())
+    links = [identification._from_factors(rng.normal(size=10)) for _ in range(3)]
+    stack = np.stack([pseudo_inertia(link) for link in links])
+    assert np.allclose(from_pseudo_inertia(stack), links, rtol=1e-12, atol=1e-12)
 
 
 def test_identified_around_the_contacts_of_a_dataset(free_motion, mixed_motion) -> None:
