@@ -316,6 +316,16 @@ class _Normal:
             merged.means += part.means
         return merged
 
+    def without(self, part: _Normal, first: int) -> _Normal:
+        """Return these merged normal equations less those of ``part``, whose sessions'
+        means begin at index ``first`` of :attr:`means`: a leave-one-session-out fit's,
+        in time linear in the sessions (merging the others anew is quadratic)."""
+        out = _Normal(self.a.shape[1])
+        out.a, out.b, out.c = self.a - part.a, self.b - part.b, self.c - part.c
+        out.n = self.n - part.n
+        out.means = self.means[:first] + self.means[first + len(part.means):]
+        return out
+
     def rms(self, theta: np.ndarray) -> np.ndarray:
         """The RMS per joint [Nm] of the residual tau - Y theta, each session's mean
         removed."""
@@ -526,18 +536,40 @@ def _session_normal(motion: Motion, regress: pin.Model, data: pin.Data, phi2: np
     return normal, moving
 
 
-def _fit(parts: Sequence[tuple[_Normal, np.ndarray]], prior: np.ndarray, scales: np.ndarray,
+class _Sessions:
+    """The sessions' normal equations (:func:`_session_normal`'s ``parts``), merged
+    once: all of them (:meth:`merged`) or all but one (:meth:`others`)."""
+
+    def __init__(self, parts: Sequence[tuple[_Normal, np.ndarray]]) -> None:
+        self.parts = list(parts)
+        self.total = _Normal.merge([normal for normal, _ in self.parts])
+        self.moving_count = np.sum([moving for _, moving in self.parts], axis=0)
+        self.first = np.cumsum([0, *(len(normal.means) for normal, _ in self.parts)])
+
+    def merged(self) -> tuple[_Normal, np.ndarray]:
+        """Return every session's normal equations together, and the joints any moved."""
+        return self.total, self.moving_count > 0
+
+    def others(self, i: int) -> tuple[_Normal, np.ndarray]:
+        """Return the normal equations of every session but the ``i``-th, and the joints
+        they moved."""
+        normal, moving = self.parts[i]
+        return (self.total.without(normal, int(self.first[i])),
+                self.moving_count - moving > 0)
+
+
+def _fit(sessions: tuple[_Normal, np.ndarray], prior: np.ndarray, scales: np.ndarray,
          nominal_links: np.ndarray, pull: float = 1.0, project: bool = True
          ) -> tuple[np.ndarray, _Normal, Excitation]:
-    """Fit the sessions ``parts`` (:func:`_session_normal`'s) with the prior's scales
-    ``scales`` times ``pull`` (below 1 a stronger pull toward the nominal model): return
-    the parameters used (armature and viscous friction not negative), the sessions'
-    merged normal equations and the :class:`Excitation` report (what the data determine
-    against the prior's own ``scales``). Raises InputError (one line) when the motion
-    determines nothing. Without ``project`` the fit is not made physically consistent
-    (:func:`_consistent_fit`: the costly step; for :func:`_choose_pull`)."""
-    normal = _Normal.merge([p[0] for p in parts])
-    moving = np.logical_or.reduce([p[1] for p in parts])
+    """Fit the sessions' merged normal equations and the joints they moved
+    (:class:`_Sessions`) with the prior's scales ``scales`` times ``pull`` (below 1 a
+    stronger pull toward the nominal model): return the parameters used (armature and
+    viscous friction not negative), those normal equations and the :class:`Excitation`
+    report (what the data determine against the prior's own ``scales``). Raises
+    InputError (one line) when the motion determines nothing. Without ``project`` the
+    fit is not made physically consistent (:func:`_consistent_fit`: the costly step;
+    for :func:`_choose_pull`)."""
+    normal, moving = sessions
     if normal.n < MIN_SAMPLES:
         raise InputError(f"too little free motion to identify from ({normal.n / IDENT_RATE_HZ:.1f}"
                          f" s after filtering; at least {MIN_SAMPLES / IDENT_RATE_HZ:.0f} s of "
@@ -629,23 +661,24 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
                 progress(done, len(pieces))
         return parts
 
-    def fit(parts: Sequence[tuple[_Normal, np.ndarray]], pull: float, project: bool = True
+    def fit(sessions: tuple[_Normal, np.ndarray], pull: float, project: bool = True
             ) -> tuple[np.ndarray, _Normal, Excitation]:
-        return _fit(parts, prior, scales, nominal_links, pull, project)
+        return _fit(sessions, prior, scales, nominal_links, pull, project)
 
     def arm(fitted: tuple[np.ndarray, _Normal, Excitation]) -> ArmDynamics:
         return _arm_dynamics(fitted[0], fitted[1], model, phi2, phi3, nominal_links)
 
     whole = len(motions) >= 2
-    parts = normals(motions if whole else [_head(m) for m in motions])
+    parts = _Sessions(normals(motions if whole else [_head(m) for m in motions]))
     folds: list[tuple[Motion, ArmDynamics]] = []
     pull = 1.0
     if whole:
-        pull = _choose_pull(parts, lambda others, k: fit(others, k, project=False)[0])
+        pull = _choose_pull(parts.parts,
+                            lambda i, k: fit(parts.others(i), k, project=False)[0])
     if whole and calibrate_detector:
         for i, motion in enumerate(motions):
             try:
-                folds.append((motion, arm(fit([*parts[:i], *parts[i + 1:]], pull))))
+                folds.append((motion, arm(fit(parts.others(i), pull))))
             except InputError as err:  # the other sessions alone determine nothing
                 log.info("%s left out of the detector's calibration: %s", motion.name,
                          err.problem)
@@ -653,8 +686,8 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
             log.info("no session's residual with the others' fit: the detector is "
                      "calibrated on each session's last %.0f %%", 100 * HOLDOUT)
             whole, pull = False, 1.0
-            parts = normals([_head(m) for m in motions])
-    final = fit(parts, pull)
+            parts = _Sessions(normals([_head(m) for m in motions]))
+    final = fit(parts.merged(), pull)
     dynamics, excitation = arm(final), final[2]
     method = _method(LEAVE_ONE_OUT if whole else TAIL) | {"prior_pull": pull}
     doc = dict(provenance or {})
@@ -679,18 +712,16 @@ PULLS = (0.125, 0.25, 0.5, 1.0, 2.0)
 
 
 def _choose_pull(parts: Sequence[tuple[_Normal, np.ndarray]],
-                 fit: Callable[[Sequence[tuple[_Normal, np.ndarray]], float], np.ndarray]
-                 ) -> float:
+                 fit: Callable[[int, float], np.ndarray]) -> float:
     """Return the prior's strength (of :data:`PULLS`) whose leave-one-session-out fits
-    (``fit(sessions, pull)``, the parameters) predict the left-out sessions best: the
-    least squared residual of their fitted samples, summed over sessions and joints (a
-    session the others alone do not identify counts for no pull). A tie goes to 1, the
-    prior's own scales."""
+    (``fit(i, pull)``, the parameters fitted to every session of ``parts`` but the
+    ``i``-th) predict the left-out sessions best: the least squared residual of their
+    fitted samples, summed over sessions and joints (a session the others alone do not
+    identify counts for no pull). A tie goes to 1, the prior's own scales."""
     errors = np.zeros(len(PULLS))
     for i, (normal, _) in enumerate(parts):
         try:
-            row = [float(normal.n * (normal.rms(fit([*parts[:i], *parts[i + 1:]], pull))
-                                     ** 2).sum()) for pull in PULLS]
+            row = [float(normal.n * (normal.rms(fit(i, pull)) ** 2).sum()) for pull in PULLS]
         except InputError:
             continue
         errors += row

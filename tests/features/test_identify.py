@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -308,7 +309,9 @@ def test_the_detector_is_calibrated_out_of_session(monkeypatch, free_motion) -> 
     assert len(set(fits)) == 3 and result.inertias not in fits
     alone = identify([m for m in motions if m is not seen[0][0]], RobotSetup(),
                      calibrate_detector=False).dynamics
-    assert alone.inertias == seen[0][1].inertias  # the others' fit, same settings
+    # the others' fit, same settings (their normal equations subtracted from all, to
+    # rounding)
+    assert np.allclose(alone.inertias, seen[0][1].inertias, rtol=1e-8, atol=1e-12)
     samples = json.loads(result.provenance)["excitation"]["samples"]
 
     monkeypatch.undo()
@@ -347,18 +350,21 @@ def test_the_prior_strength_is_chosen_on_the_left_out_sessions() -> None:
         def rms(self, theta: np.ndarray) -> np.ndarray:
             return np.full(7, 1.0 + abs(float(theta[0]) - self.best))
 
-    def fit(others, pull: float) -> np.ndarray:
-        if len(others) < 2:
-            raise InputError("the motion determines no parameter")
-        return np.array([pull])
+    def fits(parts: list) -> Callable[[int, float], np.ndarray]:
+        def fit(left_out: int, pull: float) -> np.ndarray:
+            if len(parts) - 1 < 2:
+                raise InputError("the motion determines no parameter")
+            return np.array([pull])
+        return fit
 
     parts = [(Session(0.25), None), (Session(0.5), None), (Session(0.25), None)]
-    assert identification._choose_pull(parts, fit) == 0.25
-    assert identification._choose_pull([(Session(9.0), None)] * 3, fit) == 2.0
+    assert identification._choose_pull(parts, fits(parts)) == 0.25
+    nine = [(Session(9.0), None)] * 3
+    assert identification._choose_pull(nine, fits(nine)) == 2.0
     flat = [(Session(0.0), None)] * 3
     assert identification._choose_pull(
-        flat, lambda others, pull: np.array([0.0])) == 1.0
-    assert identification._choose_pull(parts[:2], fit) == 1.0  # no fold identifies
+        flat, lambda left_out, pull: np.array([0.0])) == 1.0
+    assert identification._choose_pull(parts[:2], fits(parts[:2])) == 1.0  # none identifies
 
 
 def test_the_consistent_fit_steps_with_the_exact_jacobian() -> None:
@@ -378,6 +384,30 @@ def test_the_consistent_fit_steps_with_the_exact_jacobian() -> None:
     links = [identification._from_factors(rng.normal(size=10)) for _ in range(3)]
     stack = np.stack([pseudo_inertia(link) for link in links])
     assert np.allclose(from_pseudo_inertia(stack), links, rtol=1e-12, atol=1e-12)
+
+
+def test_a_left_out_session_is_taken_out_of_the_merged_normal_equations() -> None:
+    """The normal equations of every session but one (subtracted from the merged ones
+    once) are those of the others merged anew, sessions without samples included."""
+    rng = np.random.default_rng(5)
+    parts = []
+    for samples in (40, 0, 25, 60):
+        normal = identification._Normal(4)
+        if samples:
+            normal.add(rng.normal(size=(samples, 7, 4)), rng.normal(size=(samples, 7)))
+        normal.end_session()
+        parts.append((normal, rng.random(7) > 0.5))
+    sessions = identification._Sessions(parts)
+    for i in range(len(parts)):
+        others = [part for k, part in enumerate(parts) if k != i]
+        normal, moving = sessions.others(i)
+        expected = identification._Normal.merge([n for n, _ in others])
+        assert normal.n == expected.n
+        for got, want in ((normal.a, expected.a), (normal.b, expected.b),
+                          (normal.c, expected.c)):
+            assert np.allclose(got, want, rtol=1e-12, atol=1e-9)
+        assert [m[1].tolist() for m in normal.means] == [m[1].tolist() for m in expected.means]
+        assert moving.tolist() == np.logical_or.reduce([m for _, m in others]).tolist()
 
 
 def test_identified_around_the_contacts_of_a_dataset(free_motion, mixed_motion) -> None:
@@ -491,3 +521,4 @@ def test_a_failed_self_identification_falls_back_to_the_nominal_model(
     assert "Not identified (the motion determines nothing): the nominal model is used" \
         in " ".join(done.stderr.split())
     assert done.stdout == nominal.stdout
+
