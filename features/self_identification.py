@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from contactkit.errors import DATA_ERRORS, InputError
+from contactkit.errors import DATA_ERRORS, InputError, problem_text
 from contactkit.features.detector import REST_SPEED, DetectorConfig
 from contactkit.features.identification import Identified, identify_sessions
 from contactkit.robots.dynamics import ArmDynamics
@@ -66,16 +66,20 @@ class Fold:
     identified: Identified
 
 
-def survey(paths: Sequence[str | Path]) -> list[SessionSurvey]:
-    """Read each session of ``paths`` (a file that is not a readable session is left
-    out: the command that scores it reports it); return what :func:`halves` and
-    :func:`moving_dataset` need of each."""
+def survey(paths: Sequence[str | Path], problems: list[tuple[str, str]] | None = None
+           ) -> list[SessionSurvey]:
+    """Read each session of ``paths``; return what :func:`halves` and
+    :func:`moving_dataset` need of each. A file that is not a readable session is left
+    out, and appended to ``problems`` as ``(file, why)`` when given (else the command
+    that scores it reports it)."""
     out = []
     for name in paths:
         path = Path(name)
         try:
             session = read_session(path)
-        except DATA_ERRORS:
+        except DATA_ERRORS as err:
+            if problems is not None:
+                problems.append((str(path), problem_text(err)))
             continue
         meta = session.meta
         t, speed = session.t, np.linalg.norm(np.nan_to_num(session.dq), axis=1)

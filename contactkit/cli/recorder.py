@@ -31,6 +31,7 @@ from contactkit.cli.common import (
     run_app,
     scheduler_of,
 )
+from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.recorder.metadata import set_session_robot
 from contactkit.recorder.sim.presets import PRESETS
 from contactkit.robots import URDF_PREFIX, get_robot, robot_names
@@ -48,6 +49,8 @@ from contactkit.util.progress import (
 from contactkit.util.text import console_text, printable
 
 if TYPE_CHECKING:
+    from contactkit.features.detector import DetectorConfig
+    from contactkit.features.identification import Identified
     from contactkit.recorder.importers.jobs import Imported
 
 # The commands import the libraries they run (simulator, importers, statistics, plots)
@@ -259,8 +262,10 @@ def _write_true_dynamics(path: Path, dynamics: Any) -> None:
 def identify_command(
     sessions: Annotated[list[Path], typer.Argument(
         help="Free-motion sessions (action none, or a contact column that is all false), "
-             "files or directories; with --around-contacts, any sessions.")],
-    out: Annotated[Path, typer.Option(help="Dynamics file to write (JSON).")],
+             "files or directories; with --around-contacts or --cross-fitted, any "
+             "sessions.")],
+    out: Annotated[Path | None, typer.Option(
+        help="Dynamics file to write (JSON); required unless --cross-fitted.")] = None,
     robot: RobotOpt = None,
     around_contacts: Annotated[bool, typer.Option(
         help="Use every session, with contact or not, outside the contacts the detector "
@@ -268,9 +273,20 @@ def identify_command(
              "it); what stands out of the held-out residuals (a touch it missed) is left "
              "out of the detector's calibration. For a dataset without free-motion "
              "recordings: identify its arm from the dataset itself.")] = False,
+    cross_fitted: Annotated[bool, typer.Option(
+        help="Identify a dataset's arm from the dataset itself, cross-fitted, and store "
+             "it in the sessions: the poses are dealt into two halves, the arm is "
+             "identified from each (around the contacts, as --around-contacts) and every "
+             "session's metadata gets the arm (and detector) identified from the other "
+             "half, as recorder set-robot --dynamics stores it. replay, classify and the "
+             "catalog then use it; classify predict --events gives the events it gives "
+             "when it identifies by itself. Rewrites the sessions' metadata (the samples "
+             "are unchanged); no --out. Run again to redo it: stored dynamics are never "
+             "read.")] = False,
     model: Annotated[Path | None, typer.Option(
-        help="With --around-contacts: the model file whose detector finds the contacts "
-             "(default: the default model, built once when missing).")] = None,
+        help="With --around-contacts or --cross-fitted: the model file whose detector "
+             "finds the contacts (default: the default model, built once when "
+             "missing).")] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing --out file.")] = False,
 ) -> None:
     """Identify the arm's own dynamics from free motion with nobody touching it: each
@@ -279,7 +295,9 @@ def identify_command(
     the contact detector on motion the fit did not see: with two sessions or more,
     each session's residual with the model identified from the others (the final fit
     uses them all); with one, its last quarter, held out. With --around-contacts, the
-    free motion is what lies outside the contacts a detector finds in any session.
+    free motion is what lies outside the contacts a detector finds in any session;
+    --cross-fitted does so for each half of a dataset's poses and stores each half's
+    arm in the other half's sessions.
 
     Only t, q, dq, tau and the arm's name are read (never a session's labels or contact
     column with --around-contacts). What the motion does not determine
@@ -292,18 +310,24 @@ def identify_command(
     classify and recorder commands, or store it with sessions (recorder set-robot
     --dynamics).
     """
-    from contactkit.features.detector import dynamics_detector
     from contactkit.features.identification import identify_sessions, session_inputs
     from contactkit.robots.dynamics import save_dynamics
 
-    check_target(out, overwrite=overwrite)
-    if model is not None and not around_contacts:
+    if cross_fitted and out is not None:
+        raise InputError("--cross-fitted stores each half's arm in the other half's "
+                         "sessions: it writes no --out file")
+    if out is None and not cross_fitted:
+        raise InputError("give --out (the dynamics file to write), or --cross-fitted to "
+                         "store the arm in the sessions")
+    if out is not None:
+        check_target(out, overwrite=overwrite)
+    if model is not None and not (around_contacts or cross_fitted):
         raise InputError("--model is for --around-contacts: without it, identification "
                          "uses free-motion sessions only and finds no contact")
     paths = session_inputs(sessions)
     problems: list[tuple[str, str]] = []
     finder = None  # the detector that finds the contacts to cut out
-    if around_contacts:
+    if around_contacts or cross_fitted:
         from contactkit.cli.default_model import default_model_missing, model_or_default
 
         if model is None and default_model_missing():
@@ -314,13 +338,56 @@ def identify_command(
         if finder is None:
             raise InputError("the model carries no contact detector to find the contacts "
                              "with (train it with events)", model)
-    with progress_bar("identifying") as bar:
-        result = identify_sessions(paths, robot, around_contacts=finder, problems=problems,
-                                   progress=bar_callback(bar, "sessions"))
+    if cross_fitted and finder is not None:
+        _identify_cross_fitted(paths, finder, robot, problems)
+    elif out is not None:
+        with progress_bar("identifying") as bar:
+            result = identify_sessions(paths, robot, around_contacts=finder,
+                                       problems=problems,
+                                       progress=bar_callback(bar, "sessions"))
+        print_problems(problems)
+        save_dynamics(out, result.dynamics, overwrite=overwrite)
+        _print_identified(str(out), result)
+    exit_if_failed(problems)
+
+
+def _identify_cross_fitted(paths: list[Path], finder: DetectorConfig, robot: str | None,
+                           problems: list[tuple[str, str]]) -> None:
+    """Identify the arm of the sessions ``paths`` from each half of their poses around
+    the contacts ``finder`` finds, store each half's arm in the other half's sessions,
+    print what each half determined; files that could not be read or rewritten are
+    appended to ``problems``."""
+    from contactkit.features.self_identification import cross_fitted_dynamics, survey
+
+    surveyed = survey(paths, problems)
+    with progress_bar() as bar:
+        folds = cross_fitted_dynamics(surveyed, finder, robot, labelled_progress(bar))
     print_problems(problems)
-    save_dynamics(out, result.dynamics, overwrite=overwrite)
+    stored = len(problems)
+    with progress_bar("storing the arms") as bar:
+        callback = bar_callback(bar, "sessions")
+        done, total = 0, sum(len(fold.scored) for fold in folds)
+        for fold in folds:
+            for path in fold.scored:
+                try:
+                    set_session_robot(path, robot, dynamics=fold.identified.dynamics)
+                except DATA_ERRORS as err:
+                    problems.append((str(path), problem_text(err)))
+                done += 1
+                callback(done, total)
+    print_problems(problems[stored:])
+    for k, fold in enumerate(folds, 1):
+        _print_identified(f"half {k} of the poses ({len(fold.scored)} sessions, the arm "
+                          f"identified from the other {len(fold.fitted)})", fold.identified)
+
+
+def _print_identified(name: str, result: Identified) -> None:
+    """Print what an identification determined (``name`` first: its file or its
+    sessions): samples, parameters, residuals, payload and detector."""
+    from contactkit.features.detector import dynamics_detector
+
     report, dynamics = result.excitation, result.dynamics
-    print(f"{out}: {dynamics.robot} {'with' if dynamics.with_hand else 'without'} hand, "
+    print(f"{name}: {dynamics.robot} {'with' if dynamics.with_hand else 'without'} hand, "
           f"{report.samples} samples fitted (joints moving: {report.moving})")
     print(f"  determined: {len(report.determined)} of "
           f"{len(report.determined) + len(report.undetermined)} parameters, "
@@ -342,7 +409,6 @@ def identify_command(
         print(f"  detector ({held}): at rest {[round(v, 2) for v in detector.noise]} Nm, per rad/s "
               f"{[round(v, 2) for v in detector.speed]}, per Nm of dynamic torque "
               f"{[round(v, 2) for v in detector.dynamic]}" + beyond_range_text(detector))
-    exit_if_failed(problems)
 
 
 def _short_list(names: list[str], most: int = 12) -> str:

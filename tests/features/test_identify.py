@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -522,3 +523,41 @@ def test_a_failed_self_identification_falls_back_to_the_nominal_model(
         in " ".join(done.stderr.split())
     assert done.stdout == nominal.stdout
 
+
+def test_identify_cross_fitted_stores_each_half_in_the_other(tmp_path, mixed_motion,
+                                                            quick_model) -> None:
+    """recorder identify --cross-fitted stores in each session the arm identified from
+    the other half of the poses: classify predict --events then gives the events it
+    gives when it identifies by itself, and a second run stores the same arms (the
+    stored ones are never read)."""
+    dataset = tmp_path / "dataset"
+    shutil.copytree(mixed_motion[0].parent, dataset)
+    model = str(quick_model)
+    for args, why in ((("--cross-fitted", "--out", str(tmp_path / "a.json")), "no --out"),
+                      ((), "give --out")):
+        done = run_command("recorder", "identify", str(dataset), *args)
+        assert done.returncode == 2 and why in done.stderr and "Traceback" not in done.stderr
+    command = ("recorder", "identify", str(dataset), "--cross-fitted", "--model", model)
+    done = run_command(*command)
+    assert done.returncode == 0, done.stderr
+    assert "half 1 of the poses" in done.stdout and "half 2 of the poses" in done.stdout
+    stored = {p.name: read_session(p).meta.arm_dynamics() for p in session_files(dataset)}
+    assert len(stored) == len(mixed_motion) and all(stored.values())
+    assert len({d.inertias for d in stored.values() if d}) == 2  # one arm per half
+    own = run_command("classify", "predict", model, str(mixed_motion[0].parent), "--events",
+                      "--json", "--identify")
+    assert own.returncode == 0, own.stderr
+    after = run_command("classify", "predict", model, str(dataset), "--events", "--json")
+    assert after.returncode == 0 and "Identifying" not in after.stderr, after.stderr
+
+    def by_name(stdout: str) -> list[str]:
+        lines = _event_lines(stdout)
+        for line in lines:
+            line["session"] = Path(line["session"]).name
+        return sorted(map(json.dumps, lines))
+
+    assert by_name(after.stdout) and by_name(after.stdout) == by_name(own.stdout)
+    assert run_command(*command).returncode == 0
+    again = {p.name: read_session(p).meta.arm_dynamics() for p in session_files(dataset)}
+    assert {k: d and d.inertias for k, d in again.items()} == {
+        k: d and d.inertias for k, d in stored.items()}
