@@ -4,9 +4,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyarrow as pa
@@ -15,10 +16,22 @@ import pyarrow.parquet as pq
 from contactkit.classify.data import load_features
 from contactkit.classify.modelfile.model_file import ModelFile
 from contactkit.errors import DATA_ERRORS, problem_text
-from contactkit.robots.dynamics import RobotChoice, override_dynamics, override_robot
+from contactkit.robots.dynamics import (
+    ArmDynamics,
+    RobotChoice,
+    arm_override,
+    override_dynamics,
+    override_robot,
+)
 from contactkit.schemas import InputError, read_session
 from contactkit.schemas.dataset import session_files
 from contactkit.schemas.features import FEATURES_KEY
+from contactkit.util.parallel import map_ordered
+from contactkit.util.progress import ProgressCallback
+
+if TYPE_CHECKING:
+    from contactkit.classify.events.contact_events import ContactEvent, EventModel
+    from contactkit.features.detector import DetectorConfig
 
 
 @dataclass
@@ -102,3 +115,69 @@ def predict_sources(model: ModelFile, sources: Sequence[Path], robot: RobotChoic
                 continue
             predictions += _rows(model, proba, [str(path)], [session.meta.action])
     return predictions, problems
+
+
+@dataclass(frozen=True)
+class EventsJob:
+    """One session's contact events to find (:func:`session_contact_events`): the
+    session at ``path``, found by ``detector`` (None: the thresholds the arm's identified
+    dynamics carry, else ``fallback``, the model's), decided by ``events_model`` at
+    ``decide_after_s`` [s] after onset (None: the model's delays), on the arm ``robot``
+    (a name, an :class:`~contactkit.robots.dynamics.ArmOverride`, or None: the
+    session's own)."""
+
+    path: Path
+    detector: DetectorConfig | None
+    fallback: DetectorConfig | None
+    events_model: EventModel | None
+    decide_after_s: float | None
+    robot: RobotChoice
+
+
+def session_contact_events(job: EventsJob) -> tuple[list[ContactEvent] | None, str | None]:
+    """Return one session's contact events and None, or None and the problem (one
+    line) when the session cannot be used."""
+    from contactkit.classify.events.contact_events import session_events
+    from contactkit.features.detector import dynamics_detector
+    from contactkit.features.timeseries import ChainConfig
+
+    try:
+        session = read_session(job.path)
+        setup = ChainConfig(robot=job.robot).robot_setup(session.meta, job.path)
+        detector = job.detector or dynamics_detector(setup.dynamics) or job.fallback
+        if detector is None:
+            raise InputError("no contact detector: the model carries none and the arm's "
+                             "dynamics hold no thresholds", job.path)
+        return session_events(session, detector, job.events_model, job.decide_after_s,
+                              job.robot), None
+    except DATA_ERRORS as err:
+        return None, problem_text(err)
+
+
+def predict_events(model: ModelFile, paths: Sequence[Path], detector: DetectorConfig | None,
+                   decide_after_s: float | None = None, robot: RobotChoice = None,
+                   own: Mapping[Path, ArmDynamics] | None = None, *, workers: int = 1,
+                   progress: ProgressCallback | None = None
+                   ) -> Iterator[tuple[Path, list[ContactEvent] | None, str | None]]:
+    """Yield ``(path, events, problem)`` for each session of ``paths``, in order: the
+    contact events ``model`` decides, found by ``detector`` (None: the thresholds of the
+    identified dynamics a session's arm carries, else the model's), with the arm's
+    model ``robot`` instead of each session's own when given, and the arm identified
+    from the dataset itself (and its detector) for the sessions in ``own``
+    (:mod:`contactkit.features.self_identification`). ``events`` None: the session
+    could not be used, ``problem`` says why. ``workers`` processes score the sessions."""
+    from contactkit.features.detector import dynamics_detector
+
+    own = own or {}
+    events_model, fallback = model.event_model(), model.detector_config()
+    jobs = []
+    for path in paths:
+        arm, chosen = robot, detector
+        if path in own:
+            arm = arm_override(override_robot(robot), own[path])
+            chosen = dynamics_detector(own[path]) or detector
+        jobs.append(EventsJob(path, chosen, fallback, events_model, decide_after_s, arm))
+    for path, (events, problem) in zip(paths, map_ordered(
+            session_contact_events, jobs, workers=min(workers, max(1, len(jobs))),
+            progress=progress), strict=True):
+        yield path, events, problem

@@ -562,7 +562,7 @@ def main() -> None:
                         % [r for _, r in DATASETS.values()])
     parser.add_argument("--no-identify", action="store_true",
                         help="score every dataset with the nominal model, as `classify "
-                        "predict --events --no-identify` does (saves about a minute per "
+                        "predict --events --no-identify` does (saves about 30 s per "
                         "moving arm's dataset)")
     parser.add_argument("--more", type=int, default=4, metavar="N",
                         help="also score N further pairs of datasets, each on robot "

@@ -35,6 +35,7 @@ from contactkit.features.detector import REST_SPEED, DetectorConfig
 from contactkit.features.identification import Identified, identify_sessions
 from contactkit.robots.dynamics import ArmDynamics
 from contactkit.schemas import read_session
+from contactkit.util.parallel import map_ordered
 
 MIN_MOTION_S = 60.0
 """Motion each half must hold for a dataset to identify its own arm [s]: samples with
@@ -119,26 +120,51 @@ def moving_dataset(sessions: Sequence[SessionSurvey]) -> str | None:
 
 def cross_fitted_dynamics(sessions: Sequence[SessionSurvey], detector: DetectorConfig,
                           robot: str | None = None,
-                          progress: Callable[[str, int, int], None] | None = None
-                          ) -> list[Fold]:
+                          progress: Callable[[str, int, int], None] | None = None, *,
+                          workers: int = 1) -> list[Fold]:
     """Identify the arm of ``sessions`` from each of their :func:`halves`, around the
     contacts ``detector`` finds with the nominal model (the arm ``robot`` names in place
     of the sessions' own when given); return the two folds, each half scored with the
     arm identified from the other. ``progress(label, done, total)`` follows each
-    identification. InputError (one line) when a half is empty, its sessions are of
-    different arms, or its motion determines nothing."""
+    identification's sessions, or with ``workers`` > 1 (both halves at once, in two
+    processes) the halves done. InputError (one line) when a half is empty, its
+    sessions are of different arms, or its motion determines nothing."""
     first, second = halves(sessions)
     if not first or not second:
         raise InputError("cross-fitting needs sessions in both halves: at least two")
+    pairs = ((second, first), (first, second))
+    if workers > 1:
+        label = "identifying the arm from both halves at once"
+        done = map_ordered(_identify_half, [(fitted, detector, robot) for fitted, _ in pairs],
+                           workers=2, progress=None if progress is None else (
+                               lambda k, total: progress(label, k, total)))
+        results = list(done)
+    else:
+        results = []
+        for k, (fitted, _) in enumerate(pairs, 1):
+            label = f"identifying the arm from half {3 - k} of 2"
+            counted = None if progress is None else (
+                lambda k, total, label=label: progress(label, k, total))
+            results.append(_identify_half((fitted, detector, robot), counted))
     folds = []
-    for k, (fitted, scored) in enumerate(((second, first), (first, second)), 1):
-        label = f"identifying the arm from half {3 - k} of 2"
-        counted = None if progress is None else (
-            lambda done, total, label=label: progress(label, done, total))
-        identified = identify_sessions(fitted, robot, around_contacts=detector, problems=[],
-                                       progress=counted)
+    for (fitted, scored), (identified, problem) in zip(pairs, results, strict=True):
+        if identified is None:
+            raise InputError(problem or "not identified")
         folds.append(Fold(tuple(fitted), tuple(scored), identified))
     return folds
+
+
+def _identify_half(job: tuple[list[Path], DetectorConfig, str | None],
+                   progress: Callable[[int, int], None] | None = None
+                   ) -> tuple[Identified | None, str | None]:
+    """Identify the arm of one half's sessions around the contacts the detector finds;
+    return it and None, or None and why not (one line: a worker's result is data)."""
+    fitted, detector, robot = job
+    try:
+        return identify_sessions(fitted, robot, around_contacts=detector, problems=[],
+                                 progress=progress), None
+    except InputError as err:
+        return None, err.problem
 
 
 def dynamics_by_session(folds: Sequence[Fold]) -> dict[Path, ArmDynamics]:

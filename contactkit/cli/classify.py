@@ -39,7 +39,6 @@ from contactkit.cli.common import (
     scheduler_of,
 )
 from contactkit.cli.flags import command_with_flags, owner_values, shared_flags
-from contactkit.errors import DATA_ERRORS, problem_text
 from contactkit.features.detector import (
     DetectorConfig,
     dynamics_detector,
@@ -49,7 +48,7 @@ from contactkit.features.detector import (
 from contactkit.features.names import ALL_TIMESERIES, GROUPS
 from contactkit.features.scalars import SCALARS
 from contactkit.features.windows import METHODS
-from contactkit.schemas import InputError, read_session
+from contactkit.schemas import InputError
 from contactkit.util.atomic import check_target, write_text
 from contactkit.util.owned import check_results
 from contactkit.util.parallel import available_cpus
@@ -315,6 +314,9 @@ def predict_command(
              "--no-identify: the arm's nominal model.")] = None,
     robot: RobotOpt = None,
     dynamics: DynamicsOpt = None,
+    workers: Annotated[int, typer.Option(
+        help="With --events: parallel processes that score the sessions (and identify "
+             "the two halves of a moving arm's dataset at once).")] = DEFAULT_WORKERS,
 ) -> None:
     """Predict the contact class of sessions with a trained model, or (--events) the
     contact events the model's detector finds and the intent decided for each. With
@@ -342,9 +344,10 @@ def predict_command(
                              model_path)
         paths = [path for source in sessions for path in session_paths(source)]
         own = {} if identify is False or dynamics is not None or calibration is not None \
-            else _self_identified(model, paths, robot, forced=bool(identify))
+            else _self_identified(model, paths, robot, forced=bool(identify),
+                                  workers=workers)
         event_problems = _print_events(model, paths, detector, decide_after, as_json, arm,
-                                       own)
+                                       own, workers)
         print_problems(event_problems)
         exit_if_failed(event_problems)
         return
@@ -364,8 +367,8 @@ def predict_command(
     exit_if_failed(problems)
 
 
-def _self_identified(model, paths: list[Path], robot: str | None, forced: bool
-                     ) -> dict[Path, ArmDynamics]:
+def _self_identified(model, paths: list[Path], robot: str | None, forced: bool,
+                     workers: int = 1) -> dict[Path, ArmDynamics]:
     """Return the arm each session of ``paths`` is scored with when the sessions
     identify their own arm (cross-fitted, :mod:`contactkit.features.self_identification`):
     always when ``forced`` (InputError when they cannot), else when they are a moving
@@ -393,7 +396,8 @@ def _self_identified(model, paths: list[Path], robot: str | None, forced: bool
                       "poses (--no-identify: the nominal model).")
     try:
         with progress_bar() as bar:
-            folds = cross_fitted_dynamics(surveyed, finder, robot, labelled_progress(bar))
+            folds = cross_fitted_dynamics(surveyed, finder, robot, labelled_progress(bar),
+                                          workers=workers)
     except InputError as err:
         if forced:
             raise
@@ -411,31 +415,18 @@ def _self_identified(model, paths: list[Path], robot: str | None, forced: bool
 
 def _print_events(model, paths: list[Path], detector: DetectorConfig | None,
                   decide_after: float | None, as_json: bool, robot: RobotChoice,
-                  own: dict[Path, ArmDynamics]) -> list[tuple[str, str]]:
-    """Print the contact events of each session of ``paths``, with the arm's model
-    ``robot`` instead of each session's own when given, and the arm (and its detector)
-    identified from the dataset itself for the sessions in ``own``; return the sessions
-    that failed as ``(path, problem)``. ``detector`` None: the thresholds of the
-    identified dynamics a session carries, else the model's."""
-    from contactkit.classify.events.contact_events import session_events
+                  own: dict[Path, ArmDynamics], workers: int) -> list[tuple[str, str]]:
+    """Print the contact events of each session of ``paths``
+    (:func:`~contactkit.classify.prediction.predict_events`, ``workers`` processes), in
+    order; return the sessions that failed as ``(path, problem)``."""
     from contactkit.classify.events.listener import contact_text
-    from contactkit.features.timeseries import ChainConfig
-    from contactkit.robots.dynamics import arm_override, override_robot
+    from contactkit.classify.prediction import predict_events
 
-    events_model = model.event_model()
     problems = []
-    for path in paths:
-        arm, chosen = robot, detector
-        if path in own:
-            arm = arm_override(override_robot(robot), own[path])
-            chosen = dynamics_detector(own[path]) or detector
-        try:
-            session = read_session(path)
-            setup = ChainConfig(robot=arm).robot_setup(session.meta, path)
-            chosen = chosen or dynamics_detector(setup.dynamics) or model.detector_config()
-            found = session_events(session, chosen, events_model, decide_after, arm)
-        except DATA_ERRORS as err:
-            problems.append((str(path), problem_text(err)))
+    for path, found, problem in predict_events(model, paths, detector, decide_after, robot,
+                                               own, workers=workers):
+        if found is None:
+            problems.append((str(path), problem or "not scored"))
             continue
         for event in found:
             if as_json:

@@ -288,6 +288,9 @@ def identify_command(
              "finds the contacts (default: the default model, built once when "
              "missing).")] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing --out file.")] = False,
+    workers: Annotated[int, typer.Option(
+        help="With --cross-fitted: identify both halves at once, in two processes (any "
+             "value over 1).")] = DEFAULT_WORKERS,
 ) -> None:
     """Identify the arm's own dynamics from free motion with nobody touching it: each
     link's mass, centre of mass and inertia, the payload at the flange, the joints'
@@ -339,7 +342,7 @@ def identify_command(
             raise InputError("the model carries no contact detector to find the contacts "
                              "with (train it with events)", model)
     if cross_fitted and finder is not None:
-        _identify_cross_fitted(paths, finder, robot, problems)
+        _identify_cross_fitted(paths, finder, robot, problems, workers)
     elif out is not None:
         with progress_bar("identifying") as bar:
             result = identify_sessions(paths, robot, around_contacts=finder,
@@ -352,16 +355,17 @@ def identify_command(
 
 
 def _identify_cross_fitted(paths: list[Path], finder: DetectorConfig, robot: str | None,
-                           problems: list[tuple[str, str]]) -> None:
+                           problems: list[tuple[str, str]], workers: int) -> None:
     """Identify the arm of the sessions ``paths`` from each half of their poses around
-    the contacts ``finder`` finds, store each half's arm in the other half's sessions,
-    print what each half determined; files that could not be read or rewritten are
-    appended to ``problems``."""
+    the contacts ``finder`` finds (both at once with ``workers`` > 1), store each half's
+    arm in the other half's sessions, print what each half determined; files that
+    could not be read or rewritten are appended to ``problems``."""
     from contactkit.features.self_identification import cross_fitted_dynamics, survey
 
     surveyed = survey(paths, problems)
     with progress_bar() as bar:
-        folds = cross_fitted_dynamics(surveyed, finder, robot, labelled_progress(bar))
+        folds = cross_fitted_dynamics(surveyed, finder, robot, labelled_progress(bar),
+                                      workers=workers)
     print_problems(problems)
     stored = len(problems)
     with progress_bar("storing the arms") as bar:

@@ -468,10 +468,11 @@ def test_predict_events_identifies_a_moving_dataset_from_itself(
     assert nominal.returncode == 0, nominal.stderr
     assert "Identifying" not in nominal.stderr
     monkeypatch.setattr(own, "MIN_MOTION_S", 5.0)
-    identified = run_command(*command)
+    identified = run_command(*command, "--workers", "2")  # both halves at once
     assert identified.returncode == 0, identified.stderr
     assert "Identifying the arm from these 8 sessions" in identified.stderr
     assert identified.stderr.count("scored with the arm identified from the other") == 2
+    assert run_command(*command, "--workers", "1").stdout == identified.stdout
     assert run_command(*command, "--no-identify").stdout == nominal.stdout
     detector = load_model(quick_model, lazy=True).detector_config()
     by_fold = []
