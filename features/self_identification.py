@@ -135,16 +135,18 @@ def cross_fitted_dynamics(sessions: Sequence[SessionSurvey], detector: DetectorC
     pairs = ((second, first), (first, second))
     if workers > 1:
         label = "identifying the arm from both halves at once"
-        done = map_ordered(_identify_half, [(fitted, detector, robot) for fitted, _ in pairs],
-                           workers=2, progress=None if progress is None else (
-                               lambda k, total: progress(label, k, total)))
-        results = list(done)
+        if progress is not None:
+            progress(label, 0, len(pairs))
+        results = list(map_ordered(
+            _identify_half, [(fitted, detector, robot) for fitted, _ in pairs], workers=2,
+            progress=None if progress is None else (
+                lambda done, total: progress(label, done, total))))
     else:
         results = []
         for k, (fitted, _) in enumerate(pairs, 1):
             label = f"identifying the arm from half {3 - k} of 2"
             counted = None if progress is None else (
-                lambda k, total, label=label: progress(label, k, total))
+                lambda done, total, label=label: progress(label, done, total))
             results.append(_identify_half((fitted, detector, robot), counted))
     folds = []
     for (fitted, scored), (identified, problem) in zip(pairs, results, strict=True):

@@ -529,8 +529,8 @@ def test_identify_cross_fitted_stores_each_half_in_the_other(tmp_path, mixed_mot
                                                             quick_model) -> None:
     """recorder identify --cross-fitted stores in each session the arm identified from
     the other half of the poses: classify predict --events then gives the events it
-    gives when it identifies by itself, and a second run stores the same arms (the
-    stored ones are never read)."""
+    gives when it identifies by itself, and so does the catalog's replay; a second run
+    stores the same arms (the stored ones are never read)."""
     dataset = tmp_path / "dataset"
     shutil.copytree(mixed_motion[0].parent, dataset)
     model = str(quick_model)
@@ -558,6 +558,17 @@ def test_identify_cross_fitted_stores_each_half_in_the_other(tmp_path, mixed_mot
         return sorted(map(json.dumps, lines))
 
     assert by_name(after.stdout) and by_name(after.stdout) == by_name(own.stdout)
+    catalog = tmp_path / "catalog"  # the catalog's replay uses the stored arms too
+    built = run_command("recorder", "catalog", str(dataset), "--out", str(catalog),
+                        "--model", model, "--workers", "1")
+    assert built.returncode == 0, built.stderr
+    query = run_command("recorder", "query", str(catalog), "SELECT s.file, e.onset_s, "
+                        "e.label FROM events e JOIN sessions s USING (session_id)", "--json")
+    assert query.returncode == 0, query.stderr
+    rows = [json.loads(line) for line in query.stdout.splitlines() if line.startswith("{")]
+    assert sorted((r["file"], round(r["onset_s"], 6), r["label"]) for r in rows) == sorted(
+        (Path(e["session"]).name, round(e["event"]["onset_s"], 6), e["event"]["label"])
+        for e in _event_lines(after.stdout))
     assert run_command(*command).returncode == 0
     again = {p.name: read_session(p).meta.arm_dynamics() for p in session_files(dataset)}
     assert {k: d and d.inertias for k, d in again.items()} == {
