@@ -325,8 +325,9 @@ def identify_command(
     if out is not None:
         check_target(out, overwrite=overwrite)
     if model is not None and not (around_contacts or cross_fitted):
-        raise InputError("--model is for --around-contacts: without it, identification "
-                         "uses free-motion sessions only and finds no contact")
+        raise InputError("--model is for --around-contacts or --cross-fitted: without "
+                         "them, identification uses free-motion sessions only and finds no "
+                         "contact")
     paths = session_inputs(sessions)
     problems: list[tuple[str, str]] = []
     finder = None  # the detector that finds the contacts to cut out
