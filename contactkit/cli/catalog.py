@@ -28,7 +28,7 @@ from contactkit.errors import InputError
 from contactkit.util.parallel import available_cpus
 from contactkit.util.paths import catalog_beside
 from contactkit.util.progress import bar_callback, err_console, labelled_progress, progress_bar
-from contactkit.util.text import printable
+from contactkit.util.text import console_text, printable
 
 DEFAULT_WORKERS = available_cpus()
 ViewerChoice = Literal["auto", "native", "web", "none"]
@@ -78,7 +78,24 @@ def build(dataset: Path, out: Path, model: Path | None, workers: int, overwrite:
                       + (f", {len(result.failed)} failed" if result.failed else "")
                       + f"; catalog {out}")
     print_problems(result.failed, "failed")
+    if result.replayed and identified is None:
+        _hint_self_identification(dataset)
     return result
+
+
+def _hint_self_identification(dataset: Path) -> None:
+    """Say on stderr how to score ``dataset`` with its own arm when it is a moving arm's
+    dataset that carries no identified dynamics (its catalog then holds the nominal
+    model's events, where ``classify predict --events`` identifies the arm first)."""
+    from contactkit.features.self_identification import moving_dataset, survey
+    from contactkit.schemas.dataset import session_files
+
+    if moving_dataset(survey(session_files(dataset))) is None:
+        err_console.print(
+            "These sessions are a moving arm's, replayed with its nominal model; classify "
+            "predict --events identifies the arm from them first and finds more contacts. "
+            f"`recorder identify {console_text(dataset)} --cross-fitted` stores those arms "
+            "in the sessions; a re-run of this command then replays them with them.")
 
 
 def catalog_command(

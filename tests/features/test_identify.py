@@ -525,15 +525,25 @@ def test_a_failed_self_identification_falls_back_to_the_nominal_model(
     assert done.stdout == nominal.stdout
 
 
-def test_identify_cross_fitted_stores_each_half_in_the_other(tmp_path, mixed_motion,
-                                                            quick_model) -> None:
+def test_identify_cross_fitted_stores_each_half_in_the_other(tmp_path, monkeypatch,
+                                                            mixed_motion, quick_model) -> None:
     """recorder identify --cross-fitted stores in each session the arm identified from
     the other half of the poses: classify predict --events then gives the events it
-    gives when it identifies by itself, and so does the catalog's replay; a second run
-    stores the same arms (the stored ones are never read)."""
+    gives when it identifies by itself, and so does the catalog's replay (whose build
+    said how, on the moving arm's dataset with its nominal model); a second run stores
+    the same arms (the stored ones are never read)."""
+    from contactkit.features import self_identification as own_arm
+
     dataset = tmp_path / "dataset"
     shutil.copytree(mixed_motion[0].parent, dataset)
     model = str(quick_model)
+    catalog = tmp_path / "catalog"
+    building = ("recorder", "catalog", str(dataset), "--out", str(catalog), "--model", model,
+                "--workers", "1")
+    monkeypatch.setattr(own_arm, "MIN_MOTION_S", 5.0)  # 8 sessions of 8 s: a moving arm's
+    built = run_command(*building)
+    assert built.returncode == 0, built.stderr
+    assert "--cross-fitted` stores those arms" in " ".join(built.stderr.split())
     for args, why in ((("--cross-fitted", "--out", str(tmp_path / "a.json")), "no --out"),
                       ((), "give --out")):
         done = run_command("recorder", "identify", str(dataset), *args)
@@ -558,10 +568,10 @@ def test_identify_cross_fitted_stores_each_half_in_the_other(tmp_path, mixed_mot
         return sorted(map(json.dumps, lines))
 
     assert by_name(after.stdout) and by_name(after.stdout) == by_name(own.stdout)
-    catalog = tmp_path / "catalog"  # the catalog's replay uses the stored arms too
-    built = run_command("recorder", "catalog", str(dataset), "--out", str(catalog),
-                        "--model", model, "--workers", "1")
+    built = run_command(*building)  # the catalog's replay uses the stored arms too
     assert built.returncode == 0, built.stderr
+    assert f"{len(mixed_motion)} replayed" in built.stderr and "--cross-fitted" not in \
+        built.stderr
     query = run_command("recorder", "query", str(catalog), "SELECT s.file, e.onset_s, "
                         "e.label FROM events e JOIN sessions s USING (session_id)", "--json")
     assert query.returncode == 0, query.stderr
