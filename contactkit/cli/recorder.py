@@ -364,10 +364,10 @@ def _identify_cross_fitted(paths: list[Path], finder: DetectorConfig, robot: str
     from contactkit.features.self_identification import cross_fitted_dynamics, survey
 
     surveyed = survey(paths, problems)
+    print_problems(problems)
     with progress_bar() as bar:
         folds = cross_fitted_dynamics(surveyed, finder, robot, labelled_progress(bar),
                                       workers=workers)
-    print_problems(problems)
     stored = len(problems)
     with progress_bar("storing the arms") as bar:
         callback = bar_callback(bar, "sessions")
