@@ -24,7 +24,7 @@ from contactkit.robots.dynamics import (
     override_robot,
 )
 from contactkit.schemas import InputError, read_session
-from contactkit.schemas.dataset import session_files
+from contactkit.schemas.dataset import source_sessions
 from contactkit.schemas.features import FEATURES_KEY
 from contactkit.util.parallel import map_ordered
 from contactkit.util.progress import ProgressCallback
@@ -42,20 +42,6 @@ class Prediction:
     predicted: str
     probabilities: dict[str, float]
     recorded: str | None
-
-
-def session_paths(source: Path) -> list[Path]:
-    """Return the session files of a directory, or ``[source]`` for a file; raise
-    InputError for a missing path or an empty directory."""
-    source = Path(source)
-    if source.is_dir():
-        files = session_files(source)
-        if not files:
-            raise InputError("no session files (*.parquet) in this directory", source)
-        return files
-    if not source.exists():
-        raise InputError("no such file or directory", source)
-    return [source]
 
 
 def is_feature_table(path: Path) -> bool:
@@ -103,7 +89,7 @@ def predict_sources(model: ModelFile, sources: Sequence[Path], robot: RobotChoic
         if Path(source).is_file() and is_feature_table(Path(source)):
             predictions += predict_table(model, Path(source))
             continue
-        for path in session_paths(source):
+        for path in source_sessions([source]):
             try:
                 session = read_session(path)
                 session.meta = session.meta.with_robot(override_robot(robot))

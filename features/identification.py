@@ -809,25 +809,6 @@ def _sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def session_inputs(sources: Sequence[str | Path]) -> list[Path]:
-    """Return the session files of ``sources``: a directory's (without its index), a
-    file as given. InputError for a missing path or a directory without sessions."""
-    from contactkit.schemas.dataset import session_files
-
-    paths: list[Path] = []
-    for source in map(Path, sources):
-        if source.is_dir():
-            files = session_files(source)
-            if not files:
-                raise InputError("no session files (*.parquet) in this directory", source)
-            paths += files
-        elif source.exists():
-            paths.append(source)
-        else:
-            raise InputError("no such file or directory", source)
-    return paths
-
-
 def free_motion(path: Path, robot: str | None = None) -> tuple[Motion, RobotSetup]:
     """Read one session's free motion (t, q, dq, tau only) and the arm it names (or
     ``robot`` in its place, ``--robot``). Raises InputError naming the file for a file

@@ -8,7 +8,7 @@ skipped.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -69,6 +69,24 @@ def session_files(directory: str | Path) -> list[Path]:
     directory = Path(directory)
     return sorted(p for p in directory.glob(SESSION_GLOB)
                   if p.name != INDEX_NAME and not p.name.startswith("."))
+
+
+def source_sessions(sources: Sequence[str | Path]) -> list[Path]:
+    """Return the session files of ``sources``, in order: a directory's
+    (:func:`session_files`), a file as given. InputError naming a missing path or a
+    directory without sessions."""
+    paths: list[Path] = []
+    for source in map(Path, sources):
+        if source.is_dir():
+            files = session_files(source)
+            if not files:
+                raise InputError("no session files (*.parquet) in this directory", source)
+            paths += files
+        elif source.exists():
+            paths.append(source)
+        else:
+            raise InputError("no such file or directory", source)
+    return paths
 
 
 def _time_range(footer: pq.FileMetaData) -> tuple[float, float]:

@@ -49,6 +49,7 @@ from contactkit.features.names import ALL_TIMESERIES, GROUPS
 from contactkit.features.scalars import SCALARS
 from contactkit.features.windows import METHODS
 from contactkit.schemas import InputError
+from contactkit.schemas.dataset import source_sessions
 from contactkit.util.atomic import check_target, write_text
 from contactkit.util.owned import check_results
 from contactkit.util.parallel import available_cpus
@@ -132,13 +133,12 @@ def features_command(
 ) -> None:
     """Compute features of a session or dataset: one row per session (scalar features
     of the interaction window), or with --per-sample one row per sample."""
-    from contactkit.classify.prediction import session_paths
     from contactkit.features.extract import SessionFeatures, feature_rows
     from contactkit.features.per_sample import write_per_sample_table
     from contactkit.features.timeseries import ChainConfig
     from contactkit.schemas.features import write_feature_table
 
-    files = session_paths(source)
+    files = source_sessions([source])
     _refuse_existing(out, overwrite)
     identified = load_dynamics_option(dynamics)
     with progress_bar("per-sample features" if per_sample else "features") as bar:
@@ -325,7 +325,7 @@ def predict_command(
     from itself (see --identify), which finds light touches the nominal model's error
     hides; a line on stderr says so."""
     from contactkit.classify.modelfile.model_file import load_model
-    from contactkit.classify.prediction import predict_sources, session_paths
+    from contactkit.classify.prediction import predict_sources
     from contactkit.robots.dynamics import arm_override
 
     if identify is not None and not events:
@@ -342,7 +342,7 @@ def predict_command(
         if detector is None and model.detector_config() is None:
             raise InputError("model carries no contact detector; give --calibration",
                              model_path)
-        paths = [path for source in sessions for path in session_paths(source)]
+        paths = source_sessions(sessions)
         own = {} if identify is False or dynamics is not None or calibration is not None \
             else _self_identified(model, paths, robot, forced=bool(identify),
                                   workers=workers)
@@ -469,7 +469,6 @@ def calibrate_command(
     of free motion and holds, calibrate, then pass --calibration robot.json to replay
     and predict."""
     from contactkit.classify.events.calibrate import calibrate_sessions
-    from contactkit.classify.prediction import session_paths
     from contactkit.robots.dynamics import arm_override
 
     check_target(out, overwrite=overwrite)
@@ -477,7 +476,7 @@ def calibrate_command(
     for flag, value in (("--margin", margin), ("--motion-margin", motion_margin)):
         if value is not None and not 1.0 <= value < math.inf:  # NaN fails too
             raise InputError(f"{flag} must be a finite number of at least 1, got {value}")
-    paths = [p for source in sessions for p in session_paths(source)]
+    paths = source_sessions(sessions)
     problems: list[tuple[str, str]] = []
     with progress_bar("calibrating") as bar:
         config = calibrate_sessions(paths, margin=margin, workers=workers,

@@ -313,8 +313,9 @@ def identify_command(
     classify and recorder commands, or store it with sessions (recorder set-robot
     --dynamics).
     """
-    from contactkit.features.identification import identify_sessions, session_inputs
+    from contactkit.features.identification import identify_sessions
     from contactkit.robots.dynamics import save_dynamics
+    from contactkit.schemas.dataset import source_sessions
 
     if cross_fitted and out is not None:
         raise InputError("--cross-fitted stores each half's arm in the other half's "
@@ -328,7 +329,7 @@ def identify_command(
         raise InputError("--model is for --around-contacts or --cross-fitted: without "
                          "them, identification uses free-motion sessions only and finds no "
                          "contact")
-    paths = session_inputs(sessions)
+    paths = source_sessions(sessions)
     problems: list[tuple[str, str]] = []
     finder = None  # the detector that finds the contacts to cut out
     if around_contacts or cross_fitted:
