@@ -27,7 +27,6 @@ from contactkit.schemas import InputError, read_session
 from contactkit.schemas.dataset import source_sessions
 from contactkit.schemas.features import FEATURES_KEY
 from contactkit.util.parallel import map_ordered
-from contactkit.util.progress import ProgressCallback
 
 if TYPE_CHECKING:
     from contactkit.classify.events.contact_events import ContactEvent, EventModel
@@ -142,8 +141,7 @@ def session_contact_events(job: EventsJob) -> tuple[list[ContactEvent] | None, s
 
 def predict_events(model: ModelFile, paths: Sequence[Path], detector: DetectorConfig | None,
                    decide_after_s: float | None = None, robot: RobotChoice = None,
-                   own: Mapping[Path, ArmDynamics] | None = None, *, workers: int = 1,
-                   progress: ProgressCallback | None = None
+                   own: Mapping[Path, ArmDynamics] | None = None, *, workers: int = 1
                    ) -> Iterator[tuple[Path, list[ContactEvent] | None, str | None]]:
     """Yield ``(path, events, problem)`` for each session of ``paths``, in order: the
     contact events ``model`` decides, found by ``detector`` (None: the thresholds of the
@@ -164,6 +162,6 @@ def predict_events(model: ModelFile, paths: Sequence[Path], detector: DetectorCo
             chosen = dynamics_detector(own[path]) or detector
         jobs.append(EventsJob(path, chosen, fallback, events_model, decide_after_s, arm))
     for path, (events, problem) in zip(paths, map_ordered(
-            session_contact_events, jobs, workers=min(workers, max(1, len(jobs))),
-            progress=progress), strict=True):
+            session_contact_events, jobs, workers=min(workers, max(1, len(jobs)))),
+            strict=True):
         yield path, events, problem
