@@ -636,7 +636,8 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
     held-out residuals is left out of that calibration
     (:func:`~contactkit.features.detector.drop_outliers`: for motion cut out of sessions
     with contact, which may hold a touch the detector missed). ``progress(done,
-    total)`` is called per motion.
+    total)`` counts motions: one step as each one's regressor is summed, and with the
+    leave-one-session-out calibration one more as each one's held-out fit is made.
 
     Returns the :class:`Identified`. Raises InputError (one line) when the motion
     determines nothing: no joint moving, or too little of it."""
@@ -652,13 +653,16 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
                             np.column_stack([phi1, np.zeros((N_JOINTS, 2))]).ravel()])
     scales = prior_scales(prior)
     started = time.perf_counter()
+    whole = len(motions) >= 2
+    steps = len(motions) * (2 if whole and calibrate_detector else 1)
 
-    def normals(pieces: Sequence[Motion]) -> list[tuple[_Normal, np.ndarray]]:
+    def normals(pieces: Sequence[Motion], report: bool = True
+                ) -> list[tuple[_Normal, np.ndarray]]:
         parts = []
         for done, piece in enumerate(pieces, 1):
             parts.append(_session_normal(piece, regress, data, phi2, phi3, len(prior)))
-            if progress is not None:
-                progress(done, len(pieces))
+            if progress is not None and report:
+                progress(done, steps)
         return parts
 
     def fit(sessions: tuple[_Normal, np.ndarray], pull: float, project: bool = True
@@ -668,7 +672,6 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
     def arm(fitted: tuple[np.ndarray, _Normal, Excitation]) -> ArmDynamics:
         return _arm_dynamics(fitted[0], fitted[1], model, phi2, phi3, nominal_links)
 
-    whole = len(motions) >= 2
     parts = _Sessions(normals(motions if whole else [_head(m) for m in motions]))
     folds: list[tuple[Motion, ArmDynamics]] = []
     pull = 1.0
@@ -682,11 +685,13 @@ def identify(motions: Sequence[Motion], setup: RobotSetup, *,
             except InputError as err:  # the other sessions alone determine nothing
                 log.info("%s left out of the detector's calibration: %s", motion.name,
                          err.problem)
+            if progress is not None:
+                progress(len(motions) + i + 1, steps)
         if not folds:
             log.info("no session's residual with the others' fit: the detector is "
                      "calibrated on each session's last %.0f %%", 100 * HOLDOUT)
             whole, pull = False, 1.0
-            parts = _Sessions(normals([_head(m) for m in motions]))
+            parts = _Sessions(normals([_head(m) for m in motions], report=False))
     final = fit(parts.merged(), pull)
     dynamics, excitation = arm(final), final[2]
     method = _method(LEAVE_ONE_OUT if whole else TAIL) | {"prior_pull": pull}
@@ -899,13 +904,18 @@ def identify_sessions(paths: Sequence[str | Path], robot: str | None = None, *,
     ``problems`` its InputError is raised). Raises InputError (one line) when no session
     is left, when the sessions are of different arms (or with and without the hand), or
     when the motion determines nothing. The provenance names each session with its
-    SHA-256 and samples."""
+    SHA-256 and samples. ``progress(done, total)`` counts the sessions as they are
+    read, then :func:`identify`'s steps (its total is first taken as two per session,
+    what it is when every session is used)."""
     from contactkit import __version__
 
     motions: list[Motion] = []
     setups: dict[RobotSetup, str] = {}
     used = []
-    for name in paths:
+    read = len(paths)
+    for done, name in enumerate(paths, 1):
+        if progress is not None:
+            progress(done - 1, 3 * read)
         path = Path(name)
         try:
             if around_contacts is None:
@@ -940,8 +950,10 @@ def identify_sessions(paths: Sequence[str | Path], robot: str | None = None, *,
         provenance["around_contacts"] = {"before_s": AROUND_BEFORE_S,
                                          "after_s": AROUND_AFTER_S,
                                          "detector": around_contacts.source}
+    fitting = None if progress is None else (
+        lambda done, total: progress(read + done, read + total))
     return identify(motions, setup, provenance=provenance, outliers=around_contacts is not None,
-                    progress=progress)
+                    progress=fitting)
 
 
 def _arm(setup: RobotSetup) -> str:

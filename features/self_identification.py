@@ -24,9 +24,11 @@ Units: times [s], joint speeds [rad/s].
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -35,7 +37,7 @@ from contactkit.features.detector import REST_SPEED, DetectorConfig
 from contactkit.features.identification import Identified, identify_sessions
 from contactkit.robots.dynamics import ArmDynamics
 from contactkit.schemas import read_session
-from contactkit.util.parallel import map_ordered
+from contactkit.util.parallel import map_ordered, pool_context
 
 MIN_MOTION_S = 60.0
 """Motion each half must hold for a dataset to identify its own arm [s]: samples with
@@ -126,28 +128,24 @@ def cross_fitted_dynamics(sessions: Sequence[SessionSurvey], detector: DetectorC
     contacts ``detector`` finds with the nominal model (the arm ``robot`` names in place
     of the sessions' own when given); return the two folds, each half scored with the
     arm identified from the other. ``progress(label, done, total)`` follows each
-    identification's sessions, or with ``workers`` > 1 (both halves at once, in two
-    processes) the halves done. InputError (one line) when a half is empty, its
-    sessions are of different arms, or its motion determines nothing."""
+    identification's steps (:func:`~contactkit.features.identification.
+    identify_sessions`), or with ``workers`` > 1 (both halves at once, in two
+    processes) both identifications' steps together. InputError (one line) when a half
+    is empty, its sessions are of different arms, or its motion determines nothing."""
     first, second = halves(sessions)
     if not first or not second:
         raise InputError("cross-fitting needs sessions in both halves: at least two")
     pairs = ((second, first), (first, second))
     if workers > 1:
-        label = "identifying the arm from both halves at once"
-        if progress is not None:
-            progress(label, 0, len(pairs))
-        results = list(map_ordered(
-            _identify_half, [(fitted, detector, robot) for fitted, _ in pairs], workers=2,
-            progress=None if progress is None else (
-                lambda done, total: progress(label, done, total))))
+        results = _identify_halves_at_once([fitted for fitted, _ in pairs], detector, robot,
+                                           progress)
     else:
         results = []
         for k, (fitted, _) in enumerate(pairs, 1):
             label = f"identifying the arm from half {3 - k} of 2"
             counted = None if progress is None else (
                 lambda done, total, label=label: progress(label, done, total))
-            results.append(_identify_half((fitted, detector, robot), counted))
+            results.append(_identify_half((fitted, detector, robot, None), counted))
     folds = []
     for (fitted, scored), (identified, problem) in zip(pairs, results, strict=True):
         if identified is None:
@@ -156,12 +154,57 @@ def cross_fitted_dynamics(sessions: Sequence[SessionSurvey], detector: DetectorC
     return folds
 
 
-def _identify_half(job: tuple[list[Path], DetectorConfig, str | None],
+def _identify_halves_at_once(fitted: Sequence[list[Path]], detector: DetectorConfig,
+                             robot: str | None,
+                             progress: Callable[[str, int, int], None] | None
+                             ) -> list[tuple[Identified | None, str | None]]:
+    """Return :func:`_identify_half` of each of ``fitted``, all at once in as many
+    processes. The workers' steps reach ``progress`` through a queue, summed over the
+    halves (a half that has not reported yet counts three steps per session, what
+    :func:`~contactkit.features.identification.identify_sessions` first counts)."""
+    jobs = [(half, detector, robot) for half in fitted]
+    if progress is None:
+        return list(map_ordered(_identify_half, [(*job, None) for job in jobs],
+                                workers=len(jobs)))
+    label = "identifying the arm from both halves at once"
+    steps = [(0, 3 * len(half)) for half in fitted]
+    progress(label, 0, sum(total for _, total in steps))
+    context, _, _ = pool_context()
+    with context.Manager() as manager:
+        reports = manager.Queue()
+
+        def relay() -> None:
+            while (report := reports.get()) is not None:
+                half, done, total = report
+                steps[half] = (done, total)
+                progress(label, sum(d for d, _ in steps), sum(t for _, t in steps))
+
+        relaying = threading.Thread(target=relay, name="identify-progress", daemon=True)
+        relaying.start()
+        try:
+            return list(map_ordered(_identify_half, [(*job, (reports, k))
+                                                     for k, job in enumerate(jobs)],
+                                    workers=len(jobs)))
+        finally:
+            reports.put(None)
+            relaying.join()
+
+
+def _identify_half(job: tuple[list[Path], DetectorConfig, str | None, tuple[Any, int] | None],
                    progress: Callable[[int, int], None] | None = None
                    ) -> tuple[Identified | None, str | None]:
     """Identify the arm of one half's sessions around the contacts the detector finds;
-    return it and None, or None and why not (one line: a worker's result is data)."""
-    fitted, detector, robot = job
+    return it and None, or None and why not (one line: a worker's result is data).
+    The job's last item, a queue and the half's number (or None), sends the
+    identification's steps as ``(half, done, total)`` to the process that mapped it;
+    else they go to ``progress``."""
+    fitted, detector, robot, reports = job
+    if reports is not None:
+        queue, half = reports
+
+        def progress(done: int, total: int) -> None:
+            queue.put((half, done, total))
+
     try:
         return identify_sessions(fitted, robot, around_contacts=detector, problems=[],
                                  progress=progress), None

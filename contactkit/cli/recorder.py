@@ -349,7 +349,7 @@ def identify_command(
         with progress_bar("identifying") as bar:
             result = identify_sessions(paths, robot, around_contacts=finder,
                                        problems=problems,
-                                       progress=bar_callback(bar, "sessions"))
+                                       progress=bar_callback(bar, "steps (read, fit, held out)"))
         print_problems(problems)
         save_dynamics(out, result.dynamics, overwrite=overwrite)
         _print_identified(str(out), result)

@@ -487,6 +487,36 @@ def test_predict_events_identifies_a_moving_dataset_from_itself(
         map(json.dumps, by_fold))
 
 
+def test_both_halves_at_once_report_every_step_and_identify_the_same_arms(
+        mixed_motion, quick_model) -> None:
+    """cross_fitted_dynamics with two workers relays both identifications' steps
+    (sessions read, regressors summed, held-out fits) from the worker processes to one
+    bar, from 0 to three steps per session; the arms are those of one worker."""
+    from contactkit.features import self_identification as own
+
+    detector = load_model(quick_model, lazy=True).detector_config()
+    surveyed = own.survey(mixed_motion)
+    steps: dict[int, list[tuple[str, int, int]]] = {1: [], 2: []}
+    arms = {}
+    for workers in (1, 2):
+        folds = own.cross_fitted_dynamics(
+            surveyed, detector, workers=workers,
+            progress=lambda label, done, total, w=workers: steps[w].append(
+                (label, done, total)))
+        arms[workers] = [(fold.scored, fold.identified.dynamics.inertias,
+                          fold.identified.dynamics.friction,
+                          fold.identified.dynamics.detector) for fold in folds]
+    assert arms[1] == arms[2]
+    assert {label for label, _, _ in steps[2]} == {
+        "identifying the arm from both halves at once"}
+    done = [d for _, d, _ in steps[2]]
+    assert done[0] == 0 and done == sorted(done) and len(done) > 2 * len(mixed_motion)
+    assert steps[2][-1][1:] == (3 * len(mixed_motion), 3 * len(mixed_motion))
+    for half in {label for label, _, _ in steps[1]}:  # one bar per half with one worker
+        ends = [(d, t) for label, d, t in steps[1] if label == half]
+        assert ends[0][0] == 0 and ends[-1][0] == ends[-1][1] > 0
+
+
 def test_predict_identify_options_are_checked_in_one_line(tmp_path, mixed_motion,
                                                          quick_model, identified) -> None:
     """--identify needs --events and no --dynamics; forced on sessions whose halves
