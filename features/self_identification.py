@@ -199,17 +199,21 @@ def _identify_half(job: tuple[list[Path], DetectorConfig, str | None, tuple[Any,
     identification's steps as ``(half, done, total)`` to the process that mapped it;
     else they go to ``progress``."""
     fitted, detector, robot, reports = job
-    if reports is not None:
-        queue, half = reports
-
-        def progress(done: int, total: int) -> None:
-            queue.put((half, done, total))
-
     try:
         return identify_sessions(fitted, robot, around_contacts=detector, problems=[],
-                                 progress=progress), None
+                                 progress=progress if reports is None else _sender(*reports)
+                                 ), None
     except InputError as err:
         return None, err.problem
+
+
+def _sender(queue: Any, half: int) -> Callable[[int, int], None]:
+    """Return a ``(done, total)`` callback that puts ``(half, done, total)`` on
+    ``queue`` (a manager's queue, which a worker process can reach)."""
+    def send(done: int, total: int) -> None:
+        queue.put((half, done, total))
+
+    return send
 
 
 def dynamics_by_session(folds: Sequence[Fold]) -> dict[Path, ArmDynamics]:
