@@ -162,6 +162,5 @@ def predict_events(model: ModelFile, paths: Sequence[Path], detector: DetectorCo
             chosen = dynamics_detector(own[path]) or detector
         jobs.append(EventsJob(path, chosen, fallback, events_model, decide_after_s, arm))
     for path, (events, problem) in zip(paths, map_ordered(
-            session_contact_events, jobs, workers=min(workers, max(1, len(jobs)))),
-            strict=True):
+            session_contact_events, jobs, workers=workers), strict=True):
         yield path, events, problem
