@@ -905,7 +905,7 @@ def identify_sessions(paths: Sequence[str | Path], robot: str | None = None, *,
     is left, when the sessions are of different arms (or with and without the hand), or
     when the motion determines nothing. The provenance names each session with its
     SHA-256 and samples. ``progress(done, total)`` counts the sessions as they are
-    read, then :func:`identify`'s steps (its total is first taken as two per session,
+    read, then :func:`identify`'s steps (the total is first :func:`progress_steps`,
     what it is when every session is used)."""
     from contactkit import __version__
 
@@ -913,9 +913,9 @@ def identify_sessions(paths: Sequence[str | Path], robot: str | None = None, *,
     setups: dict[RobotSetup, str] = {}
     used = []
     read = len(paths)
-    for done, name in enumerate(paths, 1):
+    for done, name in enumerate(paths):
         if progress is not None:
-            progress(done - 1, 3 * read)
+            progress(done, progress_steps(read))
         path = Path(name)
         try:
             if around_contacts is None:
@@ -954,6 +954,12 @@ def identify_sessions(paths: Sequence[str | Path], robot: str | None = None, *,
         lambda done, total: progress(read + done, read + total))
     return identify(motions, setup, provenance=provenance, outliers=around_contacts is not None,
                     progress=fitting)
+
+
+def progress_steps(sessions: int) -> int:
+    """Return the steps :func:`identify_sessions` counts for ``sessions`` sessions that
+    are all used: each one read, its regressor summed and its held-out fit made."""
+    return 3 * sessions
 
 
 def _arm(setup: RobotSetup) -> str:

@@ -34,7 +34,7 @@ import numpy as np
 
 from contactkit.errors import DATA_ERRORS, InputError, problem_text
 from contactkit.features.detector import REST_SPEED, DetectorConfig
-from contactkit.features.identification import Identified, identify_sessions
+from contactkit.features.identification import Identified, identify_sessions, progress_steps
 from contactkit.robots.dynamics import ArmDynamics
 from contactkit.schemas import read_session
 from contactkit.util.parallel import map_ordered, pool_context
@@ -160,14 +160,14 @@ def _identify_halves_at_once(fitted: Sequence[list[Path]], detector: DetectorCon
                              ) -> list[tuple[Identified | None, str | None]]:
     """Return :func:`_identify_half` of each of ``fitted``, all at once in as many
     processes. The workers' steps reach ``progress`` through a queue, summed over the
-    halves (a half that has not reported yet counts three steps per session, what
-    :func:`~contactkit.features.identification.identify_sessions` first counts)."""
+    halves (a half that has not reported yet counts
+    :func:`~contactkit.features.identification.progress_steps`)."""
     jobs = [(half, detector, robot) for half in fitted]
     if progress is None:
         return list(map_ordered(_identify_half, [(*job, None) for job in jobs],
                                 workers=len(jobs)))
     label = "identifying the arm from both halves at once"
-    steps = [(0, 3 * len(half)) for half in fitted]
+    steps = [(0, progress_steps(len(half))) for half in fitted]
     progress(label, 0, sum(total for _, total in steps))
     context, _, _ = pool_context()
     with context.Manager() as manager:
